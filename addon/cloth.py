@@ -1,0 +1,293 @@
+"""The scripting API of the native core: a tearable cloth stepped in time, without Blender.
+
+    import numpy as np
+    from tearcloth import Cloth, material
+    cloth = Cloth(vertices, triangles, material("cotton"))
+    cloth.pin(np.flatnonzero(vertices[:, 2] > 0.99))
+    left = cloth.add_handle(left_indices)
+    cloth.move_handle(left, offset=(-0.01, 0, 0))
+    cloth.step(1e-3, substeps=1)
+    cloth.positions, cloth.stress, cloth.handle_force(left)
+
+Arrays come back as read-only numpy views of the native memory (no copy). A view keeps the memory
+it was made from alive; after a step that tore, take a new one to see the added vertices.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from . import _native
+from .materials import Material, material as _preset
+
+ClothError = _native.ClothError
+InvalidInputError = _native.InvalidInputError
+SimulationError = _native.SimulationError
+
+
+@dataclass(frozen=True)
+class TopologyEvents:
+    """What the last step changed, so clusters, meshes and caches update incrementally.
+
+    new_vertices: indices of vertices added; parents (k, 2): where each came from (second parent
+    -1 for a duplicate made when the cloth separated); weights: weight of the first parent;
+    changed_triangles: existing triangles whose vertex indices changed; new_triangles: indices of
+    added triangles; tips: vertices at the end of running tears.
+    """
+
+    new_vertices: np.ndarray
+    parents: np.ndarray
+    weights: np.ndarray
+    changed_triangles: np.ndarray
+    new_triangles: np.ndarray
+    tips: np.ndarray
+
+    def __bool__(self) -> bool:
+        return bool(len(self.new_vertices) or len(self.changed_triangles) or len(self.new_triangles))
+
+
+def _f64(a, name: str, cols: int | None = None) -> np.ndarray:
+    arr = np.ascontiguousarray(a, dtype=np.float64)
+    if cols is not None and (arr.ndim != 2 or arr.shape[1] != cols):
+        raise InvalidInputError(f"{name} must have shape (N, {cols}), got {arr.shape}")
+    return arr
+
+
+def _i32(a, name: str) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iub":
+        raise InvalidInputError(f"{name} must hold integers, got dtype {arr.dtype}")
+    if arr.dtype == np.bool_:
+        arr = np.flatnonzero(arr)
+    if arr.size and (arr.max() > np.iinfo(np.int32).max or arr.min() < np.iinfo(np.int32).min):
+        raise InvalidInputError(f"{name} has indices beyond int32")
+    return np.ascontiguousarray(arr, dtype=np.int32)
+
+
+class Cloth:
+    """A triangle-mesh sheet simulated by the native core (co-rotational FEM, implicit Euler)."""
+
+    def __init__(
+        self,
+        vertices,
+        triangles,
+        material: Material | str | None = None,
+        *,
+        rest=None,
+        uv=None,
+        groups: Mapping[str, Sequence[float]] | None = None,
+        gravity: Sequence[float] = (0.0, 0.0, -9.81),
+    ):
+        """vertices (n, 3) m; triangles (m, 3) counter-clockwise; rest: None (rest = vertices),
+        (n, 3) rest positions or (n, 2) material coordinates in metres; uv: per-corner (m, 3, 2) or
+        per-vertex (n, 2) texture coordinates, carried through tears; groups: vertex-group weights
+        by name, carried through tears (a split vertex interpolates, a duplicate copies)."""
+        v = _f64(vertices, "vertices", 3)
+        t = _i32(triangles, "triangles")
+        if t.ndim != 2 or t.shape[1] != 3:
+            raise InvalidInputError(f"triangles must have shape (M, 3), got {t.shape}")
+        rest_arr = None if rest is None else _f64(rest, "rest")
+        corner_uv = None
+        if uv is not None:
+            u = np.asarray(uv, dtype=np.float64)
+            if u.shape == (len(v), 2):
+                u = u[t]
+            if u.shape != (len(t), 3, 2):
+                raise InvalidInputError(
+                    f"uv must be per vertex ({len(v)}, 2) or per corner ({len(t)}, 3, 2), got {u.shape}"
+                )
+            corner_uv = np.ascontiguousarray(u)
+        self.group_names: list[str] = []
+        group_arr = None
+        if groups:
+            self.group_names = list(groups)
+            cols = []
+            for name in self.group_names:
+                w = np.asarray(groups[name], dtype=np.float64).reshape(-1)
+                if len(w) != len(v):
+                    raise InvalidInputError(f"vertex group {name!r} has {len(w)} weights for {len(v)} vertices")
+                cols.append(w)
+            group_arr = np.ascontiguousarray(np.stack(cols, axis=1))
+        self._c = _native.Cloth(v, t, rest_arr, corner_uv, group_arr)
+        self.set_material(material if material is not None else _preset("cotton"))
+        self._c.set_solver(gravity=tuple(float(g) for g in gravity))
+        self._handles: dict[int, np.ndarray] = {}
+
+    # ---- settings ----
+    def set_material(self, mat: Material | str | None = None, **changes) -> None:
+        if isinstance(mat, str):
+            mat = _preset(mat)
+        if mat is None:
+            mat = self.material
+        if changes:
+            mat = Material(**{**mat.__dict__, **changes})
+        mat.validate()
+        self._material = mat
+        self._c.set_material(**mat.native_kwargs())
+
+    @property
+    def material(self) -> Material:
+        return self._material
+
+    def set_solver(self, **settings) -> None:
+        """gravity (m/s^2), cg_tolerance, cg_max_iterations, max_stretch, contact_max_push (m/s)."""
+        if "gravity" in settings:
+            settings["gravity"] = tuple(float(g) for g in settings["gravity"])
+        self._c.set_solver(**settings)
+
+    @property
+    def solver(self) -> dict:
+        return self._c.solver()
+
+    def set_tearing(self, enabled: bool = True, **settings) -> None:
+        """enabled, scan_period (steps for one sweep of the whole mesh while a tear runs),
+        min_angle_deg (no new triangle gets a smaller angle)."""
+        self._c.set_tearing(enabled=bool(enabled), **settings)
+
+    @property
+    def tearing(self) -> dict:
+        return self._c.tearing()
+
+    # ---- sizes and arrays ----
+    @property
+    def num_vertices(self) -> int:
+        return self._c.counts()[0]
+
+    @property
+    def num_triangles(self) -> int:
+        return self._c.counts()[1]
+
+    def _array(self, which: int) -> np.ndarray:
+        return np.asarray(self._c.array(which))
+
+    positions = property(lambda self: self._array(_native.POSITIONS), doc="(n, 3) m")
+    velocities = property(lambda self: self._array(_native.VELOCITIES), doc="(n, 3) m/s")
+    rest_positions = property(lambda self: self._array(_native.REST), doc="(n, 3) m")
+    masses = property(lambda self: self._array(_native.MASSES), doc="(n,) kg, lumped")
+    forces = property(lambda self: self._array(_native.FORCES), doc="(n, 3) N: elastic + bending + gravity")
+    triangles = property(lambda self: self._array(_native.TRIANGLES), doc="(m, 3) int32")
+    corner_uv = property(lambda self: self._array(_native.CORNER_UV), doc="(m, 3, 2)")
+    stress = property(lambda self: self._array(_native.STRESS), doc="(m, 3, 3) Pa, world axes")
+    principal_stress = property(lambda self: self._array(_native.PRINCIPAL), doc="(m, 2) Pa, largest first")
+    principal_direction = property(lambda self: self._array(_native.PRINCIPAL_DIR), doc="(m, 3) unit")
+    tear_strength = property(lambda self: self._array(_native.TEAR_STRENGTH), doc="(n,) factor on tear_stress")
+
+    def group(self, name: str) -> np.ndarray:
+        """Weights of a vertex group (carried through tears)."""
+        try:
+            k = self.group_names.index(name)
+        except ValueError:
+            raise KeyError(f"no vertex group {name!r}; groups: {self.group_names}") from None
+        return self._array(_native.GROUPS)[:, k]
+
+    def set_positions(self, x) -> None:
+        self._c.set_positions(_f64(x, "positions", 3))
+
+    def set_velocities(self, v) -> None:
+        self._c.set_velocities(_f64(v, "velocities", 3))
+
+    def set_tear_strength(self, factor) -> None:
+        self._c.set_tear_strength(np.ascontiguousarray(factor, dtype=np.float64).reshape(-1))
+
+    # ---- constraints ----
+    def _indices(self, sel, threshold: float = 0.5) -> np.ndarray:
+        if isinstance(sel, str):
+            return np.flatnonzero(self.group(sel) >= threshold).astype(np.int32)
+        return _i32(sel, "vertices").reshape(-1)
+
+    def pin(self, vertices, pinned: bool = True) -> None:
+        """Pin vertices (indices, a boolean mask or a vertex-group name) in place."""
+        self._c.pin(self._indices(vertices), pinned)
+
+    def add_handle(self, vertices) -> int:
+        """Grasp vertices (indices, mask or group name) as one handle; returns the handle id."""
+        idx = self._indices(vertices)
+        h = self._c.add_handle(idx)
+        self._handles[h] = idx
+        return h
+
+    def set_handle_target(self, handle: int, matrix) -> None:
+        """Move a handle to an affine map (3x4 or 4x4) of its grasp-time positions by the end of the
+        next step."""
+        m = np.asarray(matrix, dtype=np.float64)
+        if m.shape == (4, 4):
+            m = m[:3]
+        if m.shape != (3, 4):
+            raise InvalidInputError(f"handle target must be 3x4 or 4x4, got {m.shape}")
+        self._c.set_handle_target(int(handle), np.ascontiguousarray(m))
+
+    def move_handle(self, handle: int, offset: Sequence[float]) -> None:
+        """Translate a handle by offset (m) from where it was grasped."""
+        m = np.eye(3, 4)
+        m[:, 3] = np.asarray(offset, dtype=np.float64)
+        self.set_handle_target(handle, m)
+
+    def release_handle(self, handle: int) -> None:
+        self._c.release_handle(int(handle))
+
+    def handle_force(self, handle: int) -> np.ndarray:
+        """Eq. (6): sum of elastic + external forces over the handle's vertices (N) - the force the
+        cloth exerts on the hand holding it."""
+        return np.array(self._c.handle_force(int(handle)))
+
+    def pin_force(self) -> np.ndarray:
+        """Sum of elastic + external forces over pinned vertices (N): minus the pins' reaction."""
+        return np.array(self._c.pin_force())
+
+    def set_contacts(self, vertex, normal, depth, velocity=None, friction=None) -> None:
+        """Contacts for the next step: vertex (k,), unit push-out normal (k, 3), depth (k,) m,
+        velocity of the touched surface (k, 3) m/s, friction coefficient (k,) or a scalar."""
+        vertex = _i32(vertex, "vertex").reshape(-1)
+        k = len(vertex)
+        if friction is not None and np.ndim(friction) == 0:
+            friction = np.full(k, float(friction))
+        self._c.set_contacts(
+            vertex,
+            _f64(normal, "normal").reshape(k, 3) if k else np.zeros((0, 3)),
+            _f64(depth, "depth").reshape(-1),
+            None if velocity is None else (_f64(velocity, "velocity").reshape(k, 3) if k else np.zeros((0, 3))),
+            None if friction is None else _f64(friction, "friction").reshape(-1),
+        )
+
+    def clear_contacts(self) -> None:
+        self._c.set_contacts(np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0))
+
+    # ---- time ----
+    def step(self, dt: float, substeps: int = 1) -> None:
+        """Advance dt seconds in `substeps` implicit steps (the GIL is released meanwhile).
+        Raises SimulationError (state rolled back) if the step blew up."""
+        self._c.step(float(dt), int(substeps))
+
+    def stats(self) -> dict:
+        return self._c.stats()
+
+    def energy(self) -> dict:
+        """kinetic, elastic, bending, gravity (J)."""
+        return self._c.energy()
+
+    # ---- tearing ----
+    def events(self) -> TopologyEvents:
+        raw = self._c.events()
+        return TopologyEvents(
+            new_vertices=np.frombuffer(raw["new_vertices"], dtype=np.int32),
+            parents=np.frombuffer(raw["parents"], dtype=np.int32).reshape(-1, 2),
+            weights=np.frombuffer(raw["weights"], dtype=np.float64),
+            changed_triangles=np.frombuffer(raw["changed_triangles"], dtype=np.int32),
+            new_triangles=np.frombuffer(raw["new_triangles"], dtype=np.int32),
+            tips=np.frombuffer(raw["tips"], dtype=np.int32),
+        )
+
+    def scripted_tear(self, vertex: int, direction: Sequence[float], length: float) -> int:
+        """Tear from `vertex` along `direction` (projected on the surface) for `length` metres,
+        whatever the stress; returns the number of cut segments."""
+        d = tuple(float(x) for x in direction)
+        if len(d) != 3:
+            raise InvalidInputError("direction must have 3 components")
+        return self._c.scripted_tear(int(vertex), d, float(length))
+
+    def vertex_stress(self, vertex: int) -> tuple[float, np.ndarray]:
+        """Largest principal stress at a vertex (Pa) and its unit direction."""
+        value, d = self._c.vertex_stress(int(vertex))
+        return value, np.array(d)

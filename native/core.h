@@ -1,0 +1,175 @@
+/* core.h - internal layout of a cloth, shared by the core's source files (not installed).
+ *
+ * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The stiffness
+ * matrix is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils), not
+ * in CSR: a tear adds or removes a handful of pairs without rebuilding any pattern, and the
+ * symmetric matrix-vector product over pairs costs the same flops as a full CSR product.
+ */
+#ifndef TEARCLOTH_CORE_H
+#define TEARCLOTH_CORE_H
+
+#include "tearcloth.h"
+
+#include <stdatomic.h>
+#include <stdbool.h>
+
+struct tc_buf {
+    atomic_int refs;
+    size_t bytes;
+    _Alignas(16) unsigned char data[];
+};
+
+tc_buf *tc_buf_new(size_t bytes);
+
+/* A growable array of fixed-size items in a tc_buf. */
+typedef struct tc_vec {
+    tc_buf *buf;
+    size_t len, cap, item;
+} tc_vec;
+
+int tc_vec_init(tc_vec *v, size_t item, size_t cap);
+void tc_vec_free(tc_vec *v);
+int tc_vec_reserve(tc_vec *v, size_t cap);       /* keeps contents; never shrinks */
+int tc_vec_resize(tc_vec *v, size_t len);        /* new items are zeroed */
+static inline void *tc_vec_ptr(const tc_vec *v) { return v->buf ? (void *)v->buf->data : 0; }
+
+enum { VC_FREE = 0, VC_PINNED = 1, VC_HANDLE = 2, VC_CONTACT = 3 };
+
+typedef struct tc_handle {
+    bool active;
+    int32_t count;
+    int32_t *verts;          /* members; kept current through tears */
+    double *grasp;           /* positions at grasp time, 3 per member */
+    double prev[12], target[12]; /* affine maps: start and end of the current step */
+    double force[3];
+} tc_handle;
+
+typedef struct tc_stencil {
+    int32_t v[4];            /* shared edge v0-v1, opposite vertices v2, v3 */
+    double q[4];             /* cotangent weights K; Q = coef K K^T */
+    double coef;             /* 1 / (A0 + A1), see mesh.c */
+    int32_t pair;            /* the edge pair that owns this stencil */
+} tc_stencil;
+
+struct tc_cloth {
+    tc_material mat;
+    tc_solver_settings solver;
+    tc_tear_settings tear;
+    char err[512];
+
+    int32_t nv, nt;
+    int ng;
+
+    /* per vertex */
+    tc_vec x, v, rest, mass, force, groups, strength;
+    tc_vec vtri;             /* int32: one incident triangle, -1 if isolated */
+    tc_vec vflag;            /* int8: VC_* constraint kind for the step being solved */
+    tc_vec vhandle;          /* int32: handle id or -1 */
+    tc_vec vpin;             /* int8: pinned by the user */
+    tc_vec vbend;            /* bending diagonal scalar (stiffness included) */
+
+    /* per triangle */
+    tc_vec tri;              /* int32 x3 */
+    tc_vec tpair;            /* int32 x3: pair id of edge k */
+    tc_vec grad;             /* double x4: shape gradients g1, g2 (2-D, rest frame) */
+    tc_vec area;             /* double: rest area */
+    tc_vec rot;              /* double x6: current rotation R (3x2, column-major: col0 xyz, col1 xyz) */
+    tc_vec sig;              /* double x3: local 2-D stress (xx, yy, xy) */
+    tc_vec stress;           /* double x9 world stress */
+    tc_vec principal;        /* double x2 */
+    tc_vec pdir;             /* double x3 */
+    tc_vec uv;               /* double x6 corner uv */
+
+    /* pairs (off-diagonal blocks) */
+    tc_vec pi, pj;           /* int32 endpoints, pi < pj; -1 when free */
+    tc_vec puse;             /* int32 number of triangle edges + stencils using the pair */
+    tc_vec ptris;            /* int32 x2 triangles on this edge (-1 none) */
+    tc_vec pstencil;         /* int32 stencil owned by this edge or -1 */
+    tc_vec pbend;            /* double: bending scalar for the pair */
+    tc_vec pblock;           /* double x9: system block A_ij for i = pi, j = pj */
+    tc_vec pfree;            /* int32 stack of free pair ids */
+    /* hash (min,max) -> pair id, open addressing, power-of-two capacity */
+    int32_t *hkeys_i, *hkeys_j, *hvals;
+    size_t hcap, hcount, htomb;
+
+    tc_vec stencils;         /* tc_stencil */
+    tc_vec sfree;            /* int32 free stencil ids */
+
+    /* handles */
+    tc_handle *handles;
+    int32_t nh, hcap_handles;
+
+    /* contacts, per step */
+    tc_vec cvert, cnormal, cdepth, cvel, cfric;
+
+    /* solver scratch, sized to 3 * vertex capacity */
+    tc_vec diag;             /* 9 per vertex */
+    tc_vec pinv;             /* 9 per vertex */
+    tc_vec sb, sr, sz, sp, sq, sfix, snorm, x0, v0, fel;
+
+    /* tearing state */
+    tc_vec vs9, vsn, vsa;    /* tearing scratch: per-vertex stress sum (9), normal (3), area (1) */
+    tc_vec tips;             /* int32 vertex ids of running tear tips */
+    tc_vec tipdir;           /* double x3 preferred direction of each tip */
+    int32_t scan_cursor;
+    bool tearing_running;
+    /* events */
+    tc_vec ev_newv, ev_par, ev_w, ev_chg, ev_newt;
+
+    tc_stats stats;
+    bool dirty;              /* element state (rotations, stresses, forces) stale */
+    bool topo_dirty;         /* topology changed: masses and bending need refresh */
+};
+
+/* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel
+ * still runs at full speed on machines that have them. */
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && !defined(TC_NO_CLONES)
+#define TC_HOT __attribute__((target_clones("arch=x86-64-v3", "default")))
+#else
+#define TC_HOT
+#endif
+
+/* mesh.c */
+int tc_mesh_build(tc_cloth *c, char *msg, size_t msz);
+int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b);
+int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b);  /* find or create, use += 1 */
+void tc_pair_release(tc_cloth *c, int32_t p);                 /* use -= 1, frees at 0 */
+int tc_tri_rest(tc_cloth *c, int32_t t, char *msg, size_t msz);
+void tc_masses_update(tc_cloth *c);
+int tc_stencil_add(tc_cloth *c, int32_t edge_pair);
+void tc_stencil_remove(tc_cloth *c, int32_t edge_pair);
+int tc_reserve_vertices(tc_cloth *c, int32_t n);
+int tc_reserve_triangles(tc_cloth *c, int32_t m);
+int32_t tc_tri_local(const tc_cloth *c, int32_t t, int32_t v);
+/* neighbour of triangle t across its edge k (opposite local vertex k), -1 on a boundary */
+static inline int32_t tc_nbr(const tc_cloth *c, int32_t t, int k)
+{
+    int32_t p = ((const int32_t *)tc_vec_ptr(&c->tpair))[3 * t + k];
+    const int32_t *pt = (const int32_t *)tc_vec_ptr(&c->ptris) + 2 * (size_t)p;
+    return pt[0] == t ? pt[1] : pt[0];
+}
+void tc_set_err(tc_cloth *c, const char *fmt, ...);
+
+/* fem.c */
+void tc_element_pass(tc_cloth *c, const double *x);
+double tc_max_stretch(const tc_cloth *c, const double *x);
+void tc_bending_force(const tc_cloth *c, const double *x, double *f);
+void tc_assemble(tc_cloth *c, double dt);
+void tc_matvec(const tc_cloth *c, const double *p, double *y);
+double tc_elastic_energy(const tc_cloth *c, const double *x);
+double tc_bending_energy(const tc_cloth *c, const double *x);
+
+/* tear.c */
+int tc_tear_step(tc_cloth *c);
+int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3]);
+double tc_now(void);
+void tc_events_clear(tc_cloth *c);
+
+/* small vector helpers */
+static inline double dot3(const double *a, const double *b) { return a[0]*b[0] + a[1]*b[1] + a[2]*b[2]; }
+static inline void sub3(const double *a, const double *b, double *o) { o[0]=a[0]-b[0]; o[1]=a[1]-b[1]; o[2]=a[2]-b[2]; }
+static inline void cross3(const double *a, const double *b, double *o) {
+    o[0] = a[1]*b[2] - a[2]*b[1]; o[1] = a[2]*b[0] - a[0]*b[2]; o[2] = a[0]*b[1] - a[1]*b[0];
+}
+
+#endif

@@ -1,0 +1,197 @@
+/* tearcloth.h - the one public header of the Tear Cloth native core.
+ *
+ * The core simulates a thin surface (cloth, paper) as a co-rotational linear FEM on constant
+ * strain triangles (plane stress) with a quadratic bending energy, integrated by implicit Euler
+ * solved with block-Jacobi preconditioned conjugate gradients, and tears it where the largest
+ * principal stress passes the material's tear stress (Le Gouis et al., WHC 2017, section V).
+ *
+ * Units are SI everywhere: metres, seconds, kilograms, pascals, newtons.
+ *
+ * The core owns the mesh while it simulates: it grows its arrays when tearing adds vertices and
+ * triangles (no fixed pool), and reports each change as topology events so that callers update
+ * clusters, Blender meshes and caches incrementally. Arrays that callers read without copying live
+ * in reference-counted blocks (tc_buf): a reader keeps the block it got alive, so growth never
+ * frees memory under a reader's feet; the reader re-fetches after a topology change.
+ *
+ * No function here touches Python. Every entry point validates its input and returns a TC_ERR_*
+ * code with a message in tc_cloth_error(); nothing aborts.
+ */
+#ifndef TEARCLOTH_H
+#define TEARCLOTH_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+enum {
+    TC_OK = 0,
+    TC_ERR_INPUT = 1,      /* bad argument or bad mesh: the message names the culprit */
+    TC_ERR_NOMEM = 2,      /* allocation failed; the cloth is unchanged */
+    TC_ERR_UNSTABLE = 3,   /* the step produced non-finite values or exploding strain: rolled back */
+};
+
+/* A reference-counted block of memory shared between the core and zero-copy readers. */
+typedef struct tc_buf tc_buf;
+void *tc_buf_data(tc_buf *b);
+void tc_buf_incref(tc_buf *b);
+void tc_buf_decref(tc_buf *b);
+
+/* Material of a thin sheet. Create with tc_material_default(), then change fields. */
+typedef struct tc_material {
+    double young;             /* Young's modulus E (Pa) */
+    double poisson;           /* Poisson ratio nu, in (-1, 0.5) */
+    double thickness;         /* h (m) */
+    double density;           /* rho (kg/m^3); lumped mass = rho h A / 3 per corner */
+    double bending;           /* bending stiffness (N m); physical plate value is E h^3 / 12(1-nu^2) */
+    double damping_mass;      /* Rayleigh alpha (1/s) */
+    double damping_stiffness; /* Rayleigh beta (s) */
+    double tear_stress;       /* sigma_E (Pa): a tear starts where the largest principal stress passes it */
+    double snap_tolerance;    /* fraction of an edge, in [0, 0.5): cut points this close to a vertex snap to it */
+} tc_material;
+
+tc_material tc_material_default(void);
+/* Returns TC_OK or TC_ERR_INPUT with a message in msg (at least 256 bytes). */
+int tc_material_check(const tc_material *m, char *msg, size_t msg_size);
+
+typedef struct tc_solver_settings {
+    double gravity[3];        /* m/s^2 */
+    double cg_tolerance;      /* relative residual of the preconditioned CG */
+    int cg_max_iterations;
+    double max_stretch;       /* a principal stretch above this counts as an explosion: roll back */
+    double contact_max_push;  /* fastest speed (m/s) at which a penetration is resolved, so that
+                                 bodies that start inside the cloth separate without a blast */
+} tc_solver_settings;
+
+tc_solver_settings tc_solver_default(void);
+
+typedef struct tc_cloth tc_cloth;
+
+/* Creates a cloth from n vertices (xyz) and m triangles (vertex indices, counter-clockwise).
+ * rest: NULL (rest shape = positions) or n*rest_dim values: rest_dim = 3 (3-D rest positions) or
+ * 2 (material coordinates in metres, e.g. UVs scaled to size).
+ * corner_uv: NULL or m*3*2 UVs per triangle corner (carried through tears).
+ * groups: NULL or n*n_groups weights per vertex (vertex groups, carried through tears).
+ * On failure returns NULL and writes the reason into msg. */
+tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *triangles, int32_t m,
+                          const double *rest, int rest_dim, const double *corner_uv,
+                          const double *groups, int n_groups, const tc_material *material,
+                          char *msg, size_t msg_size);
+void tc_cloth_destroy(tc_cloth *c);
+const char *tc_cloth_error(const tc_cloth *c);
+
+int tc_cloth_set_material(tc_cloth *c, const tc_material *m);
+tc_material tc_cloth_material(const tc_cloth *c);
+int tc_cloth_set_solver(tc_cloth *c, const tc_solver_settings *s);
+tc_solver_settings tc_cloth_solver(const tc_cloth *c);
+
+int32_t tc_cloth_num_vertices(const tc_cloth *c);
+int32_t tc_cloth_num_triangles(const tc_cloth *c);
+int tc_cloth_num_groups(const tc_cloth *c);
+
+/* Replaces positions / velocities (n*3 values, all finite). */
+int tc_cloth_set_positions(tc_cloth *c, const double *x, int32_t n);
+int tc_cloth_set_velocities(tc_cloth *c, const double *v, int32_t n);
+
+/* Pins (zero velocity) or frees vertices. */
+int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned);
+
+/* Handles: a set of vertices moved rigidly to a target (the grasped part of the cloth).
+ * The target is an affine map (3x4, row-major) applied to the positions the vertices had when the
+ * handle was created; it is reached at the end of the next step, interpolated across sub-steps. */
+int tc_cloth_add_handle(tc_cloth *c, const int32_t *idx, int32_t k, int32_t *handle_out);
+int tc_cloth_set_handle_target(tc_cloth *c, int32_t h, const double affine[12]);
+int tc_cloth_release_handle(tc_cloth *c, int32_t h);
+int32_t tc_cloth_num_handles(const tc_cloth *c);
+/* Force of eq. (6): sum over the handle's vertices of elastic + external forces (N), i.e. the force
+ * the cloth exerts on the hand that holds it. */
+int tc_cloth_handle_force(const tc_cloth *c, int32_t h, double out[3]);
+int tc_cloth_pin_force(const tc_cloth *c, double out[3]);
+
+/* Contacts for the next step (replacing earlier ones): per contact a vertex, a unit push-out normal,
+ * a penetration depth (m, >= 0), the velocity of the touched surface and a friction coefficient. */
+int tc_cloth_set_contacts(tc_cloth *c, const int32_t *vertex, const double *normal,
+                          const double *depth, const double *velocity, const double *friction,
+                          int32_t k);
+
+/* Advances by dt seconds in `substeps` implicit Euler steps. The caller may release the GIL. */
+int tc_cloth_step(tc_cloth *c, double dt, int substeps);
+
+typedef struct tc_stats {
+    int cg_iterations;        /* summed over the sub-steps of the last step */
+    double cg_residual;       /* relative residual at the end of the last solve */
+    double fem_seconds;       /* wall time of the last step without tearing */
+    double tear_seconds;      /* wall time of the tearing part of the last step */
+    int64_t steps;
+    int32_t tears_started;    /* tears started so far */
+    int32_t cuts;             /* cut segments so far */
+    int32_t contacts;         /* contacts active in the last step */
+} tc_stats;
+tc_stats tc_cloth_stats(const tc_cloth *c);
+
+typedef struct tc_energy {
+    double kinetic, elastic, bending, gravity;
+} tc_energy;
+tc_energy tc_cloth_energy(tc_cloth *c);
+
+/* Arrays, readable without copying; the returned block carries a new reference (tc_buf_decref it).
+ * Sizes follow the current vertex / triangle counts. */
+typedef enum tc_array_id {
+    TC_POSITIONS,        /* n x 3 float64 */
+    TC_VELOCITIES,       /* n x 3 float64 */
+    TC_REST,             /* n x 3 float64 */
+    TC_MASSES,           /* n float64 */
+    TC_FORCES,           /* n x 3 float64: elastic + bending + gravity per vertex, last step */
+    TC_GROUPS,           /* n x g float64 */
+    TC_TRIANGLES,        /* m x 3 int32 */
+    TC_CORNER_UV,        /* m x 3 x 2 float64 */
+    TC_STRESS,           /* m x 3 x 3 float64: Cauchy-like stress of each triangle in world axes (Pa) */
+    TC_PRINCIPAL,        /* m x 2 float64: principal stresses, largest first */
+    TC_PRINCIPAL_DIR,    /* m x 3 float64: unit direction of the largest principal stress */
+    TC_TEAR_STRENGTH,    /* n float64: per-vertex factor on tear_stress */
+    TC_ARRAY_COUNT
+} tc_array_id;
+tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, size_t *item_size);
+
+/* ---- tearing ---- */
+typedef struct tc_tear_settings {
+    int enabled;
+    int scan_period;          /* once a tear runs, the rest of the mesh is scanned in slices so that
+                                 every vertex is examined once every scan_period steps */
+    double min_angle_deg;     /* no new triangle gets an angle below this; cuts snap or stop instead */
+} tc_tear_settings;
+tc_tear_settings tc_tear_default(void);
+int tc_cloth_set_tearing(tc_cloth *c, const tc_tear_settings *s);
+tc_tear_settings tc_cloth_tearing(const tc_cloth *c);
+/* Per-vertex factor on the tear stress (1 = the material's, 0.5 = weak seam, large = unbreakable). */
+int tc_cloth_set_tear_strength(tc_cloth *c, const double *factor, int32_t n);
+/* Tears from vertex `start` along `direction` (projected on the surface) for `length` metres,
+ * whatever the stress. Returns the number of cut segments in *cuts. */
+int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3], double length,
+                           int32_t *cuts);
+
+/* Topology events since the last step began (cleared at the start of each step). */
+typedef struct tc_events {
+    int32_t n_new_vertices;
+    const int32_t *new_vertices;   /* indices */
+    const int32_t *parents;        /* 2 per new vertex; second is -1 for a duplicated vertex */
+    const double *weights;         /* weight of the first parent */
+    int32_t n_changed_triangles;
+    const int32_t *changed_triangles;
+    int32_t n_new_triangles;
+    const int32_t *new_triangles;
+    int32_t n_tips;
+    const int32_t *tips;           /* current tear tips (vertex indices) */
+} tc_events;
+tc_events tc_cloth_events(const tc_cloth *c);
+
+/* Largest principal stress of a vertex (area-weighted average of its triangles' stress tensors
+ * projected on its tangent plane) and its direction. */
+int tc_cloth_vertex_stress(tc_cloth *c, int32_t v, double *value, double direction[3]);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

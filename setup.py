@@ -1,0 +1,47 @@
+"""Build of the native core: one abi3 extension (CPython limited API 3.11) so a single wheel per
+platform serves every Blender from 4.2 (Python 3.11) to 5.x (Python 3.13)."""
+import os
+import sys
+
+from setuptools import Extension, setup
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+
+
+def _packages():
+    # The folder addon/ is installed as the package `tearcloth`; its sub-folders follow.
+    found = []
+    for root, dirs, files in os.walk(os.path.join(HERE, "addon")):
+        dirs[:] = [d for d in dirs if not d.startswith((".", "__"))]
+        if "__init__.py" in files:
+            rel = os.path.relpath(root, os.path.join(HERE, "addon"))
+            found.append("tearcloth" if rel == "." else "tearcloth." + rel.replace(os.sep, "."))
+    return sorted(found)
+
+
+NATIVE_SOURCES = sorted(
+    os.path.join("native", f) for f in os.listdir(os.path.join(HERE, "native")) if f.endswith(".c")
+)
+
+if sys.platform == "win32":
+    compile_args = ["/O2", "/std:c17"]
+else:
+    # -fno-math-errno lets sqrt inline; no -ffast-math because the solver relies on NaN checks.
+    compile_args = ["-std=c17", "-O3", "-fno-math-errno", "-Wall", "-Wextra", "-Wno-unused-parameter"]
+
+setup(
+    packages=_packages(),
+    package_dir={"tearcloth": "addon"},
+    package_data={"tearcloth": ["blender_manifest.toml", "data/*"]},
+    ext_modules=[
+        Extension(
+            "tearcloth._native",
+            sources=NATIVE_SOURCES,
+            include_dirs=["native"],
+            define_macros=[("Py_LIMITED_API", "0x030B0000")],
+            py_limited_api=True,
+            extra_compile_args=compile_args,
+        )
+    ],
+    options={"bdist_wheel": {"py_limited_api": "cp311"}},
+)
