@@ -110,7 +110,13 @@ class Cloth:
                     raise InvalidInputError(f"vertex group {name!r} has {len(w)} weights for {len(v)} vertices")
                 cols.append(w)
             group_arr = np.ascontiguousarray(np.stack(cols, axis=1))
-        self._c = _native.Cloth(v, t, rest_arr, corner_uv, group_arr)
+        # rest and groups go down flat; the core checks their length against the vertex count
+        self._c = _native.Cloth(
+            v, t,
+            None if rest_arr is None else rest_arr.reshape(-1),
+            corner_uv,
+            None if group_arr is None else group_arr.reshape(-1),
+        )
         self.set_material(material if material is not None else _preset("cotton"))
         self._c.set_solver(gravity=tuple(float(g) for g in gravity))
         self._handles: dict[int, np.ndarray] = {}

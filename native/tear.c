@@ -8,8 +8,9 @@
  *
  * Which way: orthogonal to the principal direction, in the tangent plane at the tip. The segment
  * goes from the tip through the triangle whose corner holds that direction to the opposite edge;
- * where it meets the edge it snaps to an end vertex when within snap_tolerance of it (or when a
- * split would make a triangle with an angle below min_angle_deg), otherwise the edge is split.
+ * it snaps to an end vertex of that edge when the path passes within snap_tolerance * (edge length)
+ * of it (or when a split would make a triangle with an angle below min_angle_deg), otherwise the
+ * edge is split where the path meets it.
  * So each cut adds at most one vertex and two triangles, and the path follows the stress instead
  * of the mesh edges.
  *
@@ -427,15 +428,26 @@ static int32_t prepare_segment(tc_cloth *c, int32_t v, const double *dir, const 
         }
     }
     if (best_t < 0 || best_score < -0.05) return -1;
+    /* Snap when the path passes within snap_tolerance * |ab| of a or b (distance measured across the
+       path, as WWD14's snapping does): the cut then follows an existing edge, adding nothing. */
     double tol = c->mat.snap_tolerance;
+    double ab[3], dl = sqrt(dot3(dir, dir));
+    sub3(x + 3 * best_b, x + 3 * best_a, ab);
+    double lab = sqrt(dot3(ab, ab)), dperp[2];
+    int32_t ends[2] = {best_a, best_b};
+    for (int i = 0; i < 2; i++) {
+        double e[3], cr[3];
+        sub3(x + 3 * ends[i], x + 3 * v, e);
+        cross3(e, dir, cr);
+        dperp[i] = sqrt(dot3(cr, cr)) / dl;
+    }
     int32_t cand[2];
-    if (best_s < 0.5) { cand[0] = best_a; cand[1] = best_b; }
+    if (dperp[0] <= dperp[1]) { cand[0] = best_a; cand[1] = best_b; }
     else { cand[0] = best_b; cand[1] = best_a; }
-    double snapdist = best_s < 0.5 ? best_s : 1.0 - best_s;
-    int32_t w = -1;
-    if (snapdist >= tol && split_ok(c, best_a, best_b, best_s)) {
+    double dmin = dperp[0] < dperp[1] ? dperp[0] : dperp[1];
+    if (dmin >= tol * lab && split_ok(c, best_a, best_b, best_s)) {
         /* a split edge on the boundary is fine: the tear then ends on the rim at the new vertex */
-        w = split_edge(c, best_a, best_b, best_s);
+        int32_t w = split_edge(c, best_a, best_b, best_s);
         if (w < 0) return -1;
         *pair = tc_pair_find(c, v, w);
         return w;
@@ -445,11 +457,11 @@ static int32_t prepare_segment(tc_cloth *c, int32_t v, const double *dir, const 
         if (p < 0 || in_set(avoid, navoid, p)) continue;
         const int32_t *pt = (const int32_t *)tc_vec_ptr(&c->ptris) + 2 * (size_t)p;
         if (pt[0] < 0 || pt[1] < 0) continue;  /* already a boundary: nothing to cut */
-        /* snapping to the far end of the corner only makes sense if it is not much off the path */
+        /* the farther end only when it is not much off the path (within 45 degrees) */
         if (i == 1) {
             double e[3];
             sub3(x + 3 * cand[i], x + 3 * v, e);
-            if (dot3(e, dir) <= 0.5 * sqrt(dot3(e, e)) * sqrt(dot3(dir, dir))) continue;
+            if (dot3(e, dir) <= 0.7 * sqrt(dot3(e, e)) * dl) continue;
         }
         *pair = p;
         return cand[i];
@@ -684,6 +696,27 @@ static bool is_tip(const tc_cloth *c, int32_t v)
     return false;
 }
 
+/* Around a running tip the stress is concentrated by the tip itself; a second tear there would only
+ * branch the first one, so the slice scan leaves a disc of a few local edge lengths alone. */
+static bool near_tip(const tc_cloth *c, int32_t v)
+{
+    const int32_t *tp = tc_vec_ptr(&c->tips);
+    const double *x = tc_vec_ptr(&c->x);
+    int32_t t = ((const int32_t *)tc_vec_ptr(&c->vtri))[v];
+    const int32_t *T = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)t;
+    double e[3], len = 0.0;
+    for (int k = 0; k < 3; k++) {
+        sub3(x + 3 * T[(k + 1) % 3], x + 3 * T[k], e);
+        len += sqrt(dot3(e, e)) / 3.0;
+    }
+    double r2 = 16.0 * len * len;
+    for (size_t i = 0; i < c->tips.len; i++) {
+        sub3(x + 3 * tp[i], x + 3 * v, e);
+        if (dot3(e, e) < r2) return true;
+    }
+    return false;
+}
+
 int tc_tear_step(tc_cloth *c)
 {
     if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); }
@@ -721,7 +754,7 @@ int tc_tear_step(tc_cloth *c)
     double best_r = 1.0, best_d[3] = {0};
     for (int32_t k = 0; k < slice; k++) {
         int32_t v = (c->scan_cursor + k) % c->nv;
-        if (is_tip(c, v) || held(c, v)) continue;
+        if (is_tip(c, v) || held(c, v) || near_tip(c, v)) continue;
         double n[3], pd[3];
         double sig = vertex_stress(c, v, pd, n);
         double r = ratio_of(c, v, sig);

@@ -20,6 +20,13 @@ def sheet(width=0.2, height=0.05, nx=41, ny=11, jitter=0.0, seed=0, z=0.0):
         for j in range(ny - 1):
             a, b, c, d = idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)
             flip = rng.random() < 0.5 if jitter else (i + j) % 2
+            if jitter:
+                # a jittered quad may be non-convex: keep the diagonal whose triangles stay positive
+                def smallest(tris):
+                    return min(np.cross(V[q[1]] - V[q[0]], V[q[2]] - V[q[0]])[2] for q in tris)
+                ok_flip = smallest([[a, b, c], [a, c, d]]) > 0
+                ok_keep = smallest([[a, b, d], [b, c, d]]) > 0
+                flip = (flip and ok_flip) or not ok_keep
             if flip:
                 T += [[a, b, c], [a, c, d]]
             else:
