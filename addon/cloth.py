@@ -47,6 +47,10 @@ class TopologyEvents:
     def __bool__(self) -> bool:
         return bool(len(self.new_vertices) or len(self.changed_triangles) or len(self.new_triangles))
 
+    def __getitem__(self, key: str) -> np.ndarray:
+        # consumers that take plain dicts of arrays (collision, caches) read events the same way
+        return getattr(self, key)
+
 
 def _f64(a, name: str, cols: int | None = None) -> np.ndarray:
     arr = np.ascontiguousarray(a, dtype=np.float64)

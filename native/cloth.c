@@ -6,9 +6,11 @@
  *   ((1 + dt a) M + (dt^2 + dt b)(K + B)) v1 = M v0 + dt f(x0),  x1 = x0 + dt v1,
  * solved by conjugate gradients preconditioned with the inverse 3x3 diagonal blocks and warm-started
  * from the last velocity. Constraints enter as velocity filters (Baraff & Witkin 1998): pins and
- * handles fix all three components, a contact fixes the normal one. A contact whose reaction would
- * pull (adhesion) is released and the system solved once more; friction then caps the tangential
- * velocity change at mu times the normal impulse.
+ * handles fix all three components, a contact fixes the normal one to the touched surface's
+ * (inelastic). A contact whose reaction would pull (adhesion) is released and the system solved
+ * once more; friction then caps the tangential velocity change at mu times the normal impulse.
+ * Penetration is removed from positions only (at most contact_max_push * dt per step), so pushing
+ * a vertex out never leaves it with velocity to bounce away.
  */
 #include "core.h"
 
@@ -27,7 +29,7 @@ double tc_now(void)
 
 tc_solver_settings tc_solver_default(void)
 {
-    tc_solver_settings s = {.gravity = {0.0, 0.0, -9.81}, .cg_tolerance = 1e-3, .cg_max_iterations = 40,
+    tc_solver_settings s = {.gravity = {0.0, 0.0, -9.81}, .cg_tolerance = 1e-3, .cg_max_iterations = 200,
                             .max_stretch = 20.0, .contact_max_push = 1.0};
     return s;
 }
@@ -506,9 +508,9 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     for (int32_t k = 0; k < nc; k++) {
         int32_t i = cv[k];
         const double *nn = cn + 3 * k;
-        double push = cd[k] / dt;
-        if (push > c->solver.contact_max_push) push = c->solver.contact_max_push;
-        double zn = dot3(cvel + 3 * k, nn) + push;
+        /* inelastic: the normal velocity becomes the surface's; the penetration itself is removed
+           from the position after the solve, so resolving it adds no velocity (no bounce) */
+        double zn = dot3(cvel + 3 * k, nn);
         fl[i] = VC_CONTACT;
         for (int q = 0; q < 3; q++) { N[3 * i + q] = nn[q]; fix[3 * i + q] = zn * nn[q]; }
     }
@@ -569,6 +571,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
             double rn = dot3(rel, nn);
             double vt[3] = {rel[0] - rn * nn[0], rel[1] - rn * nn[1], rel[2] - rn * nn[2]};
             double lt = sqrt(dot3(vt, vt));
+            if (!(jn > 0.0)) continue;  /* no push, no friction (and a negative cap would accelerate) */
             double cap = cf[k] * jn / m[i];  /* Coulomb: tangential impulse <= mu * normal impulse */
             double s = lt > cap ? cap / lt : 1.0;
             for (int q = 0; q < 3; q++) vi[q] -= s * vt[q];
@@ -579,6 +582,16 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     }
 
     for (size_t k = 0; k < n3; k++) x[k] = x0[k] + dt * v[k];
+    for (int32_t k = 0; k < nc; k++) {
+        int32_t i = cv[k];
+        if (fl[i] != VC_CONTACT) continue;  /* released: it is leaving the surface by itself */
+        /* a fraction per step (Baumgarte-like): pushing the whole depth out every step fights the
+           tension that presses a stretched cloth onto a curved body, and that cycle pumps energy */
+        double push = 0.2 * cd[k];
+        double lim = c->solver.contact_max_push * dt;  /* deep starts resolve over a few steps */
+        if (push > lim) push = lim;
+        for (int q = 0; q < 3; q++) x[3 * i + q] += push * N[3 * i + q];
+    }
     double worst = tc_max_stretch(c, x);
     int bad = !(worst == worst) || worst > c->solver.max_stretch;
     for (size_t k = 0; k < n3 && !bad; k++) bad = !isfinite(v[k]);

@@ -1,0 +1,36 @@
+"""The `tearcloth` command: `bench` (speed, as JSON) and `demo` (the main job, end to end)."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(prog="tearcloth", description="Tear Cloth: tearing cloth for Blender and haptics")
+    sub = p.add_subparsers(dest="command", required=True)
+    b = sub.add_parser("bench", help="measure step times (medians) and write JSON")
+    b.add_argument("--json", metavar="PATH", help="write results to this JSON file (merged with what it holds)")
+    b.add_argument("--steps", type=int, default=200, help="steps per measurement (default 200)")
+    b.add_argument("--scenarios", default="cloth,banknote,tshirt", help="comma-separated: cloth,banknote,tshirt")
+    d = sub.add_parser("demo", help="tear the square cloth with two handles; write pictures")
+    d.add_argument("--out", default="tearcloth_demo", help="output folder (default ./tearcloth_demo)")
+    args = p.parse_args(argv)
+    try:
+        if args.command == "bench":
+            from .bench import run
+
+            if args.steps < 10:
+                p.error("--steps must be at least 10")
+            run(args.json, [s.strip() for s in args.scenarios.split(",") if s.strip()], args.steps)
+        elif args.command == "demo":
+            from .demo import run as demo
+
+            demo(args.out)
+    except (ValueError, OSError) as e:
+        print(f"tearcloth {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,76 @@
+"""Haptics for Tear Cloth: grasp devices, the 1 kHz servo loop and the coupling of eq. (5).
+
+This package owns everything between a hand and the simulation's handle, and nothing of the
+simulation itself (the session wires ``ServoLoop.publish``/``ServoLoop.proxy`` to it):
+
+- ``device``: ``HapticDevice`` interface, ``DeviceState``, the ``HapticError`` family;
+- ``falcon*``: Novint Falcon (packets, kinematics, FTDI transports, driver, byte-level emulator);
+- ``spacemouse``: 3Dconnexion HID pucks (input only); ``virtual``: scripted/keyboard device;
+- ``servo``: coupling, mailboxes, servo threads, ``measure_servo``; ``forcelog``: CSV/PNG.
+
+Pure Python (numpy; pyftdi/hidapi/matplotlib imported only when used), SI units, no bpy.
+"""
+from .device import (
+    ConfigError,
+    DeviceNotFoundError,
+    DeviceState,
+    DeviceStateError,
+    EchoMismatchError,
+    FirmwareError,
+    FirmwareFileError,
+    FirmwareNotRunningError,
+    HandshakeError,
+    HapticDevice,
+    HapticError,
+    KinematicsError,
+    NotHomedError,
+    ProtocolError,
+    TransportError,
+    VelocityFilter,
+    Workspace,
+)
+from .falcon import FalconDevice, assign_hands, open_falcons, read_firmware
+from .falcon_emulator import FalconEmulator
+from .falcon_transport import Transport, list_falcons, open_transport
+from .forcelog import ForceLog
+from .servo import HandCoupling, ProxySample, ServoLoop, SimulationMailbox, measure_servo
+from .spacemouse import FakeHid, SpaceMouseDevice, list_spacemice
+from .virtual import VirtualDevice
+
+__all__ = [
+    "ConfigError",
+    "DeviceNotFoundError",
+    "DeviceState",
+    "DeviceStateError",
+    "EchoMismatchError",
+    "FirmwareError",
+    "FirmwareFileError",
+    "FirmwareNotRunningError",
+    "HandshakeError",
+    "HapticDevice",
+    "HapticError",
+    "KinematicsError",
+    "NotHomedError",
+    "ProtocolError",
+    "TransportError",
+    "VelocityFilter",
+    "Workspace",
+    "FalconDevice",
+    "FalconEmulator",
+    "assign_hands",
+    "open_falcons",
+    "read_firmware",
+    "Transport",
+    "list_falcons",
+    "open_transport",
+    "ForceLog",
+    "HandCoupling",
+    "ProxySample",
+    "ServoLoop",
+    "SimulationMailbox",
+    "measure_servo",
+    "FakeHid",
+    "SpaceMouseDevice",
+    "list_spacemice",
+    "VirtualDevice",
+]

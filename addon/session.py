@@ -1,0 +1,212 @@
+"""Session: one simulated scene - a tearable cloth, the bodies it collides with, the handles that
+pull it - stepped in time. Pure Python (no bpy): the Blender layer, the headless bake, the bench
+and the haptic loop all drive this one class.
+
+One step, as data flows (design.md): handle targets and body poses for the step's end time ->
+collision detection on the current positions (contacts) -> native step (FEM + contacts + handles,
+GIL released) -> tearing (topology events) -> clusters follow the events. Nothing calls back up.
+
+Inputs that arrive per frame (a body's deformed mesh, an empty a handle follows) are given as
+keyframes at times in seconds; a step samples them at its own time by linear interpolation, so
+sub-frame steps see smooth motion and body velocities for friction come from the same samples.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .cloth import Cloth, TopologyEvents
+
+
+@dataclass
+class CollisionSettings:
+    """Collision of the cloth with bodies and itself (SI units)."""
+
+    thickness: float = 0.002            # m: contact distance around surfaces
+    friction: float = 0.3               # Coulomb coefficient
+    displacement_threshold: float = 0.005  # m: relative cluster motion that triggers full detection
+    cluster_size: int = 100             # vertices per cluster
+    measure: str = "relative"           # 'relative' (the paper), 'absolute' or 'full'
+    self_collision: bool = True
+
+    def validate(self) -> "CollisionSettings":
+        if not self.thickness > 0:
+            raise ValueError(f"collision thickness must be > 0 m (got {self.thickness})")
+        if not self.displacement_threshold > 0:
+            raise ValueError(f"displacement_threshold must be > 0 m (got {self.displacement_threshold})")
+        if not 0 <= self.friction < 100:
+            raise ValueError(f"friction must lie in [0, 100) (got {self.friction})")
+        if int(self.cluster_size) < 4:
+            raise ValueError(f"cluster_size must be at least 4 vertices (got {self.cluster_size})")
+        if self.measure not in ("relative", "absolute", "full"):
+            raise ValueError(f"measure must be 'relative', 'absolute' or 'full' (got {self.measure!r})")
+        return self
+
+
+class _Track:
+    """A value known at keyframe times; sampled at any time by linear interpolation (held outside)."""
+
+    def __init__(self, value: np.ndarray, t: float):
+        self.times = [float(t)]
+        self.values = [np.array(value, dtype=np.float64)]
+
+    def add(self, value, t: float) -> None:
+        value = np.array(value, dtype=np.float64)
+        if value.shape != self.values[-1].shape:
+            raise ValueError(f"keyframe shape {value.shape} differs from {self.values[-1].shape}")
+        if not np.isfinite(value).all():
+            raise ValueError("keyframe has non-finite values")
+        t = float(t)
+        if t <= self.times[-1]:
+            # a new timeline (a scrub back, a restart): start over from this keyframe
+            self.times, self.values = [t], [value]
+            return
+        self.times.append(t)
+        self.values.append(value)
+        if len(self.times) > 2:  # only the last two matter for stepping forward
+            self.times, self.values = self.times[-2:], self.values[-2:]
+
+    def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(value, rate of change) at time t."""
+        if len(self.times) == 1 or t <= self.times[0]:
+            return self.values[0], np.zeros_like(self.values[0])
+        t0, t1 = self.times
+        v0, v1 = self.values
+        rate = (v1 - v0) / (t1 - t0)
+        if t >= t1:
+            return v1, rate
+        return v0 + (t - t0) * rate, rate
+
+
+@dataclass
+class StepReport:
+    collision_s: float = 0.0
+    fem_s: float = 0.0
+    tearing_s: float = 0.0
+    contacts: int = 0
+    events: TopologyEvents | None = None
+
+    @property
+    def total_s(self) -> float:
+        return self.collision_s + self.fem_s + self.tearing_s
+
+
+@dataclass
+class _Body:
+    name: str
+    triangles: np.ndarray
+    track: _Track
+    friction: float | None
+
+
+class Session:
+    """A cloth, its bodies and handles, stepped in time."""
+
+    def __init__(self, cloth: Cloth, collision: CollisionSettings | None = None, start_time: float = 0.0):
+        self.cloth = cloth
+        self.time = float(start_time)
+        self.collision = collision.validate() if collision else None
+        self._bodies: dict[str, _Body] = {}
+        self._handle_tracks: dict[int, _Track] = {}
+        self.detector = None
+        self.last = StepReport()
+        if self.collision is not None:
+            from .collision import CollisionDetector
+
+            self.detector = CollisionDetector(
+                thickness=self.collision.thickness,
+                friction=self.collision.friction,
+                displacement_threshold=self.collision.displacement_threshold,
+                cluster_size=int(self.collision.cluster_size),
+                measure=self.collision.measure,
+                self_collision=self.collision.self_collision,
+            )
+            self.detector.set_cloth(cloth.positions, cloth.triangles)
+
+    # ---- bodies ----
+    def add_body(self, name: str, vertices, triangles, friction: float | None = None) -> None:
+        """A collider (closed mesh; an open one is treated as a thin surface, with a warning)."""
+        if self.detector is None:
+            raise ValueError("this session has no collision settings; create it with collision=CollisionSettings()")
+        if name in self._bodies:
+            raise ValueError(f"a body named {name!r} already exists")
+        v = np.asarray(vertices, dtype=np.float64)
+        t = np.asarray(triangles)
+        self.detector.add_body(v, t, name, friction=friction)
+        self._bodies[name] = _Body(name, t, _Track(v, self.time), friction)
+
+    def set_body_keyframe(self, name: str, vertices, t: float) -> None:
+        """The body's (deformed) vertices at time t, e.g. an armature-skinned character at a frame."""
+        try:
+            self._bodies[name].track.add(vertices, t)
+        except KeyError:
+            raise KeyError(f"no body named {name!r}; bodies: {sorted(self._bodies)}") from None
+
+    @property
+    def bodies(self) -> list[str]:
+        return list(self._bodies)
+
+    # ---- handles ----
+    def set_handle_keyframe(self, handle: int, matrix, t: float) -> None:
+        """Affine target (3x4 or 4x4) of a handle at time t, relative to its grasp-time positions."""
+        m = np.asarray(matrix, dtype=np.float64)
+        m = m[:3] if m.shape == (4, 4) else m
+        if m.shape != (3, 4):
+            raise ValueError(f"handle target must be 3x4 or 4x4, got {m.shape}")
+        track = self._handle_tracks.get(handle)
+        if track is None:
+            self._handle_tracks[handle] = _Track(m, t)
+        else:
+            track.add(m, t)
+
+    # ---- time ----
+    max_substeps: int = 16
+
+    def _step_adaptive(self, dt: float) -> None:
+        """A step that blew up was rolled back by the core; retry it in more, smaller sub-steps
+        (the native step interpolates handle targets across them) before giving up."""
+        from .cloth import SimulationError
+
+        substeps = 1
+        while True:
+            try:
+                self.cloth.step(dt, substeps)
+                return
+            except SimulationError:
+                if substeps >= self.max_substeps:
+                    raise
+                substeps *= 2
+                self.retries += 1
+
+    retries: int = 0
+
+    def step(self, dt: float) -> StepReport:
+        """Advance by dt seconds: collisions, then the native FEM + tearing step."""
+        rep = StepReport()
+        t_end = self.time + dt
+        for h, track in self._handle_tracks.items():
+            self.cloth.set_handle_target(h, track.sample(t_end)[0])
+        if self.detector is not None:
+            t0 = time.perf_counter()
+            for body in self._bodies.values():
+                v, rate = body.track.sample(t_end)
+                self.detector.update_body(body.name, v, rate)
+            contacts = self.detector.detect(self.cloth.positions, self.cloth.triangles, self.cloth.velocities)
+            self.cloth.set_contacts(contacts.vertex, contacts.normal, contacts.depth, contacts.velocity,
+                                    contacts.friction)
+            rep.contacts = len(contacts.vertex)
+            rep.collision_s = time.perf_counter() - t0
+        self._step_adaptive(dt)
+        st = self.cloth.stats()
+        rep.fem_s, rep.tearing_s = st["fem_seconds"], st["tear_seconds"]
+        ev = self.cloth.events()
+        rep.events = ev
+        if ev and self.detector is not None:
+            t0 = time.perf_counter()
+            self.detector.on_topology(ev, self.cloth.positions, self.cloth.triangles)
+            rep.collision_s += time.perf_counter() - t0
+        self.time = t_end
+        self.last = rep
+        return rep
