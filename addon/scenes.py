@@ -991,7 +991,7 @@ def _ellipse_perimeter(p, q):
     return np.pi * (p + q) * (1 + 3 * h / (10 + np.sqrt(4 - 3 * h)))
 
 
-def _arc_stations(profile_t, radii_fn, lo, hi, step):
+def _arc_stations(radii_fn, lo, hi, step):
     """Stations along a profile parameter (z or d), spaced so that consecutive rings are about
     ``step`` apart in space (axial change plus radius change), so flaring parts such as the top
     of the shoulders get as many rings as straight parts of the same surface length."""
@@ -1157,7 +1157,7 @@ def mannequin(height: float = 1.75, edge_length: float = 0.022) -> Body:
 
     # ---- column rings ------------------------------------------------------------------------
     z_lo, z_top = col_tab[0, 0], col_tab[-1, 0]
-    zs = _arc_stations(None, lambda z: col_at(z)[..., :2], z_lo, z_top, edge)
+    zs = _arc_stations(lambda z: col_at(z)[..., :2], z_lo, z_top, edge)
     prof = col_at(zs)
     per = _ellipse_perimeter(prof[:, 0], prof[:, 1])
     n_torso = max(16, 4 * int(round(_ellipse_perimeter(*col_at(1.24 * s)[:2]) / edge / 4.0)))
@@ -1224,13 +1224,13 @@ def mannequin(height: float = 1.75, edge_length: float = 0.022) -> Body:
         1: np.concatenate([crotch[: n_torso // 2 + 1], bridge]),
         -1: np.concatenate([crotch[n_torso // 2 :], [front], bridge[::-1]]),
     }
-    leg_zs = _arc_stations(None, lambda z: leg_at(z)[..., :2], leg_tab[0, 0], leg_tab[-1, 0], edge)
+    leg_zs = _arc_stations(lambda z: leg_at(z)[..., :2], leg_tab[0, 0], leg_tab[-1, 0], edge)
     for side in (1, -1):
         label = _LEG_L if side > 0 else _LEG_R
         xc = side * _HIP_X * s
         top = leg_top[side]
         tp = verts_so_far[top]
-        prev, prev_u = top, np.arctan2(tp[:, 1] - 0.0, tp[:, 0] - xc) / (2 * np.pi)
+        prev, prev_u = top, np.arctan2(tp[:, 1], tp[:, 0] - xc) / (2 * np.pi)
         for z in leg_zs:
             a, b, cy = leg_at(z)
             n = max(6, int(round(_ellipse_perimeter(a, b) / edge)))
@@ -1299,8 +1299,8 @@ def mannequin(height: float = 1.75, edge_length: float = 0.022) -> Body:
             qs = [(prev[q], prev[(q + 1) % L], ring[(q + 1) % L], ring[q]) for q in range(L)]
             B.quads(qs)
             prev, prev_u = ring, ph / (2 * np.pi)
-        ds_ = _arc_stations(None, arm_at, d_end, arm_tab[-1, 0], edge)[1:-1]
-        start = float(phi_u[0] + dphi[0] * 0 + (ph[0] - phi_u[0]))
+        ds_ = _arc_stations(arm_at, d_end, arm_tab[-1, 0], edge)[1:-1]
+        start = float(ph[0])  # the last transition ring ends on uniform angles from here
         for d in ds_:
             a, b = arm_at(d)
             n = max(5, int(round(_ellipse_perimeter(a, b) / edge)))
@@ -1452,10 +1452,10 @@ def _ease(t):
 
 
 # Arm keyframes after the walk: time (s), shoulder flex, elbow flex, shoulder abduction (deg).
-# At 3 s the hands are at the front of the hem (about x = +-0.17, y = -0.2, z = 0.95 m); at 4 s
-# they have moved ~0.15 m apart each, pulling it open. The elbow bends across the belly
+# At 3 s the palms are at the front of the hem (about x = +-0.17, y = -0.24, z = 0.95 m); at 4 s
+# they have moved ~0.13 m apart each (x = +-0.30), pulling it open. The elbow bends across the belly
 # (_ELBOW_INWARD) because a forearm that only flexes forward would leave the hands 30 cm out.
-_REACH_KEYS = np.array([(2.0, 0.0, 0.0, 0.0), (3.0, 5.0, 75.0, -10.0), (4.0, 10.0, 55.0, 12.0)])
+_REACH_KEYS = np.array([(2.0, 0.0, 0.0, 0.0), (3.0, 4.0, 72.0, -16.0), (4.0, 4.0, 70.0, 0.0)])
 _ELBOW_INWARD = 1.5
 
 
@@ -1517,8 +1517,10 @@ def body_pose(body: Body, t: float) -> np.ndarray:
     """Vertex positions (n, 3) of ``body`` at time t (s) by linear blend skinning.
 
     The motion (see ``_pose_angles``): a walk in place on [0, 2) s, then both hands come forward to
-    the front of the shirt hem (2-3 s) and pull outward (3-4 s), then hold. Shoulders move at most
-    22 deg, so a simulated shirt can follow; the elbows bend up to 75 deg across the belly.
+    the front of the shirt hem (2-3 s) and pull outward (3-4 s), then hold. Hips and shoulders
+    move at most 22 deg, so a simulated shirt can follow; the elbows bend up to 72 deg across the
+    belly. The walk is in place; the feet dip up to ~1 cm below z = 0 mid-stride (no ground
+    contact is modelled).
     t = 0 returns the bind pose exactly.
     """
     if not isinstance(body, Body):
@@ -2176,14 +2178,80 @@ def _fit_shirt(x, tris, loops, parts, clearance, iterations, fillet):
     return project(x, 3)
 
 
+def _flip_edges(x, tris, group, max_passes=20):
+    """Delaunay edge flips on a surface mesh: an interior edge whose two opposite angles sum to
+    more than 180 deg is replaced by the other diagonal of its quad, if that raises the smaller
+    of the two triangles' minimum angles and the quad is nearly flat. Vertices do not move (the
+    fit's clearance is kept); flips stay inside one ``group`` (panel), so per-panel UVs stay
+    valid. Returns the new triangles."""
+    t = np.array(tris, dtype=np.int64)
+    n = len(x)
+    for _ in range(max_passes):
+        m = len(t)
+        a = t.ravel()
+        b = np.roll(t, -1, axis=1).ravel()
+        key = np.minimum(a, b) * n + np.maximum(a, b)
+        order = np.argsort(key, kind="stable")
+        k = key[order]
+        pair = np.flatnonzero(k[1:] == k[:-1])
+        h1, h2 = order[pair], order[pair + 1]  # half-edges (triangle * 3 + side)
+        f1, s1, f2, s2 = h1 // 3, h1 % 3, h2 // 3, h2 % 3
+        ok = group[f1] == group[f2]
+        f1, s1, f2, s2 = f1[ok], s1[ok], f2[ok], s2[ok]
+        pa, pb = t[f1, s1], t[f1, (s1 + 1) % 3]
+        pc, pd = t[f1, (s1 + 2) % 3], t[f2, (s2 + 2) % 3]
+
+        def angle(at, u, w):
+            e1, e2 = x[u] - x[at], x[w] - x[at]
+            cos = np.einsum("ij,ij->i", e1, e2) / (
+                np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1) + 1e-300
+            )
+            return np.arccos(np.clip(cos, -1.0, 1.0))
+
+        opp = angle(pc, pa, pb) + angle(pd, pa, pb)
+        cand = np.flatnonzero(opp > np.pi + 1e-9)
+        if len(cand) == 0:
+            break
+        old_min = np.minimum(
+            _triangle_angles(x, t[f1[cand]]).min(axis=1), _triangle_angles(x, t[f2[cand]]).min(axis=1)
+        )
+        n1 = np.stack([pa, pd, pc], 1)[cand]
+        n2 = np.stack([pd, pb, pc], 1)[cand]
+        new_min = np.minimum(_triangle_angles(x, n1).min(axis=1), _triangle_angles(x, n2).min(axis=1))
+
+        def normal(tr):
+            p = x[tr]
+            v = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+            return v / (np.linalg.norm(v, axis=1, keepdims=True) + 1e-300)
+
+        flat = (
+            np.einsum("ij,ij->i", normal(n1), normal(n2)) > 0.8
+        ) & (np.einsum("ij,ij->i", normal(n1), normal(t[f1[cand]])) > 0.8)
+        good = cand[(new_min > old_min) & flat]
+        if len(good) == 0:
+            break
+        # an independent set: no triangle takes part in two flips of one pass
+        used = np.zeros(m, dtype=bool)
+        chosen = []
+        for i in good[np.argsort(-opp[good])].tolist():
+            if used[f1[i]] or used[f2[i]]:
+                continue
+            used[f1[i]] = used[f2[i]] = True
+            chosen.append(i)
+        chosen = np.asarray(chosen)
+        t[f1[chosen]] = np.stack([pa, pd, pc], 1)[chosen]
+        t[f2[chosen]] = np.stack([pd, pb, pc], 1)[chosen]
+    return t
+
+
 def _cut_and_sew(front_p, back_p, seams, target_triangles, seed):
     """Mesh both panels with one spacing (chosen so the total count hits the target) and sew them:
     the back panel's seam samples become the front panel's vertices, and the back panel is
     flipped so both are counter-clockwise seen from outside.
 
     Returns ((front points, front triangles), (back points, back triangles), panel coordinates of
-    the sewn vertices, sewn triangles, which back points were kept (not merged), is-front mask
-    and seam mask of the sewn vertices.
+    the sewn vertices, sewn triangles, sewn index of every back point, is-front mask and seam
+    mask of the sewn vertices. Front points keep their indices.
     """
     panels = []
     for k, pieces in enumerate((front_p, back_p)):
@@ -2231,7 +2299,7 @@ def _cut_and_sew(front_p, back_p, seams, target_triangles, seed):
     info = validate_mesh(np.c_[p2, np.zeros(len(p2))], tris)
     if not (info["is_edge_manifold"] and info["is_consistently_wound"] and info["boundary_loops"] == 4):
         raise RuntimeError(f"tshirt: sewing failed: {info}")
-    return (pf, tf), (pb, tb), p2, tris, keep_b, is_front, seam
+    return (pf, tf), (pb, tb), p2, tris, remap, is_front, seam
 
 
 def tshirt(
@@ -2269,7 +2337,7 @@ def tshirt(
     if not isinstance(body, Body):
         raise TypeError(f"body must be a Body (from mannequin()), got {type(body).__name__}")
     front_p, back_p, seams, dims = _shirt_pattern(body, clearance)
-    (pf, tf), (pb, tb), p2, tris, keep_b, is_front, seam = _cut_and_sew(
+    (pf, tf), (pb, tb), p2, tris, back_index, is_front, seam = _cut_and_sew(
         front_p, back_p, seams, target_triangles, seed
     )
     # Wrap: lay the pattern on the body's silhouette, then take the depth from rays cast from the
@@ -2311,14 +2379,20 @@ def tshirt(
     fillet = 0.008 * m["scale"]
     parts = _PartDistance(D, tri_part, reach=0.08 * m["scale"], jump=0.008 * m["scale"])
     x = _fit_shirt(x, tris, loops, parts, clearance, iterations=30, fillet=fillet)
-    # UVs: one uniform scale for both panels so texel density matches across the seams.
+    panel = np.r_[np.zeros(len(tf), dtype=np.int64), np.ones(len(tb), dtype=np.int64)]
+    tris = _flip_edges(x, tris, panel)
+    # UVs: one uniform scale for both panels so texel density matches across the seams; the
+    # front panel fills u in [0.02, 0.48], the back panel (mirrored, as seen from outside)
+    # u in [0.52, 0.98].
     width = 2.0 * float(np.abs(np.concatenate([pf[:, 0], pb[:, 0]])).max())
     tall = float(max(pf[:, 1].max(), pb[:, 1].max()))
     k = 0.46 / max(width, 2.0 * tall)
-    uv_f = np.stack([0.25 + pf[:, 0] * k, 0.05 + pf[:, 1] * k], axis=1)
-    uv_b = np.stack([0.75 - pb[:, 0] * k, 0.05 + pb[:, 1] * k], axis=1)
-    uv = np.concatenate([uv_f, uv_b[keep_b]])
-    corner = np.concatenate([uv_f[tf], uv_b[tb][:, ::-1]])
+    uv_front = np.full((len(x), 2), np.nan)
+    uv_back = np.full((len(x), 2), np.nan)
+    uv_front[: len(pf)] = np.stack([0.25 + pf[:, 0] * k, 0.05 + pf[:, 1] * k], axis=1)
+    uv_back[back_index] = np.stack([0.75 - pb[:, 0] * k, 0.05 + pb[:, 1] * k], axis=1)
+    uv = np.where(np.isnan(uv_front), uv_back, uv_front)  # seam vertices: their front UV
+    corner = np.where((panel == 0)[:, None, None], uv_front[tris], uv_back[tris])
     # Groups (panel coordinates make "front hem, left of centre" exact).
     sc = m["scale"]
     grip = (p2[:, 1] <= 0.03 * sc) & is_front

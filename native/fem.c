@@ -100,8 +100,13 @@ TC_HOT void tc_element_pass(tc_cloth *c, const double *x)
                 S[3 * i + j] = R[i] * (sxx * R[j] + sxy * R[3 + j]) + R[3 + i] * (sxy * R[j] + syy * R[3 + j]);
         double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), rad = sqrt(dd * dd + sxy * sxy);
         pr[2 * t] = mean + rad; pr[2 * t + 1] = mean - rad;
-        double th = 0.5 * atan2(2.0 * sxy, sxx - syy), ct = cos(th), st = sin(th);
-        for (int k = 0; k < 3; k++) pd[3 * t + k] = R[k] * ct + R[3 + k] * st;
+        /* eigenvector of the largest eigenvalue without trigonometry: (l1 - syy, sxy) or
+           (sxy, l1 - sxx), whichever is better conditioned */
+        double l1 = mean + rad, ex = l1 - syy, ey = sxy, fx = sxy, fy = l1 - sxx;
+        if (ex * ex + ey * ey < fx * fx + fy * fy) { ex = fx; ey = fy; }
+        double el = sqrt(ex * ex + ey * ey);
+        if (el > 0) { ex /= el; ey /= el; } else { ex = 1.0; ey = 0.0; }
+        for (int k = 0; k < 3; k++) pd[3 * t + k] = R[k] * ex + R[3 + k] * ey;
     }
 }
 
@@ -222,11 +227,20 @@ TC_HOT void tc_matvec(const tc_cloth *c, const double *restrict p, double *restr
         y[3 * v + 1] = d[3] * x0 + d[4] * x1 + d[5] * x2;
         y[3 * v + 2] = d[6] * x0 + d[7] * x1 + d[8] * x2;
     }
+    const int32_t *restrict pt = tc_vec_ptr(&c->ptris);
     const size_t np = c->pi.len;
     for (size_t q = 0; q < np; q++) {
         const int32_t i = pi[q], j = pj[q];
         if (i < 0) continue;
         const double *B = PB + 9 * q;
+        if (pt[2 * q] < 0) {
+            /* a bending flap (no triangle edge): its block is a multiple of I - a third of the
+               flops, and half the pairs of a mesh are flaps */
+            const double s = B[0];
+            y[3 * i] += s * p[3 * j]; y[3 * i + 1] += s * p[3 * j + 1]; y[3 * i + 2] += s * p[3 * j + 2];
+            y[3 * j] += s * p[3 * i]; y[3 * j + 1] += s * p[3 * i + 1]; y[3 * j + 2] += s * p[3 * i + 2];
+            continue;
+        }
         const double a0 = p[3 * i], a1 = p[3 * i + 1], a2 = p[3 * i + 2];
         const double b0 = p[3 * j], b1 = p[3 * j + 1], b2 = p[3 * j + 2];
         const double B0 = B[0], B1 = B[1], B2 = B[2], B3 = B[3], B4 = B[4], B5 = B[5], B6 = B[6], B7 = B[7], B8 = B[8];

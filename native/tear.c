@@ -475,7 +475,7 @@ static int separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *ve
 {
     /* every vertex's whole fan is listed before anything changes: once one endpoint is duplicated,
        the cut edge is a real boundary and a walk could no longer reach the far side */
-    int32_t all[4][FAN_MAX], fan[FAN_MAX], affected[4 * FAN_MAX];
+    int32_t all[4][FAN_MAX], fan[FAN_MAX], affected[4 * FAN_MAX] = {0};
     int nall[4], naff = 0;
     bool closed;
     *dup_mask = 0;

@@ -111,10 +111,74 @@ static void test_strip_and_tear(void)
     free(V); free(T);
 }
 
+/* A sheet dropped on a plane through contacts, with friction, then arrays and events read back. */
+static void test_contacts_and_arrays(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(11, 11, 0.1, 0.1, &V, &T, &n, &m);
+    for (int i = 0; i < n; i++) V[3 * i + 2] = 0.01;
+    char msg[512];
+    double *uv = calloc(6 * (size_t)m, sizeof(double));
+    double *groups = calloc(2 * (size_t)n, sizeof(double));
+    for (int i = 0; i < n; i++) { groups[2 * i] = V[3 * i]; groups[2 * i + 1] = 1.0; }
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, uv, groups, 2, NULL, msg, sizeof msg);
+    CHECK(c != NULL, "create: %s", msg);
+    if (!c) return;
+    int32_t *idx = malloc((size_t)n * sizeof(int32_t));
+    double *nrm = malloc(3 * (size_t)n * sizeof(double)), *dep = malloc((size_t)n * sizeof(double));
+    double *fr = malloc((size_t)n * sizeof(double));
+    for (int s = 0; s < 200; s++) {
+        size_t rows, cols, item;
+        tc_buf *xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
+        const double *x = tc_buf_data(xb);
+        int32_t k = 0;
+        for (int32_t i = 0; i < (int32_t)rows; i++)
+            if (x[3 * i + 2] < 0.002) {
+                idx[k] = i; nrm[3 * k] = 0; nrm[3 * k + 1] = 0; nrm[3 * k + 2] = 1; dep[k] = 0.002 - x[3 * i + 2]; fr[k] = 0.5; k++;
+            }
+        tc_buf_decref(xb);
+        CHECK(tc_cloth_set_contacts(c, idx, nrm, dep, NULL, fr, k) == TC_OK, "contacts");
+        int rc = tc_cloth_step(c, 2e-3, 1);
+        CHECK(rc == TC_OK, "contact step %d: %s", s, tc_cloth_error(c));
+        if (rc) break;
+    }
+    size_t rows, cols, item;
+    tc_buf *xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
+    const double *x = tc_buf_data(xb);
+    double zmin = 1;
+    for (size_t i = 0; i < rows; i++) if (x[3 * i + 2] < zmin) zmin = x[3 * i + 2];
+    CHECK(zmin > 0.0015, "rests on the plane: z min %g", zmin);
+    tc_energy e = tc_cloth_energy(c);
+    CHECK(e.kinetic < 1e-4, "comes to rest: kinetic %g", e.kinetic);
+    /* a view taken before growth stays valid (old size) after the cloth grows */
+    int32_t cuts = 0;
+    double dir[3] = {0, 1, 0};
+    CHECK(tc_cloth_scripted_tear(c, 5 * 11, dir, 0.08, &cuts) == TC_OK && cuts > 0, "tear: %s", tc_cloth_error(c));
+    double sum = 0;
+    for (size_t i = 0; i < rows * 3; i++) sum += x[i];
+    CHECK(sum == sum, "old view readable");
+    tc_buf_decref(xb);
+    tc_events ev = tc_cloth_events(c);
+    CHECK(ev.n_new_vertices > 0 && ev.n_changed_triangles > 0, "events");
+    tc_buf *gb = tc_cloth_array(c, TC_GROUPS, &rows, &cols, &item);
+    CHECK(cols == 2 && rows == (size_t)tc_cloth_num_vertices(c), "groups %zu x %zu", rows, cols);
+    const double *g = tc_buf_data(gb);
+    for (size_t i = 0; i < rows; i++) CHECK(g[2 * i + 1] == 1.0, "group weight carried for vertex %zu", i);
+    tc_buf_decref(gb);
+    for (int id = 0; id < TC_ARRAY_COUNT; id++) {
+        tc_buf *b = tc_cloth_array(c, (tc_array_id)id, &rows, &cols, &item);
+        CHECK(b != NULL, "array %d", id);
+        tc_buf_decref(b);
+    }
+    tc_cloth_destroy(c);
+    free(V); free(T); free(uv); free(groups); free(idx); free(nrm); free(dep); free(fr);
+}
+
 int main(void)
 {
     test_bad_input();
     test_strip_and_tear();
+    test_contacts_and_arrays();
     printf("%d passed, %d failed\n", checks - failures, failures);
     return failures != 0;
 }

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Builds the native core with AddressSanitizer + UndefinedBehaviorSanitizer (any report aborts)
+# and runs its C tests; the core is plain C with no Python, so it is tested here on its own.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+out=${TMPDIR:-/tmp}/tearcloth_native_tests
+cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all \
+   -DTC_NO_CLONES -Wall -Wextra -Wno-unused-parameter -I. \
+   buf.c mesh.c fem.c cloth.c tear.c tests/test_core.c -lm -o "$out"
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"
