@@ -51,6 +51,9 @@ class TopologyEvents:
         # consumers that take plain dicts of arrays (collision, caches) read events the same way
         return getattr(self, key)
 
+    def get(self, key: str, default=None):
+        return getattr(self, key, default)
+
 
 def _f64(a, name: str, cols: int | None = None) -> np.ndarray:
     arr = np.ascontiguousarray(a, dtype=np.float64)

@@ -1920,8 +1920,14 @@ def _frontal_map(p2, body, dims, clearance):
     sig = np.abs(s_)
     z = np.minimum(dims["z_hem"] + t_, col[-1, 0])
     a = _pchip(col[:, 0], col[:, 1], z) + c
-    th = np.clip(sig / dims["W2"], 0.0, 1.0) * (np.pi / 2.0)
-    torso = np.stack([side * (a * np.sin(th) + np.maximum(sig - dims["W2"], 0.0)), z], axis=1)
+    # theta reaches 90 deg at the side seam below the shoulders and at the shoulder seam above
+    # them (the shoulder seam runs along the top ridge, from the neck to the shoulder point)
+    P_s = dims["P_s"]
+    f = np.clip((t_ - P_s[1]) / (dims["t_n"] - P_s[1]), 0.0, 1.0)
+    ridge = np.where(t_ >= P_s[1], P_s[0] + f * (dims["s_n"] - P_s[0]), np.inf)
+    ref = np.minimum(dims["W2"], ridge)
+    th = np.clip(sig / ref, 0.0, 1.0) * (np.pi / 2.0)
+    torso = np.stack([side * (a * np.sin(th) + np.maximum(sig - ref, 0.0)), z], axis=1)
     rel = sig[:, None] * [1.0, 0.0] + t_[:, None] * [0.0, 1.0] - dims["P_a"]
     u = rel @ dims["e_b"]
     v = rel @ dims["n_b"]
@@ -2098,10 +2104,40 @@ class _PartDistance:
         return out
 
 
-def _fit_shirt(x, tris, loops, parts, clearance, iterations, fillet):
+def _closest_on_segments(pts, a, b):
+    """Closest point (k, 3) on the nearest of the segments a[j]-b[j] to each point."""
+    d = b - a
+    dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-300)
+    t = np.clip(np.einsum("nkj,kj->nk", pts[:, None, :] - a[None], d) / dd, 0.0, 1.0)
+    q = a[None] + t[..., None] * d[None]
+    k = np.argmin(((pts[:, None, :] - q) ** 2).sum(-1), axis=1)
+    return q[np.arange(len(pts)), k]
+
+
+def _loop_order(idx, eu, ev):
+    """The vertices ``idx`` of one closed boundary loop, in order along it (edges eu-ev)."""
+    on = np.isin(eu, idx)
+    nxt = {}
+    for u_, v_ in zip(eu[on].tolist(), ev[on].tolist()):
+        nxt.setdefault(u_, []).append(v_)
+        nxt.setdefault(v_, []).append(u_)
+    start = int(idx[0])
+    order, prev, cur = [start], None, start
+    while True:
+        a_, b_ = nxt[cur]
+        step = a_ if a_ != prev else b_
+        if step == start:
+            break
+        order.append(step)
+        prev, cur = cur, step
+    return np.asarray(order)
+
+
+def _fit_shirt(x, tris, panel, loops, parts, clearance, iterations, fillet):
     """Settle the wrapped shirt onto the surface ``clearance`` outside the body.
 
-    Each round: uniform Laplacian smoothing (rims smooth along themselves only), rims held to their
+    Each round: uniform Laplacian smoothing (rims smooth along themselves only, seam vertices also
+    slide to even stitch spacing), rims held to their
     constraint (hem and neck keep their height, cuffs their position along the arm), then every
     vertex takes a Newton step toward the level set f = clearance of a smooth minimum of the
     distances to the torso and to the arms, f = -k log(exp(-d_torso/k) + exp(-d_arm/k)).
@@ -2118,19 +2154,41 @@ def _fit_shirt(x, tris, loops, parts, clearance, iterations, fillet):
     rim_edge = counts == 1
     on_rim = np.zeros(n, dtype=bool)
     on_rim[edges[rim_edge].ravel()] = True
-    # interior vertices average all neighbours, rim vertices only their rim neighbours
+    # interior vertices (seams included) average all neighbours, rim vertices only their rim
+    # neighbours
     src = np.concatenate([edges[:, 0], edges[:, 1]])
     dst = np.concatenate([edges[:, 1], edges[:, 0]])
     keep = np.concatenate([rim_edge, rim_edge]) | ~on_rim[src]
     src, dst = src[keep], dst[keep]
+    # Seam vertices (not on a rim) with their two seam neighbours: after smoothing they also
+    # slide along the seam toward the middle of those two, so stitches stay evenly spaced (the
+    # Laplacian alone bunches them where the seam turns under the arm).
+    face = np.tile(np.arange(len(tris)), 3)
+    order = np.argsort(keys, kind="stable")
+    sk = keys[order]
+    pair = np.flatnonzero(sk[1:] == sk[:-1])
+    across = panel[face[order[pair]]] != panel[face[order[pair + 1]]]
+    se = sk[pair][across]
+    su, sv = se // n, se % n
+    ends = np.concatenate([su, sv])
+    other = np.concatenate([sv, su])
+    o2 = np.argsort(ends, kind="stable")
+    ends, other = ends[o2], other[o2]
+    cnt2 = np.bincount(ends, minlength=n)
+    two = np.flatnonzero((cnt2 == 2) & ~on_rim)
+    start2 = np.cumsum(cnt2) - cnt2
+    seam_v, seam_a, seam_b = two, other[start2[two]], other[start2[two] + 1]
     cnt = np.bincount(src, minlength=n).astype(np.float64)
     k = fillet
     max_step = 0.5 * clearance
 
     def constrain(y):
         for idx, kind, value, axis_, J in loops:
-            if kind == "z":
-                y[idx, 2] = value[idx]
+            if kind == "curve":
+                # a rim vertex may slide along the rim (to even out its spacing), but stays on
+                # the rim's first curve, so the neckline keeps its shape and height
+                a_, b_ = value
+                y[idx] = _closest_on_segments(y[idx], a_, b_)
             else:  # keep the axial coordinate along the arm
                 d = (y[idx] - J) @ axis_
                 y[idx] += (value - d)[:, None] * axis_
@@ -2171,7 +2229,20 @@ def _fit_shirt(x, tris, loops, parts, clearance, iterations, fillet):
         acc = np.zeros_like(x)
         np.add.at(acc, src, x[dst])
         mean = acc / np.maximum(cnt, 1.0)[:, None]
-        x = x + 0.8 * (mean - x)
+        # tangential part only: the normal part would just be undone by the projection, and on
+        # curved parts (neck, armpit) it would leak into sideways drift and bunch vertices
+        fn = np.cross(x[tris[:, 1]] - x[tris[:, 0]], x[tris[:, 2]] - x[tris[:, 0]])
+        vn = np.zeros_like(x)
+        for c in range(3):
+            np.add.at(vn, tris[:, c], fn)
+        vn /= np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
+        move = mean - x
+        move -= np.einsum("ij,ij->i", move, vn)[:, None] * vn * (~on_rim)[:, None]
+        x = x + 0.8 * move
+        tangent = x[seam_b] - x[seam_a]
+        tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-300)
+        slide = np.einsum("ij,ij->i", 0.5 * (x[seam_a] + x[seam_b]) - x[seam_v], tangent)
+        x[seam_v] += 0.5 * slide[:, None] * tangent
         x = constrain(x)
         x = project(x, 1)
     parts.refresh(x)
@@ -2370,16 +2441,15 @@ def tshirt(
             J = m["shoulder_left"] if sd_ > 0 else m["shoulder_right"]
             dval = float(np.mean((x[idx] - J) @ axis_))
             loops.append((idx, "d", dval, axis_, J))
-        else:  # hem or neck: keep each vertex's height
-            zval = np.zeros(n)
-            zval[idx] = x[idx, 2]
-            loops.append((idx, "z", zval, None, None))
+        else:  # hem or neck: keep the rim on its curve
+            ring = _loop_order(idx, rim // n, rim % n)
+            loops.append((idx, "curve", (x[ring], x[np.roll(ring, -1)]), None, None))
     labels = m["labels"][body.triangles]
     tri_part = np.isin(labels, (_ARM_L, _ARM_R)).sum(axis=1) >= 2
     fillet = 0.008 * m["scale"]
     parts = _PartDistance(D, tri_part, reach=0.08 * m["scale"], jump=0.008 * m["scale"])
-    x = _fit_shirt(x, tris, loops, parts, clearance, iterations=30, fillet=fillet)
     panel = np.r_[np.zeros(len(tf), dtype=np.int64), np.ones(len(tb), dtype=np.int64)]
+    x = _fit_shirt(x, tris, panel, loops, parts, clearance, iterations=30, fillet=fillet)
     tris = _flip_edges(x, tris, panel)
     # UVs: one uniform scale for both panels so texel density matches across the seams; the
     # front panel fills u in [0.02, 0.48], the back panel (mirrored, as seen from outside)

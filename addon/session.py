@@ -193,7 +193,8 @@ class Session:
             for body in self._bodies.values():
                 v, rate = body.track.sample(t_end)
                 self.detector.update_body(body.name, v, rate)
-            contacts = self.detector.detect(self.cloth.positions, self.cloth.triangles, self.cloth.velocities)
+            self.detector.detect(self.cloth.positions, self.cloth.triangles, self.cloth.velocities)
+            contacts = self.detector.all_contacts  # all colliders per vertex, not just the deepest
             self.cloth.set_contacts(contacts.vertex, contacts.normal, contacts.depth, contacts.velocity,
                                     contacts.friction)
             rep.contacts = len(contacts.vertex)

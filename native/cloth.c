@@ -47,7 +47,7 @@ tc_tear_settings tc_tear_default(void)
     X(rot, double) X(sig, double) X(stress, double) X(principal, double) X(pdir, double) X(uv, double)  \
     X(pi, int32_t) X(pj, int32_t) X(puse, int32_t) X(ptris, int32_t) X(pstencil, int32_t)              \
     X(pbend, double) X(pblock, double) X(pfree, int32_t) X(stencils, tc_stencil) X(sfree, int32_t)    \
-    X(cvert, int32_t) X(cnormal, double) X(cdepth, double) X(cvel, double) X(cfric, double)            \
+    X(cvert, int32_t) X(cactive, int8_t) X(scount, int8_t) X(cnormal, double) X(cdepth, double) X(cvel, double) X(cfric, double)            \
     X(diag, double) X(pinv, double) X(sb, double) X(sr, double) X(sz, double) X(sp, double)            \
     X(sq, double) X(sfix, double) X(snorm, double) X(x0, double) X(v0, double) X(fel, double)          \
     X(vs9, double) X(vsn, double) X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
@@ -330,7 +330,8 @@ int tc_cloth_set_contacts(tc_cloth *c, const int32_t *vertex, const double *norm
             if (!isfinite(velocity[3 * i + q])) { tc_set_err(c, "contact %d: surface velocity is not finite", (int)i); return TC_ERR_INPUT; }
         if (friction && !(friction[i] >= 0 && friction[i] < 100)) { tc_set_err(c, "contact %d: friction must lie in [0, 100) (got %g)", (int)i, friction[i]); return TC_ERR_INPUT; }
     }
-    if (tc_vec_resize(&c->cvert, (size_t)k) || tc_vec_resize(&c->cnormal, 3 * (size_t)k) || tc_vec_resize(&c->cdepth, (size_t)k) ||
+    if (tc_vec_resize(&c->cvert, (size_t)k) || tc_vec_resize(&c->cactive, (size_t)k) ||
+        tc_vec_resize(&c->cnormal, 3 * (size_t)k) || tc_vec_resize(&c->cdepth, (size_t)k) ||
         tc_vec_resize(&c->cvel, 3 * (size_t)k) || tc_vec_resize(&c->cfric, (size_t)k)) {
         tc_set_err(c, "out of memory"); return TC_ERR_NOMEM;
     }
@@ -350,18 +351,22 @@ int tc_cloth_set_contacts(tc_cloth *c, const int32_t *vertex, const double *norm
 
 /* ---------------- the step ---------------- */
 
+/* Removes the constrained components: all three for pins and handles, the span of the vertex's
+ * contact normals (an orthonormal basis of up to three directions) for contacts. */
 static void filter(const tc_cloth *c, double *r)
 {
-    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
     const double *N = tc_vec_ptr(&c->snorm);
     for (int32_t i = 0; i < c->nv; i++) {
         int8_t f = fl[i];
         if (f == VC_FREE) continue;
         double *ri = r + 3 * i;
         if (f == VC_CONTACT) {
-            const double *n = N + 3 * i;
-            double d = dot3(ri, n);
-            ri[0] -= d * n[0]; ri[1] -= d * n[1]; ri[2] -= d * n[2];
+            for (int k = 0; k < cnt[i]; k++) {
+                const double *e = N + 9 * i + 3 * k;
+                double d = dot3(ri, e);
+                ri[0] -= d * e[0]; ri[1] -= d * e[1]; ri[2] -= d * e[2];
+            }
         } else {
             ri[0] = ri[1] = ri[2] = 0.0;
         }
@@ -415,13 +420,16 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, double *residual)
     const double *fix = tc_vec_ptr(&c->sfix);
     const int8_t *fl = tc_vec_ptr(&c->vflag);
     const double *N = tc_vec_ptr(&c->snorm);
+    const int8_t *cnt = tc_vec_ptr(&c->scount);
     for (int32_t i = 0; i < c->nv; i++) {  /* put the warm start on the constraint manifold */
         double *vi = v + 3 * i;
         const double *zi = fix + 3 * i;
         if (fl[i] == VC_CONTACT) {
-            const double *n = N + 3 * i;
-            double d = dot3(vi, n) - dot3(zi, n);
-            vi[0] -= d * n[0]; vi[1] -= d * n[1]; vi[2] -= d * n[2];
+            for (int k = 0; k < cnt[i]; k++) {  /* fix lies in the span of the basis */
+                const double *e = N + 9 * i + 3 * k;
+                double d = dot3(vi, e) - dot3(zi, e);
+                vi[0] -= d * e[0]; vi[1] -= d * e[1]; vi[2] -= d * e[2];
+            }
         } else if (fl[i] != VC_FREE) {
             vi[0] = zi[0]; vi[1] = zi[1]; vi[2] = zi[2];
         }
@@ -487,6 +495,58 @@ static void handle_forces(tc_cloth *c)
     }
 }
 
+/* Per vertex, an orthonormal basis of its active contact normals with the normal velocity each
+ * one prescribes (inelastic: the touched surface's). A vertex may touch several things at once -
+ * a body and another layer of cloth over it - and must respect all of them: keeping only the
+ * deepest let the layers push each other through the body in turn, which pumped energy. Normals
+ * that add no new direction (a vertex squeezed between two layers) share the prescribed speed. */
+static void build_contact_basis(tc_cloth *c)
+{
+    int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    double *fix = tc_vec_ptr(&c->sfix), *N = tc_vec_ptr(&c->snorm);
+    const int32_t nc = (int32_t)c->cvert.len;
+    const int32_t *cv = tc_vec_ptr(&c->cvert);
+    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel);
+    const int8_t *act = tc_vec_ptr(&c->cactive);
+    for (int32_t k = 0; k < nc; k++) {
+        int32_t i = cv[k];
+        if (fl[i] != VC_FREE) continue;  /* pins and handles keep their prescribed velocity */
+        cnt[i] = 0;
+        fix[3 * i] = fix[3 * i + 1] = fix[3 * i + 2] = 0.0;
+    }
+    for (int32_t k = 0; k < nc; k++) {
+        if (!act[k]) continue;
+        int32_t i = cv[k];
+        if (fl[i] != VC_FREE && fl[i] != VC_CONTACT) continue;
+        fl[i] = VC_CONTACT;
+        const double *n = cn + 3 * k;
+        double z = dot3(cvel + 3 * k, n);
+        double u[3] = {n[0], n[1], n[2]};
+        int best = -1;
+        double bestd = 0.0;
+        for (int j = 0; j < cnt[i]; j++) {
+            const double *e = N + 9 * i + 3 * j;
+            double d = dot3(n, e);
+            u[0] -= d * e[0]; u[1] -= d * e[1]; u[2] -= d * e[2];
+            if (fabs(d) > fabs(bestd)) { bestd = d; best = j; }
+        }
+        double lu = sqrt(dot3(u, u));
+        if (lu > 0.25 && cnt[i] < 3) {
+            double e[3] = {u[0] / lu, u[1] / lu, u[2] / lu};
+            double zf = z - dot3(fix + 3 * i, n);  /* what the earlier components leave to do */
+            double ze = zf / lu;
+            memcpy(N + 9 * i + 3 * cnt[i], e, sizeof e);
+            cnt[i]++;
+            for (int q = 0; q < 3; q++) fix[3 * i + q] += ze * e[q];
+        } else if (best >= 0) {
+            const double *e = N + 9 * i + 3 * best;
+            double cur = dot3(fix + 3 * i, e), want = z / bestd;
+            double delta = 0.5 * (want - cur);
+            for (int q = 0; q < 3; q++) fix[3 * i + q] += delta * e[q];
+        }
+    }
+}
+
 static int substep(tc_cloth *c, double dt, double alpha_target)
 {
     const int32_t n = c->nv;
@@ -500,20 +560,14 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     /* constraints of this sub-step */
     int8_t *fl = tc_vec_ptr(&c->vflag);
     const int8_t *pin = tc_vec_ptr(&c->vpin);
-    double *fix = tc_vec_ptr(&c->sfix), *N = tc_vec_ptr(&c->snorm);
+    double *fix = tc_vec_ptr(&c->sfix);
     memset(fl, VC_FREE, (size_t)n);
     const int32_t nc = (int32_t)c->cvert.len;
     const int32_t *cv = tc_vec_ptr(&c->cvert);
     const double *cn = tc_vec_ptr(&c->cnormal), *cd = tc_vec_ptr(&c->cdepth), *cvel = tc_vec_ptr(&c->cvel);
-    for (int32_t k = 0; k < nc; k++) {
-        int32_t i = cv[k];
-        const double *nn = cn + 3 * k;
-        /* inelastic: the normal velocity becomes the surface's; the penetration itself is removed
-           from the position after the solve, so resolving it adds no velocity (no bounce) */
-        double zn = dot3(cvel + 3 * k, nn);
-        fl[i] = VC_CONTACT;
-        for (int q = 0; q < 3; q++) { N[3 * i + q] = nn[q]; fix[3 * i + q] = zn * nn[q]; }
-    }
+    int8_t *act = tc_vec_ptr(&c->cactive);
+    memset(act, 1, (size_t)nc);
+    build_contact_basis(c);
     for (int32_t i = 0; i < n; i++)
         if (pin[i]) { fl[i] = VC_PINNED; fix[3 * i] = fix[3 * i + 1] = fix[3 * i + 2] = 0.0; }
     for (int32_t h = 0; h < c->nh; h++) {
@@ -549,10 +603,12 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
             int32_t i = cv[k];
             if (fl[i] != VC_CONTACT) continue;
             double jn = 0.0;
-            for (int q = 0; q < 3; q++) jn += (J[3 * i + q] - b[3 * i + q]) * N[3 * i + q];
-            if (jn < 0.0) { fl[i] = VC_FREE; released++; }
+            for (int q = 0; q < 3; q++) jn += (J[3 * i + q] - b[3 * i + q]) * cn[3 * k + q];
+            if (jn < 0.0) { act[k] = 0; released++; }
         }
         if (released) {
+            for (int32_t k = 0; k < nc; k++) if (fl[cv[k]] == VC_CONTACT) fl[cv[k]] = VC_FREE;
+            build_contact_basis(c);
             it += pcg(c, v, b, &res);
             tc_matvec(c, v, J);
         }
@@ -560,18 +616,18 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         int32_t active = 0;
         for (int32_t k = 0; k < nc; k++) {
             int32_t i = cv[k];
-            if (fl[i] != VC_CONTACT) continue;
+            if (fl[i] != VC_CONTACT || !act[k]) continue;
             active++;
             if (cf[k] <= 0.0) continue;
             double *vi = v + 3 * i;
-            const double *nn = N + 3 * i, *vs = cvel + 3 * k;
+            const double *nn = cn + 3 * k, *vs = cvel + 3 * k;
             double jn = 0.0;
             for (int q = 0; q < 3; q++) jn += (J[3 * i + q] - b[3 * i + q]) * nn[q];
+            if (!(jn > 0.0)) continue;  /* no push, no friction (and a negative cap would accelerate) */
             double rel[3] = {vi[0] - vs[0], vi[1] - vs[1], vi[2] - vs[2]};
             double rn = dot3(rel, nn);
             double vt[3] = {rel[0] - rn * nn[0], rel[1] - rn * nn[1], rel[2] - rn * nn[2]};
             double lt = sqrt(dot3(vt, vt));
-            if (!(jn > 0.0)) continue;  /* no push, no friction (and a negative cap would accelerate) */
             double cap = cf[k] * jn / m[i];  /* Coulomb: tangential impulse <= mu * normal impulse */
             double s = lt > cap ? cap / lt : 1.0;
             for (int q = 0; q < 3; q++) vi[q] -= s * vt[q];
@@ -584,13 +640,13 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     for (size_t k = 0; k < n3; k++) x[k] = x0[k] + dt * v[k];
     for (int32_t k = 0; k < nc; k++) {
         int32_t i = cv[k];
-        if (fl[i] != VC_CONTACT) continue;  /* released: it is leaving the surface by itself */
+        if (fl[i] != VC_CONTACT || !act[k]) continue;  /* released: it is leaving by itself */
         /* a fraction per step (Baumgarte-like): pushing the whole depth out every step fights the
            tension that presses a stretched cloth onto a curved body, and that cycle pumps energy */
         double push = 0.2 * cd[k];
         double lim = c->solver.contact_max_push * dt;  /* deep starts resolve over a few steps */
         if (push > lim) push = lim;
-        for (int q = 0; q < 3; q++) x[3 * i + q] += push * N[3 * i + q];
+        for (int q = 0; q < 3; q++) x[3 * i + q] += push * cn[3 * k + q];
     }
     double worst = tc_max_stretch(c, x);
     int bad = !(worst == worst) || worst > c->solver.max_stretch;

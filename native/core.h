@@ -100,12 +100,13 @@ struct tc_cloth {
     int32_t nh, hcap_handles;
 
     /* contacts, per step */
-    tc_vec cvert, cnormal, cdepth, cvel, cfric;
+    tc_vec cvert, cactive, cnormal, cdepth, cvel, cfric;  /* cactive: not released this sub-step */
 
     /* solver scratch, sized to 3 * vertex capacity */
     tc_vec diag;             /* 9 per vertex */
     tc_vec pinv;             /* 9 per vertex */
-    tc_vec sb, sr, sz, sp, sq, sfix, snorm, x0, v0, fel;
+    tc_vec sb, sr, sz, sp, sq, sfix, x0, v0, fel;
+    tc_vec snorm, scount;    /* per vertex: contact normal basis (3 x 3) and its size */
 
     /* tearing state */
     tc_vec vs9, vsn, vsa;    /* tearing scratch: per-vertex stress sum (9), normal (3), area (1) */

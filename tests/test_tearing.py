@@ -349,3 +349,34 @@ def test_bad_tearing_input_is_named():
         c.set_tear_strength(np.zeros(c.num_vertices))
     with pytest.raises(InvalidInputError, match="scan_period"):
         c.set_tearing(True, scan_period=0)
+
+
+def test_two_handed_tear_force_profile_has_the_papers_three_phases():
+    """Fig. 6: elastic rise, the peak at tear onset, then propagation at a fraction of the peak,
+    with the two hands opposite."""
+    from tearcloth.demo import simulate
+
+    c, log, first = simulate(duration=0.9)
+    t, fl = log.along_axis("left", (1.0, 0.0, 0.0))
+    _, fr = log.along_axis("right", (1.0, 0.0, 0.0))
+    assert first is not None, "the cloth did not tear"
+    peak_i = int(np.argmax(np.abs(fr)))
+    onset_i = int(np.searchsorted(t, first))
+    # the peak is at the tear onset (within a few steps)
+    assert abs(t[peak_i] - first) <= 0.01
+    pull = t > 0.2
+    rise = pull & (t < first - 0.005)
+    # elastic phase: the force grows with the pull
+    assert np.corrcoef(t[rise], np.abs(fr[rise]))[0, 1] > 0.95
+    # propagation: a fraction of the peak
+    late = t > first + 0.1
+    frac = np.median(np.abs(fr[late])) / abs(fr[peak_i])
+    print(f"peak {abs(fr[peak_i]):.1f} N at {t[peak_i]:.3f} s (tear at {first:.3f} s), propagation at {frac:.2f} of the peak")
+    assert 0.05 < frac < 0.8
+    # the two hands pull opposite ways with the same strength (within 10 % of the peak)
+    assert np.all(np.sign(fl[rise]) == -np.sign(fr[rise]))
+    assert np.max(np.abs(fl[rise] + fr[rise])) <= 0.1 * np.max(np.abs(fr[rise]))
+    # while it tears the two sides tear a little differently (as in the paper's figure): the hands
+    # stay opposite on average over the propagation, within 10 % of the peak
+    assert abs(np.median(fl[late]) + np.median(fr[late])) <= 0.1 * abs(fr[peak_i])
+    assert np.sign(np.median(fl[late])) == -np.sign(np.median(fr[late]))

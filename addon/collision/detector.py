@@ -56,6 +56,7 @@ from .narrow import (
     cast,
     face_normals,
     initial_side,
+    ring_table,
     vertex_normals,
 )
 
@@ -146,6 +147,8 @@ class _Collider:
         self.clustering = clustering or Clustering(self.vertices, triangles, cluster_size)
         self.adj, self.flip = triangle_adjacency(triangles)
         self.normals = VertexNormals(self.vertices.shape[0], triangles)
+        # self-collision skips the two-ring (see narrow.ring_table)
+        self.ring = ring_table(triangles, self.vertices.shape[0]) if self.kind == "self" else None
 
 
 class _Plan:
@@ -317,6 +320,7 @@ class CollisionDetector:
         cloth.triangles = tri
         cloth.adj, cloth.flip = triangle_adjacency(tri)
         cloth.normals = VertexNormals(pos.shape[0], tri)
+        cloth.ring = ring_table(tri, pos.shape[0])
         cloth.scenes.invalidate(dirty)
         self._cloth_prev = prev
         for name, tracks in self._tracks.items():
@@ -401,7 +405,7 @@ class CollisionDetector:
             v, slot = np.nonzero(tracks.tri >= 0)
             n_tracked += v.size
             d = normals[v] * _SLOT_SIGN[slot][:, None]
-            exclude = v if plan.name == "__self__" else None
+            exclude = cloth.ring[v] if plan.name == "__self__" else None
             res = walk(pos[v], d, tracks.tri[v, slot], target.vertices, target.triangles, target.adj, target.flip, exclude)
             lost = (res.tri < 0) & has_normal[v]
             n_lost += int(lost.sum())
@@ -431,6 +435,9 @@ class CollisionDetector:
         # 4. merge, classify, contacts -------------------------------------------------
         rows = [self._merge_and_classify(p.name, p.target, p.walked, p.found, pos, normals) for p in plans]
         contacts = self._assemble(rows)
+        # Every collider's contact per vertex, for the solver: a vertex touching a body and another
+        # layer of cloth at once must respect both (the solver combines their normals).
+        self.all_contacts = self._assemble_all(rows)
         t_end = time.perf_counter()
 
         self._cloth_prev = pos.copy()
@@ -485,7 +492,7 @@ class CollisionDetector:
             d = normals[v2] * _SLOT_SIGN[sl][:, None]
             gt, _ = target.scenes.query(
                 b, tri_ids, target.vertices, target.triangles, pos[v2], d, max_dist, step,
-                exclude=v2 if is_self else None,
+                exclude=cloth.ring[v2] if is_self else None,
             )
             hit = gt >= 0
             vs.append(v2[hit])
@@ -695,6 +702,26 @@ class CollisionDetector:
         vel = np.stack([r[2] for r in rows])[w, v]
         fric = np.array([r[3] for r in rows], np.float64)[w]
         return Contacts(v.astype(np.int32), normal, best[v], vel, fric)
+
+    @staticmethod
+    def _assemble_all(rows):
+        """One contact per vertex per collider (rows as for _assemble), sorted by vertex."""
+        parts = []
+        for depth, normal, vel, fric in rows:
+            v = np.flatnonzero(depth > 0)
+            if v.size:
+                parts.append((v, normal[v], depth[v], vel[v], np.full(v.size, fric, np.float64)))
+        if not parts:
+            return Contacts()
+        v = np.concatenate([p[0] for p in parts])
+        order = np.argsort(v, kind="stable")
+        return Contacts(
+            v[order].astype(np.int32),
+            np.concatenate([p[1] for p in parts])[order],
+            np.concatenate([p[2] for p in parts])[order],
+            np.concatenate([p[3] for p in parts])[order],
+            np.concatenate([p[4] for p in parts])[order],
+        )
 
     # ------------------------------------------------------------------ reference
     def brute_force_detect(self, positions, triangles, velocities=None):

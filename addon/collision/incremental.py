@@ -103,6 +103,14 @@ class WalkResult:
         self.steps = 0
 
 
+def excluded(tri_vertices, exclude):
+    """Whether each triangle (k, 3) touches its ray's excluded vertices: exclude is (k,) (the
+    vertex itself: its one-ring triangles) or (k, K) (a ring table row: its two-ring)."""
+    if exclude.ndim == 1:
+        return (tri_vertices == exclude[:, None]).any(axis=1)
+    return (tri_vertices[:, :, None] == exclude[:, None, :]).any(axis=(1, 2))
+
+
 # Vertex with the most negative barycentric -> the edge opposite it (edge k = (tri[k], tri[k+1])).
 _EDGE_OPPOSITE = np.array([1, 2, 0])
 
@@ -131,7 +139,7 @@ def walk(origins, directions, start, vertices, triangles, adj, flip, exclude=Non
         bary = np.stack([w, u, v], axis=1)
         inside = ok & (bary.min(axis=1) >= -_BARY_EPS)
         if exclude is not None:
-            own = (tri == exclude[act][:, None]).any(axis=1)
+            own = excluded(tri, exclude[act])
             inside &= ~own
             ok &= ~own
         found = act[inside]

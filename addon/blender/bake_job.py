@@ -1,0 +1,387 @@
+"""The bake itself: a Session stepped frame by frame into a CacheWriter. NO bpy in this file.
+
+What this file owns
+-------------------
+``BakePlan`` (everything a bake needs, gathered from Blender once, as plain arrays and SI
+values), ``FrameInputs`` (what Blender must tell the bake about one frame: the cloth object's
+matrix, the matrices of the objects handles follow, the deformed colliders), ``BakeJob`` (turns
+frames of inputs into cache frames) and ``run_worker`` (the worker-thread loop). Because nothing
+here touches bpy, the same code runs on the modal operator's worker thread and inline in the
+headless ``bake_object``; and undo, file loads or deleted objects in Blender can never pull data
+out from under it: it holds only its own arrays.
+
+Time: frame ``f`` is at ``(f - frame_start) / fps`` seconds. To go from frame f-1 to f, the
+inputs of frame f are keyframed into the Session first, so its sub-steps interpolate between the
+two frames (smooth handle motion, collider velocities for friction).
+
+Crash safety and resume: the cache writer makes every finished frame durable on its own. To
+continue a bake the simulation state is needed too, and the USD frames do not hold it all (rest
+positions of torn vertices, carried vertex-group weights, tear strengths), so after each frame the
+full state is saved next to the cache (``<name>.state.npz``, written under a temporary name and
+renamed). The state is saved BEFORE the frame goes into the cache: after a crash the state is
+either for the cache's last frame or for the frame after it, which ``BakeJob`` then writes first.
+Pins and handles are re-made from their vertex groups (weights >= 0.5, carried through tears);
+a resumed handle grasps the cloth where it is, so its target is the follow object's motion since
+the resume frame.
+"""
+from __future__ import annotations
+
+import os
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..cache import CacheWriter
+from ..cloth import Cloth, SimulationError
+from ..materials import Material
+from ..session import CollisionSettings, Session
+from . import convert
+
+STATE_VERSION = 1
+
+
+@dataclass
+class BakePlan:
+    """Everything a bake needs, in SI and world space unless said otherwise."""
+
+    object_name: str
+    prim_name: str
+    cache_path: str                 # absolute path of the cache root (.usda)
+    fps: float
+    frame_start: int
+    frame_end: int
+    steps_per_frame: int
+    scale: float                    # metres per Blender unit
+    material: Material
+    solver: dict
+    tearing: dict
+    collision: CollisionSettings | None
+    vertices: np.ndarray            # (n, 3) world metres at frame_start
+    triangles: np.ndarray           # (m, 3)
+    corner_uv: np.ndarray | None    # (m, 3, 2)
+    groups: dict                    # vertex-group name -> (n,) weights
+    fingerprint: str                # of the rest mesh (local BU), recorded in the cache
+    pin_group: str | None = None
+    handle_groups: list = field(default_factory=list)   # one vertex-group name per handle
+    seam_group: str | None = None
+    seam_factor: float = 1.0        # tear-strength factor where the seam weight is 1
+    body_triangles: dict = field(default_factory=dict)  # collider name -> (k, 3)
+    resume: bool = False
+
+    @property
+    def state_path(self) -> str:
+        return state_path_for(self.cache_path)
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.fps / self.steps_per_frame
+
+    def time_of(self, frame: int) -> float:
+        return (frame - self.frame_start) / self.fps
+
+
+@dataclass
+class FrameInputs:
+    """What Blender knows about one frame, gathered on the main thread (copies, never views)."""
+
+    frame: int
+    object_matrix: np.ndarray               # cloth object's world matrix (4x4, BU)
+    handle_matrices: list                   # per handle: follow object's world matrix or None
+    bodies: dict                            # collider name -> (k, 3) world metres
+
+
+class Progress:
+    """Shared between the worker and the UI; plain attributes (each write is atomic under the GIL)."""
+
+    def __init__(self, object_name: str, frame_start: int, frame_end: int):
+        self.object_name = object_name
+        self.frame_start = frame_start
+        self.frame_end = frame_end
+        self.first_frame = frame_start      # the first frame this run computes
+        self.frame = None                   # last frame on disk
+        self.steps = 0
+        self.step_seconds = 0.0
+        self.tears = 0
+        self.vertices = 0
+        self.started = time.perf_counter()
+        self.state = "running"              # running, done, cancelled, error
+        self.message = ""
+
+    @property
+    def factor(self) -> float:
+        span = max(1, self.frame_end - self.frame_start)
+        done = 0 if self.frame is None else self.frame - self.frame_start
+        return min(1.0, max(0.0, done / span))
+
+    @property
+    def steps_per_second(self) -> float:
+        return self.steps / self.step_seconds if self.step_seconds > 0 else 0.0
+
+    @property
+    def eta_seconds(self) -> float | None:
+        if self.frame is None or self.frame <= self.first_frame:
+            return None
+        elapsed = time.perf_counter() - self.started
+        per_frame = elapsed / (self.frame - self.first_frame)
+        return per_frame * (self.frame_end - self.frame)
+
+    def text(self) -> str:
+        frame = "-" if self.frame is None else str(self.frame)
+        eta = self.eta_seconds
+        eta_text = "" if eta is None else f", ETA {_duration(eta)}"
+        return (f"{self.object_name}: frame {frame}/{self.frame_end}, {self.steps_per_second:.0f} steps/s, "
+                f"{self.tears} tear{'s' if self.tears != 1 else ''}{eta_text}")
+
+
+def _duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60:02d} min"
+
+
+def state_path_for(cache_path: str) -> str:
+    return os.path.splitext(cache_path)[0] + ".state.npz"
+
+
+class BakeJob:
+    """Frames of ``FrameInputs`` in, cache frames out.
+
+    ``BakeJob(plan)`` opens the cache (fresh, or resumed: ``plan.resume``) and finds the frame
+    the simulation starts from (``start_frame``); ``begin(inputs of start_frame)`` builds the
+    cloth there; ``advance(inputs of the next frame)`` simulates and writes one frame;
+    ``close()`` finishes. Errors are ``CacheError``, ``ValueError`` (bad input, bad state
+    file) and ``SimulationError``.
+    """
+
+    def __init__(self, plan: BakePlan, progress: Progress | None = None):
+        self.plan = plan
+        self.progress = progress or Progress(plan.object_name, plan.frame_start, plan.frame_end)
+        self.cancel = threading.Event()
+        self.session: Session | None = None
+        self._state: dict | None = None
+        self._tears_before = 0
+        self._grasp: list = []
+        self.writer = CacheWriter(
+            plan.cache_path, plan.prim_name, plan.fps, "Z", plan.scale,
+            object_name=plan.object_name, fingerprint=plan.fingerprint, resume=plan.resume,
+        )
+        last = self.writer.last_frame
+        if plan.resume and last is not None:
+            state = load_state(plan.state_path)
+            if state is None or state["frame"] < last or state["object_name"] != plan.object_name:
+                self.writer.close(complete=False)
+                raise ValueError(
+                    f"{plan.cache_path}: cannot resume: the simulation state for frame {last} is missing "
+                    f"or stale ({os.path.basename(plan.state_path)}); bake again from the start"
+                )
+            self._state = state
+            self.start_frame = int(state["frame"])
+        else:
+            _remove_quietly(plan.state_path)
+            self.start_frame = plan.frame_start
+        self.next_frame = self.start_frame + 1
+        self.progress.first_frame = self.start_frame
+        self.progress.frame = last
+
+    @property
+    def done(self) -> bool:
+        return self.next_frame > self.plan.frame_end
+
+    # -- building the simulation ---------------------------------------------------------------
+
+    def begin(self, inputs: FrameInputs) -> None:
+        plan = self.plan
+        if inputs.frame != self.start_frame:
+            raise ValueError(f"the bake starts at frame {self.start_frame}, not {inputs.frame}")
+        state = self._state
+        # A mesh without a UV map gets no UVs in the cache (not a layer of zeros).
+        self._has_uv = plan.corner_uv is not None if state is None else state["corner_uv"] is not None
+        if state is None:
+            cloth = Cloth(plan.vertices, plan.triangles, plan.material, uv=plan.corner_uv,
+                          groups=plan.groups or None, gravity=plan.solver["gravity"])
+        else:
+            cloth = Cloth(state["positions"], state["triangles"], plan.material, rest=state["rest"],
+                          uv=state["corner_uv"], groups=dict(zip(state["group_names"], state["groups"].T))
+                          or None, gravity=plan.solver["gravity"])
+            cloth.set_velocities(state["velocities"])
+            self._tears_before = int(state["tears"])
+        cloth.set_solver(**plan.solver)
+        cloth.set_tearing(plan.tearing.get("enabled", True),
+                          **{k: v for k, v in plan.tearing.items() if k != "enabled"})
+        if state is not None:
+            cloth.set_tear_strength(state["tear_strength"])
+        elif plan.seam_group:
+            w = cloth.group(plan.seam_group)
+            cloth.set_tear_strength(1.0 - w * (1.0 - plan.seam_factor))
+        if plan.pin_group:
+            cloth.pin(plan.pin_group)
+        session = Session(cloth, plan.collision, start_time=plan.time_of(self.start_frame))
+        self._handles = [cloth.add_handle(group) for group in plan.handle_groups]
+        self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
+        for h in self._handles:
+            session.set_handle_keyframe(h, np.eye(4), session.time)
+        for name, tris in plan.body_triangles.items():
+            session.add_body(name, inputs.bodies[name], tris)
+        self.session = session
+        if self.writer.last_frame is None or self.writer.last_frame < self.start_frame:
+            self._write(inputs, save_state=state is None)
+        self.progress.vertices = cloth.num_vertices
+
+    # -- one frame -----------------------------------------------------------------------------
+
+    def advance(self, inputs: FrameInputs) -> bool:
+        """Simulate up to ``inputs.frame`` and write it. False if cancelled before the frame was
+        complete (nothing of that frame is written)."""
+        plan, session = self.plan, self.session
+        if inputs.frame != self.next_frame:
+            raise ValueError(f"expected the inputs of frame {self.next_frame}, got frame {inputs.frame}")
+        t = plan.time_of(inputs.frame)
+        for h, grasp, current in zip(self._handles, self._grasp, inputs.handle_matrices):
+            if grasp is not None and current is not None:
+                session.set_handle_keyframe(h, convert.handle_target_si(current, grasp, plan.scale), t)
+        for name, vertices in inputs.bodies.items():
+            try:
+                session.set_body_keyframe(name, vertices, t)
+            except ValueError as exc:
+                raise ValueError(f"frame {inputs.frame}: collider {name!r}: {exc} (colliders must keep "
+                                 "their vertex count over the bake)") from None
+        for _ in range(plan.steps_per_frame):
+            if self.cancel.is_set():
+                return False
+            start = time.perf_counter()
+            try:
+                session.step(plan.dt)
+            except SimulationError as exc:
+                raise SimulationError(
+                    f"the simulation blew up between frames {inputs.frame - 1} and {inputs.frame} ({exc}); "
+                    "frames before are kept. Try more steps per frame, a smaller pull or a stiffer tear stress"
+                ) from None
+            self.progress.step_seconds += time.perf_counter() - start
+            self.progress.steps += 1
+        self._write(inputs)
+        self.next_frame += 1
+        return True
+
+    def _write(self, inputs: FrameInputs, save_state: bool = True) -> None:
+        plan, cloth = self.plan, self.session.cloth
+        tears = self._tears_before + int(cloth.stats()["tears_started"])
+        if save_state:
+            save_state_file(plan.state_path, inputs.frame, plan, cloth, tears)
+        matrix = inputs.object_matrix
+        local = convert.world_si_to_local(cloth.positions, matrix, plan.scale)
+        velocity = convert.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
+        # The writer takes metres with meters_per_unit = scale, so the file holds local BU:
+        # exactly what the Mesh Sequence Cache modifier (which ignores metersPerUnit) shows.
+        self.writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
+                                cloth.corner_uv if self._has_uv else None, velocity * plan.scale)
+        self.progress.frame = inputs.frame
+        self.progress.tears = tears
+        self.progress.vertices = cloth.num_vertices
+
+    def close(self, complete: bool | None = None) -> None:
+        if complete is None:
+            complete = self.done
+        if not self.writer.closed:
+            self.writer.close(complete=complete)
+
+
+# ---------------------------------------------------------------------------------------------
+# The state file
+
+
+def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: int) -> None:
+    names = list(cloth.group_names)
+    groups = np.stack([cloth.group(n) for n in names], axis=1) if names else np.zeros((cloth.num_vertices, 0))
+    uv = cloth.corner_uv
+    data = dict(
+        version=np.int64(STATE_VERSION),
+        frame=np.int64(frame),
+        object_name=np.array(plan.object_name),
+        positions=np.array(cloth.positions),
+        velocities=np.array(cloth.velocities),
+        rest=np.array(cloth.rest_positions),
+        triangles=np.array(cloth.triangles),
+        corner_uv=np.array(uv) if uv is not None and uv.size else np.zeros((0, 3, 2)),
+        group_names=np.array(names, dtype=str),
+        groups=np.array(groups),
+        tear_strength=np.array(cloth.tear_strength),
+        tears=np.int64(tears),
+    )
+    folder, name = os.path.split(path)
+    tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
+    with open(tmp, "wb") as f:
+        np.savez(f, **data)
+    os.replace(tmp, path)  # atomic: a crash leaves the old state or the new one, never half
+
+
+def load_state(path: str) -> dict | None:
+    """The saved state, or None if there is none or it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if int(z["version"]) != STATE_VERSION:
+                return None
+            state = {k: z[k] for k in z.files}
+    except (OSError, ValueError, KeyError):
+        return None
+    state["frame"] = int(state["frame"])
+    state["object_name"] = str(state["object_name"])
+    state["group_names"] = [str(n) for n in state["group_names"]]
+    if state["corner_uv"].size == 0:
+        state["corner_uv"] = None
+    return state
+
+
+def _remove_quietly(path: str) -> None:
+    try:
+        os.remove(path)
+    except FileNotFoundError:
+        pass
+
+
+def delete_state(cache_path: str) -> None:
+    _remove_quietly(state_path_for(cache_path))
+
+
+# ---------------------------------------------------------------------------------------------
+# The worker thread
+
+
+def run_worker(job: BakeJob, inputs: "queue.Queue[FrameInputs | None]") -> None:
+    """Take frames of inputs from the queue until ``None``, the last frame or a cancel; the job's
+    progress says how it ended. Never raises: errors become ``progress.state = 'error'``."""
+    progress = job.progress
+    try:
+        while not job.done:
+            item = inputs.get()
+            if item is None or job.cancel.is_set():
+                break
+            if not job.advance(item):
+                break
+        if job.done:
+            progress.state = "done"
+        else:
+            progress.state = "cancelled"
+    except Exception as exc:  # surfaced by the main thread as an ERROR report
+        progress.message = str(exc)
+        progress.state = "error"
+    finally:
+        try:
+            job.close()
+        except Exception as exc:
+            if progress.state != "error":
+                progress.message = f"could not finish the cache: {exc}"
+                progress.state = "error"
+
+
+def start_worker(job: BakeJob) -> tuple[threading.Thread, "queue.Queue"]:
+    q: queue.Queue = queue.Queue()
+    thread = threading.Thread(target=run_worker, args=(job, q), name=f"tearcloth-bake-{job.plan.object_name}",
+                              daemon=True)
+    thread.start()
+    return thread, q

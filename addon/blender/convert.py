@@ -1,0 +1,263 @@
+"""Blender data <-> solver arrays: the one place where scene units become SI and meshes become
+triangle arrays.
+
+What this file owns
+-------------------
+* Units. Blender stores lengths in Blender units (BU) and shows them multiplied by
+  ``unit_settings.scale_length``; one BU is ``scale_length`` metres. Every length-like setting
+  (cloth thickness, collision thickness, displacement_threshold), every position and every
+  gravity vector is multiplied by that factor here and nowhere else. Quantities Blender has no
+  unit for (pascals, kg/m^3, N m, 1/s) are stored in SI already and pass through unchanged.
+* Spaces. The simulation runs in WORLD space (metres), because colliders, follow objects and
+  gravity live there. The cache is written in the cloth object's LOCAL space at each frame
+  (``matrix_world(frame)^-1``), because the Mesh Sequence Cache modifier plays it back on that
+  object and Blender then applies the object's transform on top; written in world space, a moved
+  or parented cloth object would be transformed twice.
+* Meshes. The solver wants triangles: n-gons and quads are split with Blender's own
+  ``loop_triangles`` (the user's mesh is never touched), UVs are taken per triangle corner from
+  the active UV map, vertex groups become weight arrays, and vertices that belong to no face
+  (loose vertices, wire edges) are dropped because a membrane solver has nothing to do with them;
+  ``MeshArrays.kept`` maps back to the mesh's own vertex indices.
+* Colliders are read from the EVALUATED object (modifiers and armatures applied) at the current
+  frame, in world space, metres.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..materials import Material
+from ..session import CollisionSettings
+
+
+# ---------------------------------------------------------------------------------------------
+# Units
+
+
+def scale_length(scene) -> float:
+    """Metres per Blender unit of ``scene``."""
+    s = float(scene.unit_settings.scale_length)
+    return s if s > 0.0 else 1.0
+
+
+def length_to_si(scene, value: float) -> float:
+    return float(value) * scale_length(scene)
+
+
+def length_from_si(scene, metres: float) -> float:
+    return float(metres) / scale_length(scene)
+
+
+def gravity_si(scene) -> tuple[float, float, float]:
+    """The scene's gravity in m/s^2 (zero when the scene's gravity is switched off)."""
+    if not scene.use_gravity:
+        return (0.0, 0.0, 0.0)
+    s = scale_length(scene)
+    return tuple(float(g) * s for g in scene.gravity)
+
+
+def fps(scene) -> float:
+    return float(scene.render.fps) / float(scene.render.fps_base)
+
+
+def material_from_settings(settings, scene) -> Material:
+    """The object's Tear Cloth material settings as an SI ``Material`` (ValueError if absurd)."""
+    return Material(
+        name=settings.material_preset or "custom",
+        young=settings.young,
+        poisson=settings.poisson,
+        thickness=length_to_si(scene, settings.thickness),
+        density=settings.density,
+        bending=settings.bending,
+        damping_mass=settings.damping_mass,
+        damping_stiffness=settings.damping_stiffness,
+        tear_stress=settings.tear_stress,
+        snap_tolerance=settings.snap_tolerance,
+    ).validate()
+
+
+def material_to_settings(material: Material, settings, scene) -> None:
+    """Write an SI ``Material`` (a preset) into the object's settings, in scene units."""
+    settings.young = material.young
+    settings.poisson = material.poisson
+    settings.thickness = length_from_si(scene, material.thickness)
+    settings.density = material.density
+    settings.bending = material.bending
+    settings.damping_mass = material.damping_mass
+    settings.damping_stiffness = material.damping_stiffness
+    settings.tear_stress = material.tear_stress
+    settings.snap_tolerance = material.snap_tolerance
+    settings.material_preset = material.name
+
+
+def collision_from_settings(settings, scene) -> CollisionSettings:
+    return CollisionSettings(
+        thickness=length_to_si(scene, settings.collision_thickness),
+        friction=settings.friction,
+        displacement_threshold=length_to_si(scene, settings.displacement_threshold),
+        cluster_size=int(settings.cluster_size),
+        measure=settings.measure.lower(),
+        self_collision=bool(settings.use_self_collision),
+    ).validate()
+
+
+def solver_from_settings(settings, scene) -> dict:
+    return {
+        "gravity": gravity_si(scene),
+        "cg_tolerance": float(settings.cg_tolerance),
+        "cg_max_iterations": int(settings.cg_max_iterations),
+    }
+
+
+def tearing_from_settings(settings) -> dict:
+    return {
+        "enabled": bool(settings.use_tearing),
+        "scan_period": int(settings.scan_period),
+        "min_angle_deg": float(settings.min_angle_deg),
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# Matrices and spaces (world metres <-> object-local Blender units)
+
+
+def matrix_array(matrix) -> np.ndarray:
+    """A mathutils 4x4 matrix as a float64 numpy array."""
+    return np.array([list(row) for row in matrix], dtype=np.float64)
+
+
+def transform_points(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ matrix[:3, :3].T + matrix[:3, 3]
+
+
+def local_to_world_si(points_local: np.ndarray, matrix_world: np.ndarray, scale: float) -> np.ndarray:
+    """Object-local BU -> world metres."""
+    return transform_points(matrix_world, points_local) * scale
+
+
+def world_si_to_local(points_si: np.ndarray, matrix_world: np.ndarray, scale: float) -> np.ndarray:
+    """World metres -> object-local BU."""
+    return transform_points(np.linalg.inv(matrix_world), points_si / scale)
+
+
+def world_si_vectors_to_local(vectors_si: np.ndarray, matrix_world: np.ndarray, scale: float) -> np.ndarray:
+    """Velocities: world m/s -> object-local BU/s (only the linear part of the inverse acts)."""
+    return (vectors_si / scale) @ np.linalg.inv(matrix_world[:3, :3]).T
+
+
+def handle_target_si(current: np.ndarray, grasp: np.ndarray, scale: float) -> np.ndarray:
+    """A handle's affine target, in metres, for a follow object whose world matrix was ``grasp``
+    when the cloth was grasped and is ``current`` now: target = current @ grasp^-1, the motion of
+    the follow object since the grasp, applied to the grasped vertices. Rotation and scale act on
+    metres and BU alike; only the translation column changes unit."""
+    target = current @ np.linalg.inv(grasp)
+    target[:3, 3] *= scale
+    return target
+
+
+# ---------------------------------------------------------------------------------------------
+# Meshes
+
+
+@dataclass
+class MeshArrays:
+    """A mesh as the solver wants it, in the mesh's own (local) space and units.
+
+    vertices (n, 3) float64 BU; triangles (m, 3) int32 indexing ``vertices``; corner_uv
+    (m, 3, 2) float64 or None; groups name -> (n,) float64 weights in [0, 1]; kept (n,) the
+    mesh's own index of every vertex; ngons: faces with more than four corners (triangulated);
+    loose: vertices dropped because no face uses them.
+    """
+
+    vertices: np.ndarray
+    triangles: np.ndarray
+    corner_uv: np.ndarray | None = None
+    groups: dict = field(default_factory=dict)
+    kept: np.ndarray | None = None
+    ngons: int = 0
+    loose: int = 0
+
+
+def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> MeshArrays:
+    """Triangulate ``mesh`` (a bpy Mesh, original or evaluated) into arrays without changing it.
+
+    ``vertex_groups``: the object's ``vertex_groups`` (names -> indices) when ``group_names``
+    are asked for; a name missing there raises KeyError naming it.
+    """
+    n = len(mesh.vertices)
+    co = np.empty(3 * n, dtype=np.float64)
+    mesh.vertices.foreach_get("co", co)
+    co = co.reshape(n, 3)
+
+    tris = mesh.loop_triangles  # Blender's own triangulation, computed on demand, same winding
+    m = len(tris)
+    tri_verts = np.empty(3 * m, dtype=np.int32)
+    tris.foreach_get("vertices", tri_verts)
+    tri_verts = tri_verts.reshape(m, 3)
+
+    sizes = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", sizes)
+    ngons = int(np.count_nonzero(sizes > 4))
+
+    corner_uv = None
+    layer = mesh.uv_layers.active if uv else None
+    if layer is not None and m:
+        tri_loops = np.empty(3 * m, dtype=np.int32)
+        tris.foreach_get("loops", tri_loops)
+        loop_uv = np.empty(2 * len(mesh.loops), dtype=np.float64)
+        layer.data.foreach_get("uv", loop_uv)
+        corner_uv = loop_uv.reshape(-1, 2)[tri_loops].reshape(m, 3, 2)
+
+    groups = {}
+    if group_names:
+        index_of = {}
+        for name in group_names:
+            vg = vertex_groups.get(name) if vertex_groups is not None else None
+            if vg is None:
+                raise KeyError(name)
+            index_of[vg.index] = name
+            groups[name] = np.zeros(n, dtype=np.float64)
+        # One pass over the deform weights (there is no foreach access to vertex groups).
+        for v in mesh.vertices:
+            for g in v.groups:
+                name = index_of.get(g.group)
+                if name is not None:
+                    groups[name][v.index] = g.weight
+
+    used = np.zeros(n, dtype=bool)
+    used[tri_verts.reshape(-1)] = True
+    kept = np.flatnonzero(used).astype(np.int64)
+    loose = n - len(kept)
+    if loose:
+        remap = np.full(n, -1, dtype=np.int32)
+        remap[kept] = np.arange(len(kept), dtype=np.int32)
+        tri_verts = remap[tri_verts]
+        co = co[kept]
+        groups = {name: w[kept] for name, w in groups.items()}
+    return MeshArrays(
+        vertices=np.ascontiguousarray(co),
+        triangles=np.ascontiguousarray(tri_verts, dtype=np.int32),
+        corner_uv=corner_uv,
+        groups=groups,
+        kept=kept,
+        ngons=ngons,
+        loose=loose,
+    )
+
+
+def evaluated_mesh_arrays(obj, depsgraph, **kwargs) -> MeshArrays:
+    """``read_mesh`` of the object as the depsgraph evaluated it (modifiers, armature)."""
+    evaluated = obj.evaluated_get(depsgraph)
+    mesh = evaluated.to_mesh()
+    try:
+        return read_mesh(mesh, **kwargs)
+    finally:
+        evaluated.to_mesh_clear()
+
+
+def collider_world_si(obj, depsgraph, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """A collider at the depsgraph's current frame: (world vertices in metres, triangles)."""
+    evaluated = obj.evaluated_get(depsgraph)
+    arrays = evaluated_mesh_arrays(obj, depsgraph, uv=False)
+    return local_to_world_si(arrays.vertices, matrix_array(evaluated.matrix_world), scale), arrays.triangles

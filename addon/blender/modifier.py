@@ -1,0 +1,150 @@
+"""The "Tear Cloth" entry in the modifier stack, and where an object's cache lives on disk.
+
+The modifier strategy (one modifier, its place kept for good)
+--------------------------------------------------------------
+Enabling Tear Cloth adds Blender's STOCK Mesh Sequence Cache (MSC) modifier named "Tear Cloth".
+Before a bake it has no cache file, and an MSC without a cache file passes its input mesh through
+unchanged: the object shows its rest mesh and every modifier above and below works as before.
+A bake attaches the baked USD root (``//tearcloth_cache/<object>.usda``, relative to the .blend)
+to that same modifier, so the stack order the user chose never changes, and the result plays
+back and renders with stock Blender alone (no add-on, no Python) on any machine, a render farm
+node included. Freeing the bake detaches the cache again. Like Blender's own Cloth modifier, the
+simulation starts from the mesh as evaluated by the modifiers ABOVE "Tear Cloth"; modifiers below
+act on the torn result every frame (Solidify, Subdivision Surface, ...). The baked mesh carries
+positions, faces, the UV map (named "st", USD's name for it) and velocities (for motion blur);
+vertex groups are not in the cache, so modifiers below cannot use them.
+
+A Geometry Nodes pass-through swapped for the MSC at bake time was the alternative; it would need
+a node group in every file and a swap that moves the modifier's identity under the user.
+
+This file owns: finding/adding/removing that modifier, the cache path of an object, and
+attaching/detaching the cache file datablock.
+"""
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+
+import bpy
+
+from .report import BakeError
+
+MODIFIER_NAME = "Tear Cloth"
+MODIFIER_TYPE = "MESH_SEQUENCE_CACHE"
+DEFAULT_CACHE_FOLDER = "//tearcloth_cache/"
+# What the MSC reads from our USD: positions, faces, UVs and the 'velocity' attribute.
+READ_DATA = {"VERT", "POLY", "UV", "ATTRIBUTES"}
+
+
+def find_modifier(obj):
+    """The object's "Tear Cloth" modifier, or None."""
+    if obj is None or not hasattr(obj, "modifiers"):
+        return None
+    md = obj.modifiers.get(MODIFIER_NAME)
+    return md if md is not None and md.type == MODIFIER_TYPE else None
+
+
+def is_enabled(obj) -> bool:
+    return find_modifier(obj) is not None
+
+
+def add_modifier(obj):
+    md = find_modifier(obj)
+    if md is None:
+        md = obj.modifiers.new(MODIFIER_NAME, MODIFIER_TYPE)
+        md.read_data = READ_DATA
+    return md
+
+
+def modifier_index(obj, md) -> int:
+    return list(obj.modifiers).index(md)
+
+
+def prim_name_for(object_name: str) -> str:
+    """A USD identifier (and file name) for an object. Names that are not identifiers already get
+    a short hash of the real name, so 'Cloth.001' and 'Cloth_001' never share a cache."""
+    safe = re.sub(r"[^A-Za-z0-9_]", "_", object_name)
+    if not safe or safe[0].isdigit():
+        safe = "_" + safe
+    if safe != object_name:
+        safe += "_" + hashlib.sha1(object_name.encode("utf-8")).hexdigest()[:6]
+    return safe
+
+
+def cache_folder(settings) -> str:
+    """The cache folder as the user set it (``//`` = next to the .blend)."""
+    return settings.cache_folder or DEFAULT_CACHE_FOLDER
+
+
+def cache_path(obj) -> str:
+    """Absolute path of the object's cache root. BakeError if it cannot be resolved."""
+    folder = cache_folder(obj.tearcloth)
+    if folder.startswith("//") and not bpy.data.filepath:
+        raise BakeError(
+            f"the cache folder {folder!r} is relative to the .blend file, which is not saved yet: "
+            "save the file first or choose an absolute cache folder (Physics > Tear Cloth > Cache)"
+        )
+    absolute = os.path.normpath(bpy.path.abspath(folder))
+    return os.path.join(absolute, prim_name_for(obj.name) + ".usda")
+
+
+def stored_path(path: str) -> str:
+    """The path as the .blend should store it: relative ('//...') when the file is saved and the
+    cache is on the same drive, so the .blend and its cache folder can move together."""
+    if bpy.data.filepath:
+        try:
+            return bpy.path.relpath(path)
+        except ValueError:  # another drive on Windows
+            return path
+    return path
+
+
+def _same_file(a: str, b: str) -> bool:
+    return os.path.normcase(os.path.abspath(bpy.path.abspath(a))) == os.path.normcase(os.path.abspath(b))
+
+
+def attached_path(obj) -> str | None:
+    """Absolute path of the cache the modifier plays, or None."""
+    md = find_modifier(obj)
+    if md is None or md.cache_file is None:
+        return None
+    return os.path.abspath(bpy.path.abspath(md.cache_file.filepath))
+
+
+def attach_cache(obj, path: str, prim_name: str) -> None:
+    """Point the object's "Tear Cloth" modifier at a cache root (adding the cache file datablock
+    if needed, reloading it if it exists so frames baked since it was opened show up)."""
+    md = find_modifier(obj)
+    if md is None:
+        raise BakeError(f"{obj.name!r} has no {MODIFIER_NAME!r} modifier; enable Tear Cloth again")
+    cache_file = md.cache_file
+    if cache_file is None or not _same_file(cache_file.filepath, path):
+        cache_file = next((cf for cf in bpy.data.cache_files if _same_file(cf.filepath, path)), None)
+    if cache_file is None:
+        # There is no bpy.data.cache_files.new(); the operator is how a cache file is added.
+        before = set(bpy.data.cache_files)
+        bpy.ops.cachefile.open(filepath=path, relative_path=False)
+        added = [cf for cf in bpy.data.cache_files if cf not in before]
+        if not added:
+            raise BakeError(f"Blender could not open the cache {path}")
+        cache_file = added[0]
+        cache_file.name = f"{MODIFIER_NAME} {obj.name}"
+    # Assigning the path, even the same one, makes Blender reopen the stage.
+    cache_file.filepath = stored_path(path)
+    md.cache_file = cache_file
+    md.object_path = "/" + prim_name
+    md.read_data = READ_DATA
+
+
+def detach_cache(obj) -> None:
+    """Let the modifier pass the rest mesh through again; drop the cache file datablock when
+    nothing else uses it, which also makes Blender close the files (needed before they are
+    deleted or rewritten on Windows)."""
+    md = find_modifier(obj)
+    if md is None or md.cache_file is None:
+        return
+    cache_file = md.cache_file
+    md.cache_file = None
+    if cache_file.users == 0:
+        bpy.data.cache_files.remove(cache_file)

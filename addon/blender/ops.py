@@ -1,0 +1,490 @@
+"""Tear Cloth operators: enable/disable, bake (modal with a worker thread, or inline from a
+script), bake all, cancel, free, material presets, handle and collider lists, cluster preview and
+Alembic export.
+
+Every operator reports problems with ``self.report`` through a ``Reports`` list, which also logs
+them under the "tearcloth" logger, so a headless run and the UI say the same thing. An operator
+that fails changes nothing in the scene.
+"""
+from __future__ import annotations
+
+import colorsys
+import os
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, EnumProperty
+from bpy.types import Operator
+
+from ..materials import MATERIALS
+from . import bake, convert, modifier
+from .report import BakeError, Reports
+
+CLUSTER_ATTRIBUTE = "tearcloth_clusters"
+
+
+def _active_mesh(context):
+    obj = context.object
+    return obj if obj is not None and obj.type == "MESH" else None
+
+
+class TEARCLOTH_OT_enable(Operator):
+    """Make this mesh tearable: adds the "Tear Cloth" modifier (a Mesh Sequence Cache that plays the bake)"""
+
+    bl_idname = "tearcloth.enable"
+    bl_label = "Tear Cloth"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and not modifier.is_enabled(obj)
+
+    def execute(self, context):
+        reports = Reports()
+        obj = context.object
+        if obj.type != "MESH":
+            reports.error(f"{obj.name!r} is a {obj.type.lower()}, not a mesh: Tear Cloth works on mesh objects")
+            reports.to_operator(self)
+            return {"CANCELLED"}
+        if obj.modifiers.get(modifier.MODIFIER_NAME) is not None:
+            reports.error(f"{obj.name}: a modifier named {modifier.MODIFIER_NAME!r} that is not a Mesh Sequence "
+                          "Cache is in the way; rename it first")
+            reports.to_operator(self)
+            return {"CANCELLED"}
+        modifier.add_modifier(obj)
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_disable(Operator):
+    """Remove the "Tear Cloth" modifier (the baked files stay on disk; Free Bake deletes them)"""
+
+    bl_idname = "tearcloth.disable"
+    bl_label = "Disable Tear Cloth"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return modifier.is_enabled(context.object)
+
+    def execute(self, context):
+        obj = context.object
+        if obj.name in bake.running:
+            self.report({"ERROR"}, f"{obj.name}: its bake is running; cancel it first (Esc)")
+            return {"CANCELLED"}
+        kept = modifier.attached_path(obj)
+        modifier.detach_cache(obj)
+        obj.modifiers.remove(modifier.find_modifier(obj))
+        if kept:
+            self.report({"INFO"}, f"{obj.name}: Tear Cloth disabled; its bake stays in {kept}")
+        return {"FINISHED"}
+
+
+# ---------------------------------------------------------------------------------------------
+# Bake
+
+
+class _BakeModal:
+    """Shared by Bake and Bake All: from a script (``execute``) the objects bake inline one after
+    the other; from the UI (``invoke``) a worker thread bakes while a timer feeds it, one object
+    at a time, Esc cancelling (frames already baked are kept)."""
+
+    resume: BoolProperty(name="Resume", default=False,
+                         description="Continue an interrupted bake from its last baked frame")
+
+    def object_names(self, context) -> list:
+        raise NotImplementedError
+
+    def execute(self, context):
+        names = self.object_names(context)
+        if not names:
+            return {"CANCELLED"}
+        states = []
+        for name in names:
+            reports = Reports()
+            try:
+                result = bake.bake_object(context, bpy.data.objects.get(name), resume=self.resume, reports=reports)
+                states.append(result.state)
+            except BakeError:
+                states.append("error")
+            reports.to_operator(self)
+        return {"FINISHED"} if "done" in states or "cancelled" in states else {"CANCELLED"}
+
+    def invoke(self, context, event):
+        self._names = self.object_names(context)
+        self._run = None
+        self._any = False
+        if not self._names or not self._next(context):
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(bake.TIMER_INTERVAL, window=context.window)
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def _next(self, context) -> bool:
+        """Start the next object's bake; False when none is left that could start."""
+        while self._names:
+            name = self._names.pop(0)
+            reports = Reports()
+            try:
+                run = bake.BakeRun(context, bpy.data.objects.get(name), resume=self.resume, reports=reports)
+            except BakeError:
+                reports.to_operator(self)
+                continue
+            run.start_thread(context)
+            reports.to_operator(self)
+            run.reports = Reports()  # what was shown is not shown again at the end
+            self._run = run
+            return True
+        self._run = None
+        return False
+
+    def modal(self, context, event):
+        run = self._run
+        if event.type == "ESC" and event.value == "PRESS":
+            self._names = []
+            run.stop()
+            return self._end_run(context)
+        if event.type != "TIMER":
+            return {"PASS_THROUGH"}  # the UI stays usable while baking
+        if not run.tick(context):
+            if run.thread is not None:
+                run.thread.join()
+            return self._end_run(context)
+        _redraw(context)
+        return {"PASS_THROUGH"}
+
+    def _end_run(self, context):
+        state = self._run.finish(context)
+        self._run.reports.to_operator(self)
+        self._any = self._any or state in ("done", "cancelled")
+        _redraw(context)
+        if self._names and self._next(context):
+            return {"PASS_THROUGH"}
+        context.window_manager.event_timer_remove(self._timer)
+        return {"FINISHED"} if self._any else {"CANCELLED"}
+
+    def cancel(self, context):
+        """Blender ends the operator (file load, window closed): stop and keep the frames."""
+        self._names = []
+        if self._run is not None:
+            self._run.stop()
+            self._run.finish(context)
+        context.window_manager.event_timer_remove(self._timer)
+
+
+def _redraw(context):
+    for window in context.window_manager.windows:
+        for area in window.screen.areas:
+            if area.type in {"PROPERTIES", "VIEW_3D", "STATUSBAR", "TIMELINE", "DOPESHEET_EDITOR"}:
+                area.tag_redraw()
+
+
+class TEARCLOTH_OT_bake(_BakeModal, Operator):
+    """Simulate the tearing cloth over its frame range into its cache (Esc cancels, keeping the frames baked)"""
+
+    bl_idname = "tearcloth.bake"
+    bl_label = "Bake"
+
+    @classmethod
+    def poll(cls, context):
+        return modifier.is_enabled(context.object)
+
+    def object_names(self, context):
+        obj = context.object
+        if obj is None or obj.type != "MESH":
+            self.report({"ERROR"}, "select the mesh to tear" if obj is None else
+                        f"{obj.name!r} is a {obj.type.lower()}, not a mesh: Tear Cloth works on mesh objects")
+            return []
+        return [obj.name]
+
+
+class TEARCLOTH_OT_bake_all(_BakeModal, Operator):
+    """Bake every Tear Cloth object of the scene, one after the other"""
+
+    bl_idname = "tearcloth.bake_all"
+    bl_label = "Bake All"
+
+    def object_names(self, context):
+        names = [o.name for o in context.scene.objects if o.type == "MESH" and modifier.is_enabled(o)]
+        if not names:
+            self.report({"WARNING"}, "no object in the scene has Tear Cloth enabled")
+        return names
+
+
+class TEARCLOTH_OT_bake_cancel(Operator):
+    """Stop the running bake of this object (the frames baked so far are kept; Resume continues)"""
+
+    bl_idname = "tearcloth.bake_cancel"
+    bl_label = "Cancel Bake"
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and context.object.name in bake.running
+
+    def execute(self, context):
+        run = bake.running.get(context.object.name)
+        if run is not None:
+            # The modal operator notices on its next tick and finishes (attaching the frames).
+            run.job.cancel.set()
+            if run.queue is not None:
+                run.queue.put(None)
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_free_bake(Operator):
+    """Delete this object's baked cache; the modifier shows the rest mesh again"""
+
+    bl_idname = "tearcloth.free_bake"
+    bl_label = "Free Bake"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return modifier.is_enabled(context.object)
+
+    def execute(self, context):
+        reports = Reports()
+        ok = bake.free_bake(context.object, reports)
+        reports.to_operator(self)
+        return {"FINISHED"} if ok else {"CANCELLED"}
+
+
+# ---------------------------------------------------------------------------------------------
+# Settings helpers
+
+
+class TEARCLOTH_OT_material_preset(Operator):
+    """Set the material values from a preset"""
+
+    bl_idname = "tearcloth.material_preset"
+    bl_label = "Material Preset"
+    bl_options = {"REGISTER", "UNDO"}
+
+    preset: EnumProperty(
+        name="Preset",
+        items=[(name, name.title(), f"{name}: E {m.young:.3g} Pa, thickness {m.thickness * 1e3:.2g} mm, "
+                f"tear stress {m.tear_stress:.3g} Pa") for name, m in MATERIALS.items()],
+    )
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and context.object.type == "MESH"
+
+    def execute(self, context):
+        convert.material_to_settings(MATERIALS[self.preset], context.object.tearcloth, context.scene)
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_handle_add(Operator):
+    """Add a handle: a vertex group grasped as one, optionally following an object"""
+
+    bl_idname = "tearcloth.handle_add"
+    bl_label = "Add Handle"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _active_mesh(context) is not None
+
+    def execute(self, context):
+        settings = context.object.tearcloth
+        item = settings.handles.add()
+        vg = context.object.vertex_groups.active
+        if vg is not None:
+            item.vertex_group = vg.name
+        settings.active_handle_index = len(settings.handles) - 1
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_handle_remove(Operator):
+    """Remove the active handle"""
+
+    bl_idname = "tearcloth.handle_remove"
+    bl_label = "Remove Handle"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        obj = _active_mesh(context)
+        return obj is not None and len(obj.tearcloth.handles) > 0
+
+    def execute(self, context):
+        settings = context.object.tearcloth
+        i = min(settings.active_handle_index, len(settings.handles) - 1)
+        settings.handles.remove(i)
+        settings.active_handle_index = max(0, i - 1)
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_collider_add(Operator):
+    """Add a collider slot (selected mesh objects other than this one are filled in)"""
+
+    bl_idname = "tearcloth.collider_add"
+    bl_label = "Add Collider"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _active_mesh(context) is not None
+
+    def execute(self, context):
+        obj = context.object
+        settings = obj.tearcloth
+        present = {item.object for item in settings.colliders}
+        picked = [o for o in context.selected_objects if o is not obj and o.type == "MESH" and o not in present]
+        for other in picked or [None]:
+            item = settings.colliders.add()
+            item.object = other
+        settings.active_collider_index = len(settings.colliders) - 1
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_collider_remove(Operator):
+    """Remove the active collider slot"""
+
+    bl_idname = "tearcloth.collider_remove"
+    bl_label = "Remove Collider"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        obj = _active_mesh(context)
+        return obj is not None and len(obj.tearcloth.colliders) > 0
+
+    def execute(self, context):
+        settings = context.object.tearcloth
+        i = min(settings.active_collider_index, len(settings.colliders) - 1)
+        settings.colliders.remove(i)
+        settings.active_collider_index = max(0, i - 1)
+        return {"FINISHED"}
+
+
+# ---------------------------------------------------------------------------------------------
+# Cluster preview and Alembic export
+
+
+def cluster_colours(labels: np.ndarray) -> np.ndarray:
+    """(n, 4) RGBA per label: hues spread by the golden ratio so neighbouring ids differ."""
+    k = int(labels.max()) + 1 if labels.size else 0
+    table = np.array([colorsys.hsv_to_rgb((i * 0.618033988749895) % 1.0, 0.65, 0.95) + (1.0,)
+                      for i in range(k)], dtype=np.float32).reshape(-1, 4)
+    return table[labels]
+
+
+class TEARCLOTH_OT_preview_clusters(Operator):
+    """Colour the mesh by collision cluster (colour attribute "tearcloth_clusters"), as collision detection will split it"""
+
+    bl_idname = "tearcloth.preview_clusters"
+    bl_label = "Preview Clusters"
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _active_mesh(context) is not None
+
+    def execute(self, context):
+        from ..collision import cluster_mesh
+
+        obj = context.object
+        if obj.mode == "EDIT":
+            self.report({"ERROR"}, f"{obj.name}: leave Edit Mode to preview the clusters")
+            return {"CANCELLED"}
+        mesh = obj.data
+        arrays = convert.read_mesh(mesh, uv=False)
+        if len(arrays.triangles) == 0:
+            self.report({"ERROR"}, f"{obj.name}: the mesh has no faces to cluster")
+            return {"CANCELLED"}
+        scale = convert.scale_length(context.scene)
+        positions = convert.local_to_world_si(arrays.vertices, convert.matrix_array(obj.matrix_world), scale)
+        target = int(obj.tearcloth.cluster_size)
+        labels = cluster_mesh(positions, arrays.triangles, target)
+        colours = np.full((len(mesh.vertices), 4), 0.2, dtype=np.float32)  # loose vertices: dark grey
+        colours[:, 3] = 1.0
+        colours[arrays.kept] = cluster_colours(labels)
+        attr = mesh.color_attributes.get(CLUSTER_ATTRIBUTE)
+        if attr is not None and (attr.domain != "POINT" or attr.data_type != "FLOAT_COLOR"):
+            mesh.color_attributes.remove(attr)
+            attr = None
+        if attr is None:
+            attr = mesh.color_attributes.new(CLUSTER_ATTRIBUTE, "FLOAT_COLOR", "POINT")
+        attr.data.foreach_set("color", colours.ravel())
+        mesh.color_attributes.active_color = attr
+        mesh.update()
+        k = int(labels.max()) + 1
+        self.report({"INFO"}, f"{obj.name}: {k} cluster{'s' if k != 1 else ''} of about {target} vertices in the "
+                              f"colour attribute {CLUSTER_ATTRIBUTE!r} (Viewport Shading > Color > Attribute)")
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_export_alembic(Operator):
+    """Export the baked Tear Cloth objects (the selected ones, or all) to Alembic with Blender's exporter, the torn topology of every frame included"""
+
+    bl_idname = "tearcloth.export_alembic"
+    bl_label = "Export Alembic"
+
+    def execute(self, context):
+        scene = context.scene
+        baked = [o for o in scene.objects if modifier.attached_path(o) is not None]
+        chosen = [o for o in baked if o.select_get()] or baked
+        if not chosen:
+            self.report({"ERROR"}, "nothing to export: no Tear Cloth object of this scene has a bake")
+            return {"CANCELLED"}
+        target = scene.tearcloth.alembic_path
+        if target.startswith("//") and not bpy.data.filepath:
+            self.report({"ERROR"}, f"the Alembic path {target!r} is relative to the .blend file, which is not "
+                                   "saved yet: save it or choose an absolute path")
+            return {"CANCELLED"}
+        path = os.path.normpath(bpy.path.abspath(target))
+        folder = os.path.dirname(path)
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError as exc:
+            self.report({"ERROR"}, f"cannot create {folder}: {exc.strerror or exc}")
+            return {"CANCELLED"}
+        start = min(o.tearcloth.frame_start for o in chosen)
+        end = max(o.tearcloth.frame_end for o in chosen)
+        view_layer = context.view_layer
+        selected = [o for o in view_layer.objects if o.select_get()]
+        active = view_layer.objects.active
+        try:
+            for o in selected:
+                o.select_set(False)
+            for o in chosen:
+                o.select_set(True)
+            # The "Tear Cloth" Mesh Sequence Cache modifier makes the exporter treat each object as
+            # animated, so every frame's own topology is written (not just the first frame's).
+            result = bpy.ops.wm.alembic_export(
+                filepath=path, start=start, end=end, selected=True, uvs=True, normals=True,
+                evaluation_mode="RENDER", as_background_job=False,
+            )
+        finally:
+            for o in chosen:
+                o.select_set(False)
+            for o in selected:
+                if o.name in view_layer.objects:
+                    o.select_set(True)
+            view_layer.objects.active = active
+        if "FINISHED" not in result:
+            self.report({"ERROR"}, f"Blender's Alembic exporter did not finish writing {path}")
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"exported {len(chosen)} object{'s' if len(chosen) != 1 else ''}, frames "
+                              f"{start}-{end}, to {path}")
+        return {"FINISHED"}
+
+
+classes = (
+    TEARCLOTH_OT_enable,
+    TEARCLOTH_OT_disable,
+    TEARCLOTH_OT_bake,
+    TEARCLOTH_OT_bake_all,
+    TEARCLOTH_OT_bake_cancel,
+    TEARCLOTH_OT_free_bake,
+    TEARCLOTH_OT_material_preset,
+    TEARCLOTH_OT_handle_add,
+    TEARCLOTH_OT_handle_remove,
+    TEARCLOTH_OT_collider_add,
+    TEARCLOTH_OT_collider_remove,
+    TEARCLOTH_OT_preview_clusters,
+    TEARCLOTH_OT_export_alembic,
+)

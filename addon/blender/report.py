@@ -1,0 +1,63 @@
+"""Messages to the user: one list that an operator turns into ``self.report`` calls and the headless
+bake turns into log lines, so every problem reads the same in the UI and in a farm log.
+
+This file owns the ``Reports`` collector and the ``tearcloth`` logger used by the Blender layer.
+It imports no bpy: validation code fills a ``Reports`` and never needs to know who will show it.
+"""
+from __future__ import annotations
+
+import logging
+
+log = logging.getLogger("tearcloth")
+
+# Blender's report levels and the logging level each maps to.
+_LEVELS = {"ERROR": logging.ERROR, "WARNING": logging.WARNING, "INFO": logging.INFO}
+
+
+class BakeError(ValueError):
+    """A bake (or another Tear Cloth action) that cannot go ahead; the message says why and what
+    to do. The scene is left as it was."""
+
+
+class Reports:
+    """An ordered list of (level, message); levels are Blender's 'ERROR', 'WARNING' and 'INFO'.
+
+    Every message is logged the moment it is added, so a headless run shows it even if nothing
+    else reads the list.
+    """
+
+    def __init__(self):
+        self.items: list[tuple[str, str]] = []
+
+    def add(self, level: str, message: str) -> None:
+        if level not in _LEVELS:
+            raise ValueError(f"report level must be one of {sorted(_LEVELS)}, not {level!r}")
+        self.items.append((level, message))
+        log.log(_LEVELS[level], message)
+
+    def error(self, message: str) -> None:
+        self.add("ERROR", message)
+
+    def warning(self, message: str) -> None:
+        self.add("WARNING", message)
+
+    def info(self, message: str) -> None:
+        self.add("INFO", message)
+
+    @property
+    def errors(self) -> list[str]:
+        return [m for level, m in self.items if level == "ERROR"]
+
+    @property
+    def warnings(self) -> list[str]:
+        return [m for level, m in self.items if level == "WARNING"]
+
+    def raise_if_errors(self) -> None:
+        """Stop here if anything was an error (all errors, not only the first, are in the list)."""
+        if self.errors:
+            raise BakeError("; ".join(self.errors))
+
+    def to_operator(self, operator) -> None:
+        """Show every message through ``operator.report`` (the status bar and the Info editor)."""
+        for level, message in self.items:
+            operator.report({level}, message)

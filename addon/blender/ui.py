@@ -1,0 +1,318 @@
+"""Tear Cloth in Blender's interface: the Physics panel (laid out like Blender's Cloth panel), the
+enable button among Blender's physics buttons, the presets menu, the handle and collider lists,
+and bake progress in the status bar.
+
+This file owns drawing only: it reads settings and bake progress and never changes data (Blender
+forbids writes while drawing). Bake state comes from ``bake.running`` and the cache root's
+metadata, read at most once per file change.
+"""
+from __future__ import annotations
+
+import os
+
+import bpy
+from bpy.types import Menu, Panel, UIList
+
+from .. import cache
+from ..materials import MATERIALS
+from . import bake, modifier
+
+
+def _cache_state(obj):
+    """(info dict or None, problem text or None) for the cache the object plays, memoised on the
+    root's modification time so redraws do not reopen USD files."""
+    path = modifier.attached_path(obj)
+    if path is None:
+        return None, None
+    try:
+        mtime = os.path.getmtime(path)
+    except OSError:
+        return None, f"cache file missing: {path}"
+    memo = _memo.get(path)
+    if memo is None or memo[0] != mtime:
+        try:
+            memo = (mtime, cache.cache_info(path), None)
+        except cache.CacheError as exc:
+            memo = (mtime, None, str(exc))
+        _memo[path] = memo
+    info, problem = memo[1], memo[2]
+    if info is not None and info["object"] != obj.name:
+        problem = f"baked for object {info['object']!r} (renamed since?): free or bake again"
+    return info, problem
+
+
+_memo: dict = {}
+
+
+class TearClothPanel:
+    bl_space_type = "PROPERTIES"
+    bl_region_type = "WINDOW"
+    bl_context = "physics"
+
+    @classmethod
+    def poll(cls, context):
+        obj = context.object
+        return obj is not None and obj.type == "MESH" and modifier.is_enabled(obj)
+
+
+class TEARCLOTH_MT_material_presets(Menu):
+    bl_label = "Material Presets"
+
+    def draw(self, context):
+        layout = self.layout
+        for name in MATERIALS:
+            layout.operator("tearcloth.material_preset", text=name.title()).preset = name
+
+
+def _draw_presets(layout, settings):
+    layout.menu("TEARCLOTH_MT_material_presets", text=(settings.material_preset or "Presets").title(),
+                icon="PRESET")
+
+
+class TEARCLOTH_PT_main(TearClothPanel, Panel):
+    bl_label = "Tear Cloth"
+
+    def draw_header_preset(self, context):
+        _draw_presets(self.layout, context.object.tearcloth)
+
+    def draw(self, context):
+        layout = self.layout
+        obj = context.object
+        progress = bake.progress_of(obj.name)
+        if progress is not None:
+            layout.progress(factor=progress.factor, type="BAR", text=progress.text())
+            layout.operator("tearcloth.bake_cancel", icon="CANCEL")
+            return
+        info, problem = _cache_state(obj)
+        if problem:
+            layout.label(text=problem, icon="ERROR")
+        elif info is not None and info["frames"]:
+            state = "" if info["complete"] else " (interrupted)"
+            layout.label(text=f"Baked frames {info['frames'][0]}-{info['frames'][-1]}{state}", icon="CHECKMARK")
+        else:
+            layout.label(text="Not baked: the rest mesh is shown", icon="INFO")
+
+
+def _baked(obj) -> bool:
+    return modifier.attached_path(obj) is not None
+
+
+class TEARCLOTH_PT_material(TearClothPanel, Panel):
+    bl_label = "Material"
+    bl_parent_id = "TEARCLOTH_PT_main"
+
+    def draw_header_preset(self, context):
+        _draw_presets(self.layout, context.object.tearcloth)
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        settings = context.object.tearcloth
+        layout.active = not _baked(context.object)
+        flow = layout.grid_flow(row_major=False, columns=0, even_columns=True, even_rows=False, align=True)
+        col = flow.column()
+        col.prop(settings, "young")
+        col.prop(settings, "poisson")
+        col.prop(settings, "thickness")
+        col.prop(settings, "density")
+        col = flow.column()
+        col.prop(settings, "tear_stress")
+        col.prop(settings, "snap_tolerance")
+        col = flow.column()
+        col.prop(settings, "bending")
+        col.prop(settings, "damping_mass")
+        col.prop(settings, "damping_stiffness")
+
+
+class TEARCLOTH_PT_quality(TearClothPanel, Panel):
+    bl_label = "Quality"
+    bl_parent_id = "TEARCLOTH_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        settings = context.object.tearcloth
+        layout.active = not _baked(context.object)
+        col = layout.column()
+        col.prop(settings, "steps_per_frame")
+        fps = context.scene.render.fps / context.scene.render.fps_base
+        col.label(text=f"Time step {1000.0 / fps / settings.steps_per_frame:.3g} ms")
+        col = layout.column(align=True)
+        col.prop(settings, "cg_tolerance")
+        col.prop(settings, "cg_max_iterations")
+        col = layout.column(heading="Tearing")
+        col.prop(settings, "use_tearing", text="")
+        sub = col.column(align=True)
+        sub.active = settings.use_tearing
+        sub.prop(settings, "scan_period")
+        sub.prop(settings, "min_angle_deg")
+
+
+class TEARCLOTH_UL_handles(UIList):
+    def draw_item(self, context, layout, data, item, icon, active_data, active_property, index=0, flt_flag=0):
+        row = layout.row(align=True)
+        row.prop_search(item, "vertex_group", context.object, "vertex_groups", text="", icon="GROUP_VERTEX")
+        row.prop(item, "follow", text="", icon="EMPTY_AXIS")
+
+
+class TEARCLOTH_UL_colliders(UIList):
+    def draw_item(self, context, layout, data, item, icon, active_data, active_property, index=0, flt_flag=0):
+        layout.prop(item, "object", text="", icon="MOD_PHYSICS")
+
+
+def _list_with_buttons(layout, list_id, data, prop, index_prop, add_op, remove_op):
+    row = layout.row()
+    row.template_list(list_id, "", data, prop, data, index_prop, rows=3)
+    col = row.column(align=True)
+    col.operator(add_op, icon="ADD", text="")
+    col.operator(remove_op, icon="REMOVE", text="")
+
+
+class TEARCLOTH_PT_pins(TearClothPanel, Panel):
+    bl_label = "Pins and Handles"
+    bl_parent_id = "TEARCLOTH_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        obj = context.object
+        settings = obj.tearcloth
+        layout.active = not _baked(obj)
+        split = layout.column()
+        split.use_property_split = True
+        split.prop_search(settings, "pin_group", obj, "vertex_groups", text="Pin Group")
+        layout.label(text="Handles (vertex group, follow object):")
+        _list_with_buttons(layout, "TEARCLOTH_UL_handles", settings, "handles", "active_handle_index",
+                           "tearcloth.handle_add", "tearcloth.handle_remove")
+
+
+class TEARCLOTH_PT_seams(TearClothPanel, Panel):
+    bl_label = "Weak Seams"
+    bl_parent_id = "TEARCLOTH_PT_main"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        obj = context.object
+        settings = obj.tearcloth
+        layout.active = not _baked(obj)
+        col = layout.column()
+        col.prop_search(settings, "seam_group", obj, "vertex_groups", text="Vertex Group")
+        sub = col.column()
+        sub.active = bool(settings.seam_group)
+        sub.prop(settings, "seam_factor")
+
+
+class TEARCLOTH_PT_collision(TearClothPanel, Panel):
+    bl_label = "Collision"
+    bl_parent_id = "TEARCLOTH_PT_main"
+
+    def draw_header(self, context):
+        self.layout.prop(context.object.tearcloth, "use_collision", text="")
+
+    def draw(self, context):
+        layout = self.layout
+        settings = context.object.tearcloth
+        layout.active = settings.use_collision and not _baked(context.object)
+        _list_with_buttons(layout, "TEARCLOTH_UL_colliders", settings, "colliders", "active_collider_index",
+                           "tearcloth.collider_add", "tearcloth.collider_remove")
+        col = layout.column()
+        col.use_property_split = True
+        col.prop(settings, "collider_collection")
+        col.prop(settings, "collision_thickness")
+        col.prop(settings, "friction")
+        col.prop(settings, "use_self_collision")
+        col.separator()
+        col.prop(settings, "cluster_size")
+        col.prop(settings, "displacement_threshold")
+        col.prop(settings, "measure")
+        col.operator("tearcloth.preview_clusters", icon="GROUP_VERTEX")
+
+
+class TEARCLOTH_PT_cache(TearClothPanel, Panel):
+    bl_label = "Cache"
+    bl_parent_id = "TEARCLOTH_PT_main"
+
+    def draw(self, context):
+        layout = self.layout
+        layout.use_property_split = True
+        obj = context.object
+        settings = obj.tearcloth
+        running = obj.name in bake.running
+        col = layout.column()
+        col.active = not running
+        col.prop(settings, "cache_folder")
+        sub = col.column(align=True)
+        sub.prop(settings, "frame_start", text="Frame Start")
+        sub.prop(settings, "frame_end", text="End")
+        info, problem = _cache_state(obj)
+        if info is not None and info["frames"]:
+            col.label(text=f"{len(info['frames'])} frames in {os.path.basename(info['path'])}")
+        layout.use_property_split = False
+        if running:
+            layout.operator("tearcloth.bake_cancel", icon="CANCEL")
+            return
+        row = layout.row(align=True)
+        row.operator("tearcloth.bake", text="Bake")
+        row.operator("tearcloth.bake", text="Resume").resume = True
+        row = layout.row(align=True)
+        row.operator("tearcloth.free_bake", text="Free Bake")
+        row = layout.row(align=True)
+        row.operator("tearcloth.bake_all", text="Bake All")
+        row.operator("tearcloth.export_alembic", text="Export Alembic")
+        layout.prop(context.scene.tearcloth, "alembic_path", text="")
+
+
+class TEARCLOTH_PT_haptics(TearClothPanel, Panel):
+    bl_label = "Haptics"
+    bl_parent_id = "TEARCLOTH_PT_main"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context):
+        # Filled by the haptics issue (device, coupling, live session); nothing to set yet.
+        self.layout.label(text="Haptic devices are not supported in this version yet", icon="INFO")
+
+
+def draw_physics_button(self, context):
+    """Added to Blender's "Enable physics for:" buttons (PHYSICS_PT_add), like its Cloth button."""
+    obj = context.object
+    if obj is None or obj.type != "MESH":
+        return
+    row = self.layout.row(align=True)
+    md = modifier.find_modifier(obj)
+    if md is None:
+        row.operator("tearcloth.enable", text="Tear Cloth", icon="MOD_CLOTH")
+    else:
+        row.operator("tearcloth.disable", text="Tear Cloth", icon="X")
+        row.prop(md, "show_viewport", text="")
+        row.prop(md, "show_render", text="")
+
+
+def draw_status_bar(self, context):
+    for progress in [run.progress for run in bake.running.values()]:
+        self.layout.progress(factor=progress.factor, type="BAR", text=progress.text())
+
+
+classes = (
+    TEARCLOTH_MT_material_presets,
+    TEARCLOTH_UL_handles,
+    TEARCLOTH_UL_colliders,
+    TEARCLOTH_PT_main,
+    TEARCLOTH_PT_material,
+    TEARCLOTH_PT_quality,
+    TEARCLOTH_PT_pins,
+    TEARCLOTH_PT_seams,
+    TEARCLOTH_PT_collision,
+    TEARCLOTH_PT_cache,
+    TEARCLOTH_PT_haptics,
+)
+
+
+def register_draw_functions() -> None:
+    bpy.types.PHYSICS_PT_add.append(draw_physics_button)
+    bpy.types.STATUSBAR_HT_header.append(draw_status_bar)
+
+
+def unregister_draw_functions() -> None:
+    bpy.types.PHYSICS_PT_add.remove(draw_physics_button)
+    bpy.types.STATUSBAR_HT_header.remove(draw_status_bar)

@@ -1,0 +1,946 @@
+"""The live bimanual tearing session of Le Gouis et al. (WHC 2017), section VI: each hand's device
+drives a proxy at haptic rate, the simulation moves the grasped handle to the proxy at simulation
+rate, and the force the cloth exerts on the handle (eq. 6) comes back to the hand through the
+servo loop's impedance law (eq. 5).
+
+This file owns:
+- ``LiveSession``: binds devices to handles, runs the simulation loop (on the caller's thread with
+  ``run_for``/``step_once``, or on a thread of its own with ``start``), publishes F_tear and a
+  linearisation to the ``ServoLoop`` mailboxes, picks the servo's stall timeout from the measured
+  simulation rate, records frames (``recorder`` hook) and forces (``ForceLog``), and ends cleanly
+  (zero force, threads joined, devices closed) on ``stop()``, on a stop button, on device loss or
+  on a simulation error;
+- ``emulated_falcon`` / ``pulling_hand``: a Falcon emulator with a scripted hand that pulls its
+  grip along a direction (tests, demo, bench);
+- ``emulated_session``: the paper's scenes (square cloth, banknote, T-shirt) grasped by two
+  emulated Falcons that pull apart;
+- ``force_phases``: the three phases of the paper's Fig. 6 read from a force log;
+- ``measure_live_servo``: servo timing while the simulation runs flat out (``tearcloth bench``).
+
+One simulation step, as data flows (design.md): proxies (servo) -> handle targets -> session step
+(collision, FEM, tearing; the GIL is released in the native step so the servo threads keep their
+1 kHz) -> F_tear per handle -> servo mailboxes; recorder and force log on the side.
+
+Handle target. A handle is grasped as a rigid translation: its target is the affine map
+[I | x_proxy - c] of its grasp-time positions, where c is their centroid, so the grasp-time
+offsets of the vertices from the centroid are kept and the centroid lands on the proxy. With
+``rebase=True`` (default) the coupling's offset is shifted at bind time so that the device's
+current position maps to c: the cloth does not jump toward wherever the hand happened to be. The
+target follows the proxy at most ``max_handle_speed`` (m/s of simulated time) so that a yanked
+device cannot blow the implicit step up; the proxy spring of eq. (5) renders the lag.
+
+Linearisation (Otaduy & Lin 2006). With ``linearise=True`` each step also publishes
+f0 = F_tear, x0 = the handle position and a stiffness K estimated from the last two
+(force, position) pairs of that hand: K = -k·u·uᵀ along the motion u = Δx/|Δx|, with
+k = -ΔF·Δx/|Δx|² clamped to [0, the device's max stiffness / (force_scale·scale)] (a negative k -
+the force dropping while the hand pulls, as at a tear - would be positive feedback: it is dropped
+to 0). The pair is only renewed once the handle has moved ``min_secant_m``, so sensor-sized
+motions do not produce absurd slopes. The servo scales K down further to its stiffness budget.
+
+Stall timeout (the servo zeroes the force when the mailbox is older than this). Rule:
+``stall_timeout = clip(stall_factor · p99(publish period), min_stall_timeout_s, max_stall_timeout_s)``
+with defaults 3, 10 ms and 100 ms; the p99 is over the last 200 publish periods (step start to
+step start within one ``run_for``/thread run), first from ``warmup_steps`` steps taken before the
+servo starts, then re-evaluated every 50 steps. Three periods at the 99th percentile means a
+normally slow step never trips the watchdog, while a simulation that really stops (a stall, a
+debugger, a caller that stops calling ``run_for``) is cut off within a few of its own periods; the
+10 ms floor keeps the servo's default for fast simulations, the 100 ms ceiling bounds how long a
+frozen linearisation can be felt. Pass ``stall_timeout_s`` to fix it instead.
+
+Device loss. ``on_device_lost="stop"`` (default) ends the whole session with zero force on every
+device: tearing is a two-handed task and one hand suddenly pulling against a frozen handle is not
+what the user expects. ``"continue"`` keeps the other hands running; the lost hand's handle stays
+where it was (like a pin) and the session ends when no hand is left. A servo thread that stops
+answering (no proxy for ``proxy_timeout_s``) counts as a lost device.
+
+Threads: the servo owns one thread per device (``servo.ServoLoop``); the simulation loop runs on
+one thread (the caller's or ``tearcloth-live-sim``); the recorder is called on the simulation
+thread, so the Blender layer must queue what it receives and touch bpy only from the main thread.
+
+This module sits at the top of ``haptics`` and drives the session layer; it imports
+``..session``/``..scenes``/``..cloth`` lazily inside the functions that need them, so importing
+``tearcloth.haptics`` still pulls in no simulation code. Pure Python, no bpy, SI units.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+import time
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
+
+import numpy as np
+
+from .device import (
+    ConfigError,
+    DeviceNotFoundError,
+    DeviceState,
+    DeviceStateError,
+    FirmwareError,
+    HapticDevice,
+    HapticError,
+    NotHomedError,
+    Workspace,
+)
+from .falcon import FalconDevice
+from .falcon_emulator import FalconEmulator, spring_hand
+from .falcon_kinematics import WORKSPACE_CENTRE, WORKSPACE_RADIUS
+from .forcelog import ForceLog
+from .servo import HandCoupling, ServoLoop
+
+__all__ = [
+    "LiveSession",
+    "Recorder",
+    "FALCON_TO_SCENE",
+    "FALCON_CENTRE_BUTTON",
+    "falcon_coupling",
+    "pulling_hand",
+    "emulated_falcon",
+    "emulated_session",
+    "force_phases",
+    "measure_live_servo",
+]
+
+# Falcon frame (x right, y up, z toward the user) -> scene frame (Blender: z up, the front view
+# looks along +y, so "toward the user" is -y). Columns are the device axes in the scene.
+FALCON_TO_SCENE = ((1.0, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 1.0, 0.0))
+# The Falcon's grip buttons (falcon_packets): 0x1 plus, 0x2 forward, 0x4 centre, 0x8 minus.
+FALCON_CENTRE_BUTTON = 0x4
+
+# recorder(time_s, positions (n,3), triangles (m,3), corner_uv (m,3,2), velocities (n,3))
+Recorder = Callable[[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray], Any]
+
+_PERIOD_WINDOW = 200
+_STALL_UPDATE_EVERY = 50
+
+
+class _Hand:
+    """One bound hand: its handle on the cloth, its device and coupling, and the loop's memory."""
+
+    def __init__(self, name: str, handle: int, indices: np.ndarray, centroid: np.ndarray, device: HapticDevice, coupling: HandCoupling):
+        self.name = name
+        self.handle = handle
+        self.indices = indices
+        self.centroid = centroid  # grasp-time centroid of the handle vertices (scene, m)
+        self.device = device
+        self.coupling = coupling
+        self.translation = np.zeros(3)  # current handle target: [I | translation]
+        self.last_f: Optional[np.ndarray] = None  # secant base for the stiffness estimate
+        self.last_x: Optional[np.ndarray] = None
+        self.stiffness = np.zeros((3, 3))
+        self.k_max = math.inf
+        self.lost = False
+        self.armed = False  # the stop button must be seen released once before it counts
+
+    @property
+    def position(self) -> np.ndarray:
+        return self.centroid + self.translation
+
+
+class LiveSession:
+    """A simulated cloth torn live by haptic devices (see the module docstring).
+
+    ``session_or_cloth``: a ``Session`` (collision included) or a bare ``Cloth`` (wrapped in a
+    ``Session`` without collision). ``hands``: {hand name: (handle, device, coupling)} where
+    handle is a handle id from ``cloth.add_handle``, a vertex-group name or vertex indices (the
+    session then grasps them), and coupling a ``HandCoupling`` (None: 1:1, identity rotation).
+
+    Life cycle: ``open()`` opens the devices, binds them and starts the servo threads (``run_for``,
+    ``step_once`` and ``start`` call it); ``run_for(s)``/``step_once()`` step on the caller's
+    thread; ``start()`` steps on a thread of its own; ``stop()`` ends everything. After the end,
+    ``end_reason`` says why and ``error`` holds the exception if one ended it.
+
+    Logs: ``force_log`` holds the force rendered to each hand at every servo tick (scene frame,
+    N, servo clock); ``tear_log`` holds F_tear at every simulation step (same clock), so the two
+    overlay. ``first_tear_clock`` / ``first_tear_time`` are the servo-clock and simulated times of
+    the step where ``cloth.stats()['tears_started']`` first became non-zero.
+    """
+
+    def __init__(
+        self,
+        session_or_cloth,
+        hands: Mapping[str, Tuple[Any, HapticDevice, Optional[HandCoupling]]],
+        dt: float = 1e-3,
+        *,
+        servo_period_s: float = 0.001,
+        stall_timeout_s: Optional[float] = None,
+        stall_factor: float = 3.0,
+        min_stall_timeout_s: float = 0.010,
+        max_stall_timeout_s: float = 0.100,
+        linearise: bool = True,
+        min_secant_m: float = 1e-5,
+        max_linear_stiffness: float = 1e5,
+        max_handle_speed: Optional[float] = 1.0,
+        stop_buttons: Optional[int] = FALCON_CENTRE_BUTTON,
+        on_device_lost: str = "stop",
+        recorder: Optional[Recorder] = None,
+        record_every: int = 10,
+        homing_timeout_s: float = 0.0,
+        rebase: bool = True,
+        warmup_steps: int = 5,
+        proxy_timeout_s: float = 0.5,
+        servo_kwargs: Optional[Mapping[str, Any]] = None,
+    ):
+        if not (dt > 0.0 and math.isfinite(dt)):
+            raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
+        if on_device_lost not in ("stop", "continue"):
+            raise ConfigError(f"on_device_lost must be 'stop' or 'continue', got {on_device_lost!r}")
+        if int(record_every) < 1:
+            raise ConfigError(f"record_every must be at least 1 step, got {record_every!r}")
+        if not 0.0 < min_stall_timeout_s <= max_stall_timeout_s:
+            raise ConfigError(f"need 0 < min_stall_timeout_s <= max_stall_timeout_s, got {min_stall_timeout_s}, {max_stall_timeout_s}")
+        if stall_timeout_s is not None and not stall_timeout_s > servo_period_s:
+            raise ConfigError(f"stall timeout ({stall_timeout_s} s) must exceed the servo period ({servo_period_s} s)")
+        if not stall_factor >= 1.0:
+            raise ConfigError(f"stall_factor must be >= 1 (a timeout shorter than a simulation period trips on every step), got {stall_factor!r}")
+        if max_handle_speed is not None and not max_handle_speed > 0.0:
+            raise ConfigError(f"max_handle_speed must be > 0 m/s or None, got {max_handle_speed!r}")
+
+        if hasattr(session_or_cloth, "cloth") and hasattr(session_or_cloth, "step"):
+            self.session = session_or_cloth
+        elif hasattr(session_or_cloth, "add_handle") and hasattr(session_or_cloth, "handle_force"):
+            from ..session import Session  # lazily: see the module docstring
+
+            self.session = Session(session_or_cloth)
+        else:
+            raise ConfigError(f"LiveSession needs a Session or a Cloth, got {type(session_or_cloth).__name__}")
+        self.cloth = self.session.cloth
+
+        self.dt = float(dt)
+        self.servo_period_s = float(servo_period_s)
+        self.fixed_stall_timeout_s = stall_timeout_s
+        self.stall_factor = float(stall_factor)
+        self.min_stall_timeout_s = float(min_stall_timeout_s)
+        self.max_stall_timeout_s = float(max_stall_timeout_s)
+        self.stall_timeout_s = float(stall_timeout_s) if stall_timeout_s is not None else self.min_stall_timeout_s
+        self.linearise = bool(linearise)
+        self.min_secant_m = float(min_secant_m)
+        self.max_linear_stiffness = float(max_linear_stiffness)
+        self.max_handle_speed = max_handle_speed
+        self.stop_buttons = int(stop_buttons) if stop_buttons else 0
+        self.on_device_lost = on_device_lost
+        self.recorder = recorder
+        self.record_every = int(record_every)
+        self.homing_timeout_s = float(homing_timeout_s)
+        self.rebase = bool(rebase)
+        self.warmup_steps = max(0, int(warmup_steps))
+        self.proxy_timeout_s = float(proxy_timeout_s)
+        self.servo_kwargs = dict(servo_kwargs or {})
+
+        self._hands: Dict[str, _Hand] = self._bind_handles(hands)
+        self.force_log = ForceLog(list(self._hands))
+        self.tear_log = ForceLog(list(self._hands))
+        self.servo: Optional[ServoLoop] = None
+
+        self.steps = 0
+        self.frames_recorded = 0
+        self.first_tear_clock: Optional[float] = None
+        self.first_tear_time: Optional[float] = None
+        self.ended = False
+        self.end_reason: Optional[str] = None
+        self.error: Optional[BaseException] = None
+        self.shutdown_errors: List[BaseException] = []
+        self.lost_hands: List[str] = []
+        self._opened = False
+        self._lock = threading.RLock()
+        self._stop_event = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+        self._periods = np.zeros(_PERIOD_WINDOW)
+        self._n_periods = 0
+        self._last_step_start: Optional[float] = None
+        self._active_wall_s = 0.0
+        self._step_wall: List[float] = []
+
+    # ---- binding ------------------------------------------------------------------------------
+    def _bind_handles(self, hands) -> Dict[str, _Hand]:
+        if not hands:
+            raise ConfigError(
+                "a live session needs at least one hand: pass {hand name: (handle or vertex group, device, coupling)}; "
+                "no devices were given"
+            )
+        cloth = self.cloth
+        known = getattr(cloth, "_handles", {})  # Cloth keeps {handle id: vertex indices}
+        seen_devices: Dict[int, str] = {}
+        created: List[int] = []
+        out: Dict[str, _Hand] = {}
+        try:
+            for name, spec in hands.items():
+                try:
+                    handle, device, coupling = spec
+                except (TypeError, ValueError):
+                    raise ConfigError(f"hand {name!r}: expected (handle or vertex group, device, coupling), got {spec!r}") from None
+                if not isinstance(device, HapticDevice):
+                    raise ConfigError(f"hand {name!r}: {device!r} is not a HapticDevice")
+                if id(device) in seen_devices:
+                    raise ConfigError(f"hands {seen_devices[id(device)]!r} and {name!r} use the same device {device.name!r}")
+                seen_devices[id(device)] = name
+                if coupling is not None and not isinstance(coupling, HandCoupling):
+                    raise ConfigError(f"hand {name!r}: coupling must be a HandCoupling or None, got {type(coupling).__name__}")
+                if isinstance(handle, str):
+                    groups = list(getattr(cloth, "group_names", []))
+                    if handle not in groups:
+                        raise ConfigError(f"hand {name!r}: the cloth has no vertex group {handle!r}; its groups are {groups or 'none'}")
+                    if not np.any(cloth.group(handle) >= 0.5):
+                        raise ConfigError(f"hand {name!r}: vertex group {handle!r} selects no vertex (no weight >= 0.5)")
+                    h = cloth.add_handle(handle)
+                    created.append(h)
+                elif isinstance(handle, (int, np.integer)) and not isinstance(handle, bool):
+                    h = int(handle)
+                    if h not in known:
+                        raise ConfigError(f"hand {name!r}: the cloth has no handle {h}; its handles are {sorted(known) or 'none'}")
+                else:
+                    idx = np.asarray(handle).reshape(-1)
+                    if idx.size == 0:
+                        raise ConfigError(f"hand {name!r}: an empty vertex selection cannot be grasped")
+                    h = cloth.add_handle(idx)
+                    created.append(h)
+                indices = np.asarray(known.get(h, ()), dtype=np.int64)
+                if indices.size == 0:
+                    raise ConfigError(f"hand {name!r}: handle {h} grasps no vertex")
+                centroid = np.asarray(cloth.positions, dtype=float)[indices].mean(axis=0)
+                if coupling is None:
+                    coupling = HandCoupling.fit(device.workspace, centroid, device.workspace.radius)
+                out[name] = _Hand(name, h, indices, centroid, device, coupling)
+        except BaseException:
+            for h in created:
+                try:
+                    cloth.release_handle(h)
+                except Exception:  # best effort: the error being raised is the one that matters
+                    pass
+            raise
+        return out
+
+    @property
+    def hands(self) -> List[str]:
+        return list(self._hands)
+
+    def handle(self, hand: str) -> int:
+        return self._hand(hand).handle
+
+    def device(self, hand: str) -> HapticDevice:
+        return self._hand(hand).device
+
+    def coupling(self, hand: str) -> HandCoupling:
+        return self._hand(hand).coupling
+
+    def handle_position(self, hand: str) -> np.ndarray:
+        """Where the handle's grasp centroid is being held (scene, m)."""
+        return self._hand(hand).position.copy()
+
+    def _hand(self, hand: str) -> _Hand:
+        try:
+            return self._hands[hand]
+        except KeyError:
+            raise ConfigError(f"unknown hand {hand!r}; hands are {sorted(self._hands)}") from None
+
+    # ---- opening ------------------------------------------------------------------------------
+    def open(self) -> None:
+        """Open and bind every device, take the warm-up steps, start the servo threads.
+
+        Raises a ``HapticError`` naming the hand when a device is absent (``DeviceNotFoundError``),
+        needs firmware (``FirmwareError``), is not homed within ``homing_timeout_s``
+        (``NotHomedError``) or is coupled stiffer than it can render (``ConfigError``); every device
+        opened so far is closed again."""
+        with self._lock:
+            if self._opened:
+                if self.ended:
+                    raise DeviceStateError(f"this live session has ended ({self.end_reason}); create a new one")
+                return
+            opened: List[HapticDevice] = []
+            try:
+                for hs in self._hands.values():
+                    self._open_device(hs)
+                    opened.append(hs.device)
+                for hs in self._hands.values():
+                    self._bind_device(hs)
+                self.servo = ServoLoop(
+                    {n: hs.device for n, hs in self._hands.items()},
+                    {n: hs.coupling for n, hs in self._hands.items()},
+                    period_s=self.servo_period_s,
+                    stall_timeout_s=max(self.stall_timeout_s, 2.0 * self.servo_period_s),
+                    force_log=self.force_log,
+                    **self.servo_kwargs,
+                )
+                self._warm_up()
+                self.servo.start()
+            except BaseException:
+                if self.servo is not None and self.servo.running:
+                    try:
+                        self.servo.stop()
+                    except HapticError:
+                        pass
+                for dev in opened:
+                    try:
+                        dev.close()
+                    except HapticError:
+                        pass
+                self.servo = None
+                raise
+            self._opened = True
+
+    def _open_device(self, hs: _Hand) -> None:
+        dev = hs.device
+        try:
+            state = dev.open()
+        except DeviceNotFoundError as exc:
+            raise DeviceNotFoundError(f"hand {hs.name!r}: {exc}") from exc
+        except FirmwareError as exc:
+            raise FirmwareError(f"hand {hs.name!r}: {exc}") from exc
+        except HapticError as exc:
+            raise DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} could not be opened: {exc}") from exc
+        try:
+            if state is DeviceState.NEEDS_FIRMWARE:
+                raise FirmwareError(f"hand {hs.name!r}: {dev.message}")
+            if state is DeviceState.HOMING:
+                deadline = time.perf_counter() + self.homing_timeout_s
+                while dev.state is DeviceState.HOMING and time.perf_counter() < deadline:
+                    dev.poll()
+                    time.sleep(0.001)
+                if dev.state is DeviceState.HOMING:
+                    raise NotHomedError(
+                        f"hand {hs.name!r}: {dev.name} is not homed"
+                        + (f" after {self.homing_timeout_s:.1f} s" if self.homing_timeout_s > 0 else "")
+                        + f". {dev.message}"
+                    )
+            if dev.state is not DeviceState.READY:
+                raise DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} is not ready ({dev.state.value}): {dev.message}")
+        except BaseException:
+            try:
+                dev.close()
+            except HapticError:
+                pass
+            raise
+
+    def _bind_device(self, hs: _Hand) -> None:
+        dev = hs.device
+        dev.poll()  # a fresh reading (still our thread: the servo has not started)
+        if dev.state is not DeviceState.READY:
+            raise DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} stopped answering while binding: {dev.message}")
+        c = hs.coupling
+        if self.rebase:
+            # Shift the offset so the hand's current pose is the grasp: proxy(p_now) = centroid.
+            offset = hs.centroid - (c.proxy(dev.position) - np.asarray(c.offset, dtype=float))
+            c = dataclasses.replace(c, offset=tuple(float(v) for v in offset))
+            hs.coupling = c
+        limit = dev.max_stiffness / (c.force_scale * c.scale) if dev.has_force else 0.0
+        hs.k_max = min(limit, self.max_linear_stiffness)
+
+    def _warm_up(self) -> None:
+        """Steps with the handles held at their grasp, before the servo starts: they measure the
+        simulation's period (the first stall timeout) and produce the first F_tear."""
+        walls = []
+        for _ in range(self.warmup_steps):
+            t0 = time.perf_counter()
+            self.session.step(self.dt)
+            walls.append(time.perf_counter() - t0)
+        if walls:
+            self._update_stall_timeout(np.asarray(walls))
+        for hs in self._hands.values():
+            self._publish(hs, self.cloth.handle_force(hs.handle))
+
+    # ---- stall timeout ------------------------------------------------------------------------
+    def _update_stall_timeout(self, periods: np.ndarray) -> None:
+        if self.fixed_stall_timeout_s is not None:
+            timeout = float(self.fixed_stall_timeout_s)
+        else:
+            p99 = float(np.percentile(periods, 99)) if len(periods) else 0.0
+            timeout = min(max(self.stall_factor * p99, self.min_stall_timeout_s), self.max_stall_timeout_s)
+        self.stall_timeout_s = timeout
+        if self.servo is not None:
+            # A plain float the servo threads read once per tick: an atomic swap.
+            self.servo.stall_timeout_s = max(timeout, 2.0 * self.servo_period_s)
+
+    def _record_period(self, period: float) -> None:
+        self._periods[self._n_periods % _PERIOD_WINDOW] = period
+        self._n_periods += 1
+        if self._n_periods % _STALL_UPDATE_EVERY == 0:
+            n = min(self._n_periods, _PERIOD_WINDOW)
+            self._update_stall_timeout(self._periods[:n])
+
+    # ---- one simulation step ------------------------------------------------------------------
+    def _publish(self, hs: _Hand, f: np.ndarray) -> None:
+        x = hs.position
+        if self.linearise:
+            self._estimate_stiffness(hs, f, x)
+            self.servo.publish(hs.name, f, x, f0=f, stiffness=hs.stiffness, x0=x)
+        else:
+            self.servo.publish(hs.name, f, x)
+
+    def _estimate_stiffness(self, hs: _Hand, f: np.ndarray, x: np.ndarray) -> None:
+        if hs.last_x is None:
+            hs.last_f, hs.last_x = f.copy(), x.copy()
+            return
+        dx = x - hs.last_x
+        n2 = float(dx @ dx)
+        if n2 < self.min_secant_m * self.min_secant_m:
+            return  # too little motion for a meaningful slope: keep the previous K and base
+        k = -float((f - hs.last_f) @ dx) / n2
+        k = min(max(k, 0.0), hs.k_max)
+        u = dx / math.sqrt(n2)
+        hs.stiffness = -k * np.outer(u, u)
+        hs.last_f, hs.last_x = f.copy(), x.copy()
+
+    def _lose(self, hs: _Hand, reason: str) -> None:
+        hs.lost = True
+        self.lost_hands.append(hs.name)
+        if self.on_device_lost == "stop":
+            self._end(f"device lost on the {hs.name} hand: {reason}")
+        elif all(h.lost for h in self._hands.values()):
+            self._end(f"every device was lost (last: the {hs.name} hand: {reason})")
+
+    def _step(self) -> bool:
+        """One simulation step; False once the session has ended."""
+        servo = self.servo
+        clock = servo.clock
+        start = clock()
+        if self._last_step_start is not None:
+            self._record_period(start - self._last_step_start)
+        self._last_step_start = start
+        max_move = None if self.max_handle_speed is None else self.max_handle_speed * self.dt
+        for hs in self._hands.values():
+            if hs.lost:
+                continue
+            p = servo.proxy(hs.name)
+            if hs.device.state is DeviceState.LOST or (p is not None and p.state is DeviceState.LOST):
+                self._lose(hs, hs.device.message)
+            elif p is None:
+                continue  # the servo has not ticked this hand yet: hold the grasp
+            elif start - p.stamp > self.proxy_timeout_s:
+                self._lose(hs, f"its servo thread has not answered for {1e3 * (start - p.stamp):.0f} ms ({servo.stats(hs.name)['error']})")
+            else:
+                if self.stop_buttons:
+                    pressed = p.buttons & self.stop_buttons
+                    if not pressed:
+                        hs.armed = True
+                    elif hs.armed:
+                        self._end(f"stop button pressed on the {hs.name} hand")
+                if self.ended:
+                    break
+                delta = p.position - hs.centroid - hs.translation
+                if max_move is not None:
+                    n = float(np.linalg.norm(delta))
+                    if n > max_move:
+                        delta = delta * (max_move / n)
+                hs.translation = hs.translation + delta
+                m = np.eye(3, 4)
+                m[:, 3] = hs.translation
+                self.cloth.set_handle_target(hs.handle, m)
+            if self.ended:
+                return False
+        self.session.step(self.dt)  # collision + FEM + tearing; the GIL is released in the native step
+        now = clock()
+        if self.first_tear_clock is None and self.cloth.stats()["tears_started"]:
+            self.first_tear_clock, self.first_tear_time = now, float(self.session.time)
+        for hs in self._hands.values():
+            if hs.lost:
+                continue
+            f = self.cloth.handle_force(hs.handle)
+            self._publish(hs, f)
+            self.tear_log.record(hs.name, now, f)
+        if self.recorder is not None and self.steps % self.record_every == 0:
+            c = self.cloth
+            self.recorder(
+                float(self.session.time),
+                np.array(c.positions),
+                np.array(c.triangles),
+                np.array(c.corner_uv),
+                np.array(c.velocities),
+            )
+            self.frames_recorded += 1
+        self.steps += 1
+        self._step_wall.append(clock() - start)
+        return not self.ended
+
+    def _guarded(self, body: Callable[[], Any]):
+        """Run ``body``; any exception ends the session (zero force, devices closed), then rises."""
+        try:
+            return body()
+        except BaseException as exc:
+            self.error = exc
+            self._end(f"error: {exc!r}")
+            raise
+
+    # ---- driving ------------------------------------------------------------------------------
+    def _check_drivable(self) -> None:
+        if self._thread is not None and self._thread.is_alive() and threading.current_thread() is not self._thread:
+            raise DeviceStateError("the simulation thread is running (start()); call stop() before stepping on this thread")
+        if self.ended:
+            raise DeviceStateError(f"this live session has ended ({self.end_reason}); create a new one")
+
+    def step_once(self) -> bool:
+        """One simulation step on the calling thread (opens the session first if needed).
+        Returns False once the session has ended (stop button, device lost)."""
+        self._check_drivable()
+        self.open()
+        t0 = time.perf_counter()
+        try:
+            return self._guarded(self._step)
+        finally:
+            self._active_wall_s += time.perf_counter() - t0
+
+    def run_for(self, seconds: float) -> int:
+        """Step as fast as possible on the calling thread for ``seconds`` of wall time, or until
+        the session ends. Returns the number of steps taken. The servo keeps running after the
+        call returns: call again soon (within the stall timeout, else the hands feel zero force
+        until the next step) or ``stop()``."""
+        self._check_drivable()
+        self.open()
+        self._last_step_start = None  # the gap since the last call is not a simulation period
+        t0 = time.perf_counter()
+        end = t0 + float(seconds)
+        n = 0
+        try:
+            while time.perf_counter() < end:
+                if not self._guarded(self._step):
+                    n += 1
+                    break
+                n += 1
+        finally:
+            self._active_wall_s += time.perf_counter() - t0
+        return n
+
+    def start(self) -> None:
+        """Run the simulation loop on a thread of its own until ``stop()`` or the session ends."""
+        self._check_drivable()
+        if self._thread is not None and self._thread.is_alive():
+            return
+        self.open()
+        self._stop_event.clear()
+        self._last_step_start = None
+        self._thread = threading.Thread(target=self._run_thread, name="tearcloth-live-sim", daemon=True)
+        self._thread.start()
+
+    def _run_thread(self) -> None:
+        t0 = time.perf_counter()
+        try:
+            while not self._stop_event.is_set() and not self.ended:
+                self._guarded(self._step)
+        except BaseException:
+            pass  # kept in self.error; _guarded already ended the session with zero force
+        finally:
+            self._active_wall_s += time.perf_counter() - t0
+
+    @property
+    def running(self) -> bool:
+        return self._opened and not self.ended
+
+    def wait(self, timeout_s: Optional[float] = None) -> bool:
+        """Wait for the simulation thread to end (stop button, device loss, error). True if ended."""
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+            return not self._thread.is_alive()
+        return self.ended
+
+    def stop(self, timeout_s: float = 2.0) -> None:
+        """End the session: zero every force, join the simulation and servo threads, close the
+        devices. Idempotent; never raises (problems go to ``shutdown_errors``)."""
+        self._stop_event.set()
+        t = self._thread
+        if t is not None and t is not threading.current_thread():
+            t.join(timeout_s)
+            if t.is_alive():
+                self.shutdown_errors.append(HapticError(f"the simulation thread did not stop within {timeout_s} s (a very slow step?)"))
+        self._end("stopped")
+
+    def _end(self, reason: str) -> None:
+        with self._lock:
+            if self.ended:
+                return
+            self.ended = True
+            self.end_reason = reason
+            self._shutdown()
+
+    def _shutdown(self) -> None:
+        if self.servo is not None:
+            try:
+                self.servo.stop()  # zero force sent to every device, servo threads joined
+            except HapticError as exc:
+                self.shutdown_errors.append(exc)
+        if self._opened or self.servo is not None:
+            for hs in self._hands.values():
+                try:
+                    hs.device.close()
+                except HapticError as exc:
+                    self.shutdown_errors.append(exc)
+
+    def __enter__(self):
+        self.open()
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+        return False
+
+    # ---- results ------------------------------------------------------------------------------
+    def stats(self) -> dict:
+        """Servo timing (``rate_hz``, ``p50_ms``, ``p99_ms``, ``per_hand``: worst hand first) and
+        simulation figures (``sim_steps``, ``sim_steps_per_s``, ``sim_p50_ms``, ``sim_p99_ms``:
+        wall time of one step), the current ``stall_timeout_s``, ``watchdog_trips``, the tear
+        (``first_tear_s`` simulated, ``tears_started``) and how the session ended."""
+        out: Dict[str, Any] = {}
+        if self.servo is not None:
+            out.update(self.servo.stats())
+            per = out["per_hand"].values()
+            out["watchdog_trips"] = int(sum(v["watchdog_trips"] for v in per))
+            out["overruns"] = int(sum(v["overruns"] for v in out["per_hand"].values()))
+        walls = np.asarray(self._step_wall)
+        out.update(
+            sim_steps=self.steps,
+            sim_time_s=float(self.session.time),
+            sim_steps_per_s=float(self.steps / self._active_wall_s) if self._active_wall_s > 0 else 0.0,
+            sim_p50_ms=float(np.percentile(walls, 50) * 1e3) if len(walls) else float("nan"),
+            sim_p99_ms=float(np.percentile(walls, 99) * 1e3) if len(walls) else float("nan"),
+            stall_timeout_s=self.stall_timeout_s,
+            frames_recorded=self.frames_recorded,
+            first_tear_s=self.first_tear_time,
+            tears_started=int(self.cloth.stats()["tears_started"]),
+            triangles=int(self.cloth.num_triangles),
+            ended=self.ended,
+            end_reason=self.end_reason,
+            lost_hands=list(self.lost_hands),
+        )
+        return out
+
+    def save_force_log(self, csv_path, png_path=None, axis: Sequence[float] = (1.0, 0.0, 0.0), title: Optional[str] = None) -> Tuple[str, Optional[str]]:
+        """Write the rendered force log as CSV (``ForceLog.to_csv``) and, optionally, a plot of
+        the force along ``axis`` for every hand over time, like the paper's Fig. 6."""
+        csv_out = self.force_log.to_csv(csv_path)
+        png_out = None
+        if png_path is not None:
+            png_out = self.force_log.plot(png_path, axis=axis, title=title or "Force felt by each hand along the pull (live session)")
+        return csv_out, png_out
+
+
+# ---------------------------------------------------------------------------------------------
+# Devices and scenes for tests, the demo and the bench
+# ---------------------------------------------------------------------------------------------
+def falcon_coupling(scene_radius: float, *, rotation=FALCON_TO_SCENE, **kwargs) -> HandCoupling:
+    """A Falcon coupling that maps its workspace ball (radius 4 cm) onto a scene ball of
+    ``scene_radius`` (the offset is set at bind time when the session rebases)."""
+    return HandCoupling.fit(Workspace(WORKSPACE_CENTRE, WORKSPACE_RADIUS), (0.0, 0.0, 0.0), scene_radius, rotation=rotation, **kwargs)
+
+
+def pulling_hand(
+    direction: Sequence[float],
+    distance: float = 0.02,
+    hold_s: float = 0.3,
+    pull_s: float = 2.0,
+    start: Sequence[float] = WORKSPACE_CENTRE,
+    stiffness: float = 1500.0,
+    damping: float = 15.0,
+):
+    """A scripted hand (``falcon_emulator.spring_hand``) that holds the grip at ``start`` for
+    ``hold_s``, then pulls it ``distance`` metres along ``direction`` (device frame) over
+    ``pull_s`` seconds of emulated time with a smooth cosine blend, and holds it there."""
+    d = np.asarray(direction, dtype=float)
+    n = float(np.linalg.norm(d))
+    if not n > 0.0:
+        raise ConfigError(f"pull direction must be a non-zero 3-vector, got {direction!r}")
+    d = d / n
+    s = np.asarray(start, dtype=float)
+    if not (pull_s > 0.0 and hold_s >= 0.0):
+        raise ConfigError(f"need pull_s > 0 and hold_s >= 0, got {pull_s!r}, {hold_s!r}")
+
+    def target(t):
+        u = min(max((t - hold_s) / pull_s, 0.0), 1.0)
+        return s + (distance * (0.5 - 0.5 * math.cos(math.pi * u))) * d
+
+    return spring_hand(target, stiffness, damping)
+
+
+def emulated_falcon(
+    serial: str,
+    hand: str,
+    direction: Sequence[float],
+    *,
+    distance: float = 0.02,
+    hold_s: float = 0.3,
+    pull_s: float = 2.0,
+    stiffness: float = 1500.0,
+    damping: float = 15.0,
+    substeps: int = 1,
+    **emulator_kwargs,
+) -> Tuple[FalconDevice, FalconEmulator]:
+    """A ``FalconDevice`` over a ``FalconEmulator`` with its firmware loaded and homed (the
+    emulator's own options), held by a ``pulling_hand``. Returns (device, emulator): the emulator
+    is there to unplug it, press its buttons or read what it was sent.
+
+    ``substeps`` (emulator integration sub-steps per packet, 1 here vs 4 by default): the grip
+    physics is work a real Falcon does in hardware, while the emulator does it inside the servo
+    thread's poll; one semi-implicit sub-step per millisecond is stable for the grip (its stiffest
+    term, the end stops, gives ω·dt ≈ 0.6) and leaves the servo thread's time to the servo."""
+    emu = FalconEmulator(
+        serial,
+        firmware_loaded=True,
+        homed=True,
+        hand=pulling_hand(direction, distance, hold_s, pull_s, stiffness=stiffness, damping=damping),
+        substeps=substeps,
+        **emulator_kwargs,
+    )
+    return FalconDevice(transport=emu, hand=hand), emu
+
+
+_SCENARIO_GROUPS = {
+    # hand -> vertex group. Hands are the user's, facing the cloth's front (-y): the left hand
+    # grasps the -x side. On the T-shirt that is the wearer's right hem.
+    "cloth": {"left": "handle_left", "right": "handle_right"},
+    "banknote": {"left": "handle_left", "right": "handle_right"},
+    "tshirt": {"left": "hem_right", "right": "hem_left"},
+}
+
+
+def emulated_session(
+    scenario: str = "cloth",
+    *,
+    material_name: Optional[str] = None,
+    tear_stress: Optional[float] = None,
+    collision: bool = False,
+    pull_distance: float = 0.02,
+    hold_s: float = 0.3,
+    pull_s: float = 2.0,
+    hand_stiffness: float = 1500.0,
+    hand_damping: float = 15.0,
+    emulator_substeps: int = 1,
+    scene_radius: float = 0.08,
+    force_scale: float = 0.1,
+    k_position: float = 2000.0,
+    k_velocity: float = 20.0,
+    max_force_rate: float = 1000.0,
+    **live_kwargs,
+) -> Tuple[LiveSession, Dict[str, FalconEmulator]]:
+    """One of the paper's scenes ("cloth" = the square, "banknote", "tshirt") grasped by two
+    emulated Falcons whose scripted hands pull the grips apart along the device x axis (scene x
+    through ``FALCON_TO_SCENE``), each toward its own side. Returns (session, {hand: emulator}).
+
+    Coupling: each Falcon's 4 cm workspace maps onto ``scene_radius`` (scale 2 by default); the
+    scene force times ``force_scale`` (0.1: the square cloth's ~50 N tearing peak becomes 5 N,
+    inside the Falcon's 8 N) reaches the device. Felt stiffness 0.1·2000·2 = 400 N/m, damping
+    4 N·s/m, inside the Falcon's 3000 N/m and 20 N·s/m.
+
+    The T-shirt is pinned along its ``shoulders`` group: without collision nothing else would
+    hold it up; with ``collision=True`` it also collides with the mannequin (slower)."""
+    from .. import scenes  # lazily: see the module docstring
+    from ..cloth import Cloth
+    from ..materials import material
+    from ..session import CollisionSettings, Session
+
+    if scenario not in _SCENARIO_GROUPS:
+        raise ConfigError(f"unknown scenario {scenario!r}; scenarios: {', '.join(_SCENARIO_GROUPS)}")
+    body = None
+    if scenario == "cloth":
+        mesh, mat_name = scenes.square_cloth(), "cotton"
+    elif scenario == "banknote":
+        mesh, mat_name = scenes.banknote(), "banknote"
+    else:
+        body = scenes.mannequin()
+        mesh, mat_name = scenes.tshirt(body), "cotton"
+    changes = {} if tear_stress is None else {"tear_stress": float(tear_stress)}
+    mat = material(material_name or mat_name, **changes)
+    cloth = Cloth(mesh.vertices, mesh.triangles, mat, uv=mesh.loop_uv(), groups=mesh.groups)
+    cloth.set_tearing(True)
+    if scenario == "tshirt":
+        cloth.pin("shoulders")
+    session = Session(cloth, CollisionSettings() if collision else None)
+    if collision and body is not None:
+        session.add_body("mannequin", body.vertices, body.triangles)
+    hands = {}
+    emulators = {}
+    for i, (hand, group) in enumerate(_SCENARIO_GROUPS[scenario].items()):
+        side = float(np.sign(mesh.vertices[mesh.groups[group] >= 0.5, 0].mean())) or (1.0 if hand == "right" else -1.0)
+        dev, emu = emulated_falcon(
+            f"EMU-{hand.upper()}-{i}",
+            hand,
+            (side, 0.0, 0.0),
+            distance=pull_distance,
+            hold_s=hold_s,
+            pull_s=pull_s,
+            stiffness=hand_stiffness,
+            damping=hand_damping,
+            substeps=emulator_substeps,
+        )
+        coupling = falcon_coupling(scene_radius, k_position=k_position, k_velocity=k_velocity, force_scale=force_scale, max_force_rate=max_force_rate)
+        hands[hand] = (group, dev, coupling)
+        emulators[hand] = emu
+    return LiveSession(session, hands, **live_kwargs), emulators
+
+
+# ---------------------------------------------------------------------------------------------
+# Fig. 6 analysis and the bench probe
+# ---------------------------------------------------------------------------------------------
+def force_phases(
+    log: ForceLog,
+    first_tear: float,
+    axis: Sequence[float] = (1.0, 0.0, 0.0),
+    *,
+    peak_window_s: float = 0.15,
+    settle_s: float = 0.3,
+    start: Optional[float] = None,
+) -> Dict[str, dict]:
+    """The phases of the paper's Fig. 6 in a force log, per hand, as *tension*: the force along
+    ``axis`` signed so that a hand pulled back toward the cloth reads positive (the right hand,
+    on +axis, feels -axis; the left hand feels +axis).
+
+    - ``elastic_start``: median tension over the first 10 % of [start, first_tear];
+    - ``elastic_end``: median tension over the last 10 % of it;
+    - ``peak`` / ``peak_t``: maximum within ``peak_window_s`` of the first tear;
+    - ``propagation``: median tension from ``first_tear + settle_s`` to the end of the log;
+    - ``max_before`` / ``max_before_t``: the largest tension before the propagation phase.
+    ``start`` defaults to the first sample."""
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    out: Dict[str, dict] = {}
+    for hand in log.hands:
+        t, f = log.along_axis(hand, a)
+        if not len(t):
+            continue
+        sign = 1.0 if hand == "left" else -1.0
+        tension = sign * f
+        t_start = float(t[0]) if start is None else float(start)
+        span = max(first_tear - t_start, 1e-9)
+        first = (t >= t_start) & (t <= t_start + 0.1 * span)
+        last = (t >= first_tear - 0.1 * span) & (t <= first_tear)
+        near = np.abs(t - first_tear) <= peak_window_s
+        prop = t >= first_tear + settle_s
+        before = t < first_tear + settle_s
+        ib = int(np.argmax(np.where(before, tension, -np.inf))) if before.any() else 0
+        ip = int(np.argmax(np.where(near, tension, -np.inf))) if near.any() else 0
+        out[hand] = {
+            "elastic_start": float(np.median(tension[first])) if first.any() else float("nan"),
+            "elastic_end": float(np.median(tension[last])) if last.any() else float("nan"),
+            "peak": float(tension[ip]) if near.any() else float("nan"),
+            "peak_t": float(t[ip]) if near.any() else float("nan"),
+            "propagation": float(np.median(tension[prop])) if prop.any() else float("nan"),
+            "propagation_samples": int(prop.sum()),
+            "max_before": float(tension[ib]) if before.any() else float("nan"),
+            "max_before_t": float(t[ib]) if before.any() else float("nan"),
+        }
+    return out
+
+
+def measure_live_servo(
+    duration_s: float = 10.0,
+    scenario: str = "tshirt",
+    *,
+    collision: bool = False,
+    emulator_substeps: int = 1,
+    **session_kwargs,
+) -> dict:
+    """Servo timing with two emulated Falcons while the ``scenario``'s simulation (T-shirt by
+    default: ``tshirt()``, cotton, hands on hem_left/hem_right, shoulders pinned, no collision
+    unless ``collision=True``) runs as fast as it can on the calling thread for ``duration_s``.
+
+    Returns ``rate_hz``, ``p50_ms``, ``p99_ms`` (servo, worst hand; what ``tearcloth bench``
+    reports as ``servo.*``), ``sim_steps_per_s``, ``sim_p50_ms``, ``sim_p99_ms``,
+    ``stall_timeout_s``, ``watchdog_trips``, ``overruns``, ``per_hand`` and the scenario
+    settings. The hands pull apart over 80 % of the run, so the cloth is under load (and may
+    tear) while it is measured."""
+    session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
+    session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
+    live, _emus = emulated_session(scenario, collision=collision, emulator_substeps=emulator_substeps, **session_kwargs)
+    try:
+        live.run_for(duration_s)
+    finally:
+        live.stop()
+    out = live.stats()
+    out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s))
+    return out
