@@ -12,6 +12,11 @@ def main(argv=None) -> int:
     b.add_argument("--json", metavar="PATH", help="write results to this JSON file (merged with what it holds)")
     b.add_argument("--steps", type=int, default=200, help="steps per measurement (default 200)")
     b.add_argument("--scenarios", default="cloth,banknote,tshirt", help="comma-separated: cloth,banknote,tshirt")
+    b.add_argument("--no-collision", action="store_true", help="skip the collision experiment")
+    k = sub.add_parser("clusters", help="picture of the cluster decomposition (the paper's Fig. 2)")
+    k.add_argument("--out", default="clusters.png", help="PNG path (default clusters.png)")
+    k.add_argument("--scenario", default="tshirt", choices=("cloth", "banknote", "tshirt"))
+    k.add_argument("--cluster-size", type=int, default=100, help="vertices per cluster (default 100)")
     d = sub.add_parser("demo", help="tear the square cloth with two handles; write pictures")
     d.add_argument("--out", default="tearcloth_demo", help="output folder (default ./tearcloth_demo)")
     args = p.parse_args(argv)
@@ -21,7 +26,14 @@ def main(argv=None) -> int:
 
             if args.steps < 10:
                 p.error("--steps must be at least 10")
-            run(args.json, [s.strip() for s in args.scenarios.split(",") if s.strip()], args.steps)
+            run(args.json, [s.strip() for s in args.scenarios.split(",") if s.strip()], args.steps,
+                collision=not args.no_collision)
+        elif args.command == "clusters":
+            from .bench import cluster_picture
+
+            if args.cluster_size < 4:
+                p.error("--cluster-size must be at least 4")
+            print(f"wrote {cluster_picture(args.out, args.scenario, args.cluster_size)}")
         elif args.command == "demo":
             from .demo import run as demo
 

@@ -9,8 +9,9 @@
  * handles fix all three components, a contact fixes the normal one to the touched surface's
  * (inelastic). A contact whose reaction would pull (adhesion) is released and the system solved
  * once more; friction then caps the tangential velocity change at mu times the normal impulse.
- * Penetration is removed from positions only (at most contact_max_push * dt per step), so pushing
- * a vertex out never leaves it with velocity to bounce away.
+ * Penetration is recovered by a bounded extra normal speed inside the solve (contact_correction of
+ * the depth per step, at most contact_max_push), taken back out of the velocity after the step, so
+ * a vertex pushed out never keeps the speed to bounce away.
  */
 #include "core.h"
 
@@ -30,7 +31,8 @@ double tc_now(void)
 tc_solver_settings tc_solver_default(void)
 {
     tc_solver_settings s = {.gravity = {0.0, 0.0, -9.81}, .cg_tolerance = 1e-3, .cg_max_iterations = 200,
-                            .max_stretch = 20.0, .contact_max_push = 1.0};
+                            .max_stretch = 20.0, .contact_max_push = 0.1,
+                            .contact_correction = 0.2};
     return s;
 }
 
@@ -49,7 +51,7 @@ tc_tear_settings tc_tear_default(void)
     X(pbend, double) X(pblock, double) X(pfree, int32_t) X(stencils, tc_stencil) X(sfree, int32_t)    \
     X(cvert, int32_t) X(cactive, int8_t) X(scount, int8_t) X(cnormal, double) X(cdepth, double) X(cvel, double) X(cfric, double)            \
     X(diag, double) X(pinv, double) X(sb, double) X(sr, double) X(sz, double) X(sp, double)            \
-    X(sq, double) X(sfix, double) X(snorm, double) X(x0, double) X(v0, double) X(fel, double)          \
+    X(sq, double) X(sb2, double) X(sfix2, double) X(sfix, double) X(snorm, double) X(x0, double) X(v0, double) X(fel, double)          \
     X(vs9, double) X(vsn, double) X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
     X(ev_chg, int32_t) X(ev_newt, int32_t)
 
@@ -160,6 +162,7 @@ int tc_cloth_set_solver(tc_cloth *c, const tc_solver_settings *s)
     if (s->cg_max_iterations < 1 || s->cg_max_iterations > 100000) { tc_set_err(c, "cg_max_iterations must lie in [1, 100000] (got %d)", s->cg_max_iterations); return TC_ERR_INPUT; }
     if (!(s->max_stretch > 1.0)) { tc_set_err(c, "max_stretch must be > 1 (got %g)", s->max_stretch); return TC_ERR_INPUT; }
     if (!(s->contact_max_push > 0 && isfinite(s->contact_max_push))) { tc_set_err(c, "contact_max_push must be > 0 m/s (got %g)", s->contact_max_push); return TC_ERR_INPUT; }
+    if (!(s->contact_correction >= 0 && s->contact_correction <= 1)) { tc_set_err(c, "contact_correction must lie in [0, 1] (got %g)", s->contact_correction); return TC_ERR_INPUT; }
     c->solver = *s;
     return TC_OK;
 }
@@ -413,7 +416,7 @@ static double dotn(const double *a, const double *b, size_t n)
 }
 
 /* Solves A v = b on the constraint manifold {v_i = S_i v_i + z_i}; v holds the warm start. */
-TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, double *residual)
+TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, double floor, double *residual)
 {
     const size_t n3 = 3 * (size_t)c->nv;
     double *r = tc_vec_ptr(&c->sr), *z = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp), *q = tc_vec_ptr(&c->sq);
@@ -439,6 +442,7 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, double *residual)
     precondition(c, q, z);
     filter(c, z);
     double bnorm = dotn(q, z, n3);
+    if (bnorm < floor) bnorm = floor;
     tc_matvec(c, v, q);
     for (size_t k = 0; k < n3; k++) r[k] = b[k] - q[k];
     filter(c, r);
@@ -465,6 +469,56 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, double *residual)
         it++;
     }
     *residual = sqrt(rz / bnorm);
+    return it;
+}
+
+/* Solves A v = b for the change du = v - v0 instead of v itself. The tolerance is then relative to
+ * the forces (b - A v0) rather than to the momentum M v0 in b: a fast-moving cloth otherwise stops
+ * iterating while its elastic response is still far off, and those errors pumped energy into
+ * folded cloth until it blew up. v holds the warm start on entry (its change from v0 is reused). */
+static int solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double *residual)
+{
+    const size_t n3 = 3 * (size_t)c->nv;
+    double *rhs = tc_vec_ptr(&c->sb2), *fix = tc_vec_ptr(&c->sfix), *fixu = tc_vec_ptr(&c->sfix2);
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    const double *N = tc_vec_ptr(&c->snorm);
+    /* a cloth at rest has almost no net force: without a floor the relative tolerance would
+       chase round-off: the residual need not go below tolerance * 0.1 of the full right-hand side */
+    double floor = 0.0;
+    {
+        const double *P = tc_vec_ptr(&c->pinv);
+        for (int32_t i = 0; i < c->nv; i++) {
+            const double *p = P + 9 * i, *x = b + 3 * i;
+            floor += x[0] * (p[0] * x[0] + p[1] * x[1] + p[2] * x[2]) + x[1] * (p[3] * x[0] + p[4] * x[1] + p[5] * x[2]) +
+                     x[2] * (p[6] * x[0] + p[7] * x[1] + p[8] * x[2]);
+        }
+        floor *= 1e-2;
+    }
+    tc_matvec(c, v0, rhs);
+    for (size_t k = 0; k < n3; k++) { rhs[k] = b[k] - rhs[k]; v[k] -= v0[k]; }
+    /* the constrained components of du: the prescribed velocity minus v0's part along them */
+    memcpy(fixu, fix, n3 * sizeof(double));
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (fl[i] == VC_FREE) continue;
+        double *z = fixu + 3 * i;
+        const double *w = v0 + 3 * i;
+        if (fl[i] == VC_CONTACT) {
+            for (int k = 0; k < cnt[i]; k++) {
+                const double *e = N + 9 * i + 3 * k;
+                double d = dot3(w, e);
+                z[0] -= d * e[0]; z[1] -= d * e[1]; z[2] -= d * e[2];
+            }
+        } else {
+            z[0] -= w[0]; z[1] -= w[1]; z[2] -= w[2];
+        }
+    }
+    /* pcg reads the prescribed values from sfix: hand it du's for the solve */
+    tc_vec keep = c->sfix;
+    c->sfix = c->sfix2;
+    int it = pcg(c, v, rhs, floor, residual);
+    c->sfix2 = c->sfix;
+    c->sfix = keep;
+    for (size_t k = 0; k < n3; k++) v[k] += v0[k];
     return it;
 }
 
@@ -500,7 +554,7 @@ static void handle_forces(tc_cloth *c)
  * a body and another layer of cloth over it - and must respect all of them: keeping only the
  * deepest let the layers push each other through the body in turn, which pumped energy. Normals
  * that add no new direction (a vertex squeezed between two layers) share the prescribed speed. */
-static void build_contact_basis(tc_cloth *c)
+static void build_contact_basis(tc_cloth *c, double dt)
 {
     int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
     double *fix = tc_vec_ptr(&c->sfix), *N = tc_vec_ptr(&c->snorm);
@@ -520,7 +574,13 @@ static void build_contact_basis(tc_cloth *c)
         if (fl[i] != VC_FREE && fl[i] != VC_CONTACT) continue;
         fl[i] = VC_CONTACT;
         const double *n = cn + 3 * k;
-        double z = dot3(cvel + 3 * k, n);
+        /* the touched surface's normal speed, plus a bounded share of the depth per step: the
+           penetration is recovered through the solve, so the membrane around the vertex follows
+           consistently (moving only the vertex's position stretched its stiff neighbourhood and
+           flung it at metres per second) */
+        double push = c->solver.contact_correction * ((const double *)tc_vec_ptr(&c->cdepth))[k] / dt;
+        if (push > c->solver.contact_max_push) push = c->solver.contact_max_push;
+        double z = dot3(cvel + 3 * k, n) + push;
         double u[3] = {n[0], n[1], n[2]};
         int best = -1;
         double bestd = 0.0;
@@ -567,7 +627,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     const double *cn = tc_vec_ptr(&c->cnormal), *cd = tc_vec_ptr(&c->cdepth), *cvel = tc_vec_ptr(&c->cvel);
     int8_t *act = tc_vec_ptr(&c->cactive);
     memset(act, 1, (size_t)nc);
-    build_contact_basis(c);
+    build_contact_basis(c, dt);
     for (int32_t i = 0; i < n; i++)
         if (pin[i]) { fl[i] = VC_PINNED; fix[3 * i] = fix[3 * i + 1] = fix[3 * i + 2] = 0.0; }
     for (int32_t h = 0; h < c->nh; h++) {
@@ -592,7 +652,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     tc_assemble(c, dt);
     invert_diag(c);
     double res = 0.0;
-    int it = pcg(c, v, b, &res);
+    int it = solve_dv(c, v, v0, b, &res);
 
     if (nc) {
         /* release contacts whose reaction pulls the cloth onto the surface, then friction */
@@ -608,8 +668,8 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         }
         if (released) {
             for (int32_t k = 0; k < nc; k++) if (fl[cv[k]] == VC_CONTACT) fl[cv[k]] = VC_FREE;
-            build_contact_basis(c);
-            it += pcg(c, v, b, &res);
+            build_contact_basis(c, dt);
+            it += solve_dv(c, v, v0, b, &res);
             tc_matvec(c, v, J);
         }
         const double *cf = tc_vec_ptr(&c->cfric);
@@ -638,15 +698,17 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     }
 
     for (size_t k = 0; k < n3; k++) x[k] = x0[k] + dt * v[k];
+    /* the recovery speed was for this step's position only: take it back out of the velocity, so a
+       vertex pushed out of a body does not keep flying away (no bounce) */
     for (int32_t k = 0; k < nc; k++) {
         int32_t i = cv[k];
         if (fl[i] != VC_CONTACT || !act[k]) continue;  /* released: it is leaving by itself */
-        /* a fraction per step (Baumgarte-like): pushing the whole depth out every step fights the
-           tension that presses a stretched cloth onto a curved body, and that cycle pumps energy */
-        double push = 0.2 * cd[k];
-        double lim = c->solver.contact_max_push * dt;  /* deep starts resolve over a few steps */
-        if (push > lim) push = lim;
-        for (int q = 0; q < 3; q++) x[3 * i + q] += push * cn[3 * k + q];
+        double push = c->solver.contact_correction * cd[k] / dt;
+        if (push > c->solver.contact_max_push) push = c->solver.contact_max_push;
+        const double *nn = cn + 3 * k;
+        double vn = dot3(v + 3 * i, nn) - dot3(cvel + 3 * k, nn);  /* relative normal speed */
+        double take = vn < push ? (vn > 0 ? vn : 0.0) : push;
+        for (int q = 0; q < 3; q++) v[3 * i + q] -= take * nn[q];
     }
     double worst = tc_max_stretch(c, x);
     int bad = !(worst == worst) || worst > c->solver.max_stretch;

@@ -264,10 +264,11 @@ static PyObject *Cloth_set_solver(PyObject *o, PyObject *args, PyObject *kw)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_solver_settings s = tc_cloth_solver(self->c);
-    static char *kwl[] = {"gravity", "cg_tolerance", "cg_max_iterations", "max_stretch", "contact_max_push", NULL};
+    static char *kwl[] = {"gravity", "cg_tolerance", "cg_max_iterations", "max_stretch", "contact_max_push",
+                          "contact_correction", NULL};
     PyObject *g = NULL;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$Odidd", kwl, &g, &s.cg_tolerance, &s.cg_max_iterations,
-                                     &s.max_stretch, &s.contact_max_push))
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$Odiddd", kwl, &g, &s.cg_tolerance, &s.cg_max_iterations,
+                                     &s.max_stretch, &s.contact_max_push, &s.contact_correction))
         return NULL;
     if (g && !PyArg_ParseTuple(g, "ddd", &s.gravity[0], &s.gravity[1], &s.gravity[2])) return NULL;
     int rc = tc_cloth_set_solver(self->c, &s);
@@ -280,9 +281,10 @@ static PyObject *Cloth_solver(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_solver_settings s = tc_cloth_solver(self->c);
-    return Py_BuildValue("{s:(ddd),s:d,s:i,s:d,s:d}", "gravity", s.gravity[0], s.gravity[1], s.gravity[2],
+    return Py_BuildValue("{s:(ddd),s:d,s:i,s:d,s:d,s:d}", "gravity", s.gravity[0], s.gravity[1], s.gravity[2],
                          "cg_tolerance", s.cg_tolerance, "cg_max_iterations", s.cg_max_iterations, "max_stretch",
-                         s.max_stretch, "contact_max_push", s.contact_max_push);
+                         s.max_stretch, "contact_max_push", s.contact_max_push, "contact_correction",
+                         s.contact_correction);
 }
 
 static PyObject *Cloth_set_tearing(PyObject *o, PyObject *args, PyObject *kw)

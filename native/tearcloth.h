@@ -63,6 +63,7 @@ typedef struct tc_solver_settings {
     double max_stretch;       /* a principal stretch above this counts as an explosion: roll back */
     double contact_max_push;  /* fastest speed (m/s) at which a penetration is resolved, so that
                                  bodies that start inside the cloth separate without a blast */
+    double contact_correction; /* fraction of a contact's depth removed from the position per step */
 } tc_solver_settings;
 
 tc_solver_settings tc_solver_default(void);

@@ -27,7 +27,7 @@ from ..cloth import ClothError
 from . import convert, modifier
 from .bake_job import BakeJob, BakePlan, FrameInputs, Progress, delete_state, start_worker
 from .props import COLLIDER_TYPES
-from .report import BakeError, Reports, log
+from .report import BakeError, Reports, log, not_a_mesh, object_kind
 
 # Frames gathered ahead of the worker: enough to keep it busy between two ticks, few enough that
 # collider meshes in the queue stay small.
@@ -73,7 +73,7 @@ def _collider_objects(obj, settings, reports: Reports) -> list:
             reports.warning(f"{obj.name}: the cloth is in its own collider list; self collision is a separate "
                             "setting. Skipped")
         elif other.type not in COLLIDER_TYPES:
-            reports.warning(f"{obj.name}: collider {other.name!r} is a {other.type.lower()} without a surface; skipped")
+            reports.warning(f"{obj.name}: collider {other.name!r} is {object_kind(other.type)} without a surface; skipped")
         else:
             colliders.append(other)
     return colliders
@@ -90,7 +90,8 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
     index = mods.index(md)
     above = [m for m in mods[:index] if m.show_viewport]
     try:
-        if not above:
+        # Shape keys are evaluated like modifiers: their mix, not the basis, is the rest shape.
+        if not above and obj.data.shape_keys is None:
             return convert.read_mesh(obj.data, vertex_groups=obj.vertex_groups, group_names=group_names)
         switched = [m for m in mods[index:] if m.show_viewport]
         try:
@@ -110,13 +111,14 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
 def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
                reports: Reports | None = None) -> tuple[BakePlan, Sources]:
     """Check everything a bake of ``obj`` needs and gather it. Every problem goes into
-    ``reports`` (and the log); BakeError if any is an error. Changes nothing in the scene."""
+    ``reports`` (and the log); BakeError if any is an error. Changes nothing in the scene (when
+    everything else is right it creates a missing cache folder)."""
     reports = reports if reports is not None else Reports()
     if obj is None:
         reports.error("no active object: select the mesh to tear")
         reports.raise_if_errors()
     if obj.type != "MESH":
-        reports.error(f"{obj.name!r} is a {obj.type.lower()}, not a mesh: Tear Cloth works on mesh objects")
+        reports.error(not_a_mesh(obj))
         reports.raise_if_errors()
     if not modifier.is_enabled(obj):
         reports.error(f"Tear Cloth is not enabled on {obj.name!r} (Properties > Physics > Tear Cloth), "
@@ -158,7 +160,9 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     for i, h in enumerate(settings.handles):
         follow.append(h.follow.name if h.follow is not None else None)
 
-    # cache location
+    reports.raise_if_errors()
+
+    # The cache location last: checking it may create the folder, which only a bake should do.
     path = None
     try:
         path = modifier.cache_path(obj)
@@ -177,7 +181,8 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         reports.warning(f"{obj.name}: {mesh.ngons} n-gon{'s' if mesh.ngons != 1 else ''} triangulated for the "
                         "solver (your mesh is unchanged); triangulate them yourself to choose the diagonals")
     if mesh.loose:
-        reports.warning(f"{obj.name}: {mesh.loose} loose vertex/vertices (in no face) left out of the simulation")
+        reports.warning(f"{obj.name}: {mesh.loose} loose {'vertices' if mesh.loose != 1 else 'vertex'} (in no face) "
+                        "left out of the simulation")
 
     pinned = 0
     if settings.pin_group:
@@ -189,11 +194,21 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         if not np.any(mesh.groups[h.vertex_group] >= 0.5):
             reports.error(f"{obj.name}: handle {i + 1}: vertex group {h.vertex_group!r} has no vertex with "
                           "weight 0.5 or more, so it grasps nothing")
-    if not pinned and not len(settings.handles) and not colliders:
+    depsgraph = context.evaluated_depsgraph_get()
+    body_triangles = {}
+    for other in colliders:
+        triangles = convert.collider_world_si(other, depsgraph, scale)[1]
+        if len(triangles):
+            body_triangles[other.name] = triangles
+        else:
+            reports.warning(f"{obj.name}: collider {other.name!r} has no faces; skipped")
+    if collision is not None and not body_triangles and not collision.self_collision:
+        collision = None  # nothing left to collide with
+    if not pinned and not len(settings.handles) and not body_triangles:
         reports.warning(f"{obj.name}: no pins, handles or colliders: the cloth falls freely under gravity")
     reports.raise_if_errors()
 
-    matrix = convert.matrix_array(obj.evaluated_get(context.evaluated_depsgraph_get()).matrix_world)
+    matrix = convert.matrix_array(obj.evaluated_get(depsgraph).matrix_world)
     plan = BakePlan(
         object_name=obj.name,
         prim_name=modifier.prim_name_for(obj.name),
@@ -216,9 +231,10 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         handle_groups=[h.vertex_group for h in settings.handles],
         seam_group=settings.seam_group or None,
         seam_factor=float(settings.seam_factor),
+        body_triangles=body_triangles,
         resume=bool(resume),
     )
-    sources = Sources(obj.name, follow, [c.name for c in colliders])
+    sources = Sources(obj.name, follow, list(body_triangles))
     return plan, sources
 
 
@@ -244,7 +260,12 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
         return
     if resume:
         if not os.path.exists(path):
-            reports.error(f"{obj.name}: there is no bake to resume at {path}")
+            attached = modifier.attached_path(obj)
+            if attached is not None and os.path.exists(attached):
+                reports.error(f"{obj.name}: the object was renamed since its bake (its modifier plays {attached}); "
+                              "a bake cannot be resumed under another name: bake again, or free the old bake")
+            else:
+                reports.error(f"{obj.name}: there is no bake to resume at {path}")
             return
         try:
             info = cache.check_owner(path, obj.name)
@@ -260,8 +281,8 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
             reports.error(f"{obj.name}: {exc}. It was left untouched: free it from that object, or choose "
                           "another cache folder")
         except cache.CacheError as exc:
-            # Our own cache with frames missing is replaced by the new bake; anything that is not a
-            # Tear Cloth cache is refused (and kept) by the writer itself, so ask it first.
+            # A Tear Cloth cache that lost frames is damaged, and a new bake replaces it; anything
+            # else (not USD, not ours) is refused here and left as it is.
             if "frames missing" not in str(exc):
                 reports.error(f"{obj.name}: {exc}. It was left untouched: move it away or choose another "
                               "cache folder")
@@ -271,7 +292,7 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
 # Per-frame inputs (main thread)
 
 
-def gather_inputs(context, sources: Sources, body_names, frame: int, scale: float) -> FrameInputs:
+def gather_inputs(context, sources: Sources, frame: int, scale: float) -> FrameInputs:
     """Move the scene to ``frame`` and copy out what the bake needs of it."""
     # Always frame_set, even on the current frame: animation is evaluated by a frame change, and
     # a value set by a script since the last one (a location under a keyframe) is not the frame's.
@@ -291,18 +312,12 @@ def gather_inputs(context, sources: Sources, body_names, frame: int, scale: floa
             raise BakeError(f"{sources.object_name}: the handle's follow object {name!r} was deleted or renamed")
         matrices.append(convert.matrix_array(follow.evaluated_get(depsgraph).matrix_world))
     bodies = {}
-    for name in body_names:
+    for name in sources.collider_names:
         other = objects.get(name)
         if other is None:
             raise BakeError(f"{sources.object_name}: collider {name!r} was deleted or renamed during the bake")
         bodies[name] = convert.collider_world_si(other, depsgraph, scale)[0]
     return FrameInputs(frame, convert.matrix_array(obj.evaluated_get(depsgraph).matrix_world), matrices, bodies)
-
-
-def _collider_triangles(context, sources: Sources, scale: float) -> dict:
-    depsgraph = context.evaluated_depsgraph_get()
-    return {name: convert.collider_world_si(bpy.data.objects[name], depsgraph, scale)[1]
-            for name in sources.collider_names}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -326,6 +341,7 @@ class BakeRun:
         self.next_gather = None
         self._last_preview = 0.0
         self._previewed = None
+        self.abandoned = False  # stopped by a file load: the data it knew is gone
         if obj is not None and obj.name in running:
             self.reports.error(f"{obj.name}: a bake of this object is already running")
             self.reports.raise_if_errors()
@@ -336,7 +352,6 @@ class BakeRun:
                 scene.frame_set(first)
             self.plan, self.sources = build_plan(context, obj, frame_start, frame_end, resume, self.reports)
             self.object_name = obj.name
-            self.plan.body_triangles = _collider_triangles(context, self.sources, self.plan.scale)
             self.progress = Progress(obj.name, self.plan.frame_start, self.plan.frame_end)
             # Blender must let go of the old cache before the writer deletes or rewrites it.
             modifier.detach_cache(obj)
@@ -363,7 +378,7 @@ class BakeRun:
     def start(self, context) -> None:
         running[self.object_name] = self
         try:
-            inputs = gather_inputs(context, self.sources, self.plan.body_triangles, self.job.start_frame,
+            inputs = gather_inputs(context, self.sources, self.job.start_frame,
                                    self.plan.scale)
             self.job.begin(inputs)
         except (BakeError, ClothError, ValueError, cache.CacheError) as exc:
@@ -381,11 +396,15 @@ class BakeRun:
             self.job.close()
         except Exception as exc:  # the cache keeps every frame it had; say why it is not closed
             self.progress.state, self.progress.message = "error", f"could not finish the cache: {exc}"
+        frames = self.job.writer.frames
+        if self.abandoned:  # another file is open now: touch none of its data
+            self.reports.warning(f"{self.object_name}: bake stopped by loading another file; "
+                                 + (f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"))
+            return "cancelled"
         scene = bpy.data.scenes.get(self.scene_name)
         if scene is not None and scene.frame_current != self.original_frame:
             scene.frame_set(self.original_frame)
         obj = bpy.data.objects.get(self.object_name)
-        frames = self.job.writer.frames
         if obj is not None and frames and modifier.is_enabled(obj):
             try:
                 modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
@@ -411,7 +430,7 @@ class BakeRun:
         try:
             while self.progress.state == "running" and not self.job.done:
                 try:
-                    inputs = gather_inputs(context, self.sources, self.plan.body_triangles, self.job.next_frame,
+                    inputs = gather_inputs(context, self.sources, self.job.next_frame,
                                            self.plan.scale)
                     self.job.advance(inputs)
                 except (BakeError, ClothError, ValueError, cache.CacheError) as exc:
@@ -447,7 +466,7 @@ class BakeRun:
         try:
             while (self.next_gather <= self.plan.frame_end and self.queue.qsize() < QUEUE_AHEAD
                    and time.perf_counter() - start < GATHER_BUDGET):
-                inputs = gather_inputs(context, self.sources, self.plan.body_triangles, self.next_gather,
+                inputs = gather_inputs(context, self.sources, self.next_gather,
                                        self.plan.scale)
                 self.queue.put(inputs)
                 self.next_gather += 1
@@ -466,7 +485,10 @@ class BakeRun:
             return
         obj = bpy.data.objects.get(self.object_name)
         if obj is not None and modifier.is_enabled(obj):
-            modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
+            try:
+                modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
+            except BakeError:
+                pass  # only a preview; finish() reports if the cache cannot be attached at the end
         self._previewed, self._last_preview = frame, now
 
     def stop(self, state: str = "cancelled", timeout: float = 30.0) -> None:
@@ -545,6 +567,7 @@ def stop_all(reason: str) -> None:
     """Stop every running bake, keeping their frames (before a file load, on unregister)."""
     for run in list(running.values()):
         log.warning("%s: stopping the bake (%s); frames baked so far are kept", run.object_name, reason)
+        run.abandoned = True
         run.stop()
         running.pop(run.object_name, None)
         try:

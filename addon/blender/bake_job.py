@@ -260,7 +260,7 @@ class BakeJob:
             except SimulationError as exc:
                 raise SimulationError(
                     f"the simulation blew up between frames {inputs.frame - 1} and {inputs.frame} ({exc}); "
-                    "frames before are kept. Try more steps per frame, a smaller pull or a stiffer tear stress"
+                    "frames before are kept. Try more steps per frame or a gentler pull"
                 ) from None
             self.progress.step_seconds += time.perf_counter() - start
             self.progress.steps += 1

@@ -147,4 +147,4 @@ def detach_cache(obj) -> None:
     cache_file = md.cache_file
     md.cache_file = None
     if cache_file.users == 0:
-        bpy.data.cache_files.remove(cache_file)
+        bpy.data.batch_remove([cache_file])  # cache_files has no remove()

@@ -18,7 +18,7 @@ from bpy.types import Operator
 
 from ..materials import MATERIALS
 from . import bake, convert, modifier
-from .report import BakeError, Reports
+from .report import BakeError, Reports, not_a_mesh
 
 CLUSTER_ATTRIBUTE = "tearcloth_clusters"
 
@@ -44,7 +44,7 @@ class TEARCLOTH_OT_enable(Operator):
         reports = Reports()
         obj = context.object
         if obj.type != "MESH":
-            reports.error(f"{obj.name!r} is a {obj.type.lower()}, not a mesh: Tear Cloth works on mesh objects")
+            reports.error(not_a_mesh(obj))
             reports.to_operator(self)
             return {"CANCELLED"}
         if obj.modifiers.get(modifier.MODIFIER_NAME) is not None:
@@ -69,14 +69,17 @@ class TEARCLOTH_OT_disable(Operator):
 
     def execute(self, context):
         obj = context.object
+        reports = Reports()
         if obj.name in bake.running:
-            self.report({"ERROR"}, f"{obj.name}: its bake is running; cancel it first (Esc)")
+            reports.error(f"{obj.name}: its bake is running; cancel it first (Esc)")
+            reports.to_operator(self)
             return {"CANCELLED"}
         kept = modifier.attached_path(obj)
         modifier.detach_cache(obj)
         obj.modifiers.remove(modifier.find_modifier(obj))
         if kept:
-            self.report({"INFO"}, f"{obj.name}: Tear Cloth disabled; its bake stays in {kept}")
+            reports.info(f"{obj.name}: Tear Cloth disabled; its bake stays in {kept}")
+        reports.to_operator(self)
         return {"FINISHED"}
 
 
@@ -111,6 +114,8 @@ class _BakeModal:
         return {"FINISHED"} if "done" in states or "cancelled" in states else {"CANCELLED"}
 
     def invoke(self, context, event):
+        if context.window is None:  # no window to run a timer in (background mode): bake inline
+            return self.execute(context)
         self._names = self.object_names(context)
         self._run = None
         self._any = False
@@ -147,7 +152,13 @@ class _BakeModal:
             return self._end_run(context)
         if event.type != "TIMER":
             return {"PASS_THROUGH"}  # the UI stays usable while baking
-        if not run.tick(context):
+        try:
+            alive = run.tick(context)
+        except Exception as exc:  # never leave a worker running behind a dead operator
+            run.progress.message = f"unexpected error: {exc}"
+            run.stop(state="error")
+            return self._end_run(context)
+        if not alive:
             if run.thread is not None:
                 run.thread.join()
             return self._end_run(context)
@@ -193,8 +204,9 @@ class TEARCLOTH_OT_bake(_BakeModal, Operator):
     def object_names(self, context):
         obj = context.object
         if obj is None or obj.type != "MESH":
-            self.report({"ERROR"}, "select the mesh to tear" if obj is None else
-                        f"{obj.name!r} is a {obj.type.lower()}, not a mesh: Tear Cloth works on mesh objects")
+            reports = Reports()
+            reports.error("select the mesh to tear" if obj is None else not_a_mesh(obj))
+            reports.to_operator(self)
             return []
         return [obj.name]
 
@@ -208,7 +220,9 @@ class TEARCLOTH_OT_bake_all(_BakeModal, Operator):
     def object_names(self, context):
         names = [o.name for o in context.scene.objects if o.type == "MESH" and modifier.is_enabled(o)]
         if not names:
-            self.report({"WARNING"}, "no object in the scene has Tear Cloth enabled")
+            reports = Reports()
+            reports.warning("no object in the scene has Tear Cloth enabled")
+            reports.to_operator(self)
         return names
 
 
@@ -364,6 +378,11 @@ class TEARCLOTH_OT_collider_remove(Operator):
 # Cluster preview and Alembic export
 
 
+def _finish(operator, reports: Reports, result: set) -> set:
+    reports.to_operator(operator)
+    return result
+
+
 def cluster_colours(labels: np.ndarray) -> np.ndarray:
     """(n, 4) RGBA per label: hues spread by the golden ratio so neighbouring ids differ."""
     k = int(labels.max()) + 1 if labels.size else 0
@@ -386,15 +405,16 @@ class TEARCLOTH_OT_preview_clusters(Operator):
     def execute(self, context):
         from ..collision import cluster_mesh
 
+        reports = Reports()
         obj = context.object
         if obj.mode == "EDIT":
-            self.report({"ERROR"}, f"{obj.name}: leave Edit Mode to preview the clusters")
-            return {"CANCELLED"}
+            reports.error(f"{obj.name}: leave Edit Mode to preview the clusters")
+            return _finish(self, reports, {"CANCELLED"})
         mesh = obj.data
         arrays = convert.read_mesh(mesh, uv=False)
         if len(arrays.triangles) == 0:
-            self.report({"ERROR"}, f"{obj.name}: the mesh has no faces to cluster")
-            return {"CANCELLED"}
+            reports.error(f"{obj.name}: the mesh has no faces to cluster")
+            return _finish(self, reports, {"CANCELLED"})
         scale = convert.scale_length(context.scene)
         positions = convert.local_to_world_si(arrays.vertices, convert.matrix_array(obj.matrix_world), scale)
         target = int(obj.tearcloth.cluster_size)
@@ -412,9 +432,9 @@ class TEARCLOTH_OT_preview_clusters(Operator):
         mesh.color_attributes.active_color = attr
         mesh.update()
         k = int(labels.max()) + 1
-        self.report({"INFO"}, f"{obj.name}: {k} cluster{'s' if k != 1 else ''} of about {target} vertices in the "
-                              f"colour attribute {CLUSTER_ATTRIBUTE!r} (Viewport Shading > Color > Attribute)")
-        return {"FINISHED"}
+        reports.info(f"{obj.name}: {k} cluster{'s' if k != 1 else ''} of about {target} vertices in the "
+                     f"colour attribute {CLUSTER_ATTRIBUTE!r} (Viewport Shading > Color > Attribute)")
+        return _finish(self, reports, {"FINISHED"})
 
 
 class TEARCLOTH_OT_export_alembic(Operator):
@@ -424,24 +444,25 @@ class TEARCLOTH_OT_export_alembic(Operator):
     bl_label = "Export Alembic"
 
     def execute(self, context):
+        reports = Reports()
         scene = context.scene
         baked = [o for o in scene.objects if modifier.attached_path(o) is not None]
         chosen = [o for o in baked if o.select_get()] or baked
         if not chosen:
-            self.report({"ERROR"}, "nothing to export: no Tear Cloth object of this scene has a bake")
-            return {"CANCELLED"}
+            reports.error("nothing to export: no Tear Cloth object of this scene has a bake")
+            return _finish(self, reports, {"CANCELLED"})
         target = scene.tearcloth.alembic_path
         if target.startswith("//") and not bpy.data.filepath:
-            self.report({"ERROR"}, f"the Alembic path {target!r} is relative to the .blend file, which is not "
-                                   "saved yet: save it or choose an absolute path")
-            return {"CANCELLED"}
+            reports.error(f"the Alembic path {target!r} is relative to the .blend file, which is not "
+                          "saved yet: save it or choose an absolute path")
+            return _finish(self, reports, {"CANCELLED"})
         path = os.path.normpath(bpy.path.abspath(target))
         folder = os.path.dirname(path)
         try:
             os.makedirs(folder, exist_ok=True)
         except OSError as exc:
-            self.report({"ERROR"}, f"cannot create {folder}: {exc.strerror or exc}")
-            return {"CANCELLED"}
+            reports.error(f"cannot create {folder}: {exc.strerror or exc}")
+            return _finish(self, reports, {"CANCELLED"})
         start = min(o.tearcloth.frame_start for o in chosen)
         end = max(o.tearcloth.frame_end for o in chosen)
         view_layer = context.view_layer
@@ -466,11 +487,11 @@ class TEARCLOTH_OT_export_alembic(Operator):
                     o.select_set(True)
             view_layer.objects.active = active
         if "FINISHED" not in result:
-            self.report({"ERROR"}, f"Blender's Alembic exporter did not finish writing {path}")
-            return {"CANCELLED"}
-        self.report({"INFO"}, f"exported {len(chosen)} object{'s' if len(chosen) != 1 else ''}, frames "
-                              f"{start}-{end}, to {path}")
-        return {"FINISHED"}
+            reports.error(f"Blender's Alembic exporter did not finish writing {path}")
+            return _finish(self, reports, {"CANCELLED"})
+        reports.info(f"exported {len(chosen)} object{'s' if len(chosen) != 1 else ''}, frames "
+                     f"{start}-{end}, to {path}")
+        return _finish(self, reports, {"FINISHED"})
 
 
 classes = (

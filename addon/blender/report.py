@@ -61,3 +61,13 @@ class Reports:
         """Show every message through ``operator.report`` (the status bar and the Info editor)."""
         for level, message in self.items:
             operator.report({level}, message)
+
+
+def object_kind(type_name: str) -> str:
+    """'an empty', 'a curve', ... for an object's ``type`` (e.g. 'EMPTY', 'GREASEPENCIL')."""
+    word = type_name.lower().replace("_", " ")
+    return ("an " if word[:1] in "aeiou" else "a ") + word
+
+
+def not_a_mesh(obj) -> str:
+    return f"{obj.name!r} is {object_kind(obj.type)}, not a mesh: Tear Cloth works on mesh objects"

@@ -634,6 +634,12 @@ class CollisionDetector:
             depth = np.where(inverted, th + dist, th - dist)
             contact = depth > 0
             normal = nrm * aside[:, None].astype(np.float64)
+            if name == "__self__":
+                # Layer over layer only: where the other triangle stands edge-on to this vertex's
+                # surface (a fold, a torn rim), its normal lies in this vertex's plane, and
+                # prescribing velocity along it pins the stiff membrane in-plane - that is how a
+                # handful of such contacts pumped a draped cloth to 15 m/s.
+                contact &= np.abs(np.einsum("ij,ij->i", nrm, normals[av])) >= 0.5
             keep = (np.abs(at) <= self.track_range) | (inverted & (dist <= self.track_range + th))
             # Both slots on one triangle would double the memory (copied across above): keep
             # slot 0 only.

@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import threading
 import time
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
@@ -170,7 +171,7 @@ class LiveSession:
         linearise: bool = True,
         min_secant_m: float = 1e-5,
         max_linear_stiffness: float = 1e5,
-        max_handle_speed: Optional[float] = 1.0,
+        max_handle_speed: Optional[float] = 0.5,
         stop_buttons: Optional[int] = FALCON_CENTRE_BUTTON,
         on_device_lost: str = "stop",
         recorder: Optional[Recorder] = None,
@@ -179,6 +180,7 @@ class LiveSession:
         rebase: bool = True,
         warmup_steps: int = 5,
         proxy_timeout_s: float = 0.5,
+        servo_priority: Optional[int] = 10,
         servo_kwargs: Optional[Mapping[str, Any]] = None,
     ):
         if not (dt > 0.0 and math.isfinite(dt)):
@@ -225,7 +227,17 @@ class LiveSession:
         self.rebase = bool(rebase)
         self.warmup_steps = max(0, int(warmup_steps))
         self.proxy_timeout_s = float(proxy_timeout_s)
-        self.servo_kwargs = dict(servo_kwargs or {})
+        # Servo threads: SCHED_FIFO when the OS allows it (servo.ServoLoop(priority=...)). On
+        # fewer than 4 cores the two servo threads and the simulation thread already fill the
+        # machine, and a servo thread spinning before its deadline steals the simulation's core:
+        # sleep the whole wait instead.
+        defaults: Dict[str, Any] = {"priority": servo_priority}
+        if (os.cpu_count() or 1) < 4:
+            defaults["spin_s"] = 0.0
+        self.servo_kwargs = {**defaults, **dict(servo_kwargs or {})}
+        from ..cloth import SimulationError  # lazily: see the module docstring
+
+        self._simulation_error = SimulationError
 
         self._hands: Dict[str, _Hand] = self._bind_handles(hands)
         self.force_log = ForceLog(list(self._hands))
@@ -233,9 +245,13 @@ class LiveSession:
         self.servo: Optional[ServoLoop] = None
 
         self.steps = 0
+        self.held_steps = 0
         self.frames_recorded = 0
+        self.step_clock: List[float] = []  # servo-clock time at the end of every step
+        self.step_time: List[float] = []  # simulated time at the end of every step
         self.first_tear_clock: Optional[float] = None
         self.first_tear_time: Optional[float] = None
+        self.first_tear_step: Optional[int] = None
         self.ended = False
         self.end_reason: Optional[str] = None
         self.error: Optional[BaseException] = None
@@ -497,6 +513,7 @@ class LiveSession:
             self._record_period(start - self._last_step_start)
         self._last_step_start = start
         max_move = None if self.max_handle_speed is None else self.max_handle_speed * self.dt
+        held = {name: hs.translation for name, hs in self._hands.items()}
         for hs in self._hands.values():
             if hs.lost:
                 continue
@@ -527,10 +544,25 @@ class LiveSession:
                 self.cloth.set_handle_target(hs.handle, m)
             if self.ended:
                 return False
-        self.session.step(self.dt)  # collision + FEM + tearing; the GIL is released in the native step
+        try:
+            self.session.step(self.dt)  # collision + FEM + tearing; the GIL is released in the native step
+        except self._simulation_error:
+            # The core rolled the step back (and the session already retried it in sub-steps):
+            # the hands moved too far for one step. Hold the handles where they were and try
+            # once more; the proxy spring makes the hands feel the lag. A second failure ends the
+            # session (zero force) with the error.
+            for name, hs in self._hands.items():
+                hs.translation = held[name]
+                m = np.eye(3, 4)
+                m[:, 3] = hs.translation
+                self.cloth.set_handle_target(hs.handle, m)
+            self.held_steps += 1
+            self.session.step(self.dt)
         now = clock()
         if self.first_tear_clock is None and self.cloth.stats()["tears_started"]:
-            self.first_tear_clock, self.first_tear_time = now, float(self.session.time)
+            self.first_tear_clock, self.first_tear_time, self.first_tear_step = now, float(self.session.time), self.steps
+        self.step_clock.append(now)
+        self.step_time.append(float(self.session.time))
         for hs in self._hands.values():
             if hs.lost:
                 continue
@@ -578,11 +610,12 @@ class LiveSession:
         finally:
             self._active_wall_s += time.perf_counter() - t0
 
-    def run_for(self, seconds: float) -> int:
-        """Step as fast as possible on the calling thread for ``seconds`` of wall time, or until
-        the session ends. Returns the number of steps taken. The servo keeps running after the
-        call returns: call again soon (within the stall timeout, else the hands feel zero force
-        until the next step) or ``stop()``."""
+    def run_for(self, seconds: float, until_time: Optional[float] = None) -> int:
+        """Step as fast as possible on the calling thread for ``seconds`` of wall time, until
+        the simulated time reaches ``until_time`` (s) if given, or until the session ends.
+        Returns the number of steps taken. The servo keeps running after the call returns: call
+        again soon (within the stall timeout, else the hands feel zero force until the next
+        step) or ``stop()``."""
         self._check_drivable()
         self.open()
         self._last_step_start = None  # the gap since the last call is not a simulation period
@@ -590,7 +623,7 @@ class LiveSession:
         end = t0 + float(seconds)
         n = 0
         try:
-            while time.perf_counter() < end:
+            while time.perf_counter() < end and (until_time is None or self.session.time < until_time):
                 if not self._guarded(self._step):
                     n += 1
                     break
@@ -692,6 +725,8 @@ class LiveSession:
             sim_p99_ms=float(np.percentile(walls, 99) * 1e3) if len(walls) else float("nan"),
             stall_timeout_s=self.stall_timeout_s,
             frames_recorded=self.frames_recorded,
+            held_steps=self.held_steps,
+            servo_realtime={h: v.get("realtime") for h, v in out.get("per_hand", {}).items()},
             first_tear_s=self.first_tear_time,
             tears_started=int(self.cloth.stats()["tears_started"]),
             triangles=int(self.cloth.num_triangles),
@@ -700,6 +735,51 @@ class LiveSession:
             lost_hands=list(self.lost_hands),
         )
         return out
+
+    def clock_at(self, sim_time: float) -> float:
+        """Servo-clock time at the end of the first step that reached ``sim_time`` (s): maps
+        simulated time onto the clock the force logs use."""
+        if not self.step_time:
+            raise DeviceStateError("no simulation step taken yet")
+        k = int(np.searchsorted(np.asarray(self.step_time), sim_time - 1e-12))
+        return self.step_clock[min(k, len(self.step_clock) - 1)]
+
+    def phases(
+        self,
+        log: str = "felt",
+        *,
+        axis: Sequence[float] = (1.0, 0.0, 0.0),
+        start_time: Optional[float] = None,
+        peak_steps: Tuple[int, int] = (-10, 40),
+        propagation_steps: Optional[int] = None,
+        smooth_steps: float = 3.0,
+    ) -> Dict[str, dict]:
+        """``force_phases`` of the ``"felt"`` (``force_log``) or ``"tear"`` (``tear_log``) log
+        with its windows counted in simulation steps around the first tear: the peak is looked
+        for from ``peak_steps[0]`` to ``peak_steps[1]`` steps after it, propagation starts
+        ``propagation_steps`` after it (default: the end of the peak window), the elastic phase
+        starts at simulated time ``start_time`` (default: the first sample), and the smoothing
+        spans ``smooth_steps`` median step periods. Raises if nothing has torn yet."""
+        if self.first_tear_step is None:
+            raise DeviceStateError("the cloth has not torn yet: no Fig. 6 phases to read")
+        logs = {"felt": self.force_log, "tear": self.tear_log}
+        if log not in logs:
+            raise ConfigError(f"log must be 'felt' or 'tear', got {log!r}")
+        sc = np.asarray(self.step_clock)
+        k0, last = self.first_tear_step, len(sc) - 1
+        t0 = sc[k0]
+        at = lambda k: float(sc[min(max(k, 0), last)])  # noqa: E731
+        prop_k = k0 + (peak_steps[1] if propagation_steps is None else propagation_steps)
+        period = float(np.median(np.diff(sc))) if len(sc) > 1 else 0.0
+        return force_phases(
+            logs[log],
+            t0,
+            axis=axis,
+            start=None if start_time is None else self.clock_at(start_time),
+            peak_window=(at(k0 + peak_steps[0]) - t0, at(k0 + peak_steps[1]) - t0),
+            propagation_start=at(prop_k),
+            smooth=smooth_steps * period,
+        )
 
     def save_force_log(self, csv_path, png_path=None, axis: Sequence[float] = (1.0, 0.0, 0.0), title: Optional[str] = None) -> Tuple[str, Optional[str]]:
         """Write the rendered force log as CSV (``ForceLog.to_csv``) and, optionally, a plot of
@@ -728,10 +808,16 @@ def pulling_hand(
     start: Sequence[float] = WORKSPACE_CENTRE,
     stiffness: float = 1500.0,
     damping: float = 15.0,
+    clock: Optional[Callable[[], float]] = None,
 ):
     """A scripted hand (``falcon_emulator.spring_hand``) that holds the grip at ``start`` for
     ``hold_s``, then pulls it ``distance`` metres along ``direction`` (device frame) over
-    ``pull_s`` seconds of emulated time with a smooth cosine blend, and holds it there."""
+    ``pull_s`` seconds with a smooth cosine blend, and holds it there.
+
+    Time is the emulator's (one millisecond per packet, i.e. wall time) unless ``clock`` is
+    given: then the pull follows ``clock()``, e.g. the simulated time, so the cloth is pulled
+    the same way whatever the machine's speed (a loaded machine simulates fewer steps per second,
+    and a wall-time hand would pull it faster in simulated time)."""
     d = np.asarray(direction, dtype=float)
     n = float(np.linalg.norm(d))
     if not n > 0.0:
@@ -742,6 +828,8 @@ def pulling_hand(
         raise ConfigError(f"need pull_s > 0 and hold_s >= 0, got {pull_s!r}, {hold_s!r}")
 
     def target(t):
+        if clock is not None:
+            t = clock()
         u = min(max((t - hold_s) / pull_s, 0.0), 1.0)
         return s + (distance * (0.5 - 0.5 * math.cos(math.pi * u))) * d
 
@@ -758,6 +846,7 @@ def emulated_falcon(
     pull_s: float = 2.0,
     stiffness: float = 1500.0,
     damping: float = 15.0,
+    clock: Optional[Callable[[], float]] = None,
     substeps: int = 1,
     **emulator_kwargs,
 ) -> Tuple[FalconDevice, FalconEmulator]:
@@ -773,7 +862,7 @@ def emulated_falcon(
         serial,
         firmware_loaded=True,
         homed=True,
-        hand=pulling_hand(direction, distance, hold_s, pull_s, stiffness=stiffness, damping=damping),
+        hand=pulling_hand(direction, distance, hold_s, pull_s, stiffness=stiffness, damping=damping, clock=clock),
         substeps=substeps,
         **emulator_kwargs,
     )
@@ -794,10 +883,12 @@ def emulated_session(
     *,
     material_name: Optional[str] = None,
     tear_stress: Optional[float] = None,
+    material_changes: Optional[Mapping[str, float]] = None,
     collision: bool = False,
     pull_distance: float = 0.02,
     hold_s: float = 0.3,
     pull_s: float = 2.0,
+    pace: str = "wall",
     hand_stiffness: float = 1500.0,
     hand_damping: float = 15.0,
     emulator_substeps: int = 1,
@@ -810,12 +901,15 @@ def emulated_session(
 ) -> Tuple[LiveSession, Dict[str, FalconEmulator]]:
     """One of the paper's scenes ("cloth" = the square, "banknote", "tshirt") grasped by two
     emulated Falcons whose scripted hands pull the grips apart along the device x axis (scene x
-    through ``FALCON_TO_SCENE``), each toward its own side. Returns (session, {hand: emulator}).
+    through ``FALCON_TO_SCENE``), each toward its own side, by ``pull_distance`` (device m) over
+    ``pull_s`` after ``hold_s``. ``pace``: "wall" (the hands move in real time, like a user) or
+    "simulation" (they follow the simulated time: reproducible on any machine). Returns
+    (session, {hand: emulator}).
 
     Coupling: each Falcon's 4 cm workspace maps onto ``scene_radius`` (scale 2 by default); the
-    scene force times ``force_scale`` (0.1: the square cloth's ~50 N tearing peak becomes 5 N,
-    inside the Falcon's 8 N) reaches the device. Felt stiffness 0.1·2000·2 = 400 N/m, damping
-    4 N·s/m, inside the Falcon's 3000 N/m and 20 N·s/m.
+    scene force times ``force_scale`` (0.1: the square cloth's tearing peak of a few tens of N
+    stays inside the Falcon's 8 N) reaches the device. Felt stiffness 0.1·2000·2 = 400 N/m,
+    damping 4 N·s/m, inside the Falcon's 3000 N/m and 20 N·s/m.
 
     The T-shirt is pinned along its ``shoulders`` group: without collision nothing else would
     hold it up; with ``collision=True`` it also collides with the mannequin (slower)."""
@@ -826,6 +920,8 @@ def emulated_session(
 
     if scenario not in _SCENARIO_GROUPS:
         raise ConfigError(f"unknown scenario {scenario!r}; scenarios: {', '.join(_SCENARIO_GROUPS)}")
+    if pace not in ("wall", "simulation"):
+        raise ConfigError(f"pace must be 'wall' or 'simulation', got {pace!r}")
     body = None
     if scenario == "cloth":
         mesh, mat_name = scenes.square_cloth(), "cotton"
@@ -834,7 +930,9 @@ def emulated_session(
     else:
         body = scenes.mannequin()
         mesh, mat_name = scenes.tshirt(body), "cotton"
-    changes = {} if tear_stress is None else {"tear_stress": float(tear_stress)}
+    changes = dict(material_changes or {})
+    if tear_stress is not None:
+        changes["tear_stress"] = float(tear_stress)
     mat = material(material_name or mat_name, **changes)
     cloth = Cloth(mesh.vertices, mesh.triangles, mat, uv=mesh.loop_uv(), groups=mesh.groups)
     cloth.set_tearing(True)
@@ -843,6 +941,7 @@ def emulated_session(
     session = Session(cloth, CollisionSettings() if collision else None)
     if collision and body is not None:
         session.add_body("mannequin", body.vertices, body.triangles)
+    clock = (lambda: session.time) if pace == "simulation" else None
     hands = {}
     emulators = {}
     for i, (hand, group) in enumerate(_SCENARIO_GROUPS[scenario].items()):
@@ -856,6 +955,7 @@ def emulated_session(
             pull_s=pull_s,
             stiffness=hand_stiffness,
             damping=hand_damping,
+            clock=clock,
             substeps=emulator_substeps,
         )
         coupling = falcon_coupling(scene_radius, k_position=k_position, k_velocity=k_velocity, force_scale=force_scale, max_force_rate=max_force_rate)
@@ -867,52 +967,73 @@ def emulated_session(
 # ---------------------------------------------------------------------------------------------
 # Fig. 6 analysis and the bench probe
 # ---------------------------------------------------------------------------------------------
+def _moving_average(t: np.ndarray, x: np.ndarray, window: float) -> np.ndarray:
+    """Centred moving average over ``window`` (same unit as ``t``); exact for uneven sampling."""
+    if window <= 0.0 or len(x) == 0:
+        return x.copy()
+    c = np.concatenate(([0.0], np.cumsum(x)))
+    lo = np.searchsorted(t, t - 0.5 * window, side="left")
+    hi = np.searchsorted(t, t + 0.5 * window, side="right")
+    return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
+
+
 def force_phases(
     log: ForceLog,
     first_tear: float,
-    axis: Sequence[float] = (1.0, 0.0, 0.0),
     *,
-    peak_window_s: float = 0.15,
-    settle_s: float = 0.3,
+    axis: Sequence[float] = (1.0, 0.0, 0.0),
     start: Optional[float] = None,
+    peak_window: Tuple[float, float] = (-0.05, 0.1),
+    propagation_start: Optional[float] = None,
+    smooth: float = 0.0,
 ) -> Dict[str, dict]:
     """The phases of the paper's Fig. 6 in a force log, per hand, as *tension*: the force along
     ``axis`` signed so that a hand pulled back toward the cloth reads positive (the right hand,
-    on +axis, feels -axis; the left hand feels +axis).
+    on the +axis side, feels -axis; the left hand, and any other, feels +axis).
 
-    - ``elastic_start``: median tension over the first 10 % of [start, first_tear];
-    - ``elastic_end``: median tension over the last 10 % of it;
-    - ``peak`` / ``peak_t``: maximum within ``peak_window_s`` of the first tear;
-    - ``propagation``: median tension from ``first_tear + settle_s`` to the end of the log;
-    - ``max_before`` / ``max_before_t``: the largest tension before the propagation phase.
-    ``start`` defaults to the first sample."""
+    All times are on the log's clock. ``start``: beginning of the elastic phase (default: first
+    sample); ``first_tear``: when ``tears_started`` became non-zero; ``peak_window``: offsets
+    around ``first_tear`` where the peak is looked for; ``propagation_start`` (default: the end
+    of the peak window) to the end of the log is the propagation phase; ``smooth``: width of a
+    centred moving average applied first (the rendered force carries 1 kHz texture).
+
+    Per hand: ``elastic_start`` / ``elastic_end`` (median tension over the first / last 10 % of
+    [start, first_tear]), ``peak`` and ``peak_t`` (largest smoothed tension in the peak window),
+    ``max_before`` / ``max_before_t`` (largest smoothed tension before the propagation phase),
+    ``propagation`` (median tension over the propagation phase) and ``propagation_samples``."""
     a = np.asarray(axis, dtype=float)
     a = a / np.linalg.norm(a)
+    p_lo, p_hi = first_tear + peak_window[0], first_tear + peak_window[1]
+    prop_start = p_hi if propagation_start is None else float(propagation_start)
     out: Dict[str, dict] = {}
     for hand in log.hands:
         t, f = log.along_axis(hand, a)
         if not len(t):
             continue
-        sign = 1.0 if hand == "left" else -1.0
-        tension = sign * f
+        tension = (-1.0 if hand == "right" else 1.0) * f
+        smoothed = _moving_average(t, tension, smooth)
         t_start = float(t[0]) if start is None else float(start)
-        span = max(first_tear - t_start, 1e-9)
+        span = max(first_tear - t_start, 1e-12)
         first = (t >= t_start) & (t <= t_start + 0.1 * span)
         last = (t >= first_tear - 0.1 * span) & (t <= first_tear)
-        near = np.abs(t - first_tear) <= peak_window_s
-        prop = t >= first_tear + settle_s
-        before = t < first_tear + settle_s
-        ib = int(np.argmax(np.where(before, tension, -np.inf))) if before.any() else 0
-        ip = int(np.argmax(np.where(near, tension, -np.inf))) if near.any() else 0
+        near = (t >= p_lo) & (t <= p_hi)
+        before = (t >= t_start) & (t < prop_start)
+        prop = t >= prop_start
+
+        def arg_max(mask):
+            return int(np.argmax(np.where(mask, smoothed, -np.inf)))
+
+        ip, ib = arg_max(near), arg_max(before)
+        nan = float("nan")
         out[hand] = {
-            "elastic_start": float(np.median(tension[first])) if first.any() else float("nan"),
-            "elastic_end": float(np.median(tension[last])) if last.any() else float("nan"),
-            "peak": float(tension[ip]) if near.any() else float("nan"),
-            "peak_t": float(t[ip]) if near.any() else float("nan"),
-            "propagation": float(np.median(tension[prop])) if prop.any() else float("nan"),
+            "elastic_start": float(np.median(tension[first])) if first.any() else nan,
+            "elastic_end": float(np.median(tension[last])) if last.any() else nan,
+            "peak": float(smoothed[ip]) if near.any() else nan,
+            "peak_t": float(t[ip]) if near.any() else nan,
+            "max_before": float(smoothed[ib]) if before.any() else nan,
+            "max_before_t": float(t[ib]) if before.any() else nan,
+            "propagation": float(np.median(tension[prop])) if prop.any() else nan,
             "propagation_samples": int(prop.sum()),
-            "max_before": float(tension[ib]) if before.any() else float("nan"),
-            "max_before_t": float(t[ib]) if before.any() else float("nan"),
         }
     return out
 
@@ -931,9 +1052,9 @@ def measure_live_servo(
 
     Returns ``rate_hz``, ``p50_ms``, ``p99_ms`` (servo, worst hand; what ``tearcloth bench``
     reports as ``servo.*``), ``sim_steps_per_s``, ``sim_p50_ms``, ``sim_p99_ms``,
-    ``stall_timeout_s``, ``watchdog_trips``, ``overruns``, ``per_hand`` and the scenario
-    settings. The hands pull apart over 80 % of the run, so the cloth is under load (and may
-    tear) while it is measured."""
+    ``stall_timeout_s``, ``watchdog_trips``, ``overruns``, ``servo_realtime``, ``per_hand`` and
+    the scenario settings. The hands pull apart (in wall time) over 80 % of the run, so the cloth
+    is under load, and may tear, while it is measured."""
     session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
     session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
     live, _emus = emulated_session(scenario, collision=collision, emulator_substeps=emulator_substeps, **session_kwargs)

@@ -1,0 +1,607 @@
+"""Race against Blender's built-in cloth (issue 8, part 1): the same T-shirt, the same walking body,
+the same two hands pulling the hem apart, the same number of sub-steps per frame - seconds per
+frame for each, measured in one process.
+
+    from tearcloth.bench_blender import race_blender_cloth
+    r = race_blender_cloth(frames=24, substeps=10)
+    r["ours_s_per_frame"], r["blender_s_per_frame"], r["ratio"]   # ratio = ours / Blender
+
+What runs on each side
+----------------------
+Scene: ``scenes.tshirt()`` worn by ``scenes.mannequin()``; the body walks (``scenes.body_pose``,
+frame f at time start_time + (f - 1) / fps); the front hem is grabbed by two hands (vertex groups
+``hem_left`` at +X and ``hem_right`` at -X) that move apart along X at ``pull_speed`` m/s each.
+
+Ours: ``Session(Cloth(cotton, tear_stress), CollisionSettings(thickness, friction,
+self_collision))``, the body added with ``add_body`` and keyed every frame with
+``set_body_keyframe(body_pose(t))``, the hands keyed with ``set_handle_keyframe`` every frame;
+``substeps`` steps of dt = 1 / fps / substeps per frame, tearing ON. A frame's time covers
+everything ours needs for it: the pose (numpy skinning), collision detection, the FEM step, tearing.
+
+Blender (through ``bpy``, headless, after ``read_factory_settings(use_empty=True)``):
+- body: a mesh with an ARMATURE rebuilt from ``Body.bones`` (head, tail, roll 0, parents) and
+  the skin weights as one vertex group per bone, an Armature modifier (linear blend skinning,
+  volume preservation off), then a Collision modifier. Every frame each pose bone gets a
+  rotation keyframe chosen so that Blender's skinning reproduces ``body_pose`` exactly (checked:
+  the largest difference is reported as ``body_pose_error_m``, float32 round-off).
+- shirt: the same vertices and triangles; two Hook modifiers (groups ``hem_left`` /
+  ``hem_right``) to two empties keyed every frame with the hands' offsets; then the Cloth
+  modifier, with the union of both groups as its pin group (weight 1 = hard pinned: the hem
+  follows the hooks exactly, as our handles do).
+- Blender's cloth computes on frame change: ``scene.frame_set(f)`` for f = 2 .. frames + 1
+  after ``frame_set(1)`` (the start frame, where the cloth is initialised). The point cache is
+  freed before the run, so every timed frame is simulated, not replayed; afterwards one frame is
+  set again to show what a cache replay costs (``blender_replay_s_per_frame``).
+
+Frames are interleaved (Blender frame f, then ours frame f) so that load from other processes on
+a shared machine hits both sides alike.
+
+Mapping our cotton onto Blender's model (``blender_cloth_settings``; Blender 2.9-5.x source,
+``SIM_mass_spring.cc`` / ``implicit_blender.cc``): Blender's cloth works in frames (dt = 1 /
+quality, velocities in m/frame), so a physical force F (N) is F / fps^2 there, a damping
+coefficient c (kg/s) is c / fps, and gravity is ``scene.gravity * 0.001`` m/frame^2.
+- quality (steps per frame) = our sub-steps per frame.
+- mass (kg per vertex, uniform) = areal mass * area / vertices (total mass equal to ours).
+- tension = compression = shear stiffness: a triangle lattice of edge springs k has the
+  membrane modulus E h = 2 k / sqrt(3) (Poisson 1/3), so k = sqrt(3) / 2 * E h (N/m); Blender's
+  spring constant is stiffness / (mean edge length L), hence stiffness = k * L / fps^2.
+  (Blender makes no shear springs on triangles; the value matters only for quads.)
+- tension / compression / shear damping = Rayleigh beta * k / fps (Blender's spring dashpots).
+- air_damping = 100 * Rayleigh alpha * vertex mass / fps (Blender's drag is -0.01 * air_damping
+  * v per vertex, not scaled by mass; our mass-proportional damping is -alpha * m * v).
+- bending (angular model): a hinge of a plate with rigidity D between two equilateral
+  triangles has a torque stiffness 3 D l^2 / (A1 + A2) = 2 sqrt(3) D; Blender pushes the two
+  wing vertices with force stiffness * 0.1 * l * angle at a lever arm of sqrt(3) / 2 * l, so
+  bending_stiffness = 40 D / (L^2 fps^2); bending_damping = beta * 4 D / L^2 / fps alike.
+- gravity: scene.gravity = 9.81 * 1000 / fps^2 m/s^2 (so that Blender's 0.001 scaling gives
+  9.81 m/s^2 at this frame rate; checked by a free fall).
+- collisions: cloth distance_min + body thickness_outer = our contact thickness (half each, at
+  least Blender's 1 mm minimum); self_distance_min = our thickness; Blender's friction values are
+  percent of a Coulomb coefficient (x 0.01 in its collision response), so body cloth_friction
+  and self_friction = 100 * our friction; use_self_collision = our self_collision;
+  collision_quality (collision passes per step) as given (default 2, Blender's default: our
+  contacts are constraints inside each implicit step, Blender's are impulses after it, which
+  needs more than one pass to keep the cloth out of a moving body).
+"""
+from __future__ import annotations
+
+import math
+import os
+import platform
+import statistics
+import time
+
+import numpy as np
+
+from . import scenes
+from .cloth import Cloth, SimulationError
+from .materials import Material, material
+from .session import CollisionSettings, Session
+
+FPS = 24
+PULL_SPEED = 0.05  # m/s per hand, apart along X
+TEAR_STRESS = 3.0e7  # Pa: above the walk's own peaks, reached between the pulling hands
+GRAVITY = 9.81
+BLENDER_GRAVITY_SCALE = 0.001  # Blender's cloth multiplies scene gravity by this (SIM_mass_spring.cc)
+BLENDER_STIFFNESS_MAX = 10000.0  # RNA limits of ClothSettings
+BLENDER_DAMPING_MAX = 50.0
+BLENDER_AIR_DAMPING_MAX = 10.0
+BLENDER_MIN_DISTANCE = 0.001
+_EVENT_FIELDS = ("new_vertices", "parents", "weights", "changed_triangles", "new_triangles", "tips")
+
+
+# ------------------------------------------------------------------------------------------------
+# The mapping of our material onto Blender's cloth settings (pure: no bpy)
+# ------------------------------------------------------------------------------------------------
+
+
+def mean_edge_length(vertices, triangles) -> float:
+    """Mean rest length of the mesh's unique edges (Blender's ``avg_spring_len``)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    e = np.unique(e, axis=0)
+    return float(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1).mean())
+
+
+def blender_cloth_settings(mat: Material, vertices, triangles, fps: int = FPS, substeps: int = 10,
+                           collision: CollisionSettings | None = None, collision_quality: int = 2) -> dict:
+    """Blender property values that reproduce ``mat`` on this mesh (see the module docs for the
+    derivations). Returns {"cloth": ClothSettings, "collision": ClothCollisionSettings,
+    "body_collision": the body's CollisionSettings, "scene": scene settings, "derived": the
+    physical intermediates}; values clamped to Blender's limits are listed in "clamped"."""
+    collision = collision or CollisionSettings()
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles, dtype=np.int64)
+    L = mean_edge_length(v, t)
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    area = float(0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum())
+    m_vertex = mat.areal_mass * area / len(v)
+    k_edge = math.sqrt(3.0) / 2.0 * mat.young * mat.thickness  # N/m per edge spring
+    f2 = float(fps) ** 2
+    raw = {
+        "tension_stiffness": k_edge * L / f2,
+        "tension_damping": mat.damping_stiffness * k_edge / fps,
+        "bending_stiffness": 40.0 * mat.bending / (L * L * f2),
+        "bending_damping": mat.damping_stiffness * 4.0 * mat.bending / (L * L) / fps,
+        "air_damping": 100.0 * mat.damping_mass * m_vertex / fps,
+    }
+    limits = {"tension_stiffness": BLENDER_STIFFNESS_MAX, "tension_damping": BLENDER_DAMPING_MAX,
+              "bending_stiffness": BLENDER_STIFFNESS_MAX, "bending_damping": 1000.0,
+              "air_damping": BLENDER_AIR_DAMPING_MAX}
+    clamped = [k for k, x in raw.items() if x > limits[k]]
+    val = {k: min(x, limits[k]) for k, x in raw.items()}
+    half = max(BLENDER_MIN_DISTANCE, collision.thickness / 2.0)
+    cloth = {
+        "quality": int(substeps),
+        "time_scale": 1.0,
+        "mass": m_vertex,
+        "tension_stiffness": val["tension_stiffness"],
+        "compression_stiffness": val["tension_stiffness"],
+        "shear_stiffness": val["tension_stiffness"],
+        "tension_damping": val["tension_damping"],
+        "compression_damping": val["tension_damping"],
+        "shear_damping": val["tension_damping"],
+        "bending_model": "ANGULAR",
+        "bending_stiffness": val["bending_stiffness"],
+        "bending_damping": val["bending_damping"],
+        "air_damping": val["air_damping"],
+        "vertex_group_mass": "pin",
+        "pin_stiffness": 1.0,
+        "use_internal_springs": False,
+        "use_pressure": False,
+        "use_sewing_springs": False,
+    }
+    coll = {
+        "use_collision": True,
+        "distance_min": half,
+        "collision_quality": int(collision_quality),
+        "use_self_collision": bool(collision.self_collision),
+        "self_distance_min": min(0.1, max(BLENDER_MIN_DISTANCE, collision.thickness)),
+        "self_friction": 100.0 * collision.friction,
+        "friction": 100.0 * collision.friction,
+    }
+    body = {"thickness_outer": half, "cloth_friction": 100.0 * collision.friction}
+    scene = {"fps": int(fps), "gravity": (0.0, 0.0, -GRAVITY / (BLENDER_GRAVITY_SCALE * f2))}
+    derived = {"mean_edge_length_m": L, "area_m2": area, "vertex_mass_kg": m_vertex,
+               "edge_spring_N_per_m": k_edge, "bending_rigidity_N_m": mat.bending,
+               "rayleigh_alpha_per_s": mat.damping_mass, "rayleigh_beta_s": mat.damping_stiffness}
+    return {"cloth": cloth, "collision": coll, "body_collision": body, "scene": scene, "derived": derived,
+            "clamped": clamped}
+
+
+# ------------------------------------------------------------------------------------------------
+# The hands: offsets of the two hem groups at time t
+# ------------------------------------------------------------------------------------------------
+
+
+def hand_offsets(t: float, pull_speed: float) -> tuple[np.ndarray, np.ndarray]:
+    """(offset of hem_left, offset of hem_right) in metres at time t (s) from the race start:
+    hem_left sits at +X and moves +X, hem_right at -X moves -X."""
+    d = pull_speed * max(0.0, float(t))
+    return np.array([d, 0.0, 0.0]), np.array([-d, 0.0, 0.0])
+
+
+def _translation(offset) -> np.ndarray:
+    m = np.eye(3, 4)
+    m[:, 3] = offset
+    return m
+
+
+# ------------------------------------------------------------------------------------------------
+# Ours
+# ------------------------------------------------------------------------------------------------
+
+
+def _follow_topology(session: Session) -> list[str]:
+    """Shims for two gaps between the core's tear events and the collision detector, applied
+    only when present (they become no-ops once fixed where they belong):
+    - ``TopologyEvents`` has no ``.get`` while ``CollisionDetector.on_topology`` and
+      ``Clustering.update`` read events with ``events.get(...)``: pass them a dict;
+    - ``on_topology`` leaves the self-collision ring table at the old vertex count, so the next
+      full detection indexes past it: rebuild it when its size no longer matches.
+    Returns the names of the shims applied."""
+    det = session.detector
+    if det is None:
+        return []
+    from .cloth import TopologyEvents
+    from .collision.narrow import ring_table
+
+    applied = []
+    need_dict = not hasattr(TopologyEvents, "get")
+    if need_dict:
+        applied.append("events_as_dict")
+    applied.append("ring_table_resize")
+    original = det.on_topology
+
+    def on_topology(events, positions, triangles):
+        if need_dict and not hasattr(events, "get"):
+            events = {k: getattr(events, k) for k in _EVENT_FIELDS}
+        dirty = original(events, positions, triangles)
+        cloth = getattr(det, "cloth", None)
+        ring = getattr(cloth, "ring", None)
+        n = len(positions)
+        if ring is not None and ring.shape[0] != n:
+            cloth.ring = ring_table(triangles, n)
+        return dirty
+
+    det.on_topology = on_topology
+    return applied
+
+
+class _Ours:
+    """Our side of the race: one frame at a time."""
+
+    def __init__(self, shirt, body, mat, collision, fps, substeps, pull_speed, start_time):
+        self.body = body
+        self.fps, self.substeps = fps, substeps
+        self.dt = 1.0 / fps / substeps
+        self.pull_speed, self.start_time = pull_speed, start_time
+        self.cloth = Cloth(shirt.vertices, shirt.triangles, mat, uv=shirt.loop_uv(), groups=shirt.groups)
+        self.hands = (self.cloth.add_handle("hem_left"), self.cloth.add_handle("hem_right"))
+        self.cloth.set_tearing(True)
+        self.session = Session(self.cloth, collision)
+        self.shims = _follow_topology(self.session)
+        self.session.add_body("body", scenes.body_pose(body, start_time), body.triangles)
+        for h, off in zip(self.hands, hand_offsets(0.0, pull_speed)):
+            self.session.set_handle_keyframe(h, _translation(off), 0.0)
+        self.parts = {"pose": 0.0, "collision": 0.0, "fem": 0.0, "tearing": 0.0}
+        self.cg_iterations = []
+        self.contacts = []
+        self.cpu_s = 0.0
+
+    def frame(self, f: int) -> float:
+        """Simulate frame f (f >= 2; frame 1 is the start). Returns wall seconds (CPU seconds of
+        the process are added to ``cpu_s``)."""
+        t = (f - 1) / self.fps  # race time; the body's clock is start_time + t
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        pose = scenes.body_pose(self.body, self.start_time + t)
+        t1 = time.perf_counter()
+        self.session.set_body_keyframe("body", pose, t)
+        for h, off in zip(self.hands, hand_offsets(t, self.pull_speed)):
+            self.session.set_handle_keyframe(h, _translation(off), t)
+        parts, iters, contacts = {"collision": 0.0, "fem": 0.0, "tearing": 0.0}, [], []
+        for _ in range(self.substeps):
+            rep = self.session.step(self.dt)  # a SimulationError leaves the totals untouched
+            parts["collision"] += rep.collision_s
+            parts["fem"] += rep.fem_s
+            parts["tearing"] += rep.tearing_s
+            iters.append(self.cloth.stats()["cg_iterations"])
+            contacts.append(rep.contacts)
+        t2 = time.perf_counter()
+        self.cpu_s += time.process_time() - c0
+        self.parts["pose"] += t1 - t0
+        for k, v in parts.items():
+            self.parts[k] += v
+        self.cg_iterations += iters
+        self.contacts += contacts
+        return t2 - t0
+
+
+# ------------------------------------------------------------------------------------------------
+# Blender
+# ------------------------------------------------------------------------------------------------
+
+
+def _set_props(struct, values: dict) -> None:
+    for k, v in values.items():
+        setattr(struct, k, v)
+
+
+def _add_group(obj, name: str, weights) -> None:
+    vg = obj.vertex_groups.new(name=name)
+    w = np.asarray(weights, dtype=np.float64)
+    full = np.flatnonzero(w >= 1.0)
+    if full.size:
+        vg.add(full.tolist(), 1.0, "REPLACE")
+    for i in np.flatnonzero((w > 0.0) & (w < 1.0)):
+        vg.add([int(i)], float(w[i]), "REPLACE")
+
+
+def _mesh_object(bpy, name, vertices, triangles):
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(np.asarray(vertices).tolist(), [], np.asarray(triangles).tolist())
+    me.update()
+    ob = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(ob)
+    return ob
+
+
+def _evaluated_vertices(bpy, ob) -> np.ndarray:
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = ob.evaluated_get(dg)
+    me = ev.to_mesh()
+    co = np.empty(len(me.vertices) * 3, dtype=np.float32)
+    me.vertices.foreach_get("co", co)
+    ev.to_mesh_clear()
+    return co.reshape(-1, 3).astype(np.float64)
+
+
+class _Blender:
+    """Blender's side: the scene built through bpy, one frame_set per frame."""
+
+    def __init__(self, shirt, body, settings, frames, fps, pull_speed, start_time):
+        import bpy
+        import mathutils
+
+        self.bpy = bpy
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        scene = bpy.context.scene
+        self.scene = scene
+        scene.render.fps = int(fps)
+        scene.render.fps_base = 1.0
+        scene.frame_start, scene.frame_end = 1, frames + 1
+        scene.use_gravity = True
+        scene.gravity = settings["scene"]["gravity"]
+        # ---- body: mesh + armature rebuilt from Body.bones + skin weights
+        self.body_ob = ob = _mesh_object(bpy, "mannequin", body.vertices, body.triangles)
+        arm_data = bpy.data.armatures.new("mannequin_rig")
+        self.arm = arm = bpy.data.objects.new("mannequin_rig", arm_data)
+        scene.collection.objects.link(arm)
+        bpy.context.view_layer.objects.active = arm
+        bpy.ops.object.mode_set(mode="EDIT")
+        edit = []
+        for name, head, tail, parent in body.bones:
+            eb = arm_data.edit_bones.new(name)
+            eb.head, eb.tail, eb.roll = tuple(map(float, head)), tuple(map(float, tail)), 0.0
+            eb.use_connect = False
+            if parent >= 0:
+                eb.parent = edit[parent]
+            edit.append(eb)
+        bpy.ops.object.mode_set(mode="OBJECT")
+        for j, bone in enumerate(body.bones):
+            _add_group(ob, bone[0], body.weights[:, j])
+        mod = ob.modifiers.new("Armature", "ARMATURE")
+        mod.object = arm
+        mod.use_vertex_groups = True
+        mod.use_bone_envelopes = False
+        mod.use_deform_preserve_volume = False
+        ob.modifiers.new("Collision", "COLLISION")
+        _set_props(ob.collision, settings["body_collision"])
+        rest = {b.name: np.array(b.matrix_local)[:3, :3] for b in arm_data.bones}
+        for f in range(1, frames + 2):
+            mats = scenes.bone_matrices(body, start_time + (f - 1) / fps)
+            for j, (name, _head, _tail, parent) in enumerate(body.bones):
+                # pose basis = rest^-1 . (this bone's own rotation about its head) . rest
+                local = mats[j] if parent < 0 else np.linalg.inv(mats[parent]) @ mats[j]
+                Rr = rest[name]
+                basis = Rr.T @ local[:3, :3] @ Rr
+                pb = arm.pose.bones[name]
+                pb.rotation_mode = "QUATERNION"
+                pb.rotation_quaternion = mathutils.Matrix(basis.tolist()).to_quaternion()
+                pb.keyframe_insert("rotation_quaternion", frame=f)
+        # ---- hands: two empties, keyed every frame
+        self.hands = []
+        for side in ("left", "right"):
+            e = bpy.data.objects.new(f"hand_{side}", None)
+            scene.collection.objects.link(e)
+            self.hands.append(e)
+        for f in range(1, frames + 2):
+            for e, off in zip(self.hands, hand_offsets((f - 1) / fps, pull_speed)):
+                e.location = tuple(off)
+                e.keyframe_insert("location", frame=f)
+        # ---- shirt: hooks, then cloth with the hem pinned
+        self.shirt_ob = sh = _mesh_object(bpy, "tshirt", shirt.vertices, shirt.triangles)
+        for name in ("hem_left", "hem_right"):
+            _add_group(sh, name, shirt.groups[name])
+        _add_group(sh, "pin", np.maximum(shirt.groups["hem_left"], shirt.groups["hem_right"]))
+        for e, name in zip(self.hands, ("hem_left", "hem_right")):
+            hk = sh.modifiers.new(f"hook_{name}", "HOOK")
+            hk.object = e
+            hk.vertex_group = name
+            hk.falloff_type = "NONE"
+            hk.strength = 1.0
+        self.cloth_mod = cm = sh.modifiers.new("Cloth", "CLOTH")
+        cloth = dict(settings["cloth"])
+        _set_props(cm.settings, cloth)
+        _set_props(cm.collision_settings, settings["collision"])
+        cm.point_cache.frame_start = 1
+        cm.point_cache.frame_end = frames + 1
+        self.frames = frames
+        self.iterations = []
+        self.cpu_s = []
+
+    def free_cache(self) -> None:
+        """Drop whatever the point cache holds, so the next frames are simulated."""
+        bpy = self.bpy
+        try:
+            with bpy.context.temp_override(scene=self.scene, point_cache=self.cloth_mod.point_cache):
+                bpy.ops.ptcache.free_bake()
+        except (RuntimeError, TypeError, AttributeError):
+            pass
+        # a settings write resets the (unbaked) cache as well
+        self.cloth_mod.settings.quality = self.cloth_mod.settings.quality
+        if self.cloth_mod.point_cache.is_baked:
+            raise RuntimeError("Blender's cloth point cache is baked; the race would only replay it")
+
+    def start(self) -> None:
+        self.free_cache()
+        self.scene.frame_set(1)
+
+    def frame(self, f: int) -> float:
+        """Evaluate frame f (Blender simulates the cloth there). Wall seconds; CPU seconds of the
+        process (all of Blender's threads) go to ``cpu_s``."""
+        c0 = time.process_time()
+        t0 = time.perf_counter()
+        self.scene.frame_set(f)
+        dt = time.perf_counter() - t0
+        self.cpu_s.append(time.process_time() - c0)
+        res = self._solver_result()
+        if res is not None:
+            self.iterations.append(res)
+        return dt
+
+    def _solver_result(self):
+        dg = self.bpy.context.evaluated_depsgraph_get()
+        mod = self.shirt_ob.evaluated_get(dg).modifiers.get("Cloth")
+        sr = getattr(mod, "solver_result", None) if mod is not None else None
+        if sr is None:
+            return None
+        return float(sr.avg_iterations), int(sr.max_iterations)
+
+    def body_error(self, body, f: int, start_time: float, fps: int) -> float:
+        self.scene.frame_set(f)
+        co = _evaluated_vertices(self.bpy, self.body_ob)
+        return float(np.abs(co - scenes.body_pose(body, start_time + (f - 1) / fps)).max())
+
+    def shirt_vertices(self) -> np.ndarray:
+        return _evaluated_vertices(self.bpy, self.shirt_ob)
+
+
+# ------------------------------------------------------------------------------------------------
+# The race
+# ------------------------------------------------------------------------------------------------
+
+
+def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, pull_speed: float = PULL_SPEED,
+                       tear_stress: float = TEAR_STRESS, target_triangles: int = 3300,
+                       collision_quality: int = 2, collision: CollisionSettings | None = None,
+                       start_time: float = 0.0, shirt=None, body=None, out=None) -> dict:
+    """Seconds per frame of ours (tearing on) and of Blender's cloth (which cannot tear) on the same
+    scene; see the module docs for what each side runs and how our cotton maps onto Blender.
+
+    Returns ours_s_per_frame, blender_s_per_frame (means over the raced frames), ratio (ours /
+    Blender: below 1 means ours is faster), settings (the exact Blender property values, ours, and
+    the mapping's intermediates), and diagnostics: per-frame times and medians, our split (pose,
+    collision, FEM, tearing), tears and cuts made, CG iterations on both sides, the body pose
+    error of Blender's armature, the cost of a cache replay. If our simulation gives up on a
+    step (SimulationError), the race stops there: ``ours_error`` says so and both means cover the
+    frames raced until then.
+    """
+    if frames < 1 or substeps < 1:
+        raise ValueError("frames and substeps must be at least 1")
+    say = out or (lambda *_: None)
+    wall0 = time.perf_counter()
+    body = body if body is not None else scenes.mannequin()
+    shirt = shirt if shirt is not None else scenes.tshirt(body, target_triangles=target_triangles)
+    mat = material("cotton", tear_stress=tear_stress)
+    collision = collision or CollisionSettings()
+    settings = blender_cloth_settings(mat, shirt.vertices, shirt.triangles, fps, substeps, collision,
+                                      collision_quality)
+    say("building Blender's scene")
+    bl = _Blender(shirt, body, settings, frames, fps, pull_speed, start_time)
+    pose_err = max(bl.body_error(body, f, start_time, fps) for f in sorted({1, frames + 1, 1 + frames // 2}))
+    ours = _Ours(shirt, body, mat, collision, fps, substeps, pull_speed, start_time)
+    bl.start()
+    rest_shirt = bl.shirt_vertices()
+    t_ours, t_bl = [], []
+    error = None
+    for f in range(2, frames + 2):
+        t_bl.append(bl.frame(f))
+        try:
+            t_ours.append(ours.frame(f))
+        except SimulationError as e:
+            error = f"frame {f}: {e}"
+            say(f"ours gave up at {error}")
+            break
+        say(f"frame {f}: ours {t_ours[-1]:.3f} s, Blender {t_bl[-1]:.3f} s")
+    raced = len(t_ours)
+    moved = float(np.abs(bl.shirt_vertices() - rest_shirt).max())
+    # what a replay from Blender's cache costs, for contrast with the simulated frames
+    t0 = time.perf_counter()
+    for f in range(2, raced + 2):
+        bl.scene.frame_set(f)
+    replay = (time.perf_counter() - t0) / max(1, raced)
+    st = ours.cloth.stats()
+    ours_mean = sum(t_ours) / raced if raced else float("nan")
+    bl_mean = sum(t_bl[:raced]) / raced if raced else float("nan")
+    bl_iters = [a for a, _m in bl.iterations[:raced]]
+    result = {
+        "ours_s_per_frame": ours_mean,
+        "blender_s_per_frame": bl_mean,
+        "ratio": ours_mean / bl_mean if raced else float("nan"),
+        "ours_s_per_frame_median": statistics.median(t_ours) if raced else float("nan"),
+        # CPU seconds of the whole process per frame: above the wall time, a side used several
+        # cores (ours steps on one thread; Blender's collision and BVH code may use more)
+        "ours_cpu_s_per_frame": ours.cpu_s / raced if raced else float("nan"),
+        "blender_cpu_s_per_frame": sum(bl.cpu_s[:raced]) / raced if raced else float("nan"),
+        "blender_s_per_frame_median": statistics.median(t_bl[:raced]) if raced else float("nan"),
+        "frames": frames,
+        "frames_raced": raced,
+        "substeps": substeps,
+        "fps": fps,
+        "dt_s": 1.0 / fps / substeps,
+        "triangles": int(len(shirt.triangles)),
+        "vertices": int(len(shirt.vertices)),
+        "body_triangles": int(len(body.triangles)),
+        "body_animation": "armature (bones from Body.bones, skin weights as vertex groups, "
+                          "Armature modifier, rotation keyframes every frame)",
+        "body_pose_error_m": pose_err,
+        "ours_per_frame_s": t_ours,
+        "blender_per_frame_s": t_bl[:raced],
+        "ours_split_s_per_frame": {k: v / max(1, raced) for k, v in ours.parts.items()},
+        "ours_tears_started": int(st.get("tears_started", 0)),
+        "ours_cuts": int(st.get("cuts", 0)),
+        "ours_triangles_end": int(ours.cloth.num_triangles),
+        "ours_step_retries": int(ours.session.retries),
+        "ours_cg_iterations_median": statistics.median(ours.cg_iterations) if ours.cg_iterations else 0,
+        "ours_contacts_median": statistics.median(ours.contacts) if ours.contacts else 0,
+        "ours_error": error,
+        "ours_shims": ours.shims,
+        "blender_cg_iterations_mean": statistics.fmean(bl_iters) if bl_iters else None,
+        "blender_cg_iterations_max": max((m for _a, m in bl.iterations[:raced]), default=None),
+        "blender_shirt_moved_m": moved,
+        "blender_replay_s_per_frame": replay,
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "blender": _blender_version(), "load_average": _loadavg()},
+        "wall_s": time.perf_counter() - wall0,
+        "settings": {
+            "blender": {"cloth": settings["cloth"], "collision": settings["collision"],
+                        "body_collision": settings["body_collision"], "scene": settings["scene"],
+                        "clamped_to_blender_limits": settings["clamped"]},
+            "ours": {"material": dict(mat.__dict__), "collision": dict(collision.__dict__),
+                     "tearing": True, "substeps_per_frame": substeps, "handles": ["hem_left", "hem_right"]},
+            "scene": {"pull_speed_m_per_s": pull_speed, "start_time_s": start_time,
+                      "motion": "walk in place (scenes.body_pose)", "shirt": "scenes.tshirt",
+                      "body": "scenes.mannequin"},
+            "mapping": settings["derived"],
+        },
+    }
+    return result
+
+
+def _blender_version() -> str:
+    try:
+        import bpy
+
+        return bpy.app.version_string
+    except ImportError:  # pragma: no cover - the race needs bpy anyway
+        return "absent"
+
+
+def _loadavg():
+    try:
+        return os.getloadavg()
+    except OSError:  # pragma: no cover
+        return None
+
+
+def format_race(r: dict) -> str:
+    bl = r["settings"]["blender"]
+    lines = [
+        f"T-shirt {r['triangles']} triangles, {r['frames_raced']}/{r['frames']} frames at {r['fps']} fps, "
+        f"{r['substeps']} sub-steps per frame (dt {r['dt_s'] * 1e3:.2f} ms)",
+        f"ours    {r['ours_s_per_frame']:.3f} s/frame (median {r['ours_s_per_frame_median']:.3f}), tearing on: "
+        f"{r['ours_tears_started']} tears, {r['ours_cuts']} cuts",
+        f"Blender {r['blender_s_per_frame']:.3f} s/frame (median {r['blender_s_per_frame_median']:.3f}), "
+        f"replay from cache {r['blender_replay_s_per_frame']:.4f} s/frame",
+        f"CPU s/frame: ours {r['ours_cpu_s_per_frame']:.3f}, Blender {r['blender_cpu_s_per_frame']:.3f}",
+        f"ratio ours/Blender {r['ratio']:.2f}",
+        f"Blender cloth: {bl['cloth']}",
+        f"Blender collision: {bl['collision']}; body: {bl['body_collision']}; scene: {bl['scene']}",
+    ]
+    if r["ours_error"]:
+        lines.append(f"ours stopped: {r['ours_error']}")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    import json
+    import sys
+
+    res = race_blender_cloth(out=print)
+    print(format_race(res))
+    if len(sys.argv) > 1:
+        with open(sys.argv[1], "w") as fh:
+            json.dump(res, fh, indent=2, default=float)

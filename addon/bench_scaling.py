@@ -1,0 +1,475 @@
+"""How step time and memory grow with the mesh (issue 8, part 2).
+
+    from tearcloth.bench_scaling import scaling, plot_scaling
+    r = scaling()                      # ~1K .. 100K triangles, tearing off/on, collision off/on
+    r["exponent"], r["peak_mb_100k"]   # step_ms ~ triangles ** exponent; MB at 100K triangles
+    plot_scaling(r, "scaling.png")
+
+Meshes: two families, each made at a base size between 1K and 4K triangles and refined 1-to-4
+(``scenes.refine``) up to the target: the paper's square cloth (``scenes.square_cloth``, laid
+horizontal at z = 1 m) and the T-shirt (``scenes.tshirt``). Targets 1e3, 3e3, 1e4, 3e4, 1e5 give
+1000, 3000, 2500 x 4, 1875 x 16 and 1562 x 64 triangles (the T-shirt family alike, within the
+mesher's ~2 %).
+
+What steps: each point is one cloth, cotton, grasped by two hands that pull apart along X at
+2 cm/s (the square by its ``handle_left`` / ``handle_right`` corners, the shirt by its front hem),
+stepped at dt = 1 ms (the haptic rate of ``bench.py``) through ``Session.step``; a step's time is
+its wall time (collision + FEM + tearing + Python glue).
+- tearing on: ``set_tearing(True)`` with a threshold out of reach (1e12 Pa), so every step scans
+  every vertex (Table I's "before" column) and the mesh keeps its size; a running tear's cost is
+  ``bench.py``'s after-cuts figure, not a function of size.
+- collision on: ``Session(cloth, CollisionSettings())`` (relative cluster measure, self-collision
+  on), with one static closed body: under the square a sphere (radius 0.2 m, 1280 triangles,
+  its top 1.5 mm below the cloth, so contacts start at once and the cloth drapes over it); for
+  the T-shirt its mannequin in the bind pose (7.6K triangles). The body keeps its size at every
+  cloth size, so the curve is the cloth's.
+
+Timing: median of ``steps`` steps after ``warmup`` steps (the first detection and allocations);
+fewer steps at large sizes (``default_steps``) so the whole default run stays around 3 minutes on
+two cores.
+
+Memory: every point runs in a fresh subprocess (peaks never accumulate). The child reads its own
+peak resident set (``VmHWM`` in /proc/self/status; ``ru_maxrss`` where there is no /proc) after
+the steps; the same reading from an idle child that imported the same modules (numpy, the
+native core, the session and the collision package, whether the point uses them or not) is the
+baseline, subtracted. So ``peak_mb`` (MB = 2^20 bytes) is what the mesh arrays, the cloth, the
+session and the detector added at their peak; ``bytes_per_triangle`` = that / triangles.
+
+Exponent: least squares of log(step_ms) on log(triangles) per configuration (``fit_exponent``);
+``exponent`` is the square cloth's with tearing and collision off, ``exponents`` has all.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+DT = 1e-3
+PULL_SPEED = 0.02  # m/s per hand, apart
+UNREACHABLE_TEAR_STRESS = 1e12
+SPHERE_RADIUS = 0.2
+SPHERE_GAP = 0.0015
+SQUARE_HEIGHT = 1.0
+BASE_RANGE = (1000, 4000)
+DEFAULT_TARGETS = (1e3, 3e3, 1e4, 3e4, 1e5)
+FAMILIES = ("square", "tshirt")
+MB = float(2**20)
+
+
+# ------------------------------------------------------------------------------------------------
+# Fitting
+# ------------------------------------------------------------------------------------------------
+
+
+def fit_exponent(triangles, step_ms) -> float:
+    """Slope of the least-squares line through (log triangles, log step_ms): the p of
+    step_ms ~ c * triangles ** p. Needs two or more distinct positive sizes."""
+    x = np.asarray(triangles, dtype=np.float64).reshape(-1)
+    y = np.asarray(step_ms, dtype=np.float64).reshape(-1)
+    if x.shape != y.shape:
+        raise ValueError(f"triangles and step_ms differ in length ({x.size} vs {y.size})")
+    ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
+    x, y = np.log(x[ok]), np.log(y[ok])
+    if x.size < 2 or np.ptp(x) == 0:
+        raise ValueError("need at least two distinct positive sizes to fit an exponent")
+    slope, _intercept = np.polyfit(x, y, 1)
+    return float(slope)
+
+
+# ------------------------------------------------------------------------------------------------
+# Meshes
+# ------------------------------------------------------------------------------------------------
+
+
+def base_and_levels(target: float, lo: int = BASE_RANGE[0], hi: int = BASE_RANGE[1]) -> tuple[int, int]:
+    """(base triangle count, refinement levels) with base * 4**levels ~ target and base in
+    [lo, hi) when the target allows (smaller targets are made directly)."""
+    target = float(target)
+    if not target > 0:
+        raise ValueError(f"triangle target must be > 0, got {target}")
+    levels = 0
+    while target / 4**levels >= hi:
+        levels += 1
+    return max(50, int(round(target / 4**levels))), levels
+
+
+def icosphere(radius: float = SPHERE_RADIUS, center=(0.0, 0.0, 0.0), subdivisions: int = 3):
+    """Closed sphere mesh, outward counter-clockwise triangles: 20 * 4**subdivisions of them."""
+    p = (1.0 + 5.0**0.5) / 2.0
+    v = [(-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0), (0, -1, p), (0, 1, p), (0, -1, -p), (0, 1, -p),
+         (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1)]
+    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2),
+         (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11),
+         (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    verts = np.array(v, dtype=np.float64)
+    verts /= np.linalg.norm(verts, axis=1, keepdims=True)
+    tris = np.array(f, dtype=np.int64)
+    for _ in range(int(subdivisions)):
+        n = len(verts)
+        e = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+        key = np.minimum(e[:, 0], e[:, 1]) * n + np.maximum(e[:, 0], e[:, 1])
+        uniq, inv = np.unique(key, return_inverse=True)
+        mids = verts[uniq // n] + verts[uniq % n]
+        mids /= np.linalg.norm(mids, axis=1, keepdims=True)
+        verts = np.concatenate([verts, mids])
+        m = n + inv.reshape(3, -1).T  # midpoint of sides (0,1), (1,2), (2,0)
+        a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+        tris = np.concatenate([np.stack([a, m[:, 0], m[:, 2]], 1), np.stack([m[:, 0], b, m[:, 1]], 1),
+                               np.stack([m[:, 2], m[:, 1], c], 1), np.stack([m[:, 0], m[:, 1], m[:, 2]], 1)])
+    return verts * float(radius) + np.asarray(center, dtype=np.float64), tris.astype(np.int32)
+
+
+def make_scene(family: str, target: float, seed: int = 0) -> dict:
+    """Arrays of one point's scene: vertices, triangles, the two hands' vertex weights (``hand_a``
+    at -X, ``hand_b`` at +X: they move apart), the body (vertices, triangles) used when collision is
+    on, and how the mesh was made."""
+    from . import scenes
+
+    base, levels = base_and_levels(target)
+    if family == "square":
+        mesh = scenes.square_cloth(target_triangles=base, seed=seed)
+        v = mesh.vertices
+        # lay it flat: (x, 0, z) -> (x, z - 1, 1), the grip edge (top) becomes the +Y edge
+        v = np.stack([v[:, 0], v[:, 2] - SQUARE_HEIGHT, np.full(len(v), SQUARE_HEIGHT)], axis=1)
+        mesh.vertices = v
+        hands = ("handle_left", "handle_right")
+        body = icosphere(SPHERE_RADIUS, (0.0, 0.0, SQUARE_HEIGHT - SPHERE_RADIUS - SPHERE_GAP), 3)
+        body_name = "sphere r 0.2 m (1280 triangles) under the cloth's centre"
+    elif family == "tshirt":
+        man = scenes.mannequin()
+        mesh = scenes.tshirt(man, target_triangles=base, seed=seed)
+        hands = ("hem_right", "hem_left")  # hem_right is the one at -X
+        body = (man.vertices, man.triangles)
+        body_name = f"mannequin, bind pose ({len(man.triangles)} triangles)"
+    else:
+        raise ValueError(f"unknown mesh family {family!r}; families: {', '.join(FAMILIES)}")
+    if levels:
+        mesh = scenes.refine(mesh, levels)
+    return {
+        "vertices": mesh.vertices, "triangles": mesh.triangles,
+        "hand_a": mesh.groups[hands[0]], "hand_b": mesh.groups[hands[1]],
+        "body_vertices": np.asarray(body[0], dtype=np.float64), "body_triangles": np.asarray(body[1], np.int32),
+        "made": f"{family} at {base} triangles, refined x4 {levels} time(s)", "body": body_name,
+    }
+
+
+# ------------------------------------------------------------------------------------------------
+# Steps and memory budget
+# ------------------------------------------------------------------------------------------------
+
+
+def default_steps(triangles: int) -> int:
+    """Steps measured per point: 30 up to 3K triangles, ~10 at 10K, 4 at 30K, 2 at 100K (a 100K
+    step takes seconds; the default run of 40 points then stays near 3 minutes on two cores)."""
+    return int(np.clip(round(30.0 * (3000.0 / max(triangles, 1)) ** 0.9), 2, 30))
+
+
+def default_warmup(triangles: int) -> int:
+    """Unmeasured first steps (first full collision detection, first allocations)."""
+    return 3 if triangles < 20000 else 1
+
+
+# ------------------------------------------------------------------------------------------------
+# The child process
+# ------------------------------------------------------------------------------------------------
+
+
+def _peak_rss_bytes() -> int:
+    """This process's peak resident set: VmHWM from /proc, else ru_maxrss."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    import resource
+
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(r if sys.platform == "darwin" else r * 1024)
+
+
+def _import_all():
+    """What every child imports, used or not, so the idle baseline matches."""
+    from . import cloth, materials, session  # noqa: F401
+    from . import collision  # noqa: F401
+
+    return cloth, materials, session
+
+
+def _child_idle() -> dict:
+    _import_all()
+    return {"peak_rss_bytes": _peak_rss_bytes()}
+
+
+def _child_point(spec: dict) -> dict:
+    cloth_mod, materials, session_mod = _import_all()
+    d = np.load(spec["npz"])
+    V, T = d["vertices"], d["triangles"]
+    mat = materials.material("cotton", tear_stress=UNREACHABLE_TEAR_STRESS)
+    c = cloth_mod.Cloth(V, T, mat, groups={"hand_a": d["hand_a"], "hand_b": d["hand_b"]})
+    hands = (c.add_handle("hand_a"), c.add_handle("hand_b"))
+    c.set_tearing(bool(spec["tearing"]))
+    if spec["collision"]:
+        s = session_mod.Session(c, session_mod.CollisionSettings())
+        s.add_body("body", d["body_vertices"], d["body_triangles"])
+    else:
+        s = session_mod.Session(c, None)
+    times, iters, contacts, parts = [], [], [], {"collision": [], "fem": [], "tearing": []}
+    error = None
+    n = int(spec["warmup"]) + int(spec["steps"])
+    for i in range(n):
+        off = PULL_SPEED * (i + 1) * DT
+        c.move_handle(hands[0], (-off, 0.0, 0.0))
+        c.move_handle(hands[1], (off, 0.0, 0.0))
+        t0 = time.perf_counter()
+        try:
+            rep = s.step(DT)
+        except cloth_mod.SimulationError as e:  # reported with the point; the steps so far stand
+            error = f"step {i + 1}: {e}"
+            break
+        t1 = time.perf_counter()
+        if i >= int(spec["warmup"]):
+            times.append(t1 - t0)
+            iters.append(c.stats()["cg_iterations"])
+            contacts.append(rep.contacts)
+            parts["collision"].append(rep.collision_s)
+            parts["fem"].append(rep.fem_s)
+            parts["tearing"].append(rep.tearing_s)
+    st = c.stats()
+    return {"step_s": times, "cg_iterations_median": statistics.median(iters) if iters else None,
+            "contacts_median": statistics.median(contacts) if contacts else None, "cuts": int(st.get("cuts", 0)),
+            "triangles_end": int(c.num_triangles), "error": error,
+            "parts_ms": {k: 1e3 * statistics.median(v) if v else None for k, v in parts.items()},
+            "peak_rss_bytes": _peak_rss_bytes()}
+
+
+def _run_child(args: list[str], timeout: float) -> dict:
+    """Run ``python -m <package>.bench_scaling ARGS`` in a fresh interpreter; its last JSON line."""
+    env = dict(os.environ)
+    name = __package__ or "tearcloth"
+    here = Path(__file__).absolute().parent  # not resolved: keep the package's own name
+    if here.name == name:
+        root = str(here.parent)
+    else:  # a source tree whose folder is not named like the package (addon/): link it
+        shim = Path(tempfile.gettempdir()) / f"{name}_bench_path_{os.getuid() if hasattr(os, 'getuid') else 0}"
+        shim.mkdir(exist_ok=True)
+        link = shim / name
+        if not link.exists():
+            link.symlink_to(here, target_is_directory=True)
+        root = str(shim)
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    cmd = [sys.executable, "-m", f"{name}.bench_scaling", *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"scaling child failed ({proc.returncode}): {proc.stderr.strip()[-2000:]}")
+    return json.loads(lines[-1])
+
+
+def idle_baseline_bytes(timeout: float = 120.0) -> int:
+    """Peak resident set of an idle interpreter that imported what every point imports."""
+    return int(_run_child(["--idle"], timeout)["peak_rss_bytes"])
+
+
+# ------------------------------------------------------------------------------------------------
+# The run
+# ------------------------------------------------------------------------------------------------
+
+
+def config_label(family: str, tearing: bool, collision: bool) -> str:
+    return f"{family}, tearing {'on' if tearing else 'off'}, collision {'on' if collision else 'off'}"
+
+
+def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_collision=(False, True),
+            steps=None, *, families=FAMILIES, warmup=None, timeout: float = 600.0, out=None) -> dict:
+    """Step time (median ms) and peak memory per triangle count, per configuration.
+
+    triangle_targets  sizes to make (see ``base_and_levels``); with_tearing / with_collision the
+    settings to cross; steps: None (``default_steps`` by size), an int, or a callable of the
+    triangle count; families: "square" and/or "tshirt". Returns points (one dict per run: mesh,
+    triangles, vertices, tearing, collision, step_ms, peak_mb, bytes_per_triangle, steps, ...),
+    exponent (square, tearing off, collision off; the first family's when the square is not run),
+    exponents (per configuration label), peak_mb_100k (that baseline configuration at its
+    largest size, 100K triangles by default), peak_mb_largest (every configuration at its largest
+    size), baseline_mb (the idle child), and the settings used.
+    """
+    say = out or (lambda *_: None)
+    wall0 = time.perf_counter()
+    targets = [float(t) for t in triangle_targets]
+    if not targets:
+        raise ValueError("no triangle targets")
+    with tempfile.TemporaryDirectory(prefix="tearcloth_scaling_") as tmp:
+        baseline = idle_baseline_bytes()
+        say(f"idle interpreter with tearcloth imported: {baseline / MB:.1f} MB")
+        points = []
+        for family in families:
+            for target in targets:
+                sc = make_scene(family, target)
+                npz = os.path.join(tmp, f"{family}_{int(target)}.npz")
+                np.savez(npz, **{k: v for k, v in sc.items() if isinstance(v, np.ndarray)})
+                tri = int(len(sc["triangles"]))
+                n_steps = int(steps(tri) if callable(steps) else (steps if steps is not None else default_steps(tri)))
+                n_warm = int(warmup if warmup is not None else default_warmup(tri))
+                for tearing in with_tearing:
+                    for collision in with_collision:
+                        spec = {"npz": npz, "tearing": bool(tearing), "collision": bool(collision),
+                                "steps": max(1, n_steps), "warmup": max(0, n_warm)}
+                        t0 = time.perf_counter()
+                        res = _run_child(["--point", json.dumps(spec)], timeout)
+                        peak = max(0, int(res["peak_rss_bytes"]) - baseline)
+                        p = {
+                            "mesh": family, "target": target, "made": sc["made"],
+                            "body": sc["body"] if collision else None,
+                            "triangles": tri, "vertices": int(len(sc["vertices"])),
+                            "tearing": bool(tearing), "collision": bool(collision),
+                            "step_ms": 1e3 * statistics.median(res["step_s"]) if res["step_s"] else float("nan"),
+                            "step_ms_min": 1e3 * min(res["step_s"], default=float("nan")),
+                            "step_ms_max": 1e3 * max(res["step_s"], default=float("nan")),
+                            "steps": len(res["step_s"]), "warmup": n_warm,
+                            "peak_mb": peak / MB, "bytes_per_triangle": peak / tri,
+                            "peak_rss_mb": int(res["peak_rss_bytes"]) / MB,
+                            "cg_iterations_median": res["cg_iterations_median"],
+                            "contacts_median": res["contacts_median"], "cuts": res["cuts"],
+                            "ms_per_cg_iteration": (1e3 * statistics.median(res["step_s"]) / res["cg_iterations_median"]
+                                                    if res["step_s"] and res["cg_iterations_median"] else None),
+                            "error": res["error"],
+                            # where a step's time goes: medians of Session.step's own report
+                            "collision_ms": res["parts_ms"]["collision"], "fem_ms": res["parts_ms"]["fem"],
+                            "tearing_ms": res["parts_ms"]["tearing"],
+                            "wall_s": time.perf_counter() - t0,
+                        }
+                        points.append(p)
+                        say(f"{config_label(family, tearing, collision):<45} {tri:>7} tris  "
+                            f"{p['step_ms']:9.2f} ms  {p['peak_mb']:8.1f} MB  {p['bytes_per_triangle']:7.0f} B/tri  "
+                            f"({p['steps']} steps, {p['wall_s']:.1f} s)")
+    exponents = {}
+    largest = {}
+    for family in families:
+        for tearing in with_tearing:
+            for collision in with_collision:
+                pts = [p for p in points if (p["mesh"], p["tearing"], p["collision"]) == (family, tearing, collision)]
+                label = config_label(family, tearing, collision)
+                if len({p["triangles"] for p in pts}) >= 2:
+                    exponents[label] = fit_exponent([p["triangles"] for p in pts], [p["step_ms"] for p in pts])
+                if pts:
+                    big = max(pts, key=lambda p: p["triangles"])
+                    largest[label] = {"triangles": big["triangles"], "peak_mb": big["peak_mb"],
+                                      "bytes_per_triangle": big["bytes_per_triangle"]}
+    base_family = "square" if "square" in families else families[0]
+    base_label = config_label(base_family, False, False)
+    if base_label not in largest and largest:  # the plain configuration was not run
+        base_label = next(iter(largest))
+    result = {
+        "points": points,
+        "exponent": exponents.get(base_label, float("nan")),
+        "exponent_of": base_label,
+        "exponents": exponents,
+        "peak_mb_100k": largest.get(base_label, {}).get("peak_mb", float("nan")),
+        "peak_mb_100k_triangles": largest.get(base_label, {}).get("triangles"),
+        "peak_mb_largest": largest,
+        "baseline_mb": baseline / MB,
+        "settings": {"dt_s": DT, "pull_speed_m_per_s": PULL_SPEED, "material": "cotton",
+                     "tear_stress_when_tearing": UNREACHABLE_TEAR_STRESS, "targets": targets,
+                     "families": list(families), "collision": "CollisionSettings() defaults",
+                     "memory": "VmHWM of a fresh child minus an idle child's (same imports)",
+                     "cpus": os.cpu_count()},
+        "wall_s": time.perf_counter() - wall0,
+    }
+    return result
+
+
+# ------------------------------------------------------------------------------------------------
+# Plot
+# ------------------------------------------------------------------------------------------------
+
+
+def plot_scaling(result: dict, png_path) -> str:
+    """Log-log step time against triangles, one line per configuration, with each fitted
+    exponent in the legend; the largest baseline point's memory in the title. Returns the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 5.5))
+    configs = []
+    for p in result["points"]:
+        key = (p["mesh"], p["tearing"], p["collision"])
+        if key not in configs:
+            configs.append(key)
+    styles = {"square": "-", "tshirt": "--"}
+    for key in configs:
+        pts = sorted((p for p in result["points"] if (p["mesh"], p["tearing"], p["collision"]) == key),
+                     key=lambda p: p["triangles"])
+        label = config_label(*key)
+        exp = result.get("exponents", {}).get(label)
+        ax.plot([p["triangles"] for p in pts], [p["step_ms"] for p in pts], styles.get(key[0], "-"),
+                marker="o" if key[2] else "s", label=label + (f"  (p = {exp:.2f})" if exp is not None else ""))
+    # slope-1 guide through the first baseline point
+    if result["points"]:
+        p0 = min(result["points"], key=lambda p: (p["triangles"], p["step_ms"]))
+        xs = np.array([p0["triangles"], max(p["triangles"] for p in result["points"])], dtype=float)
+        ax.plot(xs, p0["step_ms"] * xs / xs[0], ":", color="grey", label="linear (p = 1)")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("triangles")
+    ax.set_ylabel("step time, median (ms)")
+    peak = result.get("peak_mb_100k")
+    title = "Tear Cloth: step time against mesh size"
+    if peak is not None and math.isfinite(peak):
+        title += (f"\npeak {peak:.0f} MB at {result.get('peak_mb_100k_triangles')} triangles "
+                  f"({result.get('exponent_of')})")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper left")
+    fig.tight_layout()
+    path = str(png_path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def format_scaling(result: dict) -> str:
+    def ms(x):
+        return f"{x:9.2f}" if x is not None else f"{'-':>9}"
+
+    rows = [f"{'configuration':<45} {'tris':>7} {'step ms':>9} {'FEM ms':>9} {'tear ms':>9} {'coll ms':>9} "
+            f"{'CG it':>6} {'peak MB':>8} {'B/tri':>7} {'steps':>5}"]
+    for p in result["points"]:
+        rows.append(f"{config_label(p['mesh'], p['tearing'], p['collision']):<45} {p['triangles']:>7} "
+                    f"{ms(p['step_ms'])} {ms(p.get('fem_ms'))} {ms(p.get('tearing_ms'))} {ms(p.get('collision_ms'))} "
+                    f"{p['cg_iterations_median'] or 0:>6.0f} {p['peak_mb']:>8.1f} {p['bytes_per_triangle']:>7.0f} "
+                    f"{p['steps']:>5}" + (f"  ERROR {p['error']}" if p.get("error") else ""))
+    for label, e in result["exponents"].items():
+        rows.append(f"exponent {label}: {e:.3f}")
+    rows.append(f"peak at {result['peak_mb_100k_triangles']} triangles ({result['exponent_of']}): "
+                f"{result['peak_mb_100k']:.1f} MB; idle baseline {result['baseline_mb']:.1f} MB")
+    return "\n".join(rows)
+
+
+def _main(argv) -> int:
+    if argv[:1] == ["--idle"]:
+        print(json.dumps(_child_idle()))
+        return 0
+    if argv[:1] == ["--point"] and len(argv) == 2:
+        print(json.dumps(_child_point(json.loads(argv[1]))))
+        return 0
+    res = scaling(out=print)
+    print(format_scaling(res))
+    if argv:
+        Path(argv[0]).write_text(json.dumps(res, indent=2))
+        plot_scaling(res, str(Path(argv[0]).with_suffix(".png")))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_main(sys.argv[1:]))

@@ -1,0 +1,172 @@
+"""The scaling bench and the race against Blender's cloth (issue 8): they run on tiny inputs and
+return the documented keys with finite positive values; the exponent fit and the mapping of our
+material onto Blender's units are right. Nothing here asserts a speed."""
+import math
+
+import numpy as np
+import pytest
+
+from tearcloth import bench_scaling as bs
+from tearcloth.bench_blender import blender_cloth_settings, hand_offsets, mean_edge_length
+from tearcloth.materials import material
+from tearcloth.session import CollisionSettings
+
+
+def _finite_positive(x) -> bool:
+    return isinstance(x, (int, float)) and math.isfinite(x) and x > 0
+
+
+# ---- exponent fit ------------------------------------------------------------------------------
+
+
+def test_fit_exponent_exact_on_power_laws():
+    n = np.array([1e3, 3e3, 1e4, 3e4, 1e5])
+    assert bs.fit_exponent(n, 0.002 * n**2) == pytest.approx(2.0, abs=1e-12)
+    assert bs.fit_exponent(n, 7.0 * n) == pytest.approx(1.0, abs=1e-12)
+    assert bs.fit_exponent(n, 5.0 * n**1.5) == pytest.approx(1.5, abs=1e-12)
+    # least squares, not end points: a symmetric wobble around n**2 leaves the slope at 2
+    wobble = np.array([1.1, 1 / 1.1, 1.0, 1.1, 1 / 1.1])
+    assert bs.fit_exponent(n, n**2 * wobble) == pytest.approx(2.0, abs=0.05)
+
+
+def test_fit_exponent_ignores_failed_points_and_needs_two_sizes():
+    assert bs.fit_exponent([1e3, 1e4, 1e5], [1.0, float("nan"), 100.0]) == pytest.approx(1.0)
+    with pytest.raises(ValueError):
+        bs.fit_exponent([1e3], [1.0])
+    with pytest.raises(ValueError):
+        bs.fit_exponent([1e3, 1e3], [1.0, 2.0])
+
+
+def test_base_and_levels_reach_the_targets():
+    for target in (1e3, 3e3, 1e4, 3e4, 1e5):
+        base, levels = bs.base_and_levels(target)
+        assert 1000 <= base < 4000
+        assert base * 4**levels == pytest.approx(target, rel=0.002)
+    assert bs.base_and_levels(500) == (500, 0)
+
+
+def test_icosphere_is_closed_and_outward():
+    v, t = bs.icosphere(0.2, (0.0, 0.0, 1.0), 2)
+    assert len(t) == 20 * 4**2
+    assert len(v) - 3 * len(t) // 2 + len(t) == 2  # Euler characteristic of a sphere
+    a, b, c = v[t[:, 0]] - (0, 0, 1), v[t[:, 1]] - (0, 0, 1), v[t[:, 2]] - (0, 0, 1)
+    volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    assert volume == pytest.approx(4 / 3 * math.pi * 0.2**3, rel=0.05)
+
+
+@pytest.mark.parametrize("family", bs.FAMILIES)
+def test_scenes_hands_pull_apart_and_body_stays_clear(family):
+    sc = bs.make_scene(family, 500)
+    v = sc["vertices"]
+    a, b = v[sc["hand_a"] > 0.5], v[sc["hand_b"] > 0.5]
+    assert len(a) and len(b)
+    assert a[:, 0].mean() < 0 < b[:, 0].mean()  # hand_a moves to -X, hand_b to +X: apart
+    assert len(sc["body_triangles"]) > 0
+
+
+# ---- scaling on tiny inputs --------------------------------------------------------------------
+
+
+def test_scaling_tiny_runs_every_configuration(tmp_path):
+    r = bs.scaling(triangle_targets=(500, 2000), families=("square",), steps=3)
+    assert len(r["points"]) == 2 * 2 * 2
+    for p in r["points"]:
+        for key in ("triangles", "tearing", "collision", "step_ms", "peak_mb", "bytes_per_triangle"):
+            assert key in p
+        assert p["error"] is None
+        assert _finite_positive(p["step_ms"])
+        assert p["peak_mb"] >= 0 and math.isfinite(p["peak_mb"])
+        assert p["bytes_per_triangle"] >= 0 and math.isfinite(p["bytes_per_triangle"])
+    every = {(a, b) for a in (False, True) for b in (False, True)}
+    assert {(p["tearing"], p["collision"]) for p in r["points"]} == every
+    # collision adds the detector (clusters, Embree scenes): it cannot take less memory than none
+    by = {(p["triangles"], p["tearing"], p["collision"]): p for p in r["points"]}
+    big = max(p["triangles"] for p in r["points"])
+    assert by[(big, False, True)]["peak_mb"] > by[(big, False, False)]["peak_mb"]
+    assert math.isfinite(r["exponent"]) and len(r["exponents"]) == 4
+    assert all(math.isfinite(e) for e in r["exponents"].values())
+    assert math.isfinite(r["peak_mb_100k"]) and r["peak_mb_100k_triangles"] == big
+    assert _finite_positive(r["baseline_mb"])
+    png = bs.plot_scaling(r, tmp_path / "scaling.png")
+    assert (tmp_path / "scaling.png").stat().st_size > 1000 and png.endswith(".png")
+    assert "exponent" in bs.format_scaling(r)
+
+
+# ---- Blender mapping and race ------------------------------------------------------------------
+
+
+def _flat_grid(n=6, h=0.02):
+    xs, ys = np.meshgrid(np.arange(n) * h, np.arange(n) * h)
+    v = np.stack([xs.ravel(), ys.ravel(), np.zeros(n * n)], axis=1)
+    t = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a = i * n + j
+            t += [(a, a + 1, a + n + 1), (a, a + n + 1, a + n)]
+    return v, np.array(t)
+
+
+def test_blender_mapping_follows_the_documented_formulas():
+    v, t = _flat_grid()
+    mat = material("cotton")
+    s = blender_cloth_settings(mat, v, t, fps=25, substeps=7, collision=CollisionSettings(friction=0.4))
+    L = mean_edge_length(v, t)
+    cloth = s["cloth"]
+    assert cloth["quality"] == 7
+    assert cloth["mass"] * len(v) == pytest.approx(mat.areal_mass * 0.1 * 0.1)  # total mass kept
+    k = math.sqrt(3) / 2 * mat.young * mat.thickness
+    assert cloth["tension_stiffness"] == pytest.approx(k * L / 25**2)
+    assert cloth["compression_stiffness"] == cloth["tension_stiffness"]
+    assert cloth["bending_stiffness"] == pytest.approx(40 * mat.bending / (L * L * 25**2))
+    assert s["scene"]["gravity"][2] * 0.001 == pytest.approx(-9.81 / 25**2)
+    assert s["collision"]["distance_min"] + s["body_collision"]["thickness_outer"] == pytest.approx(0.002)
+    assert s["body_collision"]["cloth_friction"] == pytest.approx(40.0)
+    assert s["collision"]["use_self_collision"] is True
+    left, right = hand_offsets(0.5, 0.1)
+    assert left[0] == pytest.approx(0.05) and right[0] == pytest.approx(-0.05)
+
+
+def test_blender_gravity_mapping_gives_a_free_fall_at_9_81():
+    bpy = pytest.importorskip("bpy")
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    fps = 24
+    scene = bpy.context.scene
+    scene.render.fps = fps
+    v, t = _flat_grid(3, 0.05)
+    s = blender_cloth_settings(material("cotton"), v, t, fps=fps, substeps=5)
+    scene.gravity = s["scene"]["gravity"]
+    me = bpy.data.meshes.new("drop")
+    me.from_pydata(v.tolist(), [], t.tolist())
+    ob = bpy.data.objects.new("drop", me)
+    scene.collection.objects.link(ob)
+    cm = ob.modifiers.new("Cloth", "CLOTH")
+    cm.settings.air_damping = 0.0
+    cm.collision_settings.use_collision = False
+    for f in range(1, fps + 2):  # one second
+        scene.frame_set(f)
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = ob.evaluated_get(dg)
+    z = np.mean([p.co.z for p in ev.to_mesh().vertices])
+    ev.to_mesh_clear()
+    assert -z == pytest.approx(0.5 * 9.81, rel=0.03)
+
+
+def test_race_tiny_returns_the_documented_keys():
+    pytest.importorskip("bpy")
+    from tearcloth.bench_blender import format_race, race_blender_cloth
+
+    r = race_blender_cloth(frames=2, substeps=2, target_triangles=600)
+    assert r["ours_error"] is None and r["frames_raced"] == 2
+    for key in ("ours_s_per_frame", "blender_s_per_frame", "ratio", "blender_replay_s_per_frame"):
+        assert _finite_positive(r[key]), key
+    assert r["ratio"] == pytest.approx(r["ours_s_per_frame"] / r["blender_s_per_frame"])
+    bl = r["settings"]["blender"]
+    assert bl["cloth"]["quality"] == 2
+    assert bl["collision"]["use_self_collision"] is True
+    assert bl["cloth"]["vertex_group_mass"] == "pin"
+    assert r["settings"]["ours"]["tearing"] is True
+    # Blender's armature reproduces body_pose (float32 round-off), and its cloth really moved
+    assert r["body_pose_error_m"] < 1e-4
+    assert r["blender_shirt_moved_m"] > 0
+    assert len(r["ours_per_frame_s"]) == len(r["blender_per_frame_s"]) == 2
+    assert "ratio" in format_race(r)

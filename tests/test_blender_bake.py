@@ -1,0 +1,383 @@
+"""Baking in Blender (PyPI bpy, each Blender run in a subprocess so a crash cannot take pytest down
+and no bpy state leaks between tests): the operators bake a tearing sheet into a USD cache that
+STOCK Blender plays back (fresh process, add-on not registered) frame for frame; the worker-thread
+path cancels and resumes; a SIGKILLed bake keeps its frames and resumes; scene units convert.
+
+The scene: a 20 x 20-vertex sheet hanging in the XZ plane, pinned at its two top corners; a handle
+on the middle of its bottom edge follows an empty that pulls down from frame 3. It tears within a
+few frames of the pull.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("bpy")  # only checks that it is installed; Blender runs in the children
+pytest.importorskip("pxr")
+from tearcloth import cache  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+
+# Shared by every Blender child: builds the test scene and runs operators on an object.
+PRELUDE = textwrap.dedent(
+    '''
+    import json, os, sys, time
+    import numpy as np
+    import bpy
+
+    def build_scene(folder, name="Sheet", n=20, size=0.5, tear_stress=5e6, pull=0.5, handle_half_width=8,
+                    scale_length=1.0, frame_end=20, save=True):
+        """The test sheet; lengths are given in metres and converted to Blender units here."""
+        import tearcloth
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        tearcloth.register()
+        scene = bpy.context.scene
+        scene.render.fps = 24
+        scene.unit_settings.scale_length = scale_length
+        u = 1.0 / scale_length  # Blender units per metre
+        scene.gravity = (0.0, 0.0, -9.81 * u)  # Blender keeps gravity in Blender units / s^2
+        scene.frame_start, scene.frame_end = 1, frame_end
+        xs, zs = np.meshgrid(np.linspace(-size / 2, size / 2, n), np.linspace(1.0, 1.0 + size, n), indexing="ij")
+        verts = np.stack([xs.ravel(), np.zeros(n * n), zs.ravel()], 1)
+        idx = lambda i, j: i * n + j
+        faces = [(idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1))
+                 for i in range(n - 1) for j in range(n - 1)]
+        mesh = bpy.data.meshes.new(name)
+        mesh.from_pydata((verts * u).tolist(), [], faces)
+        uv = mesh.uv_layers.new(name="UVMap")
+        corner = np.empty(len(mesh.loops), np.int32)
+        mesh.loops.foreach_get("vertex_index", corner)
+        st = np.stack([(verts[:, 0] + size / 2) / size, (verts[:, 2] - 1.0) / size], 1)[corner]
+        uv.data.foreach_set("uv", st.ravel())
+        obj = bpy.data.objects.new(name, mesh)
+        scene.collection.objects.link(obj)
+        pins = obj.vertex_groups.new(name="pins")
+        pins.add([idx(i, j) for i in list(range(3)) + list(range(n - 3, n)) for j in range(n - 3, n)], 1.0, "REPLACE")
+        hand = obj.vertex_groups.new(name="hand")
+        hand.add([idx(i, j) for i in range(n // 2 - handle_half_width, n // 2 + handle_half_width)
+                  for j in range(2)], 1.0, "REPLACE")
+        puller = bpy.data.objects.new(name + "Puller", None)
+        scene.collection.objects.link(puller)
+        puller.keyframe_insert("location", frame=3)
+        puller.location = (0.0, 0.0, -pull * (frame_end - 3) / 24 * u)
+        puller.keyframe_insert("location", frame=frame_end)
+        bpy.context.view_layer.objects.active = obj
+        assert op("enable", obj) == {"FINISHED"}
+        s = obj.tearcloth
+        s.tear_stress = tear_stress
+        s.pin_group = "pins"
+        h = s.handles.add()
+        h.vertex_group, h.follow = "hand", puller
+        s.frame_start, s.frame_end = 1, frame_end
+        s.use_collision = False
+        if save:
+            bpy.ops.wm.save_as_mainfile(filepath=os.path.join(folder, "scene.blend"))
+        return obj
+
+    def op(name, obj, **kwargs):
+        with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj]):
+            return getattr(bpy.ops.tearcloth, name)(**kwargs)
+
+    def result(value):
+        print("RESULT " + json.dumps(value), flush=True)
+    '''
+)
+
+
+def run_blender(tmp_path: Path, body: str, *args, timeout: float = 120.0, name: str = "child.py") -> dict:
+    """Run PRELUDE + body in a fresh Python with bpy; returns what it passed to result()."""
+    script = tmp_path / name
+    script.write_text(PRELUDE + textwrap.dedent(body))
+    proc = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True,
+                          timeout=timeout, cwd=tmp_path)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
+    assert lines, out[-4000:]
+    return json.loads(lines[-1][len("RESULT "):])
+
+
+def cache_root(folder: Path, name: str = "Sheet") -> str:
+    return str(folder / "tearcloth_cache" / f"{name}.usda")
+
+
+# Plays the saved .blend with stock Blender only: the add-on is never imported in this child.
+PLAYBACK = '''
+    blend, out_png = sys.argv[1], sys.argv[2]
+    bpy.ops.wm.open_mainfile(filepath=blend)
+    assert "tearcloth" not in sys.modules and not hasattr(bpy.types.Object, "tearcloth")
+    scene = bpy.context.scene
+    obj = bpy.data.objects["Sheet"]
+    md = obj.modifiers["Tear Cloth"]
+    below = obj.modifiers["Below"]
+    below.show_viewport = False  # compare the cache itself first
+    frames = {}
+    for frame in range(1, 21):
+        scene.frame_set(frame)
+        dg = bpy.context.evaluated_depsgraph_get()
+        ev = obj.evaluated_get(dg)
+        m = ev.to_mesh()
+        co = np.empty(3 * len(m.vertices), np.float32)
+        m.vertices.foreach_get("co", co)
+        frames[frame] = dict(co=co.tolist(), faces=len(m.polygons), uv=[layer.name for layer in m.uv_layers])
+        ev.to_mesh_clear()
+    # the modifier below works on the torn mesh (Solidify doubles it)
+    below.show_viewport = True
+    scene.frame_set(12)
+    dg = bpy.context.evaluated_depsgraph_get()
+    solidified = len(obj.evaluated_get(dg).data.vertices)
+    # a torn frame, rendered headless with Workbench
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    cam.location, cam.rotation_euler = (0.0, -1.9, 1.0), (1.5708, 0.0, 0.0)
+    scene.camera = cam
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.render.resolution_x = scene.render.resolution_y = 480
+    scene.display.shading.light = "STUDIO"
+    scene.display.shading.show_object_outline = True
+    # a colour grid through the baked UVs ('st'): the texture stays put on both sides of the tear
+    grid = bpy.data.images.new("grid", 512, 512)
+    grid.generated_type = "COLOR_GRID"
+    mat = bpy.data.materials.new("grid")
+    mat.use_nodes = True
+    tex = mat.node_tree.nodes.new("ShaderNodeTexImage")
+    tex.image = grid
+    mat.node_tree.links.new(tex.outputs["Color"], mat.node_tree.nodes["Principled BSDF"].inputs["Base Color"])
+    mat.node_tree.nodes.active = tex
+    obj.data.materials.append(mat)
+    scene.display.shading.color_type = "TEXTURE"
+    scene.world = bpy.data.worlds.new("dark")
+    scene.world.color = (0.05, 0.05, 0.07)
+    scene.render.filepath = out_png
+    bpy.ops.render.render(write_still=True)
+    result(dict(modifier=md.type, cache=md.cache_file.filepath, object_path=md.object_path, frames=frames,
+                stack=[m.name for m in obj.modifiers], solidified=solidified))
+'''
+
+
+def test_bake_through_operators_plays_back_in_stock_blender(tmp_path):
+    baked = run_blender(tmp_path, '''
+        folder = sys.argv[1]
+        obj = build_scene(folder)
+        # a modifier below "Tear Cloth" keeps working on the torn mesh
+        obj.modifiers.new("Below", "SOLIDIFY").thickness = 0.0
+        start = time.perf_counter()
+        state = op("bake", obj)
+        seconds = time.perf_counter() - start
+        bpy.ops.wm.save_mainfile()
+        md = obj.modifiers["Tear Cloth"]
+        result(dict(state=sorted(state), seconds=seconds, cache=md.cache_file.filepath,
+                    mesh_faces=len(obj.data.polygons), frame=bpy.context.scene.frame_current))
+    ''', tmp_path)
+    assert baked["state"] == ["FINISHED"]
+    assert baked["cache"] == "//tearcloth_cache/Sheet.usda"  # relative: moves with the .blend
+    assert baked["mesh_faces"] == 19 * 19  # the user's quads are untouched
+    assert baked["frame"] == 1  # the scene is back on the frame it was on
+    print(f"bake: {baked['seconds'] / 20:.3f} s per frame (20 frames, 400 vertices, 10 steps/frame)")
+
+    path = cache_root(tmp_path)
+    info = cache.cache_info(path)
+    assert info["frames"] == list(range(1, 21)) and info["complete"] and info["has_uv"]
+    assert info["object"] == "Sheet" and info["prim_path"] == "/Sheet"
+
+    out_png = REPO / "out" / "blender_torn.png"
+    out_png.parent.mkdir(exist_ok=True)
+    played = run_blender(tmp_path, PLAYBACK, tmp_path / "scene.blend", out_png, name="playback.py")
+    assert played["modifier"] == "MESH_SEQUENCE_CACHE"
+    assert played["stack"] == ["Tear Cloth", "Below"]
+    assert played["object_path"] == "/Sheet"
+    assert played["solidified"] == 2 * len(cache.read_frame(path, 12)[0])
+    counts = []
+    for frame in range(1, 21):
+        positions, triangles, corner_uv = cache.read_frame(path, frame)
+        got = played["frames"][str(frame)]
+        co = np.array(got["co"]).reshape(-1, 3)
+        assert co.shape == positions.shape, f"frame {frame}"
+        np.testing.assert_array_equal(co, positions.astype(np.float32))  # the very numbers baked
+        assert got["faces"] == len(triangles)
+        assert "st" in got["uv"]
+        assert corner_uv is not None and corner_uv.shape == (len(triangles), 3, 2)
+        counts.append(len(co))
+    assert counts[0] == 400
+    torn = [f for f, c in enumerate(counts, start=1) if c > 400]
+    assert torn and torn[0] <= 15, counts  # it tears within ~15 frames ...
+    assert counts == sorted(counts) and counts[-1] > counts[0]  # ... and the mesh only grows
+    assert out_png.stat().st_size > 1000
+
+
+def test_worker_thread_cancel_resume_and_file_load(tmp_path):
+    """The modal operator's path without a window: the worker thread steps while the main thread
+    gathers per-frame inputs in ticks; cancelling keeps the frames; resume finishes; a file load
+    stops a running bake; free deletes the files."""
+    got = run_blender(tmp_path, '''
+        from tearcloth.blender import bake
+        from tearcloth import cache
+        folder = sys.argv[1]
+        obj = build_scene(folder)
+        ctx = bpy.context
+        run = bake.BakeRun(ctx, obj)
+        run.start_thread(ctx)
+        texts = []
+        while run.tick(ctx):
+            time.sleep(0.01)
+            p = run.progress
+            if p.frame is not None and p.frame >= 6 and p.state == "running":
+                texts.append(p.text())
+                run.stop()  # what Esc does
+        state = run.finish(ctx)
+        cancelled = dict(state=state, frames=run.job.writer.frames, reports=run.reports.items,
+                         text=texts[0] if texts else "", worker_alive=run.thread.is_alive())
+        resumed = sorted(op("bake", obj, resume=True))
+        info = cache.cache_info(run.plan.cache_path)
+        # a bake running when another file loads is stopped (load_pre), its frames kept
+        op("free_bake", obj)
+        run2 = bake.BakeRun(ctx, obj)
+        run2.start_thread(ctx)
+        while run2.progress.frame is None or run2.progress.frame < 3:
+            run2.tick(ctx)
+            time.sleep(0.01)
+        path = run2.plan.cache_path
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        loaded = dict(running=list(bake.running), alive=run2.thread.is_alive(),
+                      frames=cache.cache_info(path)["frames"])
+        result(dict(cancelled=cancelled, resumed=resumed, frames=info["frames"], complete=info["complete"],
+                    loaded=loaded))
+    ''', tmp_path)
+    c = got["cancelled"]
+    assert c["state"] == "cancelled" and not c["worker_alive"]
+    assert c["frames"][0] == 1 and c["frames"] == list(range(1, c["frames"][-1] + 1)) and c["frames"][-1] >= 6
+    assert any("cancelled" in m and "kept" in m for _, m in c["reports"])
+    assert "frame 6/20" in c["text"] and "steps/s" in c["text"] and "tear" in c["text"]
+    assert got["resumed"] == ["FINISHED"]
+    assert got["frames"] == list(range(1, 21)) and got["complete"]
+    loaded = got["loaded"]
+    assert loaded["running"] == [] and not loaded["alive"] and loaded["frames"][:3] == [1, 2, 3]
+
+
+KILLED_BAKE = '''
+    from tearcloth.blender import bake_object
+    folder, stage = sys.argv[1], sys.argv[2]
+    if stage == "bake":
+        obj = build_scene(folder)
+        def progress(p):
+            print(f"FRAME {p.frame}", flush=True)
+            time.sleep(0.15)  # slow enough for the parent to kill it mid-way
+        bake_object(bpy.context, obj, 1, 20, progress=progress)
+        result("finished")
+    else:
+        import tearcloth
+        tearcloth.register()
+        bpy.ops.wm.open_mainfile(filepath=os.path.join(folder, "scene.blend"))
+        obj = bpy.data.objects["Sheet"]
+        result(sorted(op("bake", obj, resume=True)))
+'''
+
+
+def test_killed_bake_keeps_frames_and_resumes(tmp_path):
+    script = tmp_path / "killed.py"
+    script.write_text(PRELUDE + textwrap.dedent(KILLED_BAKE))
+    proc = subprocess.Popen([sys.executable, str(script), str(tmp_path), "bake"], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, cwd=tmp_path)
+    seen = []
+    deadline = time.monotonic() + 90
+    try:
+        for line in proc.stdout:
+            if line.startswith("FRAME "):
+                seen.append(int(line.split()[1]))
+                if seen[-1] >= 8:
+                    os.kill(proc.pid, signal.SIGKILL)
+                    break
+            assert time.monotonic() < deadline, "the bake did not reach frame 8"
+    finally:
+        proc.kill()
+        proc.wait(30)
+    assert proc.returncode == -signal.SIGKILL and seen and seen[-1] >= 8
+
+    path = cache_root(tmp_path)
+    info = cache.cache_info(path)
+    assert not info["complete"]
+    last = info["frames"][-1]
+    assert info["frames"] == list(range(1, last + 1)) and 8 <= last < 20
+    for frame in info["frames"]:  # every earlier frame is readable
+        positions, triangles, uv = cache.read_frame(path, frame)
+        assert len(positions) >= 400 and uv.shape == (len(triangles), 3, 2)
+    before = cache.read_frame(path, last)[0]
+
+    assert run_blender(tmp_path, KILLED_BAKE, tmp_path, "resume", name="resume.py") == ["FINISHED"]
+    info = cache.cache_info(path)
+    assert info["frames"] == list(range(1, 21)) and info["complete"]
+    np.testing.assert_array_equal(cache.read_frame(path, last)[0], before)  # kept, not re-baked
+    after = cache.read_frame(path, last + 1)[0]
+    # the resumed simulation continues from where it stopped (a jump would mean a fresh start)
+    assert np.abs(after[: len(before)] - before).max() < 0.1
+
+
+def test_scene_units_convert_at_the_boundary(tmp_path):
+    """The same sheet modelled in centimetres (scale_length 0.01, every length x100) bakes to the
+    same motion: the cache holds Blender units, so its positions are the metre scene's x100."""
+    got = run_blender(tmp_path, '''
+        from tearcloth.blender import bake_object
+        from tearcloth import cache
+        folder = sys.argv[1]
+        out = {}
+        for label, scale in (("m", 1.0), ("cm", 0.01)):
+            sub = os.path.join(folder, label)
+            os.makedirs(sub)
+            obj = build_scene(sub, frame_end=8, scale_length=scale, save=False)
+            obj.tearcloth.thickness = 4e-4 / scale  # metres -> Blender units
+            obj.tearcloth.cache_folder = os.path.join(sub, "cache")
+            r = bake_object(bpy.context, obj)
+            out[label] = dict(state=r.state, last=cache.read_frame(r.cache_path, 8)[0].tolist(),
+                              mpu=cache.cache_info(r.cache_path)["meters_per_unit"])
+        result(out)
+    ''', tmp_path)
+    assert got["m"]["state"] == got["cm"]["state"] == "done"
+    assert got["cm"]["mpu"] == pytest.approx(0.01)
+    m = np.array(got["m"]["last"])
+    cm = np.array(got["cm"]["last"])  # read_frame gives metres: the same as the metre scene
+    assert m.shape == cm.shape
+    np.testing.assert_allclose(cm, m, atol=2e-4)
+
+
+def test_undo_during_and_after_a_bake(tmp_path):
+    """Undo reloads every datablock (memfile undo): the bake holds only names and its own arrays,
+    so it carries on through an undo in the middle, and undo/redo after it are harmless."""
+    got = run_blender(tmp_path, '''
+        from tearcloth.blender import bake
+        from tearcloth import cache
+        obj = build_scene(sys.argv[1])
+        ctx = bpy.context
+        run = bake.BakeRun(ctx, obj)
+        run.start_thread(ctx)
+        undone = False
+        while run.tick(ctx):
+            time.sleep(0.01)
+            if not undone and run.progress.frame is not None and run.progress.frame >= 3:
+                bpy.ops.ed.undo_push(message="before")
+                bpy.context.scene.collection.objects.link(bpy.data.objects.new("Stray", None))
+                bpy.ops.ed.undo_push(message="stray")
+                assert bpy.ops.ed.undo() == {"FINISHED"}
+                undone = "Stray" not in bpy.data.objects
+        state = run.finish(ctx)
+        bpy.ops.ed.undo_push(message="baked")
+        after = [sorted(bpy.ops.ed.undo()), sorted(bpy.ops.ed.redo())]
+        sheet = bpy.data.objects["Sheet"]
+        ctx.scene.frame_set(15)
+        n = len(sheet.evaluated_get(ctx.evaluated_depsgraph_get()).data.vertices)
+        info = cache.cache_info(run.plan.cache_path)
+        result(dict(undone=undone, state=state, after=after, frames=info["frames"], complete=info["complete"],
+                    n15=n, cache_n15=len(cache.read_frame(run.plan.cache_path, 15)[0])))
+    ''', tmp_path)
+    assert got["undone"] and got["state"] == "done"
+    assert got["frames"] == list(range(1, 21)) and got["complete"]
+    assert got["after"] == [["FINISHED"], ["FINISHED"]]
+    assert got["n15"] == got["cache_n15"]  # the modifier plays the bake after undo and redo

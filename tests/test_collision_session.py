@@ -1,0 +1,132 @@
+"""Collision in the full step (Session): cloth on bodies and on itself, over many steps."""
+import numpy as np
+import pytest
+import trimesh
+
+from meshes import sheet
+from tearcloth import Cloth, material
+from tearcloth.session import CollisionSettings, Session
+
+TH = 0.004
+DT = 1e-3  # 1 ms steps: co-rotation is linearised per step, so impacts need small steps
+
+
+def dropped_sheet(size=0.4, n=31, z=0.3, seed=0):
+    V, T = sheet(size, size, n, n, jitter=0.3, seed=seed)
+    V[:, :2] -= size / 2
+    V[:, 2] = z
+    return V, T
+
+
+def run(session, steps, check, every=10):
+    worst = np.inf
+    for i in range(steps):
+        session.step(DT)
+        if i % every == 0 or i == steps - 1:
+            worst = min(worst, check(session.cloth.positions))
+    return worst
+
+
+def test_cloth_dropped_on_a_sphere_stays_outside_for_1000_steps():
+    V, T = dropped_sheet()
+    s = Session(Cloth(V, T, material("cotton")), CollisionSettings(thickness=TH))
+    R = 0.15
+    ball = trimesh.creation.icosphere(4, R)
+    s.add_body("ball", ball.vertices, ball.faces)
+    # the icosphere's flat faces lie inside the true sphere by up to R (1 - cos(edge angle / 2))
+    inset = R - np.abs(trimesh.triangles.closest_point(ball.triangles, np.zeros((len(ball.faces), 3)))).max() * 0
+    worst = run(s, 1000, lambda P: (np.linalg.norm(P, axis=1) - R).min())
+    print(f"sphere: closest vertex {worst * 1e3:.2f} mm from the surface")
+    assert worst > -0.001  # never more than 1 mm inside the (faceted) sphere
+    assert np.isfinite(s.cloth.positions).all()
+
+
+def test_cloth_dropped_on_a_box_stays_outside_for_1000_steps():
+    V, T = dropped_sheet(z=0.25)
+    s = Session(Cloth(V, T, material("cotton")), CollisionSettings(thickness=TH))
+    box = trimesh.creation.box((0.2, 0.2, 0.2))
+    s.add_body("box", box.vertices, box.faces)
+
+    def depth_inside(P):
+        inside = np.all(np.abs(P) < 0.1, axis=1)
+        if not inside.any():
+            return 0.0
+        return -(0.1 - np.abs(P[inside])).min(axis=1).max()
+
+    worst = run(s, 1000, depth_inside)
+    print(f"box: deepest vertex {-worst * 1e3:.2f} mm inside")
+    assert worst > -0.001
+
+
+def _self_intersections(P, T):
+    """Edges of the cloth that pierce one of its triangles other than their own neighbours."""
+    m = trimesh.Trimesh(P, T, process=False)
+    e = m.edges_unique
+    d = P[e[:, 1]] - P[e[:, 0]]
+    L = np.linalg.norm(d, axis=1)
+    locs, ray_i, tri_i = m.ray.intersects_location(P[e[:, 0]], d / L[:, None], multiple_hits=True)
+    if len(ray_i) == 0:
+        return 0
+    along = np.einsum("ij,ij->i", locs - P[e[ray_i, 0]], d[ray_i] / L[ray_i, None])
+    within = (along > 1e-9) & (along < L[ray_i] - 1e-9)
+    tv = T[tri_i]
+    touches = (tv == e[ray_i, 0][:, None]).any(1) | (tv == e[ray_i, 1][:, None]).any(1)
+    return int((within & ~touches).sum())
+
+
+@pytest.mark.xfail(reason="open: a cloth flapping hard around a 6 mm bar still passes through itself "
+                          "(layers approach faster than thickness per step) and can blow up", strict=False)
+def test_cloth_folded_over_a_thin_bar_never_passes_through_itself():
+    V, T = dropped_sheet(size=0.3, n=31, z=0.05, seed=3)
+    s = Session(Cloth(V, T, material("cotton", bending=1e-6)), CollisionSettings(thickness=TH, self_collision=True))
+    bar = trimesh.creation.box((0.5, 0.006, 0.006))
+    s.add_body("bar", bar.vertices, bar.faces)
+    crossings = []
+    for i in range(1000):
+        s.step(DT)
+        if i % 25 == 0:
+            crossings.append(_self_intersections(s.cloth.positions, s.cloth.triangles))
+    P = s.cloth.positions
+    print(f"bar fold: self-intersections over time {crossings}; halves {P[:, 2].min():.3f} m down")
+    assert P[:, 2].min() < -0.05, "the cloth did not fold over the bar"
+    assert max(crossings) == 0
+
+
+def test_collision_settings_reject_bad_values():
+    V, T = dropped_sheet(n=11)
+    c = Cloth(V, T)
+    for kw, words in [({"thickness": 0.0}, "thickness"), ({"thickness": -1e-3}, "thickness"),
+                      ({"displacement_threshold": 0.0}, "displacement_threshold"),
+                      ({"measure": "nope"}, "measure"), ({"cluster_size": 1}, "cluster_size")]:
+        with pytest.raises(ValueError, match=words):
+            Session(c, CollisionSettings(**kw))
+    s = Session(c, CollisionSettings())
+    with pytest.raises(ValueError, match="no triangles|empty|non-empty"):
+        s.add_body("empty", np.zeros((0, 3)), np.zeros((0, 3), np.int32))
+
+
+def test_open_mesh_body_warns_and_still_stops_the_cloth():
+    V, T = dropped_sheet(n=21, z=0.1)
+    s = Session(Cloth(V, T, material("cotton")), CollisionSettings(thickness=TH))
+    plane = trimesh.creation.box((1, 1, 0.01))
+    keep = plane.triangles_center[:, 2] > 0.004  # only the top face: an open surface
+    with pytest.warns(UserWarning, match="not a closed"):
+        s.add_body("floor", plane.vertices, plane.faces[keep])
+    for _ in range(300):
+        s.step(DT)
+    assert s.cloth.positions[:, 2].min() > 0.005 - 0.001
+
+
+def test_body_that_starts_inside_the_cloth_is_resolved_without_explosion():
+    V, T = dropped_sheet(n=31, z=0.1)
+    s = Session(Cloth(V, T, material("cotton")), CollisionSettings(thickness=TH))
+    ball = trimesh.creation.icosphere(3, 0.05)
+    ball.apply_translation((0, 0, 0.09))  # pokes 4 cm through the cloth at the start
+    s.add_body("ball", ball.vertices, ball.faces)
+    for _ in range(300):
+        s.step(DT)
+    P = s.cloth.positions
+    assert np.isfinite(P).all()
+    assert np.abs(s.cloth.velocities).max() < 5.0
+    r = np.linalg.norm(P - (0, 0, 0.09), axis=1)
+    assert r.min() > 0.05 - 0.002
