@@ -58,6 +58,9 @@ def build(name: str) -> Scenario:
     else:
         raise ValueError(f"unknown scenario {name!r}; scenarios: cloth, banknote, tshirt")
     c = Cloth(mesh.vertices, mesh.triangles, mat, uv=mesh.loop_uv(), groups=mesh.groups)
+    if name == "tshirt":
+        # without its body (FEM-only figures) the shirt hangs from its shoulders, as on a hanger
+        c.pin("shoulders")
     left, right = ("hem_left", "hem_right") if name == "tshirt" else ("handle_left", "handle_right")
     return Scenario(name, c, (c.add_handle(left), c.add_handle(right)), np.array([1.0, 0.0, 0.0]))
 

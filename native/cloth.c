@@ -710,19 +710,19 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         double take = vn < push ? (vn > 0 ? vn : 0.0) : push;
         for (int q = 0; q < 3; q++) v[3 * i + q] -= take * nn[q];
     }
-    double worst = tc_max_stretch(c, x);
+    double worst = tc_element_pass(c, x);
     int bad = !(worst == worst) || worst > c->solver.max_stretch;
     for (size_t k = 0; k < n3 && !bad; k++) bad = !isfinite(v[k]);
     if (bad) {
         memcpy(x, x0, n3 * sizeof(double));
         memcpy(v, v0, n3 * sizeof(double));
-        c->dirty = true;
+        tc_element_pass(c, x);  /* stresses and rotations back to the state rolled back to */
+        total_force(c, x);
         tc_set_err(c, "step rolled back: %s (largest stretch %g, limit %g; CG %d iterations, residual %g). "
                       "Reduce the time step or raise sub-steps.",
                    worst == worst ? "exploding strain" : "non-finite values", worst, c->solver.max_stretch, it, res);
         return TC_ERR_UNSTABLE;
     }
-    tc_element_pass(c, x);
     total_force(c, x);
     c->stats.cg_iterations += it;
     c->stats.cg_residual = res;

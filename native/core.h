@@ -153,8 +153,7 @@ static inline int32_t tc_nbr(const tc_cloth *c, int32_t t, int k)
 void tc_set_err(tc_cloth *c, const char *fmt, ...);
 
 /* fem.c */
-void tc_element_pass(tc_cloth *c, const double *x);
-double tc_max_stretch(const tc_cloth *c, const double *x);
+double tc_element_pass(tc_cloth *c, const double *x);  /* returns the largest stretch (NaN if not finite) */
 void tc_bending_force(const tc_cloth *c, const double *x, double *f);
 void tc_assemble(tc_cloth *c, double dt);
 void tc_matvec(const tc_cloth *c, const double *p, double *y);
