@@ -51,7 +51,7 @@ tc_tear_settings tc_tear_default(void)
     X(pbend, double) X(pblock, double) X(pfree, int32_t) X(stencils, tc_stencil) X(sfree, int32_t)    \
     X(cvert, int32_t) X(cactive, int8_t) X(scount, int8_t) X(cnormal, double) X(cdepth, double) X(cvel, double) X(cfric, double)            \
     X(diag, double) X(pinv, double) X(sb, double) X(sr, double) X(sz, double) X(sp, double)            \
-    X(sq, double) X(sb2, double) X(sfix2, double) X(sfix, double) X(snorm, double) X(x0, double) X(v0, double) X(fel, double)          \
+    X(sq, double) X(sdv, double) X(sb2, double) X(sfix2, double) X(sfix, double) X(snorm, double) X(x0, double) X(v0, double) X(fel, double)          \
     X(vs9, double) X(vsn, double) X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
     X(ev_chg, int32_t) X(ev_newt, int32_t)
 
@@ -652,6 +652,10 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     tc_assemble(c, dt);
     invert_diag(c);
     double res = 0.0;
+    /* warm start: the velocity change of the last step (constant acceleration), exact for a
+       falling cloth and close for any smooth motion; pcg projects it onto this step's constraints */
+    const double *dv_prev = tc_vec_ptr(&c->sdv);
+    for (size_t k = 0; k < n3; k++) v[k] = v0[k] + dv_prev[k];
     int it = solve_dv(c, v, v0, b, &res);
 
     if (nc) {
@@ -709,6 +713,10 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         double vn = dot3(v + 3 * i, nn) - dot3(cvel + 3 * k, nn);  /* relative normal speed */
         double take = vn < push ? (vn > 0 ? vn : 0.0) : push;
         for (int q = 0; q < 3; q++) v[3 * i + q] -= take * nn[q];
+    }
+    {
+        double *dv = tc_vec_ptr(&c->sdv);
+        for (size_t k = 0; k < n3; k++) dv[k] = v[k] - v0[k];
     }
     double worst = tc_element_pass(c, x);
     int bad = !(worst == worst) || worst > c->solver.max_stretch;

@@ -107,6 +107,7 @@ struct tc_cloth {
     tc_vec pinv;             /* 9 per vertex */
     tc_vec sb, sr, sz, sp, sq, sfix, x0, v0, fel;
     tc_vec sb2, sfix2;       /* right-hand side and prescribed values of the velocity-change solve */
+    tc_vec sdv;              /* velocity change of the last sub-step: the next solve's warm start */
     tc_vec snorm, scount;    /* per vertex: contact normal basis (3 x 3) and its size */
 
     /* tearing state */

@@ -149,7 +149,7 @@ int tc_reserve_vertices(tc_cloth *c, int32_t n)
 {
     size_t N = (size_t)n;
     tc_vec *v3[] = {&c->x, &c->v, &c->rest, &c->force, &c->sb, &c->sr, &c->sz, &c->sp, &c->sq,
-                    &c->sfix, &c->sb2, &c->sfix2, &c->x0, &c->v0, &c->fel};
+                    &c->sfix, &c->sb2, &c->sfix2, &c->sdv, &c->x0, &c->v0, &c->fel};
     for (size_t i = 0; i < sizeof v3 / sizeof *v3; i++)
         if (tc_vec_resize(v3[i], 3 * N)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->diag, 9 * N) || tc_vec_resize(&c->pinv, 9 * N) || tc_vec_resize(&c->vs9, 9 * N) ||

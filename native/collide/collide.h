@@ -1,0 +1,210 @@
+/* collide.h - the kernels of clustered, ray-traced collision detection (tearcloth._collide).
+ *
+ * The Python package `tearcloth.collision` owns the state and the order of a step (clusters,
+ * measures, Embree scenes, tracks); these kernels own every loop over vertices, rays, triangles or
+ * cluster pairs in that step, so that a step costs a few dozen calls whatever the mesh size.
+ *
+ * Design rules (the same as the native FEM core):
+ * - No state: every array is owned by the caller (numpy, through the buffer protocol) and every
+ *   kernel is a pure function of its arguments, so the numpy reference of each kernel in the
+ *   package is a complete specification that the tests compare against.
+ * - No allocation per element: a kernel allocates at most one scratch block per call.
+ * - Never read out of bounds: every index read from an array is checked against the length of the
+ *   array it indexes before it is used; a bad index stops the kernel with TCC_ERR_INDEX and a
+ *   message naming the array (the Python layer raises it as IndexError). The cost is a compare per
+ *   read, which is noise next to the arithmetic.
+ * - Units are SI (metres); a ray direction is a unit vertex normal times +1 (slot 0) or -1
+ *   (slot 1); "lines" are rays extended both ways (t may be negative).
+ *
+ * Index type: int64 everywhere (numpy's default on every platform Blender ships for).
+ */
+#ifndef TCC_COLLIDE_H
+#define TCC_COLLIDE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+typedef int64_t tcc_idx;
+
+enum { TCC_OK = 0, TCC_ERR_INDEX = -1, TCC_ERR_VALUE = -2, TCC_ERR_NOMEM = -3 };
+
+typedef struct {
+    int code;
+    char what[200];
+} tcc_error;
+
+/* Records the first error only: later failures keep the message of the first cause. */
+int tcc_fail(tcc_error *err, int code, const char *fmt, ...);
+
+/* A triangle mesh as the kernels see it. adj/flip may be NULL where no walk is done. */
+typedef struct {
+    const double *x;     /* (nv, 3) vertex positions */
+    tcc_idx nv;
+    const tcc_idx *tri;  /* (nt, 3) vertex indices */
+    tcc_idx nt;
+    const tcc_idx *adj;  /* (nt, 3) neighbour across edge k = (tri[k], tri[k+1]) or -1 */
+    const uint8_t *flip; /* (nt, 3) 1 when that neighbour has the opposite winding */
+} tcc_mesh;
+
+/* Self-collision exclusion: row v of `table` (width entries, -1 padded) lists vertex v and its
+ * one-ring; a triangle touching any of them (the two-ring of v) is never a hit for v's rays.
+ * table == NULL: nothing is excluded (a body). */
+typedef struct {
+    const tcc_idx *table;
+    tcc_idx rows;
+    tcc_idx width;
+} tcc_ring;
+
+/* ---------------------------------------------------------------- geometry.c */
+
+/* Area-weighted unit vertex normals; zero (and has_normal 0) for a vertex of no non-degenerate
+ * triangle. has_normal may be NULL. */
+int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, tcc_error *err);
+
+/* Rigid fit (Horn's quaternion method) of the corners of triangles tris[0..k) now (m->x) to the
+ * same corners at build time (ref, (m->nt, 3, 3) indexed by triangle id): x_now ~ R (x_ref -
+ * ref_centre) + centre. Returns the largest squared residual in *resid2. */
+int tcc_rigid_fit(const tcc_mesh *m, const double *ref, const tcc_idx *tris, tcc_idx k, double R[9],
+                  double centre[3], double ref_centre[3], double *resid2, tcc_error *err);
+
+/* ---------------------------------------------------------------- measure.c */
+
+/* Per cluster c (members order[ptr[c]..ptr[c+1])): mean displacement x - prev (avg, (k,3)) and
+ * its standard deviation (dev, (k,)): sqrt(mean |d|^2 - |avg|^2). */
+int tcc_cluster_motion(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
+                       const tcc_idx *ptr, tcc_idx k, double *avg, double *dev, tcc_error *err);
+
+/* Per cluster: AABB of the positions index[ptr[c]..ptr[c+1]) grown by inflate (empty: lo = +inf,
+ * hi = -inf, which overlaps nothing). */
+int tcc_cluster_boxes(const double *x, tcc_idx n, const tcc_idx *index, tcc_idx nindex, const tcc_idx *ptr,
+                      tcc_idx k, double inflate, double *lo, double *hi, tcc_error *err);
+
+/* Overlapping box pairs (i, j) in row-major order (i ascending, then j); self_pairs: j >= i only.
+ * Writes at most cap pairs and returns the total count in *count (call again with a larger cap
+ * when *count > cap). */
+void tcc_box_pairs(const double *lo_a, const double *hi_a, tcc_idx ka, const double *lo_b, const double *hi_b,
+                   tcc_idx kb, int self_pairs, tcc_idx *out_i, tcc_idx *out_j, tcc_idx cap, tcc_idx *count);
+
+/* The paper's relative measure (eqs. 1-4) over the close pairs of one object pair. old_keys
+ * (sorted, i << 32 | j) with their accumulated rel_avg / rel_dev; pairs (i, j) must be sorted
+ * by key (tcc_box_pairs order). Writes the new keys / accumulators (reset where full), the
+ * amplitude before the reset and full = amplitude > threshold or force; returns the number full. */
+int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const double *old_dev, tcc_idx nold,
+                         const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *avg_a,
+                         const double *dev_a, tcc_idx ka, const double *avg_b, const double *dev_b, tcc_idx kb,
+                         const uint8_t *force, double threshold, tcc_idx *keys, double *rel_avg,
+                         double *rel_dev, double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err);
+
+/* ---------------------------------------------------------------- walk.c */
+
+typedef struct {
+    tcc_idx tri; /* hit triangle or -1 (lost) */
+    double t, u, v; /* signed distance along the direction, barycentrics of corners 1 and 2 */
+    int flips;   /* parity of orientation flips crossed */
+} tcc_hit;
+
+/* Line o + t d against triangle (a, b, c) (Moller-Trumbore for lines). Returns 0 when parallel. */
+int tcc_line_triangle(const double o[3], const double d[3], const double a[3], const double b[3],
+                      const double c[3], double *t, double *u, double *v);
+
+/* Rays of cloth vertices (origin x[v], direction +-n[v] by slot) walked over the target's triangle
+ * adjacency from start[i] until the line passes through the triangle (found) or the walk leaves
+ * the mesh, meets an excluded triangle, a parallel triangle or the step budget (lost). */
+int tcc_walk(const double *cloth_x, const double *normals, tcc_idx n, const tcc_idx *ray_v,
+             const tcc_idx *ray_slot, const tcc_idx *start, tcc_idx k, const tcc_mesh *target,
+             const tcc_ring *ring, int max_steps, tcc_hit *out, tcc_error *err);
+
+/* ---------------------------------------------------------------- rays.c */
+
+/* Rays for Embree, one segment per collider cluster. Close pairs (pair_a cloth cluster, pair_b
+ * collider cluster) sorted by pair_b; ub[q] the distinct pair_b values in order, with their
+ * world -> build frame transform (R (q,3,3), centre, ref_centre). Every vertex v of a cluster
+ * pair_a with has_normal casts two rays (slot 0: +n, slot 1: -n) from x - backoff d, of length
+ * dist = (long_mask[v] ? long_dist : short_dist) + backoff + tol; a ray whose segment misses
+ * the world box (lo, hi) of its collider cluster is culled. Written rays are float32 in the build
+ * frame. seg (q+1) delimits each cluster's rays. Returns the needed count in *count (> cap:
+ * nothing beyond cap was written; call again with a larger cap). */
+typedef struct {
+    const double *x, *normals;
+    const uint8_t *has_normal;
+    const uint8_t *long_mask; /* may be NULL */
+    tcc_idx n;
+    const tcc_idx *order, *ptr; /* cloth clustering */
+    tcc_idx norder, kc;
+    const double *box_lo, *box_hi; /* collider cluster boxes (kb, 3) */
+    tcc_idx kb;
+    double short_dist, long_dist, backoff, tol;
+} tcc_ray_setup;
+
+int tcc_prepare_rays(const tcc_ray_setup *s, const tcc_idx *pair_a, const tcc_idx *pair_b, tcc_idx np,
+                     const tcc_idx *ub, const double *R, const double *centre, const double *ref_centre,
+                     tcc_idx q, float *o, float *d, float *dist, tcc_idx *ray_v, tcc_idx *ray_slot, tcc_idx cap,
+                     tcc_idx *seg, tcc_idx *count, tcc_error *err);
+
+/* Embree's answer for rays[0..r) of one cluster scene: prim (scene-local triangle or -1) and,
+ * for self-collision, tfar. Maps prim to the global triangle through scene_tris and writes
+ * hit_tri[ray]. With a ring, a hit on an excluded triangle is skipped: the ray (o, d, dist,
+ * float32, build frame) is advanced just past it and listed in retry (returned in *nretry) for
+ * another cast, its hit_tri left at -1. */
+int tcc_accept_hits(const tcc_idx *rays, const int32_t *prim, const float *tfar, tcc_idx r, const tcc_idx *scene_tris,
+                    tcc_idx nscene, const tcc_idx *ray_v, tcc_idx nrays, const tcc_mesh *target, const tcc_ring *ring,
+                    float *o, const float *d, float *dist, tcc_idx *hit_tri, tcc_idx *retry, tcc_idx *nretry,
+                    tcc_error *err);
+
+/* ---------------------------------------------------------------- contacts.c */
+
+enum { TCC_VOLUME = 0, TCC_SURFACE = 1, TCC_SELF = 2 };
+
+/* Candidates from Embree refined on the current geometry: each ray with hit_tri >= 0 is walked
+ * (max_steps) from it; a found hit with t >= -2e-6 is written (compacted) to out with status
+ * 1 = keep, 2 = needs the inside confirmation (a volume: a back face beyond track_range for a
+ * vertex that was not inside), 0 = dropped by the range rules. Returns the count in *count. */
+int tcc_refine(const double *cloth_x, const double *normals, tcc_idx n, const tcc_idx *ray_v, const tcc_idx *ray_slot,
+               const tcc_idx *hit_tri, tcc_idx r, const tcc_mesh *target, const tcc_ring *ring, int kind,
+               double track_range, const uint8_t *inside_prev, tcc_idx *out_v, tcc_idx *out_slot, tcc_hit *out,
+               uint8_t *status, tcc_idx *count, tcc_error *err);
+
+typedef struct {
+    /* cloth */
+    const double *x, *normals, *x_prev, *velocity; /* (n,3); velocity may be NULL (zero) */
+    tcc_idx n;
+    /* collider */
+    const tcc_mesh *target;
+    const double *target_prev, *target_velocity; /* (nv,3) */
+    int kind, first;
+    double thickness, track_range;
+    /* tracks of the previous step */
+    const tcc_idx *track_tri;   /* (n,2) */
+    const int8_t *track_side;   /* (n,2) */
+    const uint8_t *track_inside;/* (n,) */
+    /* walked tracks (k_w rays) */
+    const tcc_idx *w_v, *w_slot;
+    const tcc_hit *w_hit;
+    tcc_idx kw;
+    /* new hits of full detection (k_f rays); status 1 = keep */
+    const tcc_idx *f_v, *f_slot;
+    const tcc_hit *f_hit;
+    const uint8_t *f_status;
+    tcc_idx kf;
+} tcc_merge_in;
+
+typedef struct {
+    tcc_idx *track_tri;   /* (n,2) */
+    int8_t *track_side;   /* (n,2) */
+    uint8_t *track_inside;/* (n,) */
+    double *depth;        /* (n,) -inf where no contact */
+    double *normal, *velocity; /* (n,3) */
+} tcc_merge_out;
+
+/* Nearest hit per vertex and ray slot, classified into contacts (narrow.py module docs), the new
+ * tracks, and per vertex the deepest contact of this collider. */
+int tcc_merge_classify(const tcc_merge_in *in, tcc_merge_out *out, tcc_error *err);
+
+/* Contacts over c colliders (depth (c,n), normal / velocity (c,n,3), friction (c,)): per vertex
+ * the deepest one (deep_*) and every one (all_*, by vertex then collider). */
+void tcc_assemble(const double *depth, const double *normal, const double *velocity, const double *friction,
+                  tcc_idx c, tcc_idx n, int32_t *deep_v, double *deep_normal, double *deep_depth,
+                  double *deep_velocity, double *deep_friction, tcc_idx *ndeep, int32_t *all_v, double *all_normal,
+                  double *all_depth, double *all_velocity, double *all_friction, tcc_idx *nall);
+
+#endif
