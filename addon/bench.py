@@ -62,7 +62,12 @@ def build(name: str) -> Scenario:
         # without its body (FEM-only figures) the shirt hangs from its shoulders, as on a hanger
         c.pin("shoulders")
     left, right = ("hem_left", "hem_right") if name == "tshirt" else ("handle_left", "handle_right")
-    return Scenario(name, c, (c.add_handle(left), c.add_handle(right)), np.array([1.0, 0.0, 0.0]))
+    hl, hr = c.add_handle(left), c.add_handle(right)
+    # pull along the line between the two grips, apart (a character's left is +x, so never assume)
+    X = c.positions
+    axis = X[c.group(right) >= 0.5].mean(axis=0) - X[c.group(left) >= 0.5].mean(axis=0)
+    axis[2] = 0.0
+    return Scenario(name, c, (hl, hr), axis / np.linalg.norm(axis))
 
 
 def _median_ms(values) -> float:

@@ -160,6 +160,7 @@ TC_HOT void tc_assemble(tc_cloth *c, double dt)
     }
     const int32_t *T = tc_vec_ptr(&c->tri), *TP = tc_vec_ptr(&c->tpair);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area), *Rall = tc_vec_ptr(&c->rot);
+    const double *S2 = tc_vec_ptr(&c->sig);
     for (int32_t t = 0; t < c->nt; t++) {
         const double *g = G + 4 * t, *R = Rall + 6 * t;
         const double gg[3][2] = {{-g[0] - g[2], -g[1] - g[3]}, {g[0], g[1]}, {g[2], g[3]}};
@@ -169,15 +170,39 @@ TC_HOT void tc_assemble(tc_cloth *c, double dt)
         double r[3][3], P[9];
         for (int a = 0; a < 3; a++)
             for (int k = 0; k < 3; k++) r[a][k] = R[k] * gg[a][0] + R[3 + k] * gg[a][1];
+        /* Geometric (initial-stress) stiffness of the tensile part of the stress: k_ab = A h
+           g_a^T sigma+ g_b, times I. The frozen-rotation linearisation has no term for how tension
+           resists out-of-plane motion, so a stretched cloth moving sideways was integrated
+           explicitly against its tension and blew up; keeping only sigma's positive part keeps
+           the system positive definite (compression adds no stiffness: cloth buckles). */
+        double sp00 = 0.0, sp01 = 0.0, sp11 = 0.0;
+        {
+            const double *sg = S2 + 3 * t;
+            const double a = sg[0], d = sg[1], b = sg[2];
+            const double m = 0.5 * (a + d), q = sqrt(0.25 * (a - d) * (a - d) + b * b);
+            const double l1 = m + q, l2 = m - q;
+            if (l2 >= 0.0) { sp00 = a; sp01 = b; sp11 = d; }
+            else if (l1 > 0.0) {
+                /* eigenvector of l1 */
+                double ex = l1 - d, ey = b, fx = b, fy = l1 - a;
+                if (ex * ex + ey * ey < fx * fx + fy * fy) { ex = fx; ey = fy; }
+                const double el = sqrt(ex * ex + ey * ey);
+                if (el > 0) { ex /= el; ey /= el; sp00 = l1 * ex * ex; sp01 = l1 * ex * ey; sp11 = l1 * ey * ey; }
+            }
+        }
+        const double wg = ks * A[t] * h;
         for (int i = 0; i < 3; i++)
             for (int l = 0; l < 3; l++) P[3 * i + l] = R[i] * R[l] + R[3 + i] * R[3 + l];
         for (int a = 0; a < 3; a++) {
             for (int b = a; b < 3; b++) {
                 const double dab = gg[a][0] * gg[b][0] + gg[a][1] * gg[b][1];
+                const double kg = wg * (gg[a][0] * (sp00 * gg[b][0] + sp01 * gg[b][1]) +
+                                        gg[a][1] * (sp01 * gg[b][0] + sp11 * gg[b][1]));
                 double B[9];
                 for (int i = 0; i < 3; i++)
                     for (int l = 0; l < 3; l++)
                         B[3 * i + l] = wm * (dab * P[3 * i + l] + r[b][i] * r[a][l]) + wl * r[a][i] * r[b][l];
+                B[0] += kg; B[4] += kg; B[8] += kg;
                 const int32_t va = T[3 * t + a];
                 if (a == b) {
                     double *d = D + 9 * va;

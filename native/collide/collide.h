@@ -62,8 +62,8 @@ typedef struct {
 int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, tcc_error *err);
 
 /* Rigid fit (Horn's quaternion method) of the corners of triangles tris[0..k) now (m->x) to the
- * same corners at build time (ref, (m->nt, 3, 3) indexed by triangle id): x_now ~ R (x_ref -
- * ref_centre) + centre. Returns the largest squared residual in *resid2. */
+ * same corners at build time (ref (k, 3, 3), row i for tris[i]): x_now ~ R (x_ref - ref_centre)
+ * + centre. Returns the largest squared residual in *resid2. */
 int tcc_rigid_fit(const tcc_mesh *m, const double *ref, const tcc_idx *tris, tcc_idx k, double R[9],
                   double centre[3], double ref_centre[3], double *resid2, tcc_error *err);
 
@@ -86,9 +86,10 @@ void tcc_box_pairs(const double *lo_a, const double *hi_a, tcc_idx ka, const dou
                    tcc_idx kb, int self_pairs, tcc_idx *out_i, tcc_idx *out_j, tcc_idx cap, tcc_idx *count);
 
 /* The paper's relative measure (eqs. 1-4) over the close pairs of one object pair. old_keys
- * (sorted, i << 32 | j) with their accumulated rel_avg / rel_dev; pairs (i, j) must be sorted
- * by key (tcc_box_pairs order). Writes the new keys / accumulators (reset where full), the
- * amplitude before the reset and full = amplitude > threshold or force; returns the number full. */
+ * (sorted, i << 32 | j) with their accumulated rel_avg / rel_dev; this step's pairs (i, j), each
+ * once, in any order (tcc_box_pairs' order costs no sort). Writes the new keys / accumulators in
+ * key order (reset where full), and in the pairs' order the amplitude before the reset and
+ * full = amplitude > threshold or force; *nfull counts the full pairs. */
 int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const double *old_dev, tcc_idx nold,
                          const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *avg_a,
                          const double *dev_a, tcc_idx ka, const double *avg_b, const double *dev_b, tcc_idx kb,
@@ -103,22 +104,34 @@ typedef struct {
     int flips;   /* parity of orientation flips crossed */
 } tcc_hit;
 
+/* Hits as parallel arrays (k entries each), the layout numpy hands over. */
+typedef struct {
+    tcc_idx *tri;
+    double *t, *u, *v;
+    uint8_t *flips;
+} tcc_hits;
+
 /* Line o + t d against triangle (a, b, c) (Moller-Trumbore for lines). Returns 0 when parallel. */
 int tcc_line_triangle(const double o[3], const double d[3], const double a[3], const double b[3],
                       const double c[3], double *t, double *u, double *v);
+
+/* One line o + t d walked from triangle start (-1: lost at once) for cloth vertex v (its ring row
+ * is the exclusion). Returns TCC_OK with *h filled (h->tri = -1: lost) or an error code. */
+int tcc_walk_one(const tcc_mesh *m, const double o[3], const double d[3], tcc_idx v, tcc_idx start,
+                 const tcc_ring *ring, int max_steps, tcc_hit *h, tcc_error *err);
 
 /* Rays of cloth vertices (origin x[v], direction +-n[v] by slot) walked over the target's triangle
  * adjacency from start[i] until the line passes through the triangle (found) or the walk leaves
  * the mesh, meets an excluded triangle, a parallel triangle or the step budget (lost). */
 int tcc_walk(const double *cloth_x, const double *normals, tcc_idx n, const tcc_idx *ray_v,
              const tcc_idx *ray_slot, const tcc_idx *start, tcc_idx k, const tcc_mesh *target,
-             const tcc_ring *ring, int max_steps, tcc_hit *out, tcc_error *err);
+             const tcc_ring *ring, int max_steps, tcc_hits out, tcc_error *err);
 
 /* ---------------------------------------------------------------- rays.c */
 
 /* Rays for Embree, one segment per collider cluster. Close pairs (pair_a cloth cluster, pair_b
- * collider cluster) sorted by pair_b; ub[q] the distinct pair_b values in order, with their
- * world -> build frame transform (R (q,3,3), centre, ref_centre). Every vertex v of a cluster
+ * collider cluster) sorted by pair_b; ub[q] the distinct pair_b values in order. Collider cluster
+ * b's world -> build frame transform is R[b] (kb,3,3), centre[b], ref_centre[b]. Every vertex v of a cluster
  * pair_a with has_normal casts two rays (slot 0: +n, slot 1: -n) from x - backoff d, of length
  * dist = (long_mask[v] ? long_dist : short_dist) + backoff + tol; a ray whose segment misses
  * the world box (lo, hi) of its collider cluster is culled. Written rays are float32 in the build
@@ -161,50 +174,54 @@ enum { TCC_VOLUME = 0, TCC_SURFACE = 1, TCC_SELF = 2 };
  * vertex that was not inside), 0 = dropped by the range rules. Returns the count in *count. */
 int tcc_refine(const double *cloth_x, const double *normals, tcc_idx n, const tcc_idx *ray_v, const tcc_idx *ray_slot,
                const tcc_idx *hit_tri, tcc_idx r, const tcc_mesh *target, const tcc_ring *ring, int kind,
-               double track_range, const uint8_t *inside_prev, tcc_idx *out_v, tcc_idx *out_slot, tcc_hit *out,
+               double track_range, const uint8_t *inside_prev, tcc_idx *out_v, tcc_idx *out_slot, tcc_hits out,
                uint8_t *status, tcc_idx *count, tcc_error *err);
 
+/* Tracks are sparse: a list sorted by key = 2 * vertex + slot (most vertices track nothing). */
 typedef struct {
     /* cloth */
     const double *x, *normals, *x_prev, *velocity; /* (n,3); velocity may be NULL (zero) */
     tcc_idx n;
     /* collider */
     const tcc_mesh *target;
-    const double *target_prev, *target_velocity; /* (nv,3) */
+    const double *target_prev, *target_velocity; /* (nv,3); target_velocity may be NULL (zero) */
     int kind, first;
     double thickness, track_range;
-    /* tracks of the previous step */
-    const tcc_idx *track_tri;   /* (n,2) */
-    const int8_t *track_side;   /* (n,2) */
-    const uint8_t *track_inside;/* (n,) */
-    /* walked tracks (k_w rays) */
-    const tcc_idx *w_v, *w_slot;
-    const tcc_hit *w_hit;
-    tcc_idx kw;
-    /* new hits of full detection (k_f rays); status 1 = keep */
+    /* tracks of the previous step (kt, sorted by key) and where their walk ended this step */
+    const tcc_idx *track_key, *track_tri;
+    const int8_t *track_side;
+    tcc_idx kt;
+    tcc_hits walked; /* kt entries, parallel to the tracks */
+    /* new hits of full detection (kf rays); status 1 = keep, anything else is ignored */
     const tcc_idx *f_v, *f_slot;
-    const tcc_hit *f_hit;
+    tcc_hits f_hit;
     const uint8_t *f_status;
     tcc_idx kf;
 } tcc_merge_in;
 
+/* Every output list has room for kt + kf entries. */
 typedef struct {
-    tcc_idx *track_tri;   /* (n,2) */
-    int8_t *track_side;   /* (n,2) */
-    uint8_t *track_inside;/* (n,) */
-    double *depth;        /* (n,) -inf where no contact */
-    double *normal, *velocity; /* (n,3) */
+    tcc_idx *track_key, *track_tri; /* the new tracks, sorted by key */
+    int8_t *track_side;
+    tcc_idx ntracks;
+    tcc_idx *inside; /* vertices inside a closed body, ascending */
+    tcc_idx ninside;
+    tcc_idx *contact_v; /* this collider's deepest contact per vertex, ascending vertex */
+    double *depth, *normal, *velocity;
+    tcc_idx ncontacts;
 } tcc_merge_out;
 
 /* Nearest hit per vertex and ray slot, classified into contacts (narrow.py module docs), the new
  * tracks, and per vertex the deepest contact of this collider. */
 int tcc_merge_classify(const tcc_merge_in *in, tcc_merge_out *out, tcc_error *err);
 
-/* Contacts over c colliders (depth (c,n), normal / velocity (c,n,3), friction (c,)): per vertex
- * the deepest one (deep_*) and every one (all_*, by vertex then collider). */
-void tcc_assemble(const double *depth, const double *normal, const double *velocity, const double *friction,
-                  tcc_idx c, tcc_idx n, int32_t *deep_v, double *deep_normal, double *deep_depth,
-                  double *deep_velocity, double *deep_friction, tcc_idx *ndeep, int32_t *all_v, double *all_normal,
-                  double *all_depth, double *all_velocity, double *all_friction, tcc_idx *nall);
+/* Contacts of c colliders, each list sorted by vertex (seg (c+1) delimits them in v, depth,
+ * normal, velocity): per vertex the deepest one (deep_*, first collider on ties) and every one
+ * (all_*, by vertex then collider); friction (c,) per collider. Outputs have room for seg[c]. */
+int tcc_assemble(const tcc_idx *seg, tcc_idx c, const tcc_idx *v, const double *depth, const double *normal,
+                 const double *velocity, const double *friction, tcc_idx n, int32_t *deep_v, double *deep_normal,
+                 double *deep_depth, double *deep_velocity, double *deep_friction, tcc_idx *ndeep, int32_t *all_v,
+                 double *all_normal, double *all_depth, double *all_velocity, double *all_friction, tcc_idx *nall,
+                 tcc_error *err);
 
 #endif

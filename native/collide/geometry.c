@@ -129,7 +129,7 @@ int tcc_rigid_fit(const tcc_mesh *m, const double *ref, const tcc_idx *tris, tcc
                 return tcc_fail(err, TCC_ERR_INDEX, "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)",
                                 (long long)f, j, (long long)v, (long long)m->nv);
             for (int a = 0; a < 3; a++) {
-                c0[a] += ref[9 * f + 3 * j + a];
+                c0[a] += ref[9 * i + 3 * j + a];
                 c1[a] += m->x[3 * v + a];
             }
         }
@@ -143,7 +143,7 @@ int tcc_rigid_fit(const tcc_mesh *m, const double *ref, const tcc_idx *tris, tcc
     for (tcc_idx i = 0; i < k; i++) {
         tcc_idx f = tris[i];
         for (int j = 0; j < 3; j++) {
-            const double *r = ref + 9 * f + 3 * j, *x = m->x + 3 * m->tri[3 * f + j];
+            const double *r = ref + 9 * i + 3 * j, *x = m->x + 3 * m->tri[3 * f + j];
             double p[3] = {r[0] - c0[0], r[1] - c0[1], r[2] - c0[2]};
             double q[3] = {x[0] - c1[0], x[1] - c1[1], x[2] - c1[2]};
             for (int a = 0; a < 3; a++)
@@ -186,7 +186,7 @@ int tcc_rigid_fit(const tcc_mesh *m, const double *ref, const tcc_idx *tris, tcc
     for (tcc_idx i = 0; i < k; i++) {
         tcc_idx f = tris[i];
         for (int j = 0; j < 3; j++) {
-            const double *r = ref + 9 * f + 3 * j, *x = m->x + 3 * m->tri[3 * f + j];
+            const double *r = ref + 9 * i + 3 * j, *x = m->x + 3 * m->tri[3 * f + j];
             double p[3] = {r[0] - c0[0], r[1] - c0[1], r[2] - c0[2]};
             double e2 = 0.0;
             for (int a = 0; a < 3; a++) {

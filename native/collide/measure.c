@@ -9,6 +9,7 @@
 #include "collide.h"
 
 #include <math.h>
+#include <stdlib.h>
 
 int tcc_cluster_motion(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
                        const tcc_idx *ptr, tcc_idx k, double *avg, double *dev, tcc_error *err)
@@ -49,19 +50,25 @@ int tcc_cluster_boxes(const double *x, tcc_idx n, const tcc_idx *index, tcc_idx 
         if (s < 0 || e < s || e > nindex)
             return tcc_fail(err, TCC_ERR_INDEX, "box %lld spans [%lld, %lld), outside the %lld members",
                             (long long)c, (long long)s, (long long)e, (long long)nindex);
-        double l[3] = {INFINITY, INFINITY, INFINITY}, h[3] = {-INFINITY, -INFINITY, -INFINITY};
+        double l0 = INFINITY, l1 = INFINITY, l2 = INFINITY, h0 = -INFINITY, h1 = -INFINITY, h2 = -INFINITY;
+        double nan = 0.0; /* x - x is NaN for NaN or inf; its sum marks a box that must overlap nothing */
         for (tcc_idx i = s; i < e; i++) {
             tcc_idx v = index[i];
             if (v < 0 || v >= n)
                 return tcc_fail(err, TCC_ERR_INDEX, "box member %lld = %lld is not a vertex index in [0, %lld)",
                                 (long long)i, (long long)v, (long long)n);
-            for (int a = 0; a < 3; a++) {
-                double p = x[3 * v + a];
-                /* numpy's minimum/maximum propagate NaN; so do these (a NaN box overlaps nothing) */
-                if (p < l[a] || isnan(p)) l[a] = isnan(l[a]) ? l[a] : p;
-                if (p > h[a] || isnan(p)) h[a] = isnan(h[a]) ? h[a] : p;
-            }
+            const double *p = x + 3 * v;
+            l0 = p[0] < l0 ? p[0] : l0;
+            l1 = p[1] < l1 ? p[1] : l1;
+            l2 = p[2] < l2 ? p[2] : l2;
+            h0 = p[0] > h0 ? p[0] : h0;
+            h1 = p[1] > h1 ? p[1] : h1;
+            h2 = p[2] > h2 ? p[2] : h2;
+            nan += (p[0] - p[0]) + (p[1] - p[1]) + (p[2] - p[2]);
         }
+        double l[3] = {l0, l1, l2}, h[3] = {h0, h1, h2};
+        if (nan != 0.0) /* NaN (numpy's minimum / maximum propagate it): overlaps nothing */
+            l[0] = l[1] = l[2] = h[0] = h[1] = h[2] = NAN;
         for (int a = 0; a < 3; a++) {
             lo[3 * c + a] = l[a] - inflate;
             hi[3 * c + a] = h[a] + inflate;
@@ -91,28 +98,58 @@ void tcc_box_pairs(const double *lo_a, const double *hi_a, tcc_idx ka, const dou
     *count = m;
 }
 
+typedef struct {
+    tcc_idx key, p;
+} keyed;
+
+static int by_key(const void *pa, const void *pb)
+{
+    const keyed *a = pa, *b = pb;
+    return a->key < b->key ? -1 : (a->key > b->key);
+}
+
 int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const double *old_dev, tcc_idx nold,
                          const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *avg_a,
                          const double *dev_a, tcc_idx ka, const double *avg_b, const double *dev_b, tcc_idx kb,
                          const uint8_t *force, double threshold, tcc_idx *keys, double *rel_avg,
                          double *rel_dev, double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err)
 {
-    tcc_idx o = 0, nf = 0;
+    int sorted = 1;
     for (tcc_idx p = 0; p < np; p++) {
         tcc_idx i = pi[p], j = pj[p];
         if (i < 0 || i >= ka || j < 0 || j >= kb || i > 0x7fffffff || j > 0x7fffffff)
             return tcc_fail(err, TCC_ERR_INDEX, "pair %lld = (%lld, %lld) is not a cluster pair of [0, %lld) x [0, %lld)",
                             (long long)p, (long long)i, (long long)j, (long long)ka, (long long)kb);
-        tcc_idx key = (i << 32) | j;
-        if (p > 0 && key <= keys[p - 1])
-            return tcc_fail(err, TCC_ERR_VALUE, "pairs must be sorted by (i, j) without repeats (pair %lld)", (long long)p);
-        keys[p] = key;
-        /* old_keys is sorted too: one forward merge */
-        while (o < nold && old_keys[o] < key) {
-            if (o > 0 && old_keys[o] <= old_keys[o - 1])
-                return tcc_fail(err, TCC_ERR_VALUE, "the stored pair keys are not sorted (entry %lld)", (long long)o);
-            o++;
+        if (p > 0 && ((i << 32) | j) <= ((pi[p - 1] << 32) | pj[p - 1])) sorted = 0;
+    }
+    for (tcc_idx o = 1; o < nold; o++)
+        if (old_keys[o] <= old_keys[o - 1])
+            return tcc_fail(err, TCC_ERR_VALUE, "the stored pair keys are not sorted (entry %lld)", (long long)o);
+    /* pairs in any order: the stored keys come out sorted, full / amplitude in the caller's order */
+    keyed *ord = NULL;
+    if (!sorted) {
+        ord = malloc(sizeof *ord * (size_t)np);
+        if (!ord) return tcc_fail(err, TCC_ERR_NOMEM, "out of memory sorting %lld pairs", (long long)np);
+        for (tcc_idx p = 0; p < np; p++) {
+            ord[p].key = (pi[p] << 32) | pj[p];
+            ord[p].p = p;
         }
+        qsort(ord, (size_t)np, sizeof *ord, by_key);
+        for (tcc_idx q = 1; q < np; q++)
+            if (ord[q].key == ord[q - 1].key) {
+                free(ord);
+                return tcc_fail(err, TCC_ERR_VALUE, "pair (%lld, %lld) is listed twice", (long long)(ord[q].key >> 32),
+                                (long long)(ord[q].key & 0xffffffff));
+            }
+    }
+    tcc_idx o = 0, nf = 0;
+    for (tcc_idx q = 0; q < np; q++) {
+        tcc_idx p = ord ? ord[q].p : q;
+        tcc_idx i = pi[p], j = pj[p];
+        tcc_idx key = (i << 32) | j;
+        keys[q] = key;
+        /* old_keys is sorted too: one forward merge */
+        while (o < nold && old_keys[o] < key) o++;
         double ra0 = 0, ra1 = 0, ra2 = 0, rd = 0;
         if (o < nold && old_keys[o] == key) {
             ra0 = old_avg[3 * o];
@@ -130,13 +167,14 @@ int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const d
             ra0 = ra1 = ra2 = rd = 0.0;
             nf++;
         }
-        rel_avg[3 * p] = ra0;
-        rel_avg[3 * p + 1] = ra1;
-        rel_avg[3 * p + 2] = ra2;
-        rel_dev[p] = rd;
+        rel_avg[3 * q] = ra0;
+        rel_avg[3 * q + 1] = ra1;
+        rel_avg[3 * q + 2] = ra2;
+        rel_dev[q] = rd;
         amplitude[p] = amp;
         full[p] = (uint8_t)f;
     }
+    free(ord);
     *nfull = nf;
     return TCC_OK;
 }

@@ -26,9 +26,8 @@ static inline int excluded(const tcc_ring *ring, tcc_idx v, const tcc_idx tv[3])
     return 0;
 }
 
-/* One ray; returns an error code (bad index) or TCC_OK with *h filled (h->tri = -1: lost). */
-static int walk_one(const tcc_mesh *m, const double o[3], const double d[3], tcc_idx v, tcc_idx start,
-                    const tcc_ring *ring, int max_steps, tcc_hit *h, tcc_error *err)
+int tcc_walk_one(const tcc_mesh *m, const double o[3], const double d[3], tcc_idx v, tcc_idx start,
+                 const tcc_ring *ring, int max_steps, tcc_hit *h, tcc_error *err)
 {
     h->tri = -1;
     h->t = INFINITY;
@@ -76,7 +75,7 @@ static int walk_one(const tcc_mesh *m, const double o[3], const double d[3], tcc
 
 int tcc_walk(const double *cloth_x, const double *normals, tcc_idx n, const tcc_idx *ray_v,
              const tcc_idx *ray_slot, const tcc_idx *start, tcc_idx k, const tcc_mesh *target,
-             const tcc_ring *ring, int max_steps, tcc_hit *out, tcc_error *err)
+             const tcc_ring *ring, int max_steps, tcc_hits out, tcc_error *err)
 {
     for (tcc_idx i = 0; i < k; i++) {
         tcc_idx v = ray_v[i], s = ray_slot[i];
@@ -92,8 +91,14 @@ int tcc_walk(const double *cloth_x, const double *normals, tcc_idx n, const tcc_
         double sg = s == 0 ? 1.0 : -1.0;
         const double *nv = normals + 3 * v;
         double d[3] = {nv[0] * sg, nv[1] * sg, nv[2] * sg};
-        int rc = walk_one(target, cloth_x + 3 * v, d, v, start[i], ring, max_steps, out + i, err);
+        tcc_hit h;
+        int rc = tcc_walk_one(target, cloth_x + 3 * v, d, v, start[i], ring, max_steps, &h, err);
         if (rc) return rc;
+        out.tri[i] = h.tri;
+        out.t[i] = h.t;
+        out.u[i] = h.u;
+        out.v[i] = h.v;
+        out.flips[i] = (uint8_t)h.flips;
     }
     return TCC_OK;
 }
