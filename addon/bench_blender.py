@@ -30,11 +30,12 @@ Blender (through ``bpy``, headless, after ``read_factory_settings(use_empty=True
   follows the hooks exactly, as our handles do).
 - Blender's cloth computes on frame change: ``scene.frame_set(f)`` for f = 2 .. frames + 1
   after ``frame_set(1)`` (the start frame, where the cloth is initialised). The point cache is
-  freed before the run, so every timed frame is simulated, not replayed; afterwards one frame is
-  set again to show what a cache replay costs (``blender_replay_s_per_frame``).
+  freed before the run, so every timed frame is simulated, not replayed; afterwards the raced
+  frames are set again to show what a cache replay costs (``blender_replay_s_per_frame``).
 
 Frames are interleaved (Blender frame f, then ours frame f) so that load from other processes on
-a shared machine hits both sides alike.
+a shared machine hits both sides alike; each side's CPU seconds per frame (the whole process, all
+threads) are reported next to the wall seconds.
 
 Mapping our cotton onto Blender's model (``blender_cloth_settings``; Blender 2.9-5.x source,
 ``SIM_mass_spring.cc`` / ``implicit_blender.cc``): Blender's cloth works in frames (dt = 1 /

@@ -26,7 +26,10 @@ its wall time (collision + FEM + tearing + Python glue).
 
 Timing: median of ``steps`` steps after ``warmup`` steps (the first detection and allocations);
 fewer steps at large sizes (``default_steps``) so the whole default run stays around 3 minutes on
-two cores.
+two cores. Each point has the wall time (``step_ms``) and the child's CPU time (``step_cpu_ms``,
+all its threads): on a machine shared with other jobs the wall time stretches and the CPU time
+much less, so both get an exponent (``exponents`` / ``exponents_cpu``); the load average at the
+end of the run is recorded with the result.
 
 Memory: every point runs in a fresh subprocess (peaks never accumulate). The child reads its own
 peak resident set (``VmHWM`` in /proc/self/status; ``ru_maxrss`` where there is no /proc) after
@@ -223,13 +226,15 @@ def _child_point(spec: dict) -> dict:
         s.add_body("body", d["body_vertices"], d["body_triangles"])
     else:
         s = session_mod.Session(c, None)
-    times, iters, contacts, parts = [], [], [], {"collision": [], "fem": [], "tearing": []}
+    times, cpu, iters, contacts = [], [], [], []
+    parts = {"collision": [], "fem": [], "tearing": []}
     error = None
     n = int(spec["warmup"]) + int(spec["steps"])
     for i in range(n):
         off = PULL_SPEED * (i + 1) * DT
         c.move_handle(hands[0], (-off, 0.0, 0.0))
         c.move_handle(hands[1], (off, 0.0, 0.0))
+        c0 = time.process_time()
         t0 = time.perf_counter()
         try:
             rep = s.step(DT)
@@ -237,15 +242,18 @@ def _child_point(spec: dict) -> dict:
             error = f"step {i + 1}: {e}"
             break
         t1 = time.perf_counter()
+        c1 = time.process_time()
         if i >= int(spec["warmup"]):
             times.append(t1 - t0)
+            cpu.append(c1 - c0)
             iters.append(c.stats()["cg_iterations"])
             contacts.append(rep.contacts)
             parts["collision"].append(rep.collision_s)
             parts["fem"].append(rep.fem_s)
             parts["tearing"].append(rep.tearing_s)
     st = c.stats()
-    return {"step_s": times, "cg_iterations_median": statistics.median(iters) if iters else None,
+    return {"step_s": times, "step_cpu_s": cpu,
+            "cg_iterations_median": statistics.median(iters) if iters else None,
             "contacts_median": statistics.median(contacts) if contacts else None, "cuts": int(st.get("cuts", 0)),
             "triangles_end": int(c.num_triangles), "error": error,
             "parts_ms": {k: 1e3 * statistics.median(v) if v else None for k, v in parts.items()},
@@ -283,6 +291,13 @@ def idle_baseline_bytes(timeout: float = 120.0) -> int:
 # ------------------------------------------------------------------------------------------------
 # The run
 # ------------------------------------------------------------------------------------------------
+
+
+def _loadavg():
+    try:
+        return os.getloadavg()
+    except OSError:  # pragma: no cover - not on every platform
+        return None
 
 
 def config_label(family: str, tearing: bool, collision: bool) -> str:
@@ -332,6 +347,10 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                             "triangles": tri, "vertices": int(len(sc["vertices"])),
                             "tearing": bool(tearing), "collision": bool(collision),
                             "step_ms": 1e3 * statistics.median(res["step_s"]) if res["step_s"] else float("nan"),
+                            # CPU seconds of the child per step (all its threads): what a step costs
+                            # when other processes compete for the cores and stretch the wall time
+                            "step_cpu_ms": (1e3 * statistics.median(res["step_cpu_s"]) if res["step_cpu_s"]
+                                            else float("nan")),
                             "step_ms_min": 1e3 * min(res["step_s"], default=float("nan")),
                             "step_ms_max": 1e3 * max(res["step_s"], default=float("nan")),
                             "steps": len(res["step_s"]), "warmup": n_warm,
@@ -351,7 +370,7 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                         say(f"{config_label(family, tearing, collision):<45} {tri:>7} tris  "
                             f"{p['step_ms']:9.2f} ms  {p['peak_mb']:8.1f} MB  {p['bytes_per_triangle']:7.0f} B/tri  "
                             f"({p['steps']} steps, {p['wall_s']:.1f} s)")
-    exponents = {}
+    exponents, exponents_cpu = {}, {}
     largest = {}
     for family in families:
         for tearing in with_tearing:
@@ -360,6 +379,8 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                 label = config_label(family, tearing, collision)
                 if len({p["triangles"] for p in pts}) >= 2:
                     exponents[label] = fit_exponent([p["triangles"] for p in pts], [p["step_ms"] for p in pts])
+                    exponents_cpu[label] = fit_exponent([p["triangles"] for p in pts],
+                                                        [p["step_cpu_ms"] for p in pts])
                 if pts:
                     big = max(pts, key=lambda p: p["triangles"])
                     largest[label] = {"triangles": big["triangles"], "peak_mb": big["peak_mb"],
@@ -373,6 +394,9 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
         "exponent": exponents.get(base_label, float("nan")),
         "exponent_of": base_label,
         "exponents": exponents,
+        "exponent_cpu": exponents_cpu.get(base_label, float("nan")),
+        "exponents_cpu": exponents_cpu,
+        "load_average": _loadavg(),
         "peak_mb_100k": largest.get(base_label, {}).get("peak_mb", float("nan")),
         "peak_mb_100k_triangles": largest.get(base_label, {}).get("triangles"),
         "peak_mb_largest": largest,
@@ -442,15 +466,17 @@ def format_scaling(result: dict) -> str:
     def ms(x):
         return f"{x:9.2f}" if x is not None else f"{'-':>9}"
 
-    rows = [f"{'configuration':<45} {'tris':>7} {'step ms':>9} {'FEM ms':>9} {'tear ms':>9} {'coll ms':>9} "
-            f"{'CG it':>6} {'peak MB':>8} {'B/tri':>7} {'steps':>5}"]
+    rows = [f"{'configuration':<45} {'tris':>7} {'step ms':>9} {'CPU ms':>9} {'FEM ms':>9} {'tear ms':>9} "
+            f"{'coll ms':>9} {'CG it':>6} {'peak MB':>8} {'B/tri':>7} {'steps':>5}"]
     for p in result["points"]:
         rows.append(f"{config_label(p['mesh'], p['tearing'], p['collision']):<45} {p['triangles']:>7} "
-                    f"{ms(p['step_ms'])} {ms(p.get('fem_ms'))} {ms(p.get('tearing_ms'))} {ms(p.get('collision_ms'))} "
+                    f"{ms(p['step_ms'])} {ms(p.get('step_cpu_ms'))} {ms(p.get('fem_ms'))} "
+                    f"{ms(p.get('tearing_ms'))} {ms(p.get('collision_ms'))} "
                     f"{p['cg_iterations_median'] or 0:>6.0f} {p['peak_mb']:>8.1f} {p['bytes_per_triangle']:>7.0f} "
                     f"{p['steps']:>5}" + (f"  ERROR {p['error']}" if p.get("error") else ""))
     for label, e in result["exponents"].items():
-        rows.append(f"exponent {label}: {e:.3f}")
+        e_cpu = result.get("exponents_cpu", {}).get(label, float("nan"))
+        rows.append(f"exponent {label}: {e:.3f} (wall), {e_cpu:.3f} (CPU)")
     rows.append(f"peak at {result['peak_mb_100k_triangles']} triangles ({result['exponent_of']}): "
                 f"{result['peak_mb_100k']:.1f} MB; idle baseline {result['baseline_mb']:.1f} MB")
     return "\n".join(rows)

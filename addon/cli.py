@@ -13,6 +13,10 @@ def main(argv=None) -> int:
     b.add_argument("--steps", type=int, default=200, help="steps per measurement (default 200)")
     b.add_argument("--scenarios", default="cloth,banknote,tshirt", help="comma-separated: cloth,banknote,tshirt")
     b.add_argument("--no-collision", action="store_true", help="skip the collision experiment")
+    b.add_argument("--parts", default="table1,collision,servo,blender,scaling",
+                   help="comma-separated parts to run (default: all): table1,collision,servo,blender,scaling")
+    b.add_argument("--markdown", metavar="PATH", help="also write a BENCHMARKS.md-style report here")
+    b.add_argument("--plots", metavar="DIR", help="write plots (scaling) into this folder")
     k = sub.add_parser("clusters", help="picture of the cluster decomposition (the paper's Fig. 2)")
     k.add_argument("--out", default="clusters.png", help="PNG path (default clusters.png)")
     k.add_argument("--scenario", default="tshirt", choices=("cloth", "banknote", "tshirt"))
@@ -26,8 +30,9 @@ def main(argv=None) -> int:
 
             if args.steps < 10:
                 p.error("--steps must be at least 10")
+            parts = [s.strip() for s in args.parts.split(",") if s.strip()]
             run(args.json, [s.strip() for s in args.scenarios.split(",") if s.strip()], args.steps,
-                collision=not args.no_collision)
+                collision=not args.no_collision, parts=parts, markdown=args.markdown, plots_dir=args.plots)
         elif args.command == "clusters":
             from .bench import cluster_picture
 

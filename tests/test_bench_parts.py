@@ -74,7 +74,7 @@ def test_scaling_tiny_runs_every_configuration(tmp_path):
         for key in ("triangles", "tearing", "collision", "step_ms", "peak_mb", "bytes_per_triangle"):
             assert key in p
         assert p["error"] is None
-        assert _finite_positive(p["step_ms"])
+        assert _finite_positive(p["step_ms"]) and _finite_positive(p["step_cpu_ms"])
         assert p["peak_mb"] >= 0 and math.isfinite(p["peak_mb"])
         assert p["bytes_per_triangle"] >= 0 and math.isfinite(p["bytes_per_triangle"])
     every = {(a, b) for a in (False, True) for b in (False, True)}
@@ -85,6 +85,7 @@ def test_scaling_tiny_runs_every_configuration(tmp_path):
     assert by[(big, False, True)]["peak_mb"] > by[(big, False, False)]["peak_mb"]
     assert math.isfinite(r["exponent"]) and len(r["exponents"]) == 4
     assert all(math.isfinite(e) for e in r["exponents"].values())
+    assert all(math.isfinite(e) for e in r["exponents_cpu"].values())
     assert math.isfinite(r["peak_mb_100k"]) and r["peak_mb_100k_triangles"] == big
     assert _finite_positive(r["baseline_mb"])
     png = bs.plot_scaling(r, tmp_path / "scaling.png")
@@ -155,13 +156,13 @@ def test_race_tiny_returns_the_documented_keys():
     pytest.importorskip("bpy")
     from tearcloth.bench_blender import format_race, race_blender_cloth
 
-    r = race_blender_cloth(frames=2, substeps=2, target_triangles=600)
+    r = race_blender_cloth(frames=2, substeps=3, target_triangles=600)
     assert r["ours_error"] is None and r["frames_raced"] == 2
     for key in ("ours_s_per_frame", "blender_s_per_frame", "ratio", "blender_replay_s_per_frame"):
         assert _finite_positive(r[key]), key
     assert r["ratio"] == pytest.approx(r["ours_s_per_frame"] / r["blender_s_per_frame"])
     bl = r["settings"]["blender"]
-    assert bl["cloth"]["quality"] == 2
+    assert bl["cloth"]["quality"] == 3
     assert bl["collision"]["use_self_collision"] is True
     assert bl["cloth"]["vertex_group_mass"] == "pin"
     assert r["settings"]["ours"]["tearing"] is True

@@ -45,6 +45,6 @@ case "$job" in
         # run from tests/ so the package under test is the installed one, not the source folder
         cd tests && "../$VENV/bin/python" -m pytest -q -p no:cacheprovider .
         ;;
-    bench) "$VENV/bin/tearcloth" bench --json out/bench.json ;;
+    bench) "$VENV/bin/tearcloth" bench --json out/bench.json --markdown BENCHMARKS.md --plots docs/images ;;
     *) echo "usage: bash tools/run.sh [demo|test|bench]" >&2; exit 2 ;;
 esac
