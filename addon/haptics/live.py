@@ -14,8 +14,10 @@ This file owns:
   grip along a direction (tests, demo, bench);
 - ``emulated_session``: the paper's scenes (square cloth, banknote, T-shirt) grasped by two
   emulated Falcons that pull apart;
-- ``force_phases``: the three phases of the paper's Fig. 6 read from a force log;
-- ``measure_live_servo``: servo timing while the simulation runs flat out (``tearcloth bench``).
+- ``LiveSession.tension`` / ``LiveSession.phases``: the force along the pull per step and the
+  three phases of the paper's Fig. 6 (elastic rise, peak at the first tear, propagation);
+- ``stall_timeout_rule`` and ``measure_live_servo``: the watchdog rule below, and servo timing
+  while the simulation runs flat out (what ``tearcloth bench`` reports as ``servo.*``).
 
 One simulation step, as data flows (design.md): proxies (servo) -> handle targets -> session step
 (collision, FEM, tearing; the GIL is released in the native step so the servo threads keep their
@@ -47,15 +49,31 @@ debugger, a caller that stops calling ``run_for``) is cut off within a few of it
 10 ms floor keeps the servo's default for fast simulations, the 100 ms ceiling bounds how long a
 frozen linearisation can be felt. Pass ``stall_timeout_s`` to fix it instead.
 
+A step the core rolls back even after the session's sub-step retries is taken again once with
+the handles held where they were (the hands moved too far for one step); a second failure ends
+the session with zero force and the error in ``error`` (``run_for``/``step_once`` re-raise it).
+
 Device loss. ``on_device_lost="stop"`` (default) ends the whole session with zero force on every
 device: tearing is a two-handed task and one hand suddenly pulling against a frozen handle is not
 what the user expects. ``"continue"`` keeps the other hands running; the lost hand's handle stays
 where it was (like a pin) and the session ends when no hand is left. A servo thread that stops
 answering (no proxy for ``proxy_timeout_s``) counts as a lost device.
 
-Threads: the servo owns one thread per device (``servo.ServoLoop``); the simulation loop runs on
-one thread (the caller's or ``tearcloth-live-sim``); the recorder is called on the simulation
-thread, so the Blender layer must queue what it receives and touch bpy only from the main thread.
+Stop button: ``stop_buttons`` (a bit mask, default the Falcon's centre button; None disables)
+ends the session when pressed on any hand - after it has been seen released once, so a button
+already held when the session starts does not end it at once.
+
+Threads: the servo owns one thread per device (``servo.ServoLoop``), run under SCHED_FIFO when
+the OS allows (``servo_priority``; on a loaded machine this is what keeps 1 kHz: a normal thread
+waits behind every runnable process for its slice). The simulation loop runs on one thread (the
+caller's or ``tearcloth-live-sim``); the recorder is called on the simulation thread with copies
+of the arrays, so the Blender layer must queue what it receives and touch bpy only from the main
+thread.
+
+Time. The simulation steps ``dt`` of simulated time as fast as it can; the hands move in wall
+time. A simulation slower than real time is therefore in slow motion for the hands (the T-shirt
+at ~60 steps/s of 1 ms runs at 6 % of real time) and pulls faster, in simulated time, than
+the user does in the real world.
 
 This module sits at the top of ``haptics`` and drives the session layer; it imports
 ``..session``/``..scenes``/``..cloth`` lazily inside the functions that need them, so importing
@@ -83,7 +101,7 @@ from .device import (
     NotHomedError,
     Workspace,
 )
-from .falcon import FalconDevice
+from .falcon import FALCON_MAX_FORCE, FalconDevice
 from .falcon_emulator import FalconEmulator, spring_hand
 from .falcon_kinematics import WORKSPACE_CENTRE, WORKSPACE_RADIUS
 from .forcelog import ForceLog
@@ -92,13 +110,13 @@ from .servo import HandCoupling, ServoLoop
 __all__ = [
     "LiveSession",
     "Recorder",
+    "stall_timeout_rule",
     "FALCON_TO_SCENE",
     "FALCON_CENTRE_BUTTON",
     "falcon_coupling",
     "pulling_hand",
     "emulated_falcon",
     "emulated_session",
-    "force_phases",
     "measure_live_servo",
 ]
 
@@ -113,6 +131,14 @@ Recorder = Callable[[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray], Any
 
 _PERIOD_WINDOW = 200
 _STALL_UPDATE_EVERY = 50
+
+
+def stall_timeout_rule(periods, factor: float = 3.0, minimum: float = 0.010, maximum: float = 0.100) -> float:
+    """The servo's stall timeout for a simulation whose recent publish periods (s) are
+    ``periods``: ``clip(factor · p99(periods), minimum, maximum)`` (see the module docstring)."""
+    p = np.asarray(periods, dtype=float)
+    p99 = float(np.percentile(p, 99)) if p.size else 0.0
+    return min(max(factor * p99, minimum), maximum)
 
 
 class _Hand:
@@ -296,7 +322,8 @@ class LiveSession:
                     groups = list(getattr(cloth, "group_names", []))
                     if handle not in groups:
                         raise ConfigError(f"hand {name!r}: the cloth has no vertex group {handle!r}; its groups are {groups or 'none'}")
-                    if not np.any(cloth.group(handle) >= 0.5):
+                    indices = np.flatnonzero(cloth.group(handle) >= 0.5)  # Cloth's own threshold
+                    if indices.size == 0:
                         raise ConfigError(f"hand {name!r}: vertex group {handle!r} selects no vertex (no weight >= 0.5)")
                     h = cloth.add_handle(handle)
                     created.append(h)
@@ -304,13 +331,14 @@ class LiveSession:
                     h = int(handle)
                     if h not in known:
                         raise ConfigError(f"hand {name!r}: the cloth has no handle {h}; its handles are {sorted(known) or 'none'}")
+                    indices = np.asarray(known[h], dtype=np.int64)
                 else:
-                    idx = np.asarray(handle).reshape(-1)
-                    if idx.size == 0:
+                    indices = np.asarray(handle).reshape(-1)
+                    if indices.size == 0:
                         raise ConfigError(f"hand {name!r}: an empty vertex selection cannot be grasped")
-                    h = cloth.add_handle(idx)
+                    h = cloth.add_handle(indices)
                     created.append(h)
-                indices = np.asarray(known.get(h, ()), dtype=np.int64)
+                    indices = np.asarray(known.get(h, indices), dtype=np.int64)  # a mask becomes indices
                 if indices.size == 0:
                     raise ConfigError(f"hand {name!r}: handle {h} grasps no vertex")
                 centroid = np.asarray(cloth.positions, dtype=float)[indices].mean(axis=0)
@@ -398,12 +426,13 @@ class LiveSession:
         dev = hs.device
         try:
             state = dev.open()
-        except DeviceNotFoundError as exc:
-            raise DeviceNotFoundError(f"hand {hs.name!r}: {exc}") from exc
-        except FirmwareError as exc:
-            raise FirmwareError(f"hand {hs.name!r}: {exc}") from exc
         except HapticError as exc:
-            raise DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} could not be opened: {exc}") from exc
+            # Same class (a FirmwareFileError stays one), with the hand named in front.
+            try:
+                named = type(exc)(f"hand {hs.name!r}: {exc}")
+            except Exception:
+                named = DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} could not be opened: {exc}")
+            raise named from exc
         try:
             if state is DeviceState.NEEDS_FIRMWARE:
                 raise FirmwareError(f"hand {hs.name!r}: {dev.message}")
@@ -459,8 +488,7 @@ class LiveSession:
         if self.fixed_stall_timeout_s is not None:
             timeout = float(self.fixed_stall_timeout_s)
         else:
-            p99 = float(np.percentile(periods, 99)) if len(periods) else 0.0
-            timeout = min(max(self.stall_factor * p99, self.min_stall_timeout_s), self.max_stall_timeout_s)
+            timeout = stall_timeout_rule(periods, self.stall_factor, self.min_stall_timeout_s, self.max_stall_timeout_s)
         self.stall_timeout_s = timeout
         if self.servo is not None:
             # A plain float the servo threads read once per tick: an atomic swap.
@@ -547,17 +575,7 @@ class LiveSession:
         try:
             self.session.step(self.dt)  # collision + FEM + tearing; the GIL is released in the native step
         except self._simulation_error:
-            # The core rolled the step back (and the session already retried it in sub-steps):
-            # the hands moved too far for one step. Hold the handles where they were and try
-            # once more; the proxy spring makes the hands feel the lag. A second failure ends the
-            # session (zero force) with the error.
-            for name, hs in self._hands.items():
-                hs.translation = held[name]
-                m = np.eye(3, 4)
-                m[:, 3] = hs.translation
-                self.cloth.set_handle_target(hs.handle, m)
-            self.held_steps += 1
-            self.session.step(self.dt)
+            self._recover_step(held)
         now = clock()
         if self.first_tear_clock is None and self.cloth.stats()["tears_started"]:
             self.first_tear_clock, self.first_tear_time, self.first_tear_step = now, float(self.session.time), self.steps
@@ -582,6 +600,19 @@ class LiveSession:
         self.steps += 1
         self._step_wall.append(clock() - start)
         return not self.ended
+
+    def _recover_step(self, held: Dict[str, np.ndarray]) -> None:
+        """The core rolled a step back even after the session's retries in sub-steps: the
+        hands moved too far for one step. Hold the handles where they were and retry once (the
+        proxy spring makes the hands feel the lag); a second failure rises and ends the session
+        with zero force."""
+        for name, hs in self._hands.items():
+            hs.translation = held[name]
+            m = np.eye(3, 4)
+            m[:, 3] = hs.translation
+            self.cloth.set_handle_target(hs.handle, m)
+        self.held_steps += 1
+        self.session.step(self.dt)
 
     def _guarded(self, body: Callable[[], Any]):
         """Run ``body``; any exception ends the session (zero force, devices closed), then rises."""
@@ -744,42 +775,93 @@ class LiveSession:
         k = int(np.searchsorted(np.asarray(self.step_time), sim_time - 1e-12))
         return self.step_clock[min(k, len(self.step_clock) - 1)]
 
+    def tension(self, log: str = "felt", *, axis: Sequence[float] = (1.0, 0.0, 0.0), smooth_steps: float = 5.0) -> Dict[str, np.ndarray]:
+        """Per hand, the *tension* at the end of every simulation step: the force along ``axis``
+        from the ``"felt"`` log (``force_log``, rendered at 1 kHz) or the ``"tear"`` log
+        (``tear_log``, F_tear), signed so that a hand pulled back toward the cloth reads positive
+        (the right hand, on the +axis side, feels -axis; every other hand feels +axis), after a
+        centred moving average over ``smooth_steps`` median step periods (the rendered force
+        carries 1 kHz texture: the linearisation and the spring between simulation steps)."""
+        logs = {"felt": self.force_log, "tear": self.tear_log}
+        if log not in logs:
+            raise ConfigError(f"log must be 'felt' or 'tear', got {log!r}")
+        sc = np.asarray(self.step_clock)
+        if len(sc) < 2:
+            raise DeviceStateError("fewer than two simulation steps taken: no tension to read")
+        period = float(np.median(np.diff(sc)))
+        a = np.asarray(axis, dtype=float)
+        out = {}
+        for hand in self._hands:
+            t, f = logs[log].along_axis(hand, a)
+            if len(t) == 0:
+                out[hand] = np.full(len(sc), np.nan)
+                continue
+            sign = -1.0 if hand == "right" else 1.0
+            out[hand] = np.interp(sc, t, _moving_average(t, sign * f, smooth_steps * period))
+        return out
+
     def phases(
         self,
         log: str = "felt",
         *,
         axis: Sequence[float] = (1.0, 0.0, 0.0),
-        start_time: Optional[float] = None,
-        peak_steps: Tuple[int, int] = (-10, 40),
-        propagation_steps: Optional[int] = None,
-        smooth_steps: float = 3.0,
-    ) -> Dict[str, dict]:
-        """``force_phases`` of the ``"felt"`` (``force_log``) or ``"tear"`` (``tear_log``) log
-        with its windows counted in simulation steps around the first tear: the peak is looked
-        for from ``peak_steps[0]`` to ``peak_steps[1]`` steps after it, propagation starts
-        ``propagation_steps`` after it (default: the end of the peak window), the elastic phase
-        starts at simulated time ``start_time`` (default: the first sample), and the smoothing
-        spans ``smooth_steps`` median step periods. Raises if nothing has torn yet."""
+        pull_start: float = 0.0,
+        smooth_steps: float = 5.0,
+        peak_steps: Tuple[int, int] = (-10, 150),
+        drop_fraction: float = 0.5,
+        propagation_skip: int = 10,
+        propagation_steps: int = 150,
+    ) -> dict:
+        """The three phases of the paper's Fig. 6 read from ``tension(log, axis, smooth_steps)``,
+        in simulation steps (``k0`` = the step where ``tears_started`` first became non-zero):
+
+        - elastic: from ``pull_start`` (simulated s) to the first tear;
+        - peak: the largest mean tension (mean of the hands) from ``peak_steps[0]`` to
+          ``peak_steps[1]`` steps after ``k0``;
+        - drop: the first step after the peak where the mean tension falls below
+          ``drop_fraction`` of the peak (None if it never does);
+        - propagation: ``propagation_steps`` steps starting ``propagation_skip`` after the drop.
+
+        Returns ``first_tear_step``, ``pull_step``, ``peak_step``, ``drop_step``, ``peak`` (mean
+        of the hands), ``propagation`` (mean of the hands' medians), ``propagation_range``
+        (start, stop) and ``per_hand``: {hand: ``before_pull`` (mean over the 10 steps before the
+        pull), ``elastic`` (mean over steps k0-15..k0-5), ``peak`` (the hand's own largest
+        tension in the peak window), ``propagation`` (median over the propagation phase)}."""
         if self.first_tear_step is None:
             raise DeviceStateError("the cloth has not torn yet: no Fig. 6 phases to read")
-        logs = {"felt": self.force_log, "tear": self.tear_log}
-        if log not in logs:
-            raise ConfigError(f"log must be 'felt' or 'tear', got {log!r}")
-        sc = np.asarray(self.step_clock)
-        k0, last = self.first_tear_step, len(sc) - 1
-        t0 = sc[k0]
-        at = lambda k: float(sc[min(max(k, 0), last)])  # noqa: E731
-        prop_k = k0 + (peak_steps[1] if propagation_steps is None else propagation_steps)
-        period = float(np.median(np.diff(sc))) if len(sc) > 1 else 0.0
-        return force_phases(
-            logs[log],
-            t0,
-            axis=axis,
-            start=None if start_time is None else self.clock_at(start_time),
-            peak_window=(at(k0 + peak_steps[0]) - t0, at(k0 + peak_steps[1]) - t0),
-            propagation_start=at(prop_k),
-            smooth=smooth_steps * period,
-        )
+        ten = self.tension(log, axis=axis, smooth_steps=smooth_steps)
+        n = len(self.step_clock)
+        k0 = self.first_tear_step
+        kpull = int(np.searchsorted(np.asarray(self.step_time), pull_start))
+        mean = np.mean(np.stack(list(ten.values())), axis=0)
+        window = np.arange(max(k0 + peak_steps[0], 0), min(k0 + peak_steps[1], n))
+        kp = int(window[np.argmax(mean[window])])
+        peak = float(mean[kp])
+        below = np.flatnonzero(mean[kp:] < drop_fraction * peak)
+        kd = kp + int(below[0]) if len(below) else None
+        prop = (min(kd + propagation_skip, n), min(kd + propagation_skip + propagation_steps, n)) if kd is not None else (n, n)
+        elastic = slice(max(k0 - 15, kpull, 0), max(k0 - 5, kpull + 1, 1))
+        before = slice(max(kpull - 10, 0), max(kpull, 1))
+        per_hand = {}
+        for hand, x in ten.items():
+            per_hand[hand] = {
+                "before_pull": float(np.mean(x[before])),
+                "elastic": float(np.mean(x[elastic])),
+                "peak": float(np.max(x[window])),
+                "propagation": float(np.median(x[prop[0] : prop[1]])) if prop[1] > prop[0] else float("nan"),
+            }
+        props = [v["propagation"] for v in per_hand.values()]
+        return {
+            "first_tear_step": k0,
+            "pull_step": kpull,
+            "peak_step": kp,
+            "drop_step": kd,
+            "peak": peak,
+            "propagation": float(np.mean(props)),
+            "propagation_range": prop,
+            "mean_tension": mean,
+            "per_hand": per_hand,
+        }
 
     def save_force_log(self, csv_path, png_path=None, axis: Sequence[float] = (1.0, 0.0, 0.0), title: Optional[str] = None) -> Tuple[str, Optional[str]]:
         """Write the rendered force log as CSV (``ForceLog.to_csv``) and, optionally, a plot of
@@ -848,6 +930,7 @@ def emulated_falcon(
     damping: float = 15.0,
     clock: Optional[Callable[[], float]] = None,
     substeps: int = 1,
+    max_force: float = FALCON_MAX_FORCE,
     **emulator_kwargs,
 ) -> Tuple[FalconDevice, FalconEmulator]:
     """A ``FalconDevice`` over a ``FalconEmulator`` with its firmware loaded and homed (the
@@ -866,7 +949,7 @@ def emulated_falcon(
         substeps=substeps,
         **emulator_kwargs,
     )
-    return FalconDevice(transport=emu, hand=hand), emu
+    return FalconDevice(transport=emu, hand=hand, max_force=max_force), emu
 
 
 _SCENARIO_GROUPS = {
@@ -892,6 +975,7 @@ def emulated_session(
     hand_stiffness: float = 1500.0,
     hand_damping: float = 15.0,
     emulator_substeps: int = 1,
+    max_force: float = FALCON_MAX_FORCE,
     scene_radius: float = 0.08,
     force_scale: float = 0.1,
     k_position: float = 2000.0,
@@ -957,6 +1041,7 @@ def emulated_session(
             damping=hand_damping,
             clock=clock,
             substeps=emulator_substeps,
+            max_force=max_force,
         )
         coupling = falcon_coupling(scene_radius, k_position=k_position, k_velocity=k_velocity, force_scale=force_scale, max_force_rate=max_force_rate)
         hands[hand] = (group, dev, coupling)
@@ -975,67 +1060,6 @@ def _moving_average(t: np.ndarray, x: np.ndarray, window: float) -> np.ndarray:
     lo = np.searchsorted(t, t - 0.5 * window, side="left")
     hi = np.searchsorted(t, t + 0.5 * window, side="right")
     return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
-
-
-def force_phases(
-    log: ForceLog,
-    first_tear: float,
-    *,
-    axis: Sequence[float] = (1.0, 0.0, 0.0),
-    start: Optional[float] = None,
-    peak_window: Tuple[float, float] = (-0.05, 0.1),
-    propagation_start: Optional[float] = None,
-    smooth: float = 0.0,
-) -> Dict[str, dict]:
-    """The phases of the paper's Fig. 6 in a force log, per hand, as *tension*: the force along
-    ``axis`` signed so that a hand pulled back toward the cloth reads positive (the right hand,
-    on the +axis side, feels -axis; the left hand, and any other, feels +axis).
-
-    All times are on the log's clock. ``start``: beginning of the elastic phase (default: first
-    sample); ``first_tear``: when ``tears_started`` became non-zero; ``peak_window``: offsets
-    around ``first_tear`` where the peak is looked for; ``propagation_start`` (default: the end
-    of the peak window) to the end of the log is the propagation phase; ``smooth``: width of a
-    centred moving average applied first (the rendered force carries 1 kHz texture).
-
-    Per hand: ``elastic_start`` / ``elastic_end`` (median tension over the first / last 10 % of
-    [start, first_tear]), ``peak`` and ``peak_t`` (largest smoothed tension in the peak window),
-    ``max_before`` / ``max_before_t`` (largest smoothed tension before the propagation phase),
-    ``propagation`` (median tension over the propagation phase) and ``propagation_samples``."""
-    a = np.asarray(axis, dtype=float)
-    a = a / np.linalg.norm(a)
-    p_lo, p_hi = first_tear + peak_window[0], first_tear + peak_window[1]
-    prop_start = p_hi if propagation_start is None else float(propagation_start)
-    out: Dict[str, dict] = {}
-    for hand in log.hands:
-        t, f = log.along_axis(hand, a)
-        if not len(t):
-            continue
-        tension = (-1.0 if hand == "right" else 1.0) * f
-        smoothed = _moving_average(t, tension, smooth)
-        t_start = float(t[0]) if start is None else float(start)
-        span = max(first_tear - t_start, 1e-12)
-        first = (t >= t_start) & (t <= t_start + 0.1 * span)
-        last = (t >= first_tear - 0.1 * span) & (t <= first_tear)
-        near = (t >= p_lo) & (t <= p_hi)
-        before = (t >= t_start) & (t < prop_start)
-        prop = t >= prop_start
-
-        def arg_max(mask):
-            return int(np.argmax(np.where(mask, smoothed, -np.inf)))
-
-        ip, ib = arg_max(near), arg_max(before)
-        nan = float("nan")
-        out[hand] = {
-            "elastic_start": float(np.median(tension[first])) if first.any() else nan,
-            "elastic_end": float(np.median(tension[last])) if last.any() else nan,
-            "peak": float(smoothed[ip]) if near.any() else nan,
-            "peak_t": float(t[ip]) if near.any() else nan,
-            "max_before": float(smoothed[ib]) if before.any() else nan,
-            "max_before_t": float(t[ib]) if before.any() else nan,
-            "propagation": float(np.median(tension[prop])) if prop.any() else nan,
-            "propagation_samples": int(prop.sum()),
-        }
-    return out
 
 
 def measure_live_servo(
