@@ -112,7 +112,7 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
     assert all(got["callable_ops"])
     drawn = got["drawn"]
     assert "progress" not in drawn["TEARCLOTH_PT_main"]  # nothing is baking
-    assert drawn["TEARCLOTH_PT_haptics"] == ["label"]  # a placeholder, no controls
+    assert "operator" in drawn["TEARCLOTH_PT_haptics"]  # Start Haptic Session, Discover, ...
     assert drawn["TEARCLOTH_PT_material"].count("prop") == 9
     assert "template_list" in drawn["TEARCLOTH_PT_pins"] and "template_list" in drawn["TEARCLOTH_PT_collision"]
     assert drawn["menu+button"].count("operator") == 5 + 1  # five presets, the disable button

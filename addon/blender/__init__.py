@@ -7,6 +7,8 @@ What each file owns:
 * ``modifier``  the "Tear Cloth" modifier (a stock Mesh Sequence Cache) and cache paths
 * ``bake``      validation, per-frame inputs on the main thread, ``BakeRun``, ``bake_object``
 * ``bake_job``  the bake itself, bpy-free, run on a worker thread or inline
+* ``haptic_session``  the live haptic session: devices, the live display mesh, stopping on load/quit
+* ``live_job``  what the live session hands over off the main thread (display frames, cache writer)
 * ``ops``       operators (``tearcloth.*``)
 * ``ui``        the Physics panel, lists, menus, the status bar
 * ``report``    messages shown by operators and logged under the "tearcloth" logger
@@ -17,7 +19,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import bake, ops, props, ui
+from . import bake, haptic_session, ops, props, ui
 from .bake import bake_object  # the headless entry point: tearcloth.blender.bake_object
 from .report import BakeError, Reports
 
@@ -29,8 +31,27 @@ _registered = False
 
 @bpy.app.handlers.persistent
 def _stop_bakes_before_load(*_args):
-    """A file load replaces every datablock: stop running bakes first (their frames are kept)."""
+    """A file load replaces every datablock: stop running bakes first (their frames are kept) and
+    every live haptic session (zero force, threads joined, its recording kept)."""
+    haptic_session.stop_all("another file is being opened", restore=False)
     bake.stop_all("another file is being opened")
+
+
+@bpy.app.handlers.persistent
+def _before_save(*_args):
+    """A file saved during a live session holds the user's mesh, not the live one."""
+    haptic_session.swap_all_for_save(True)
+
+
+@bpy.app.handlers.persistent
+def _after_save(*_args):
+    haptic_session.swap_all_for_save(False)
+
+
+# save_post_fail (not in every supported Blender) puts the live mesh back after a failed save too.
+_HANDLERS = tuple((kind, handler) for kind, handler in (
+    ("load_pre", _stop_bakes_before_load), ("save_pre", _before_save), ("save_post", _after_save),
+    ("save_post_fail", _after_save)) if hasattr(bpy.app.handlers, kind))
 
 
 def register() -> None:
@@ -41,8 +62,10 @@ def register() -> None:
         bpy.utils.register_class(cls)
     props.register_properties()
     ui.register_draw_functions()
-    if _stop_bakes_before_load not in bpy.app.handlers.load_pre:
-        bpy.app.handlers.load_pre.append(_stop_bakes_before_load)
+    for kind, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, kind)
+        if handler not in handlers:
+            handlers.append(handler)
     _registered = True
 
 
@@ -50,9 +73,12 @@ def unregister() -> None:
     global _registered
     if not _registered:
         return
+    haptic_session.stop_all("Tear Cloth is being disabled")  # zero force; the user's mesh goes back
     bake.stop_all("Tear Cloth is being disabled")
-    if _stop_bakes_before_load in bpy.app.handlers.load_pre:
-        bpy.app.handlers.load_pre.remove(_stop_bakes_before_load)
+    for kind, handler in _HANDLERS:
+        handlers = getattr(bpy.app.handlers, kind)
+        if handler in handlers:
+            handlers.remove(handler)
     ui.unregister_draw_functions()
     props.unregister_properties()
     for cls in reversed(_classes):

@@ -109,10 +109,16 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
 
 
 def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
-               reports: Reports | None = None) -> tuple[BakePlan, Sources]:
+               reports: Reports | None = None, *, hands: dict | None = None,
+               with_cache: bool = True) -> tuple[BakePlan, Sources]:
     """Check everything a bake of ``obj`` needs and gather it. Every problem goes into
     ``reports`` (and the log); BakeError if any is an error. Changes nothing in the scene (when
-    everything else is right it creates a missing cache folder)."""
+    everything else is right it creates a missing cache folder).
+
+    For a live haptic session: ``hands`` maps each hand to the vertex group it grasps (checked
+    like a handle's; the bake handles on the same groups are left to the hands, the others hold
+    still) and the frame range is not checked; ``with_cache=False`` skips the cache location
+    (nothing is recorded)."""
     reports = reports if reports is not None else Reports()
     if obj is None:
         reports.error("no active object: select the mesh to tear")
@@ -129,7 +135,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     scale = convert.scale_length(scene)
     start = settings.frame_start if frame_start is None else int(frame_start)
     end = settings.frame_end if frame_end is None else int(frame_end)
-    if end <= start:
+    if end <= start and hands is None:
         reports.error(f"{obj.name}: the bake's end frame ({end}) must come after its start frame ({start})")
 
     material = collision = None
@@ -146,30 +152,41 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
 
     # vertex groups: every name must exist on the object (renamed or deleted ones are reported)
     wanted = []
-    roles = [("pins", settings.pin_group)] + [(f"handle {i + 1}", h.vertex_group)
-                                              for i, h in enumerate(settings.handles)]
+    hand_groups = dict(hands or {})
+    # In a live session a hand takes over the bake handle on its group; the other handles hold still.
+    handles = [(i, h) for i, h in enumerate(settings.handles) if h.vertex_group not in hand_groups.values()
+               or not h.vertex_group]
+    roles = [("pins", settings.pin_group)] + [(f"handle {i + 1}", h.vertex_group) for i, h in handles]
+    roles += [(f"the {hand} hand", group) for hand, group in hand_groups.items()]
     roles.append(("weak seams", settings.seam_group))
     for role, name in roles:
         if role.startswith("handle") and not name:
             reports.error(f"{obj.name}: {role} has no vertex group; choose one or remove the handle")
+        elif role.startswith("the ") and not name:
+            reports.error(f"{obj.name}: {role} grasps no vertex group; choose its Handle Group "
+                          "(Physics > Tear Cloth > Haptics)")
         elif name and name not in obj.vertex_groups:
             reports.error(f"{obj.name}: vertex group {name!r} ({role}) does not exist (renamed or deleted?)")
         elif name and name not in wanted:
             wanted.append(name)
     follow = []
-    for i, h in enumerate(settings.handles):
+    for i, h in handles:
         follow.append(h.follow.name if h.follow is not None else None)
+        if hands is not None and h.follow is not None:
+            reports.warning(f"{obj.name}: handle {i + 1} follows {h.follow.name!r}, but the scene's time stands "
+                            "still during a live session: the handle holds still")
 
     reports.raise_if_errors()
 
     # The cache location last: checking it may create the folder, which only a bake should do.
     path = None
-    try:
-        path = modifier.cache_path(obj)
-    except BakeError as exc:
-        reports.error(f"{obj.name}: {exc}")
-    if path is not None:
-        _check_cache_location(obj, path, resume, reports)
+    if with_cache:
+        try:
+            path = modifier.cache_path(obj)
+        except BakeError as exc:
+            reports.error(f"{obj.name}: {exc}")
+        if path is not None:
+            _check_cache_location(obj, path, resume, reports)
     reports.raise_if_errors()
 
     mesh = _input_mesh(context, obj, reports, wanted)
@@ -190,10 +207,14 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         if pinned == 0:
             reports.warning(f"{obj.name}: pin group {settings.pin_group!r} has no vertex with weight 0.5 or more; "
                             "nothing is pinned")
-    for i, h in enumerate(settings.handles):
+    for i, h in handles:
         if not np.any(mesh.groups[h.vertex_group] >= 0.5):
             reports.error(f"{obj.name}: handle {i + 1}: vertex group {h.vertex_group!r} has no vertex with "
                           "weight 0.5 or more, so it grasps nothing")
+    for hand, group in hand_groups.items():
+        if not np.any(mesh.groups[group] >= 0.5):
+            reports.error(f"{obj.name}: the {hand} hand's vertex group {group!r} has no vertex with weight 0.5 or "
+                          "more, so it grasps nothing")
     depsgraph = context.evaluated_depsgraph_get()
     body_triangles = {}
     for other in colliders:
@@ -204,7 +225,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
             reports.warning(f"{obj.name}: collider {other.name!r} has no faces; skipped")
     if collision is not None and not body_triangles and not collision.self_collision:
         collision = None  # nothing left to collide with
-    if not pinned and not len(settings.handles) and not body_triangles:
+    if not pinned and not handles and not hand_groups and not body_triangles:
         reports.warning(f"{obj.name}: no pins, handles or colliders: the cloth falls freely under gravity")
     reports.raise_if_errors()
 
@@ -228,11 +249,12 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         groups=mesh.groups,
         fingerprint=cache.mesh_fingerprint(mesh.vertices * scale, mesh.triangles),
         pin_group=settings.pin_group or None,
-        handle_groups=[h.vertex_group for h in settings.handles],
+        handle_groups=[h.vertex_group for _, h in handles],
         seam_group=settings.seam_group or None,
         seam_factor=float(settings.seam_factor),
         body_triangles=body_triangles,
         resume=bool(resume),
+        hand_groups=hand_groups,
     )
     sources = Sources(obj.name, follow, list(body_triangles))
     return plan, sources
@@ -344,6 +366,9 @@ class BakeRun:
         self.abandoned = False  # stopped by a file load: the data it knew is gone
         if obj is not None and obj.name in running:
             self.reports.error(f"{obj.name}: a bake of this object is already running")
+            self.reports.raise_if_errors()
+        if obj is not None and obj.name in live_sessions():
+            self.reports.error(f"{obj.name}: a live haptic session is running on this object; stop it first (Esc)")
             self.reports.raise_if_errors()
         try:
             # The rest state is the scene at the first frame (object matrix, modifiers above).
@@ -533,6 +558,9 @@ def free_bake(obj, reports: Reports) -> bool:
     if obj.name in running:
         reports.error(f"{obj.name}: cannot free while its bake is running; cancel it first (Esc)")
         return False
+    if obj.name in live_sessions():
+        reports.error(f"{obj.name}: cannot free while a live haptic session runs on it; stop it first (Esc)")
+        return False
     try:
         path = modifier.cache_path(obj)
     except BakeError as exc:
@@ -574,6 +602,13 @@ def stop_all(reason: str) -> None:
             run.job.close()
         except Exception as exc:
             log.error("%s: could not finish the cache: %s", run.object_name, exc)
+
+
+def live_sessions() -> dict:
+    """Live haptic sessions in progress, by object name (they own the object's mesh and cache)."""
+    from . import haptic_session  # imported late: haptic_session builds on this module
+
+    return haptic_session.running
 
 
 def progress_of(object_name: str) -> Progress | None:

@@ -70,6 +70,7 @@ class BakePlan:
     seam_factor: float = 1.0        # tear-strength factor where the seam weight is 1
     body_triangles: dict = field(default_factory=dict)  # collider name -> (k, 3)
     resume: bool = False
+    hand_groups: dict = field(default_factory=dict)     # live session: hand name -> vertex-group name
 
     @property
     def state_path(self) -> str:
@@ -202,36 +203,14 @@ class BakeJob:
         state = self._state
         # A mesh without a UV map gets no UVs in the cache (not a layer of zeros).
         self._has_uv = plan.corner_uv is not None if state is None else state["corner_uv"] is not None
-        if state is None:
-            cloth = Cloth(plan.vertices, plan.triangles, plan.material, uv=plan.corner_uv,
-                          groups=plan.groups or None, gravity=plan.solver["gravity"])
-        else:
-            cloth = Cloth(state["positions"], state["triangles"], plan.material, rest=state["rest"],
-                          uv=state["corner_uv"], groups=dict(zip(state["group_names"], state["groups"].T))
-                          or None, gravity=plan.solver["gravity"])
-            cloth.set_velocities(state["velocities"])
-            self._tears_before = int(state["tears"])
-        cloth.set_solver(**plan.solver)
-        cloth.set_tearing(plan.tearing.get("enabled", True),
-                          **{k: v for k, v in plan.tearing.items() if k != "enabled"})
         if state is not None:
-            cloth.set_tear_strength(state["tear_strength"])
-        elif plan.seam_group:
-            w = cloth.group(plan.seam_group)
-            cloth.set_tear_strength(1.0 - w * (1.0 - plan.seam_factor))
-        if plan.pin_group:
-            cloth.pin(plan.pin_group)
-        session = Session(cloth, plan.collision, start_time=plan.time_of(self.start_frame))
-        self._handles = [cloth.add_handle(group) for group in plan.handle_groups]
+            self._tears_before = int(state["tears"])
+        session, self._handles = make_session(plan, inputs.bodies, plan.time_of(self.start_frame), state)
         self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
-        for h in self._handles:
-            session.set_handle_keyframe(h, np.eye(4), session.time)
-        for name, tris in plan.body_triangles.items():
-            session.add_body(name, inputs.bodies[name], tris)
         self.session = session
         if self.writer.last_frame is None or self.writer.last_frame < self.start_frame:
             self._write(inputs, save_state=state is None)
-        self.progress.vertices = cloth.num_vertices
+        self.progress.vertices = session.cloth.num_vertices
 
     # -- one frame -----------------------------------------------------------------------------
 
@@ -289,6 +268,45 @@ class BakeJob:
             complete = self.done
         if not self.writer.closed:
             self.writer.close(complete=complete)
+
+
+# ---------------------------------------------------------------------------------------------
+# The simulated scene of a plan (shared by the bake and the live haptic session)
+
+
+def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | None = None) -> tuple[Session, list]:
+    """The ``Session`` a plan describes: the cloth (material, UVs, vertex groups, gravity, solver,
+    tearing, weak seams), its pins, its handles held still at their grasp (one per
+    ``plan.handle_groups``, returned in that order) and its colliders (``bodies``: collider name ->
+    world vertices in metres at ``start_time``). ``state``: a saved bake state to continue from.
+
+    The bake and the live haptic session both build their scene here, so a live session tears the
+    same cloth a bake would."""
+    if state is None:
+        cloth = Cloth(plan.vertices, plan.triangles, plan.material, uv=plan.corner_uv,
+                      groups=plan.groups or None, gravity=plan.solver["gravity"])
+    else:
+        cloth = Cloth(state["positions"], state["triangles"], plan.material, rest=state["rest"],
+                      uv=state["corner_uv"], groups=dict(zip(state["group_names"], state["groups"].T))
+                      or None, gravity=plan.solver["gravity"])
+        cloth.set_velocities(state["velocities"])
+    cloth.set_solver(**plan.solver)
+    cloth.set_tearing(plan.tearing.get("enabled", True),
+                      **{k: v for k, v in plan.tearing.items() if k != "enabled"})
+    if state is not None:
+        cloth.set_tear_strength(state["tear_strength"])
+    elif plan.seam_group:
+        w = cloth.group(plan.seam_group)
+        cloth.set_tear_strength(1.0 - w * (1.0 - plan.seam_factor))
+    if plan.pin_group:
+        cloth.pin(plan.pin_group)
+    session = Session(cloth, plan.collision, start_time=start_time)
+    handles = [cloth.add_handle(group) for group in plan.handle_groups]
+    for h in handles:
+        session.set_handle_keyframe(h, np.eye(4), session.time)
+    for name, tris in plan.body_triangles.items():
+        session.add_body(name, bodies[name], tris)
+    return session, handles
 
 
 # ---------------------------------------------------------------------------------------------

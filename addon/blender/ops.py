@@ -1,6 +1,7 @@
 """Tear Cloth operators: enable/disable, bake (modal with a worker thread, or inline from a
-script), bake all, cancel, free, material presets, handle and collider lists, cluster preview and
-Alembic export.
+script), bake all, cancel, free, material presets, handle and collider lists, cluster preview,
+Alembic export, and the live haptic session (start - modal -, stop, device discovery, device
+assignment, force log).
 
 Every operator reports problems with ``self.report`` through a ``Reports`` list, which also logs
 them under the "tearcloth" logger, so a headless run and the UI say the same thing. An operator
@@ -10,14 +11,15 @@ from __future__ import annotations
 
 import colorsys
 import os
+import time
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, EnumProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy.types import Operator
 
 from ..materials import MATERIALS
-from . import bake, convert, modifier
+from . import bake, convert, haptic_session, modifier
 from .report import BakeError, Reports, not_a_mesh
 
 CLUSTER_ATTRIBUTE = "tearcloth_clusters"
@@ -72,6 +74,10 @@ class TEARCLOTH_OT_disable(Operator):
         reports = Reports()
         if obj.name in bake.running:
             reports.error(f"{obj.name}: its bake is running; cancel it first (Esc)")
+            reports.to_operator(self)
+            return {"CANCELLED"}
+        if obj.name in haptic_session.running:
+            reports.error(f"{obj.name}: a haptic session is running on it; stop it first (Esc)")
             reports.to_operator(self)
             return {"CANCELLED"}
         kept = modifier.attached_path(obj)
@@ -494,6 +500,229 @@ class TEARCLOTH_OT_export_alembic(Operator):
         return _finish(self, reports, {"FINISHED"})
 
 
+# ---------------------------------------------------------------------------------------------
+# The live haptic session
+
+
+def _view_rotation(context, event):
+    """The rotation (3x3) of the 3D view under the mouse, or None (no 3D view there)."""
+    window = context.window
+    if window is None:
+        return None
+    for area in window.screen.areas:
+        if area.type != "VIEW_3D":
+            continue
+        if area.x <= event.mouse_x < area.x + area.width and area.y <= event.mouse_y < area.y + area.height:
+            region = area.spaces.active.region_3d
+            return np.array(region.view_rotation.to_matrix()) if region is not None else None
+    return None
+
+
+class TEARCLOTH_OT_haptic_session(Operator):
+    """Tear this cloth live with haptic devices (Esc, the stop button or Stop ends it; the Haptics panel lists the keys of a keyboard hand)"""
+
+    bl_idname = "tearcloth.haptic_session"
+    bl_label = "Start Haptic Session"
+
+    duration: FloatProperty(
+        name="Duration", default=0.0, min=0.0, options={"SKIP_SAVE"},
+        description="From a script or in background mode (no window): run this many seconds, then stop")
+
+    @classmethod
+    def poll(cls, context):
+        return modifier.is_enabled(context.object) and context.object.name not in haptic_session.running
+
+    def _new_run(self, context):
+        reports = Reports()
+        try:
+            run = haptic_session.HapticRun(context, context.object, reports)
+            run.start(context)
+        except BakeError:
+            reports.to_operator(self)
+            return None
+        reports.to_operator(self)
+        run.reports = Reports()  # what was shown is not shown again at the end
+        return run
+
+    def execute(self, context):
+        if self.duration <= 0.0:
+            reports = Reports()
+            reports.error("a live haptic session runs until Esc in a window; from a script or in background mode "
+                          "give duration=seconds")
+            return _finish(self, reports, {"CANCELLED"})
+        run = self._new_run(context)
+        if run is None:
+            return {"CANCELLED"}
+        try:
+            haptic_session.run_for(context, run, self.duration)
+        finally:
+            run.stop(f"{self.duration:g} s are over")
+            state = run.finish(context)
+            run.reports.to_operator(self)
+        return {"FINISHED"} if state != "error" else {"CANCELLED"}
+
+    def invoke(self, context, event):
+        if context.window is None:
+            return self.execute(context)
+        self._run = self._new_run(context)
+        if self._run is None:
+            return {"CANCELLED"}
+        wm = context.window_manager
+        self._timer = wm.event_timer_add(haptic_session.TIMER_INTERVAL, window=context.window)
+        self._last_panel = 0.0
+        wm.modal_handler_add(self)
+        return {"RUNNING_MODAL"}
+
+    def modal(self, context, event):
+        run = self._run
+        if run.finished:  # stopped by a file load, unregister, or a failed start while homing
+            return self._end(context)
+        if event.type == "ESC" and event.value == "PRESS":
+            run.stop("Esc pressed")
+            return self._end(context)
+        if event.type == "TIMER":
+            try:
+                alive = run.tick(context)
+            except Exception as exc:  # never leave devices pushing behind a dead operator
+                run.reports.error(f"{run.object_name}: unexpected error: {exc}; force set to zero")
+                run.stop("unexpected error")
+                return self._end(context)
+            if not alive:
+                return self._end(context)
+            self._redraw(context)
+            return {"PASS_THROUGH"}
+        if event.value == "PRESS" and run.key(event.type, shift=event.shift, alt=event.alt):
+            return {"RUNNING_MODAL"}
+        if event.type == "MOUSEMOVE" and event.ctrl and run.keyboard_hands:
+            run.mouse_move(event.mouse_x - event.mouse_prev_x, event.mouse_y - event.mouse_prev_y,
+                           _view_rotation(context, event), alt=event.alt)
+            return {"RUNNING_MODAL"}
+        # Undo would take the live mesh from under the session, Edit Mode would edit it: blocked.
+        if event.value == "PRESS" and (event.type == "TAB" or (event.type == "Z" and (event.ctrl or event.oskey))):
+            self.report({"WARNING"}, "undo and Edit Mode are blocked while a haptic session runs (Esc ends it)")
+            return {"RUNNING_MODAL"}
+        return {"PASS_THROUGH"}
+
+    def _redraw(self, context):
+        """The viewport every tick; the panel's numbers ten times a second (it is costly to draw)."""
+        now = time.perf_counter()
+        panel = now - self._last_panel >= 0.1
+        if panel:
+            self._last_panel = now
+        for window in context.window_manager.windows:
+            for area in window.screen.areas:
+                if area.type == "VIEW_3D" or (panel and area.type == "PROPERTIES"):
+                    area.tag_redraw()
+
+    def _end(self, context):
+        run = self._run
+        try:
+            run.finish(context)
+        except Exception as exc:  # the timer must go whatever happens
+            run.reports.error(f"{run.object_name}: could not restore the object after the session: {exc}")
+        run.reports.to_operator(self)
+        context.window_manager.event_timer_remove(self._timer)
+        _redraw(context)
+        return {"FINISHED"}
+
+    def cancel(self, context):
+        """Blender ends the operator (file load, window closed): zero force, restore."""
+        self._run.stop("Blender ended the session")
+        self._run.finish(context)
+        context.window_manager.event_timer_remove(self._timer)
+
+
+class TEARCLOTH_OT_haptic_stop(Operator):
+    """End the running haptic session with zero force on every device"""
+
+    bl_idname = "tearcloth.haptic_stop"
+    bl_label = "Stop Haptic Session"
+
+    @classmethod
+    def poll(cls, context):
+        return bool(haptic_session.running)
+
+    def execute(self, context):
+        obj = context.object
+        runs = [haptic_session.running[obj.name]] if obj is not None and obj.name in haptic_session.running \
+            else list(haptic_session.running.values())
+        for run in runs:
+            run.request_stop("Stop pressed")  # the session's next tick ends it and restores the mesh
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_haptic_discover(Operator):
+    """Look for Novint Falcons (USB serial numbers) and SpaceMice, and check the state of each hand's device"""
+
+    bl_idname = "tearcloth.haptic_discover"
+    bl_label = "Discover Devices"
+
+    def execute(self, context):
+        reports = Reports()
+        obj = _active_mesh(context)
+        found = haptic_session.discover(obj)
+        falcons = ", ".join(found.falcons) or "none"
+        mice = ", ".join(m["model"] for m in found.spacemice) or "none"
+        reports.info(f"Falcons: {falcons}; SpaceMice: {mice}")
+        _redraw(context)
+        return _finish(self, reports, {"FINISHED"})
+
+
+_HAND_ITEMS = [("LEFT", "Left", "The left hand"), ("RIGHT", "Right", "The right hand")]
+
+
+class TEARCLOTH_OT_haptic_assign_device(Operator):
+    """Use this device for a hand"""
+
+    bl_idname = "tearcloth.haptic_assign_device"
+    bl_label = "Assign Device"
+    bl_options = {"REGISTER", "UNDO", "INTERNAL"}
+
+    hand: EnumProperty(name="Hand", items=_HAND_ITEMS)
+    kind: EnumProperty(name="Kind", items=[("FALCON", "Falcon", ""), ("SPACEMOUSE", "SpaceMouse", "")])
+    identifier: StringProperty(name="Identifier", description="Falcon serial number or SpaceMouse HID path")
+
+    @classmethod
+    def poll(cls, context):
+        return modifier.is_enabled(context.object) and context.object.name not in haptic_session.running
+
+    def execute(self, context):
+        hand = getattr(context.object.tearcloth.haptics, self.hand.lower())
+        hand.device = self.kind
+        hand.use = True
+        if self.kind == "FALCON":
+            hand.falcon_serial = self.identifier
+        else:
+            hand.spacemouse_path = self.identifier
+        return {"FINISHED"}
+
+
+class TEARCLOTH_OT_haptic_save_force_log(Operator):
+    """Write the last haptic session's force log (CSV) and a plot of the force each hand felt (PNG, like Fig. 6 of the paper)"""
+
+    bl_idname = "tearcloth.haptic_save_force_log"
+    bl_label = "Save Force Log"
+
+    directory: StringProperty(name="Folder", subtype="DIR_PATH", options={"SKIP_SAVE"},
+                              description="Where to write (empty: the Force Log Folder setting)")
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and context.object.name in haptic_session.finished
+
+    def execute(self, context):
+        reports = Reports()
+        obj = context.object
+        run = haptic_session.finished.get(obj.name) if obj is not None else None
+        if run is None:
+            reports.error("no haptic session has ended on this object yet")
+            return _finish(self, reports, {"CANCELLED"})
+        folder = haptic_session.folder_path(self.directory or obj.tearcloth.haptics.force_log_folder, reports)
+        if folder is None or run.save_force_log(folder, reports) is None:
+            return _finish(self, reports, {"CANCELLED"})
+        return _finish(self, reports, {"FINISHED"})
+
+
 classes = (
     TEARCLOTH_OT_enable,
     TEARCLOTH_OT_disable,
@@ -508,4 +737,9 @@ classes = (
     TEARCLOTH_OT_collider_remove,
     TEARCLOTH_OT_preview_clusters,
     TEARCLOTH_OT_export_alembic,
+    TEARCLOTH_OT_haptic_session,
+    TEARCLOTH_OT_haptic_stop,
+    TEARCLOTH_OT_haptic_discover,
+    TEARCLOTH_OT_haptic_assign_device,
+    TEARCLOTH_OT_haptic_save_force_log,
 )

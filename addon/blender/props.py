@@ -4,6 +4,11 @@ This file owns the property groups and their defaults. Lengths are FloatProperti
 ``unit='LENGTH'`` (stored in Blender units, shown in the scene's units); ``convert.py`` turns them
 into metres. Quantities Blender has no unit for (pascals, kg/m^3, N m, 1/s) are stored in SI.
 Defaults are the "cotton" preset of ``materials.MATERIALS`` and the solver's own defaults.
+
+``Object.tearcloth.haptics`` (``TearClothHapticSettings``) holds the live haptic session: one
+``TearClothHapticHand`` per hand (device, grasped vertex group, workspace mapping, coupling), the
+Falcon firmware path, recording and the stop button. Coupling values are SI (N/m, N s/m, N, a
+force ratio); the region radius and the manual offset are lengths in scene units.
 """
 from __future__ import annotations
 
@@ -13,6 +18,7 @@ from bpy.props import (
     CollectionProperty,
     EnumProperty,
     FloatProperty,
+    FloatVectorProperty,
     IntProperty,
     PointerProperty,
     StringProperty,
@@ -62,6 +68,113 @@ class TearClothCollider(PropertyGroup):
         description="Object the cloth collides with, read with its modifiers and armature every frame",
         poll=_collider_poll,
     )
+
+
+# -- haptics ---------------------------------------------------------------------------------------
+
+HAPTIC_DEVICES = [
+    ("FALCON", "Novint Falcon", "A Novint Falcon (by USB serial number; empty: any free one), with force feedback"),
+    ("SPACEMOUSE", "SpaceMouse", "A 3Dconnexion SpaceMouse read through hidapi (input only, no force)"),
+    ("KEYBOARD", "Keyboard / Mouse", "A virtual device moved with the arrow keys, Page Up/Down and Ctrl + mouse "
+     "while the session runs (computes the force a Falcon would render)"),
+    ("EMULATED", "Emulated Falcon (Demo)", "A Falcon emulator whose scripted hand pulls the grip away from the "
+     "other hand: a demo without hardware"),
+]
+
+# (identifier, Falcon grip button bitmask): bit 0 plus, 1 forward, 2 centre, 3 minus. A SpaceMouse
+# reports its left button as bit 0 and its right button as bit 1.
+STOP_BUTTONS = {"NONE": 0, "CENTER": 0x4, "PLUS": 0x1, "FORWARD": 0x2, "MINUS": 0x8}
+
+
+class TearClothHapticHand(PropertyGroup):
+    """One hand of the live session: which device, what it grasps, how its motion and force map."""
+
+    use: BoolProperty(name="Use", default=True, description="Grasp the cloth with this hand")
+    device: EnumProperty(name="Device", items=HAPTIC_DEVICES, default="EMULATED",
+                         description="What drives this hand")
+    falcon_serial: StringProperty(
+        name="Serial", description="USB serial number of the Falcon for this hand (Discover lists them); "
+        "empty: any Falcon the other hand does not use")
+    spacemouse_path: StringProperty(
+        name="HID Path", description="hidapi path of the SpaceMouse for this hand (Discover lists them); empty: the "
+        "first one found")
+    vertex_group: StringProperty(name="Handle Group",
+                                 description="Vertices this hand grasps (weight 0.5 or more)")
+    mapping: EnumProperty(
+        name="Workspace",
+        items=[
+            ("FIT", "Fit to Region", "The device's workspace ball maps onto a ball of the given radius around the "
+             "grasped vertices; the grasp starts where the hand is"),
+            ("MANUAL", "Scale and Offset", "Scene position = offset + scale x device position; the handle glides to "
+             "the proxy when the session starts"),
+        ],
+        default="FIT", description="How device motion maps to the scene")
+    region_radius: FloatProperty(
+        name="Region Radius", default=0.08, min=1.0e-4, soft_max=2.0, unit="LENGTH", subtype="DISTANCE",
+        description="Radius of the scene region the device's workspace covers")
+    scale: FloatProperty(name="Scale", default=2.0, min=1.0e-3, soft_max=100.0,
+                         description="Scene metres per metre of device motion")
+    offset: FloatVectorProperty(name="Offset", size=3, default=(0.0, 0.0, 0.0), unit="LENGTH",
+                                subtype="TRANSLATION",
+                                description="Where the device's origin lies in the scene (world space)")
+    k_position: FloatProperty(
+        name="Stiffness", default=2000.0, min=0.0, soft_max=20000.0, precision=0,
+        description="k_position of the proxy spring between the hand and the handle, in N/m (scene side)")
+    k_velocity: FloatProperty(
+        name="Damping", default=20.0, min=0.0, soft_max=200.0, precision=2,
+        description="k_velocity: damping of the hand's velocity, in N s/m (scene side)")
+    force_scale: FloatProperty(
+        name="Force Scale", default=0.1, min=1.0e-4, soft_max=10.0, precision=3,
+        description="Device force per newton of scene force (a tear of a few tens of N fits a Falcon's 8 N at 0.1)")
+    max_force: FloatProperty(name="Max Force", default=8.0, min=0.0, soft_max=8.0, precision=2,
+                             description="Largest force sent to the device, in N (a Falcon renders at most 8 N)")
+
+
+class TearClothHapticSettings(PropertyGroup):
+    """``Object.tearcloth.haptics``: the live haptic tearing session of this object."""
+
+    left: PointerProperty(type=TearClothHapticHand, name="Left Hand")
+    right: PointerProperty(type=TearClothHapticHand, name="Right Hand")
+    firmware_path: StringProperty(
+        name="Falcon Firmware", subtype="FILE_PATH",
+        description="nvent_firmware.bin from your Novint driver or SDK: a Falcon needs it after every power-up and "
+                    "Tear Cloth cannot ship it. Empty: the Falcons must have firmware loaded already")
+    record: BoolProperty(
+        name="Record to Cache", default=False,
+        description="Write the session into this object's cache (as a bake does), from the Start frame on at the "
+                    "scene's frame rate, so it can be played back and rendered through the Tear Cloth modifier")
+    stop_button: EnumProperty(
+        name="Stop Button",
+        items=[
+            ("NONE", "None", "Only Esc (or Stop) ends the session"),
+            ("CENTER", "Centre", "The Falcon's centre grip button"),
+            ("PLUS", "Plus / Button 1", "The Falcon's plus button, a SpaceMouse's left button"),
+            ("FORWARD", "Forward / Button 2", "The Falcon's forward button, a SpaceMouse's right button"),
+            ("MINUS", "Minus", "The Falcon's minus button"),
+        ],
+        default="CENTER", description="A grip button that ends the session (it must be seen released once first)")
+    time_step: FloatProperty(
+        name="Time Step", default=1.0e-3, min=1.0e-5, max=0.05, precision=5, step=0.01,
+        description="Simulated seconds per step of the live session (the simulation runs as fast as it can)")
+    keyboard_step: FloatProperty(
+        name="Key Step", default=0.002, min=1.0e-5, soft_max=0.02, precision=4,
+        description="Keyboard device: metres of device motion per arrow-key press (Shift: five times more)")
+    demo_pull: FloatProperty(
+        name="Demo Pull", default=0.02, min=0.0, max=0.04, precision=3,
+        description="Emulated Falcon: how far (device metres) its scripted hand pulls the grip")
+    demo_hold: FloatProperty(name="Demo Hold", default=0.3, min=0.0, soft_max=10.0, precision=2,
+                             description="Emulated Falcon: seconds its hand holds still before pulling")
+    demo_pull_time: FloatProperty(name="Demo Pull Time", default=2.0, min=0.01, soft_max=60.0, precision=2,
+                                  description="Emulated Falcon: seconds the pull takes")
+    demo_pace: EnumProperty(
+        name="Demo Pace",
+        items=[("SIMULATION", "Simulated Time", "The scripted hands follow the simulated time (the same pull on any "
+                "machine)"),
+               ("WALL", "Real Time", "The scripted hands move in real time, like a user")],
+        default="SIMULATION", description="Which clock the emulated Falcons' scripted hands follow")
+    force_log_folder: StringProperty(
+        name="Force Log Folder", default="//", subtype="DIR_PATH",
+        description="Where Save Force Log writes the CSV and the plot ('//' = next to the .blend file)")
 
 
 class TearClothObjectSettings(PropertyGroup):
@@ -206,6 +319,9 @@ class TearClothObjectSettings(PropertyGroup):
     frame_end: IntProperty(name="End", default=250, min=-1048574, max=1048574,
                            description="Last frame of the bake")
 
+    # -- haptics -------------------------------------------------------------------------------
+    haptics: PointerProperty(type=TearClothHapticSettings, name="Haptics")
+
 
 class TearClothSceneSettings(PropertyGroup):
     """``Scene.tearcloth``: settings that concern every Tear Cloth object of the scene."""
@@ -216,7 +332,8 @@ class TearClothSceneSettings(PropertyGroup):
     )
 
 
-classes = (TearClothHandle, TearClothCollider, TearClothObjectSettings, TearClothSceneSettings)
+classes = (TearClothHandle, TearClothCollider, TearClothHapticHand, TearClothHapticSettings,
+           TearClothObjectSettings, TearClothSceneSettings)
 
 
 def register_properties() -> None:

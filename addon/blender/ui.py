@@ -4,7 +4,8 @@ and bake progress in the status bar.
 
 This file owns drawing only: it reads settings and bake progress and never changes data (Blender
 forbids writes while drawing). Bake state comes from ``bake.running`` and the cache root's
-metadata, read at most once per file change.
+metadata, read at most once per file change; the Haptics panel reads the live session's status
+(``haptic_session.running``/``finished``, refreshed by the session's tick) and what Discover found.
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from bpy.types import Menu, Panel, UIList
 
 from .. import cache
 from ..materials import MATERIALS
-from . import bake, modifier
+from . import bake, haptic_session, modifier
 
 
 def _cache_state(obj):
@@ -263,14 +264,115 @@ class TEARCLOTH_PT_cache(TearClothPanel, Panel):
         layout.prop(context.scene.tearcloth, "alembic_path", text="")
 
 
+_STATE_ICONS = {"absent": "UNLINKED", "needs_firmware": "ERROR", "homing": "TIME", "ready": "CHECKMARK",
+                "lost": "CANCEL", "closed": "CHECKMARK", "unknown": "QUESTION"}
+
+
+def _draw_discovered(layout, obj):
+    """What Discover found, each device with buttons that give it to a hand."""
+    found = haptic_session.discovery
+    if found is None:
+        return
+    box = layout.box()
+    if not found.falcons and not found.spacemice:
+        box.label(text="No Falcon or SpaceMouse found", icon="INFO")
+        return
+    for kind, label, items in (("FALCON", "Falcon", [(s, s) for s in found.falcons]),
+                               ("SPACEMOUSE", "SpaceMouse",
+                                [(haptic_session.hid_path_text(m["path"]), m["model"]) for m in found.spacemice])):
+        for identifier, name in items:
+            row = box.row(align=True)
+            row.label(text=f"{label} {name}")
+            for hand in ("LEFT", "RIGHT"):
+                op = row.operator("tearcloth.haptic_assign_device", text=hand.title())
+                op.hand, op.kind, op.identifier = hand, kind, identifier
+
+
+def _draw_hand(layout, obj, hand, run):
+    settings = getattr(obj.tearcloth.haptics, hand)
+    status = haptic_session.hand_status(obj, hand)
+    box = layout.box()
+    row = box.row()
+    row.prop(settings, "use", text=f"{hand.title()} Hand")
+    if settings.use:
+        row.label(text=haptic_session.STATE_TEXT.get(status.state, status.state),
+                  icon=_STATE_ICONS.get(status.state, "QUESTION"))
+    if not settings.use:
+        return
+    if status.message:
+        box.label(text=status.message)
+    if run is not None and hand in run.status.hands:
+        box.label(text=f"Force {status.force:.2f} N felt, {status.cloth_force:.1f} N from the cloth",
+                  icon="FORCE_FORCE")
+    col = box.column()
+    col.use_property_split = True
+    col.active = run is None
+    col.prop(settings, "device")
+    if settings.device == "FALCON":
+        col.prop(settings, "falcon_serial")
+    elif settings.device == "SPACEMOUSE":
+        col.prop(settings, "spacemouse_path")
+    col.prop_search(settings, "vertex_group", obj, "vertex_groups", text="Handle Group")
+    col.prop(settings, "mapping")
+    if settings.mapping == "FIT":
+        col.prop(settings, "region_radius")
+    else:
+        col.prop(settings, "scale")
+        col.prop(settings, "offset")
+    sub = col.column(align=True)
+    sub.prop(settings, "k_position")
+    sub.prop(settings, "k_velocity")
+    sub = col.column(align=True)
+    sub.prop(settings, "force_scale")
+    sub.prop(settings, "max_force")
+
+
 class TEARCLOTH_PT_haptics(TearClothPanel, Panel):
     bl_label = "Haptics"
     bl_parent_id = "TEARCLOTH_PT_main"
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        # Filled by the haptics issue (device, coupling, live session); nothing to set yet.
-        self.layout.label(text="Haptic devices are not supported in this version yet", icon="INFO")
+        layout = self.layout
+        obj = context.object
+        settings = obj.tearcloth.haptics
+        run = haptic_session.running.get(obj.name)
+        if run is not None:
+            status = run.status
+            layout.label(text=status.text(), icon="TIME" if status.phase == "homing" else "PLAY")
+            if status.phase == "running":
+                layout.label(text=status.rates())
+            layout.operator("tearcloth.haptic_stop", icon="CANCEL", text="Stop")
+        else:
+            row = layout.row(align=True)
+            row.operator("tearcloth.haptic_session", icon="PLAY", text="Start")
+            row.operator("tearcloth.haptic_discover", icon="VIEWZOOM", text="Discover")
+            _draw_discovered(layout, obj)
+        for hand in ("left", "right"):
+            _draw_hand(layout, obj, hand, run)
+        used = [getattr(settings, h) for h in ("left", "right") if getattr(settings, h).use]
+        col = layout.column()
+        col.use_property_split = True
+        col.active = run is None
+        if any(h.device == "FALCON" for h in used):
+            col.prop(settings, "firmware_path")
+        col.prop(settings, "stop_button")
+        col.prop(settings, "time_step")
+        col.prop(settings, "record")
+        if any(h.device == "EMULATED" for h in used):
+            sub = col.column(align=True)
+            sub.prop(settings, "demo_pull")
+            sub.prop(settings, "demo_hold")
+            sub.prop(settings, "demo_pull_time")
+            sub.prop(settings, "demo_pace")
+        if any(h.device == "KEYBOARD" for h in used):
+            col.prop(settings, "keyboard_step")
+            help_col = layout.column(align=True)
+            for line in haptic_session.KEYBOARD_HELP:
+                help_col.label(text=line)
+        row = layout.row(align=True)
+        row.prop(settings, "force_log_folder", text="")
+        row.operator("tearcloth.haptic_save_force_log", icon="GRAPH", text="Save Force Log")
 
 
 def draw_physics_button(self, context):
