@@ -4,6 +4,7 @@ import os
 import sys
 
 from setuptools import Extension, setup
+from setuptools.command.build_py import build_py
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -19,8 +20,27 @@ def _packages():
     return sorted(found)
 
 
+class BuildPyWithExamples(build_py):
+    """Ships example_blends/square_cloth.blend as tearcloth/data/ (one copy in the repo), so the
+    installed `tearcloth demo` finds the scene it bakes."""
+
+    def run(self):
+        super().run()
+        src = os.path.join(HERE, "example_blends", "square_cloth.blend")
+        if os.path.exists(src):  # absent in tools/build_extension.py's copy: Blender needs no demo
+            target = os.path.join(self.build_lib, "tearcloth", "data")
+            self.mkpath(target)
+            self.copy_file(src, target)
+
+
 NATIVE_SOURCES = sorted(
     os.path.join("native", f) for f in os.listdir(os.path.join(HERE, "native")) if f.endswith(".c")
+)
+# The collision kernels (clustered ray-traced detection): a second abi3 module, same flags.
+COLLIDE_SOURCES = sorted(
+    os.path.join("native", "collide", f)
+    for f in os.listdir(os.path.join(HERE, "native", "collide"))
+    if f.endswith(".c")
 )
 
 if sys.platform == "win32":
@@ -41,7 +61,16 @@ setup(
             define_macros=[("Py_LIMITED_API", "0x030B0000")],
             py_limited_api=True,
             extra_compile_args=compile_args,
-        )
+        ),
+        Extension(
+            "tearcloth._collide",
+            sources=COLLIDE_SOURCES,
+            include_dirs=[os.path.join("native", "collide")],
+            define_macros=[("Py_LIMITED_API", "0x030B0000")],
+            py_limited_api=True,
+            extra_compile_args=compile_args,
+        ),
     ],
     options={"bdist_wheel": {"py_limited_api": "cp311"}},
+    cmdclass={"build_py": BuildPyWithExamples},
 )

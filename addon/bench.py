@@ -366,7 +366,7 @@ def collision_figures(steps: int = 120, dt: float = DT) -> dict:
     frames_moving = lambda k: (scenes.body_pose(body, t0 + k * dt), pose(t0 + k * dt))  # noqa: E731
     for name, fn in (("immobile", frames_immobile), ("moving", frames_moving)):
         r = collision_experiment(shirt.vertices, shirt.triangles, fn, steps, body_triangles=body.triangles,
-                                 thickness=0.004, displacement_threshold=0.005)
+                                 thickness=0.004, displacement_threshold=0.003)
         out[name] = {k: r[k] for k in ("full_ms", "absolute_ms", "relative_ms")}
         out[name]["full_share"] = r["full_share"]
         out[name]["absolute_full_share"] = r.get("absolute_share", r.get("absolute_full_share"))

@@ -6,6 +6,12 @@ import sys
 
 
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv[:1] == ["bake"]:
+        # bake_cli parses its own arguments, so every bad input ends in one line and exit 2
+        from .bake_cli import main as bake
+
+        return bake(argv[1:])
     p = argparse.ArgumentParser(prog="tearcloth", description="Tear Cloth: tearing cloth for Blender and haptics")
     sub = p.add_subparsers(dest="command", required=True)
     b = sub.add_parser("bench", help="measure step times (medians) and write JSON")
@@ -21,7 +27,9 @@ def main(argv=None) -> int:
     k.add_argument("--out", default="clusters.png", help="PNG path (default clusters.png)")
     k.add_argument("--scenario", default="tshirt", choices=("cloth", "banknote", "tshirt"))
     k.add_argument("--cluster-size", type=int, default=100, help="vertices per cluster (default 100)")
-    d = sub.add_parser("demo", help="tear the square cloth with two handles; write pictures")
+    sub.add_parser("bake", add_help=False,
+                   help="bake the Tear Cloth objects of a .blend headless (see: tearcloth bake --help)")
+    d = sub.add_parser("demo", help="bake the square cloth example (Fig. 1), render it, plot the hand forces")
     d.add_argument("--out", default="tearcloth_demo", help="output folder (default ./tearcloth_demo)")
     args = p.parse_args(argv)
     try:
@@ -40,7 +48,7 @@ def main(argv=None) -> int:
                 p.error("--cluster-size must be at least 4")
             print(f"wrote {cluster_picture(args.out, args.scenario, args.cluster_size)}")
         elif args.command == "demo":
-            from .demo import run as demo
+            from .bake_cli import demo
 
             demo(args.out)
     except (ValueError, OSError) as e:

@@ -1,6 +1,6 @@
-"""`tearcloth demo`: the paper's Fig. 1 - a square cloth held at its top corners by two hands that
-pull apart until it tears - simulated end to end, with a picture of the torn cloth and the force
-both hands feel (the paper's Fig. 6) written to a folder."""
+"""The paper's Fig. 1 - a square cloth held at its top corners by two hands that pull apart until
+it tears. `tearcloth demo` (``run``) bakes the Blender example through ``bake_cli.demo``;
+``simulate``/``run_without_blender`` do the same with the Python API alone (tests, no bpy)."""
 from __future__ import annotations
 
 import time
@@ -64,7 +64,15 @@ def render(c: Cloth, path: Path, title: str) -> None:
     plt.close(fig)
 
 
-def run(out_dir: str = "tearcloth_demo") -> dict:
+def run(out_dir: str = "tearcloth_demo"):
+    """The demo as the README runs it: bake example_blends/square_cloth.blend in Blender (bpy)."""
+    from .bake_cli import demo
+
+    return demo(out_dir)
+
+
+def run_without_blender(out_dir: str = "tearcloth_demo") -> dict:
+    """The same tear simulated with the Python API alone (no bpy), pictures from matplotlib."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

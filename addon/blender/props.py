@@ -25,6 +25,10 @@ from bpy.props import (
 )
 from bpy.types import PropertyGroup
 
+# Blender 5.0 warns when a script sets a '//' path on a property that does not declare it may be
+# relative to the .blend; older ones do not know the option.
+_BLEND_RELATIVE = {"options": {"PATH_SUPPORTS_BLEND_RELATIVE"}} if bpy.app.version >= (5, 0, 0) else {}
+
 from ..materials import MATERIALS
 from ..session import CollisionSettings
 from .modifier import DEFAULT_CACHE_FOLDER
@@ -313,6 +317,7 @@ class TearClothObjectSettings(PropertyGroup):
     cache_folder: StringProperty(
         name="Folder", default=DEFAULT_CACHE_FOLDER, subtype="DIR_PATH",
         description="Where the bake goes ('//' = next to the .blend file); one USD file per object",
+        **_BLEND_RELATIVE,
     )
     frame_start: IntProperty(name="Start", default=1, min=-1048574, max=1048574,
                              description="First frame of the bake (the rest state)")
