@@ -1,14 +1,21 @@
 """Clustered ray-traced collision detection of cloth (issue 4; paper section IV).
 
-Pure Python + numpy + embreex. What each file owns:
+Python orchestrates; every loop over vertices, rays, triangles or cluster pairs runs in C
+(``tearcloth._collide``, sources ``native/collide/``); Embree (embreex) casts the rays of full
+detection. What each file owns:
 
 * ``clusters``    geodesic k-means decomposition of a mesh, its local update after a tear
 * ``measure``     per-cluster displacement, cluster AABBs, close pairs, relative / absolute measure
 * ``narrow``      Embree scenes per cluster (rigid-frame cache), contact classification, ``Contacts``
 * ``incremental`` exact line/triangle tests and the walk over triangle adjacency
 * ``detector``    ``CollisionDetector``: the per-step orchestration and the brute-force reference
+* ``kernels``     the calls into the C kernels (outputs, growing workspaces)
+* ``reference``   numpy specifications of the contact kernels (tests compare C against them)
 * ``bench``       ``collision_experiment``: full / absolute / relative timings of a scene
 * ``preview``     PNG of a cluster decomposition (matplotlib, Agg)
+
+The numpy functions of ``measure``, ``incremental`` and ``narrow`` are the specification of the
+kernel that does their job in the detector; they stay public and tested.
 """
 from .clusters import Clustering, cluster_mesh
 from .detector import CollisionDetector

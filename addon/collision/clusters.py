@@ -367,9 +367,11 @@ class Clustering:
         self.n_clusters = int(self.labels.max()) + 1 if self.labels.size else 0
         self.tri_labels = self.labels[tri[:, 0]] if tri.size else np.zeros(0, np.int64)
         # Members sorted by cluster, for np.add.reduceat over displacements.
-        self.order = np.argsort(self.labels, kind="stable")
+        self.order = np.argsort(self.labels, kind="stable").astype(np.int64)
         self.sizes = np.bincount(self.labels, minlength=self.n_clusters)
         self.starts = np.concatenate([[0], np.cumsum(self.sizes)[:-1]]).astype(np.int64)
+        # The same as bounds (K + 1): cluster c's members are order[ptr[c]:ptr[c + 1]] (the C kernels).
+        self.ptr = np.concatenate([[0], np.cumsum(self.sizes)]).astype(np.int64)
         # AABB members: a cluster's own vertices plus every vertex of its triangles, so the box
         # bounds the cluster's geometry as a ray target too.
         lab = np.concatenate([self.labels, np.repeat(self.tri_labels, 3)])
@@ -378,11 +380,12 @@ class Clustering:
         lab, idx = lab[o], idx[o]
         keep = np.ones(idx.size, bool)
         keep[1:] = (lab[1:] != lab[:-1]) | (idx[1:] != idx[:-1])
-        self.box_index = idx[keep]
+        self.box_index = np.ascontiguousarray(idx[keep], np.int64)
         box_sizes = np.bincount(lab[keep], minlength=self.n_clusters)
         self.box_starts = np.concatenate([[0], np.cumsum(box_sizes)[:-1]]).astype(np.int64)
+        self.box_ptr = np.concatenate([[0], np.cumsum(box_sizes)]).astype(np.int64)
         # Triangles per cluster, for the per-cluster scenes.
-        self.tri_order = np.argsort(self.tri_labels, kind="stable")
+        self.tri_order = np.argsort(self.tri_labels, kind="stable").astype(np.int64)
         tri_sizes = np.bincount(self.tri_labels, minlength=self.n_clusters)
         self.tri_starts = np.concatenate([[0], np.cumsum(tri_sizes)]).astype(np.int64)
 

@@ -1,7 +1,8 @@
 """CollisionDetector: the per-step orchestration of clustered, ray-traced collision detection.
 
 This file owns the state that lives between steps (previous positions, clusters, per-pair
-measures, per-ray tracks) and the order of one step:
+measures, per-ray tracks) and the order of one step; every loop over vertices, rays or pairs runs
+in C (``kernels.py`` -> ``tearcloth._collide``), so a step is a few dozen calls whatever the mesh:
 
 1. measure  – per-cluster displacement since the previous ``detect``; inflated cluster AABBs;
               close pairs (cloth-cloth for self-collision, cloth-body); the displacement measure
@@ -10,10 +11,12 @@ measures, per-ray tracks) and the order of one step:
               current geometry (``incremental.py``). A lost walk sends its pair to full
               detection in this same step (not the next one: the step's contact set would
               otherwise miss that vertex once).
-3. full     – for the marked pairs, the cloth cluster's rays are cast into the collider
-              cluster's cached Embree scene and refined exactly (``narrow.py``).
+3. full     – for the marked pairs, grouped by collider cluster: the rays of every cloth cluster
+              paired with that collider cluster, culled against its box, go in one Embree call
+              into its cached scene (``narrow.py``), and are refined exactly on the current
+              geometry.
 4. contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
-              contact per vertex is returned.
+              contact per vertex is returned (``all_contacts``: one per vertex per collider).
 
 Tracks: per collider, per cloth vertex, two ray slots (+n, -n) hold the triangle last hit, the
 remembered side (thin surfaces) and, for closed bodies, whether the vertex was inside. A full
@@ -22,6 +25,16 @@ detection records every hit within ``track_range = thickness + 1.5 * displacemen
 between two full detections of a pair the relative motion stays under the threshold, so a
 vertex that was not tracked cannot reach the contact distance (the 1.5 covers the measure
 being a mean + standard deviation, not a maximum).
+
+Ray length: for the same reason a full detection's rays need only reach ``track_range`` (plus
+the scene tolerance), and that is all they do for thin surfaces and the cloth itself. A closed
+body's rays reach across it: a body face that sweeps sideways over a vertex (parallel to its
+normal rays) puts it inside with its exits along the normal far away, and only a long ray finds
+them. What keeps that affordable: rays are culled against the collider cluster's box (a few dozen
+per pair survive), and a far back face proves "inside" only when no nearer hit of the same ray
+disproves it and, failing that, when an exact test (C, on the current geometry) finds nothing in
+front of it - the former Embree-based confirmation queried, and so refitted or rebuilt, far
+clusters' scenes in most steps.
 
 Bodies must be closed (watertight, consistently oriented): then "inside" is well defined. An
 open body triggers a ``warnings.warn`` and is handled as a two-sided thin surface with inversion
@@ -37,25 +50,22 @@ import warnings
 
 import numpy as np
 
+from .. import _collide
+from . import kernels
 from .clusters import Clustering
-from .incremental import triangle_adjacency, walk
+from .incremental import triangle_adjacency
 from .measure import (
     MEASURES,
     AbsoluteMeasure,
     RelativeMeasure,
-    box_pairs,
-    cluster_boxes,
-    cluster_motion,
 )
 from .narrow import (
     RAY_BACKOFF,
     ClusterScenes,
     Contacts,
-    VertexNormals,
     build_scene,
     cast,
     face_normals,
-    initial_side,
     ring_table,
     vertex_normals,
 )
@@ -104,29 +114,50 @@ def signed_volume(vertices, triangles):
 
 
 class _Tracks:
-    """Per collider, per cloth vertex and ray slot: the triangle hit, remembered side, inside."""
+    """Per collider, the tracked rays, sparse (most vertices track nothing): ``key`` (k,) sorted,
+    2 * vertex + slot; ``tri`` (k,) the triangle last hit; ``side`` (k,) int8 the remembered side
+    (thin surfaces); ``inside`` (j,) sorted vertices that were inside a closed body."""
 
     def __init__(self, n):
-        self.tri = np.full((n, 2), -1, np.int64)
-        self.side = np.zeros((n, 2), np.int8)
-        self.inside = np.zeros(n, bool)
+        self.n = int(n)
+        self.key = np.zeros(0, np.int64)
+        self.tri = np.zeros(0, np.int64)
+        self.side = np.zeros(0, np.int8)
+        self.inside = np.zeros(0, np.int64)
+
+    def inside_mask(self):
+        mask = np.zeros(self.n, bool)
+        mask[self.inside] = True
+        return mask
 
     def resize(self, n, new_vertices=None, parents=None):
-        old = self.tri.shape[0]
+        old = self.n
+        m = min(n, old)
         tri = np.full((n, 2), -1, np.int64)
         side = np.zeros((n, 2), np.int8)
+        keep = (self.key >> 1) < m
+        k = self.key[keep]
+        tri[k >> 1, k & 1] = self.tri[keep]
+        side[k >> 1, k & 1] = self.side[keep]
         inside = np.zeros(n, bool)
-        m = min(n, old)
-        tri[:m], side[:m], inside[:m] = self.tri[:m], self.side[:m], self.inside[:m]
+        inside[self.inside[self.inside < m]] = True
         if new_vertices is not None and new_vertices.size:
             # A vertex born from a tear sits where its parent was: it inherits the parent's
             # tracks, so its inversion memory is not lost at the moment the cloth opens.
             p = parents[:, 0]
-            ok = (p >= 0) & (p < m)
+            ok = (p >= 0) & (p < m) & (new_vertices >= 0) & (new_vertices < n)
             tri[new_vertices[ok]] = tri[p[ok]]
             side[new_vertices[ok]] = side[p[ok]]
             inside[new_vertices[ok]] = inside[p[ok]]
-        self.tri, self.side, self.inside = tri, side, inside
+        key = np.flatnonzero(tri.reshape(-1) >= 0)
+        self.n = int(n)
+        self.key, self.tri, self.side = key, tri.reshape(-1)[key], side.reshape(-1)[key]
+        self.inside = np.flatnonzero(inside)
+
+    def drop_triangles(self, m):
+        """Forget tracks on triangles that no longer exist (ids >= m)."""
+        keep = self.tri < m
+        self.key, self.tri, self.side = self.key[keep], self.tri[keep], self.side[keep]
 
 
 class _Collider:
@@ -136,31 +167,62 @@ class _Collider:
         self.name = name
         self.kind = kind  # 'volume' | 'surface' | 'self'
         self.friction = float(friction)
-        self.vertices = vertices
-        self.measured = vertices.copy()  # positions at the last detect(): displacement origin
-        self.velocities = np.zeros_like(vertices)
-        self.set_topology(triangles, cluster_size)
+        self.vertices = np.ascontiguousarray(vertices, np.float64)
+        self.measured = self.vertices.copy()  # positions at the last detect(): displacement origin
+        self.velocities = np.zeros_like(self.vertices)
         self.scenes = ClusterScenes(tolerance)
+        self.set_topology(triangles, cluster_size)
 
     def set_topology(self, triangles, cluster_size, clustering=None):
-        self.triangles = triangles
-        self.clustering = clustering or Clustering(self.vertices, triangles, cluster_size)
-        self.adj, self.flip = triangle_adjacency(triangles)
-        self.normals = VertexNormals(self.vertices.shape[0], triangles)
+        self.triangles = np.ascontiguousarray(triangles, np.int64)
+        self.clustering = clustering or Clustering(self.vertices, self.triangles, cluster_size)
+        self.adj, self.flip = triangle_adjacency(self.triangles)
         # self-collision skips the two-ring (see narrow.ring_table)
-        self.ring = ring_table(triangles, self.vertices.shape[0]) if self.kind == "self" else None
+        self.ring = ring_table(self.triangles, self.vertices.shape[0]) if self.kind == "self" else None
+        self.scenes.set_topology(self.triangles, self.clustering, self.adj)
+        if self.kind == "self":
+            # vertex -> incident triangles (CSR, ascending), for normals of a few clusters at a time
+            corners = self.triangles.reshape(-1)
+            self.vt_tri = (np.argsort(corners, kind="stable") // 3).astype(np.int64)
+            self.vt_ptr = np.zeros(self.vertices.shape[0] + 1, np.int64)
+            np.cumsum(np.bincount(corners, minlength=self.vertices.shape[0]), out=self.vt_ptr[1:])
+
+    def normals(self, positions):
+        """Area-weighted unit vertex normals (C) of this mesh at ``positions``."""
+        return kernels.vertex_normals(positions, self.triangles)[0]
+
+
+class _Normals:
+    """The cloth's vertex normals of one step, computed (C) per cluster when first needed: a step
+    reads the normals of the vertices it walks or casts rays from, often a few clusters or none.
+    ``normals`` / ``has_normal`` rows of clusters not asked for are not valid."""
+
+    __slots__ = ("cloth", "pos", "normals", "has_normal", "done")
+
+    def __init__(self, cloth, pos):
+        self.cloth, self.pos = cloth, pos
+        self.normals = np.empty_like(pos)
+        self.has_normal = np.zeros(pos.shape[0], bool)
+        self.done = np.zeros(cloth.clustering.n_clusters, bool)
+
+    def need(self, clusters):
+        cl = self.cloth.clustering
+        _collide.cluster_normals(self.pos, self.cloth.triangles, self.cloth.vt_ptr, self.cloth.vt_tri, cl.order,
+                                 cl.ptr, clusters, self.normals, self.has_normal, self.done)
 
 
 class _Plan:
     """One collider's work in a step: close pairs (i cloth cluster, j collider cluster), which
-    of them get full detection, and the walked / found hits."""
+    of them get full detection, the collider's cluster boxes, and the walked / found hits."""
 
-    __slots__ = ("name", "target", "i", "j", "full", "walked", "found")
+    __slots__ = ("name", "target", "i", "j", "full", "walked", "found", "lo", "hi", "first")
 
     def __init__(self, name, target, i, j, full):
         self.name, self.target, self.i, self.j, self.full = name, target, i, j, full
         self.walked = None
         self.found = None
+        self.lo = self.hi = None
+        self.first = False
 
 
 class CollisionDetector:
@@ -207,8 +269,11 @@ class CollisionDetector:
         reach = 2.0 if measure == "absolute" else 1.0
         self.track_range = self.thickness + 1.5 * reach * self.displacement_threshold
         # Scenes are reused while a cluster deforms (non-rigidly) by less than this; the walker
-        # corrects the rest, so it only has to be small against the track range.
-        self.scene_tolerance = 0.25 * min(self.thickness, self.displacement_threshold)
+        # corrects the rest, so it only has to be small against the track range and the triangle
+        # size, and the scenes' margins (narrow.ClusterScenes) cover a border moved by it. At a
+        # quarter of the thickness a walking mannequin rebuilt a scene every step; at half, every
+        # other step.
+        self.scene_tolerance = 1.0 * min(self.thickness, self.displacement_threshold)
         self.bodies = {}
         self.cloth = None
         self._self = None
@@ -220,6 +285,10 @@ class CollisionDetector:
         self._first = True
         self._new_targets = set()
         self._abs_cloth_forget = None
+        self._rays = kernels.RayBuffer()  # float32 ray arrays for Embree, reused across steps
+        # Batching of full detections (measure.py): the pairs that would pass the threshold within
+        # this many steps join a step that runs full detection anyway.
+        self.lookahead = 3.0
         self.stats = {}
 
     # ------------------------------------------------------------------ scene setup
@@ -277,8 +346,8 @@ class CollisionDetector:
     def _reset_target(self, name):
         n = 0 if self.cloth is None else self.cloth.vertices.shape[0]
         self._tracks[name] = _Tracks(n)
-        self._rel[name] = RelativeMeasure(self.displacement_threshold)
-        self._abs[name] = AbsoluteMeasure(self.displacement_threshold)
+        self._rel[name] = RelativeMeasure(self.displacement_threshold, self.lookahead)
+        self._abs[name] = AbsoluteMeasure(self.displacement_threshold, self.lookahead)
         self._forced[name] = None
         self._new_targets.add(name)
 
@@ -294,8 +363,8 @@ class CollisionDetector:
         """Apply a tear reported by the native core (see module docs of ``clusters.py``)."""
         if self.cloth is None:
             raise RuntimeError("set_cloth must be called before on_topology")
-        pos = np.asarray(positions, np.float64)
-        tri = np.asarray(triangles, np.int64)
+        pos = np.ascontiguousarray(positions, np.float64)
+        tri = np.ascontiguousarray(triangles, np.int64)
         cloth = self.cloth
         old_n = cloth.vertices.shape[0]
         new_v = np.asarray(events.get("new_vertices", np.zeros(0)), np.int64).reshape(-1)
@@ -317,16 +386,19 @@ class CollisionDetector:
             prev[new_v[ok]] = w[ok] * self._cloth_prev[p0[ok]] + (1 - w[ok]) * self._cloth_prev[second[ok]]
         cloth.vertices = pos.copy()
         dirty = cloth.clustering.update(events, pos, tri)
-        cloth.triangles = tri
-        cloth.adj, cloth.flip = triangle_adjacency(tri)
-        cloth.normals = VertexNormals(pos.shape[0], tri)
-        cloth.ring = ring_table(tri, pos.shape[0])
-        cloth.scenes.invalidate(dirty)
+        # adjacency, two-ring table, vertex -> triangles; scenes of untouched clusters survive (their
+        # triangles keep their ids and corners)
+        cloth.set_topology(tri, self.cluster_size, clustering=cloth.clustering)
+        touched = np.concatenate([
+            np.asarray(events.get("changed_triangles", np.zeros(0)), np.int64).reshape(-1),
+            np.asarray(events.get("new_triangles", np.zeros(0)), np.int64).reshape(-1),
+        ])
+        cloth.scenes.invalidate(dirty, touched)
         self._cloth_prev = prev
         for name, tracks in self._tracks.items():
             tracks.resize(pos.shape[0], new_v, parents)
             if name == "__self__":
-                tracks.tri[tracks.tri >= tri.shape[0]] = -1
+                tracks.drop_triangles(tri.shape[0])
                 self._rel[name].forget(dirty, dirty)
             else:
                 self._rel[name].forget(dirty, None)
@@ -342,25 +414,31 @@ class CollisionDetector:
         self-collision contacts (zero when not given).
         """
         t_start = time.perf_counter()
-        pos = np.asarray(positions, np.float64)
-        tri = np.asarray(triangles, np.int64)
+        pos = np.ascontiguousarray(positions, np.float64)
+        tri = np.ascontiguousarray(triangles, np.int64)
         if self.cloth is None or tri.shape != self.cloth.triangles.shape or pos.shape != self.cloth.vertices.shape:
             self.set_cloth(pos, tri)
         cloth = self.cloth
         cloth.vertices = pos
-        cloth.velocities = np.zeros_like(pos) if velocities is None else np.asarray(velocities, np.float64)
+        if velocities is None:
+            cloth.velocities = None
+        else:
+            vel = np.ascontiguousarray(velocities, np.float64)
+            if vel.shape != pos.shape:
+                raise ValueError(f"velocities must have the shape of positions {pos.shape}, got {vel.shape}")
+            cloth.velocities = vel
         self._step += 1
         step = self._step
-        normals = cloth.normals(pos)
-        has_normal = np.einsum("ij,ij->i", normals, normals) > 0.5
+        lazy = _Normals(cloth, pos)
+        normals, has_normal = lazy.normals, lazy.has_normal
 
         # 1. measure ---------------------------------------------------------------
-        disp = pos - self._cloth_prev
-        avg_c, dev_c = cluster_motion(cloth.clustering, disp)
-        lo_c, hi_c = cluster_boxes(cloth.clustering, pos, self.inflate)
+        avg_c, dev_c = kernels.cluster_motion(cloth.clustering, pos, self._cloth_prev)
+        lo_c, hi_c = kernels.cluster_boxes(cloth.clustering, pos, self.inflate)
         due_c = None
         if self.measure == "absolute":
-            due_c = self._abs.setdefault("__cloth__", AbsoluteMeasure(self.displacement_threshold)).accumulate(avg_c, dev_c)
+            due_c = self._abs.setdefault(
+                "__cloth__", AbsoluteMeasure(self.displacement_threshold, self.lookahead)).accumulate(avg_c, dev_c)
             forget = getattr(self, "_abs_cloth_forget", None)
             if forget is not None and len(forget):
                 due_c[forget[forget < due_c.size]] = True
@@ -369,18 +447,20 @@ class CollisionDetector:
         n_close = 0
         for name, target in self._targets():
             if name == "__self__":
-                i, j = box_pairs(lo_c, hi_c, lo_c, hi_c, self_pairs=True)
+                lo_b, hi_b = lo_c, hi_c
+                i, j = kernels.box_pairs(lo_c, hi_c, lo_c, hi_c, self_pairs=True)
                 avg_b, dev_b = avg_c, dev_c
             else:
-                avg_b, dev_b = cluster_motion(target.clustering, target.vertices - target.measured)
-                lo_b, hi_b = cluster_boxes(target.clustering, target.vertices, self.inflate)
-                i, j = box_pairs(lo_c, hi_c, lo_b, hi_b)
-            force = np.zeros(i.size, bool)
+                avg_b, dev_b = kernels.cluster_motion(target.clustering, target.vertices, target.measured)
+                lo_b, hi_b = kernels.cluster_boxes(target.clustering, target.vertices, self.inflate)
+                i, j = kernels.box_pairs(lo_c, hi_c, lo_b, hi_b)
+            force = None
             forced = self._forced.get(name)
-            if self._first or name in self._new_targets:
-                force[:] = True
+            first = self._first or name in self._new_targets
+            if first:
+                force = np.ones(i.size, bool)
             elif forced is not None and len(forced):
-                force |= np.isin(i, forced)
+                force = np.isin(i, forced)
                 if name == "__self__":
                     force |= np.isin(j, forced)
             self._forced[name] = None
@@ -389,10 +469,14 @@ class CollisionDetector:
                 full = self._rel[name].step(i, j, avg_c, dev_c, avg_b, dev_b, force)
             elif self.measure == "absolute":
                 due_b = due_c if name == "__self__" else self._abs[name].accumulate(avg_b, dev_b)
-                full = due_c[i] | due_b[j] | force
+                full = due_c[i] | due_b[j]
+                if force is not None:
+                    full |= force
             else:
                 full = np.ones(i.size, bool)
-            plans.append(_Plan(name, target, i, j, full))
+            plan = _Plan(name, target, i, j, full)
+            plan.lo, plan.hi, plan.first = lo_b, hi_b, first
+            plans.append(plan)
             n_close += i.size
         t_measure = time.perf_counter()
 
@@ -402,47 +486,55 @@ class CollisionDetector:
         for plan in plans:
             tracks = self._tracks[plan.name]
             target = plan.target
-            v, slot = np.nonzero(tracks.tri >= 0)
-            n_tracked += v.size
-            d = normals[v] * _SLOT_SIGN[slot][:, None]
-            exclude = cloth.ring[v] if plan.name == "__self__" else None
-            res = walk(pos[v], d, tracks.tri[v, slot], target.vertices, target.triangles, target.adj, target.flip, exclude)
+            n_tracked += tracks.key.size
+            if tracks.key.size == 0:
+                plan.walked = kernels.NO_HITS
+                continue
+            v, slot, start = tracks.key >> 1, tracks.key & 1, tracks.tri
+            lazy.need(np.ascontiguousarray(cloth.clustering.labels[v]))
+            res = kernels.walk(pos, normals, v, slot, start, target, cloth.ring if plan.name == "__self__" else None)
             lost = (res.tri < 0) & has_normal[v]
             n_lost += int(lost.sum())
             if lost.any() and plan.i.size:
                 # The pair (cloth cluster, collider cluster last hit) gets full detection now.
                 la = cloth.clustering.labels[v[lost]]
-                lb = target.clustering.tri_labels[tracks.tri[v[lost], slot[lost]]]
+                lb = target.clustering.tri_labels[start[lost]]
                 if plan.name == "__self__":
                     la, lb = np.minimum(la, lb), np.maximum(la, lb)
                 key_lost = np.unique((la << 32) | lb)
                 plan.full = plan.full | np.isin((plan.i << 32) | plan.j, key_lost)
-            plan.walked = (v, slot, res)
+            plan.walked = res
         t_incr = time.perf_counter()
 
         # 3. full detection of the marked pairs --------------------------------------
         n_full = 0
+        n_rays = 0
         for plan in plans:
-            n_full += int(plan.full.sum())
+            nf = int(np.count_nonzero(plan.full))
+            n_full += nf
+            if nf == 0:
+                continue
             fi, fj = plan.i[plan.full], plan.j[plan.full]
             if plan.name == "__self__":
                 # Rays of a into b's triangles and of b into a's (once for a == b).
                 other = fi != fj
                 fi, fj = np.concatenate([fi, fj[other]]), np.concatenate([fj, fi[other]])
-            plan.found = self._full_detection(plan.name, plan.target, fi, fj, pos, normals, has_normal, step)
+            lazy.need(fi)
+            plan.found, rays = self._full_detection(plan, fi, fj, pos, normals, has_normal, step)
+            n_rays += rays
         t_full = time.perf_counter()
 
         # 4. merge, classify, contacts -------------------------------------------------
-        rows = [self._merge_and_classify(p.name, p.target, p.walked, p.found, pos, normals) for p in plans]
-        contacts = self._assemble(rows)
+        rows = [self._merge_and_classify(plan, pos, normals) for plan in plans]
+        contacts, every = self._assemble_rows(rows, pos.shape[0])
         # Every collider's contact per vertex, for the solver: a vertex touching a body and another
         # layer of cloth at once must respect both (the solver combines their normals).
-        self.all_contacts = self._assemble_all(rows)
+        self.all_contacts = every
         t_end = time.perf_counter()
 
         self._cloth_prev = pos.copy()
         for body in self.bodies.values():
-            body.measured = body.vertices.copy()
+            body.measured = body.vertices  # update_body replaces, never mutates, the array
         self._first = False
         builds = sum(t.scenes.builds for _, t in self._targets())
         self.stats = {
@@ -451,6 +543,7 @@ class CollisionDetector:
             "full_share": (n_full / n_close) if n_close else 0.0,
             "tracked_rays": n_tracked,
             "lost": n_lost,
+            "full_rays": n_rays,
             "contacts": len(contacts),
             "scene_builds_total": builds,
             "ms": {
@@ -463,271 +556,182 @@ class CollisionDetector:
         }
         return contacts
 
-    def _full_detection(self, name, target, fi, fj, pos, normals, has_normal, step):
+    def _full_detection(self, plan, fi, fj, pos, normals, has_normal, step):
         """Embree candidates for cloth clusters fi against collider clusters fj, refined exactly.
-        Returns (vertex, slot, WalkResult) of the hits kept."""
+        Returns ((vertex, slot, Hits, status) of the hits found, or None; rays cast)."""
+        name, target = plan.name, plan.target
         cloth = self.cloth
         if fi.size == 0:
-            return None
+            return None, 0
         is_self = name == "__self__"
-        vs, slots, cand_tri = [], [], []
-        max_dist = self.track_range
+        kind = "self" if is_self else target.kind
+        ring = cloth.ring if is_self else None
+        # A closed body's rays reach across it (the module docs: Ray length); inside_prev trusts a
+        # far exit for a vertex that was inside at the previous step.
+        short = long_ = self.track_range
+        inside_prev = None
         if target.kind == "volume":
-            # Inside a body the exit may be far; the acceptance rule below bounds what is kept.
-            max_dist = self.track_range + 4.0 * self.inflate + self.cluster_extent(target)
+            tracks = self._tracks[name]
+            if tracks.inside.size:
+                inside_prev = tracks.inside_mask()
+            # the longest way through the body: its box diagonal (from the cluster boxes at hand)
+            extent = float(np.linalg.norm(plan.hi.max(axis=0) - plan.lo.min(axis=0)))
+            if not np.isfinite(extent):
+                extent = self.cluster_extent(target)
+            short = long_ = self.track_range + 2.0 * self.inflate + extent
+        # One group per collider cluster, each cluster's scene fitted (or rebuilt) once.
         order = np.argsort(fj, kind="stable")
         fi, fj = fi[order], fj[order]
-        bounds = np.flatnonzero(np.diff(np.concatenate([[-1], fj, [-2]])))
-        for s, e in zip(bounds[:-1], bounds[1:]):
-            b = int(fj[s])
-            verts = np.concatenate([cloth.clustering.vertices_of(a) for a in fi[s:e]])
-            verts = verts[has_normal[verts]]
-            if verts.size == 0:
+        ub = np.unique(fj)
+        scenes = target.scenes
+        buf = self._rays
+        args = (pos, normals, has_normal, None, cloth.clustering, plan.lo, plan.hi)
+        dist_args = (short, long_, RAY_BACKOFF, scenes.tolerance)
+        # Which collider clusters get any ray at all (the culling runs twice; it is cheap): only
+        # their scenes are fitted, or built.
+        seg = buf.count(*args, fi, fj, ub, scenes, *dist_args)
+        need = ub[seg[1:] > seg[:-1]]
+        if need.size == 0:
+            return None, 0
+        usable = scenes.fit(need, target.vertices, target.triangles, step)
+        if not usable.all():
+            keep = np.isin(fj, need[usable])
+            fi, fj = fi[keep], fj[keep]
+            ub = np.unique(fj)
+        count, seg = buf.prepare(*args, fi, fj, ub, scenes, *dist_args)
+        if count == 0:
+            return None, 0
+        hit = np.empty(count, np.int64)
+        retry = np.empty(count, np.int64)
+        o, d, dist = buf.o, buf.d, buf.dist
+        oc, dc, distc = o[:count], d[:count], dist[:count]
+        rv = buf.vertex[:count]
+        seg = seg.tolist()
+        ptr = scenes.ptr
+        for g, b in enumerate(ub.tolist()):
+            s, e = seg[g], seg[g + 1]
+            if s == e:
                 continue
-            tri_ids = target.clustering.triangles_of(b)
-            if tri_ids.size == 0:
+            scene, stri = scenes.scene[b], scenes.tri[ptr[b]:ptr[b + 1]]
+            rays = np.arange(s, e, dtype=np.int64)
+            if not is_self:
+                prim = scene.run(o[s:e], d[s:e], dists=dist[s:e])
+                _collide.accept_hits(rays, prim, None, stri, rv, target.triangles, None, oc, dc, distc, hit, retry)
                 continue
-            v2 = np.concatenate([verts, verts])
-            sl = np.repeat([0, 1], verts.size)
-            d = normals[v2] * _SLOT_SIGN[sl][:, None]
-            gt, _ = target.scenes.query(
-                b, tri_ids, target.vertices, target.triangles, pos[v2], d, max_dist, step,
-                exclude=cloth.ring[v2] if is_self else None,
-            )
-            hit = gt >= 0
-            vs.append(v2[hit])
-            slots.append(sl[hit])
-            cand_tri.append(gt[hit])
-        if not vs:
-            return None
-        v = np.concatenate(vs)
-        slot = np.concatenate(slots)
-        ct = np.concatenate(cand_tri)
-        d = normals[v] * _SLOT_SIGN[slot][:, None]
-        res = walk(pos[v], d, ct, target.vertices, target.triangles, target.adj, target.flip,
-                   v if is_self else None, max_steps=4)
-        keep = res.tri >= 0
-        # Only hits ahead of the ray count for a *new* hit (the scene was cast forward).
-        keep &= res.t >= -2e-6
+            # Self: skip the vertex's own two-ring by casting again from just past it (embreex has
+            # no hit filter). embreex writes tfar into the dists it is given: hand it a copy.
+            res = scene.run(o[s:e], d[s:e], dists=dist[s:e].copy(), output=1)
+            for _ in range(8):
+                again = _collide.accept_hits(rays, res["primID"], res["tfar"], stri, rv, target.triangles, ring, oc,
+                                             dc, distc, hit, retry)
+                if again == 0:
+                    break
+                rays = retry[:again].copy()
+                res = scene.run(o[rays], d[rays], dists=dist[rays], output=1)
+        # Exact hits on the current geometry (the scenes may be up to the tolerance stale).
+        ints = np.empty((3, count), np.int64)
+        reals = np.empty((3, count))
+        flags = np.empty((2, count), bool)
+        k = _collide.refine(pos, normals, rv, buf.slot[:count], hit, target.vertices, target.triangles, target.adj,
+                            target.flip, ring, kernels.KIND[kind], self.track_range, inside_prev, ints[0], ints[1],
+                            ints[2], reals[0], reals[1], reals[2], flags[0], flags[1])
+        if k == 0:
+            return None, count
+        fv, fs = ints[0, :k], ints[1, :k]
+        res = kernels.Hits.view(ints[2, :k], reals[0, :k], reals[1, :k], reals[2, :k], flags[0, :k])
+        status = flags[1, :k].view(np.uint8)
         if target.kind == "volume":
-            nrm, _ = face_normals(target.vertices, target.triangles[np.maximum(res.tri, 0)])
-            a = target.vertices[target.triangles[np.maximum(res.tri, 0), 0]]
-            sd = np.einsum("ij,ij->i", pos[v] - a, nrm)
-            inside_prev = self._tracks[name].inside[v]
-            # A back face far along the ray only proves "inside" if every triangle in front of
-            # it was in the scenes cast; within track_range they are (close pairs). Beyond it,
-            # trust it for a vertex that was inside at the previous step, else confirm it by
-            # casting the ray into every collider cluster whose box the segment crosses (rare:
-            # a vertex entering a body at grazing incidence).
-            near = np.abs(res.t) <= self.track_range
-            far_inside = keep & ~near & (sd < 0)
-            confirm = far_inside & ~inside_prev
-            if confirm.any():
-                ci = np.flatnonzero(confirm)
-                ok = self._confirm_inside(target, pos[v[ci]], normals[v[ci]] * _SLOT_SIGN[slot[ci]][:, None],
-                                          res.t[ci], res.tri[ci], step)
-                inside_prev = inside_prev.copy()
-                inside_prev[ci] = ok
-            keep &= near | ((sd < 0) & inside_prev)
-        else:
-            keep &= np.abs(res.t) <= self.track_range
-        return v[keep], slot[keep], _subset(res, keep)
+            # far back faces: not the exit if a nearer hit of the same ray exists (C), else tested
+            tracks, walked = self._tracks[name], plan.walked
+            if _collide.drop_dominated(fv, fs, res.t, status.view(bool), tracks.key, walked.tri, walked.t):
+                c2 = np.flatnonzero(status == 2)
+                status[c2] = self._confirm_inside(plan, fv, fs, res, c2, pos, normals)
+        return (fv, fs, res, status), count
 
-    def _confirm_inside(self, target, o, d, t, tri, step):
-        """True where the nearest hit along o + s d over every cluster whose AABB the segment
-        [0, t] crosses is the back face ``tri`` (so nothing in front of it was missed)."""
-        lo, hi = cluster_boxes(target.clustering, target.vertices, RAY_BACKOFF)
-        # Slab test of each segment against each box.
-        with np.errstate(divide="ignore", invalid="ignore"):
-            inv = 1.0 / d
-            t1 = (lo[None, :, :] - o[:, None, :]) * inv[:, None, :]
-            t2 = (hi[None, :, :] - o[:, None, :]) * inv[:, None, :]
-        tmin = np.nanmax(np.minimum(t1, t2), axis=2)
-        tmax = np.nanmin(np.maximum(t1, t2), axis=2)
-        crosses = (tmin <= tmax) & (tmax >= -RAY_BACKOFF) & (tmin <= t[:, None])
-        best = np.full(o.shape[0], np.inf)
-        best_tri = np.full(o.shape[0], -1, np.int64)
-        for c in np.flatnonzero(crosses.any(axis=0)):
-            rows = np.flatnonzero(crosses[:, c])
-            tri_ids = target.clustering.triangles_of(c)
-            if tri_ids.size == 0:
-                continue
-            gt, tt = target.scenes.query(int(c), tri_ids, target.vertices, target.triangles,
-                                         o[rows], d[rows], t[rows] + RAY_BACKOFF, step)
-            better = (gt >= 0) & (tt < best[rows])
-            best[rows[better]] = tt[better]
-            best_tri[rows[better]] = gt[better]
-        # The scenes may be up to scene_tolerance stale: accept the exact exit or any hit close
-        # to it, reject a hit clearly in front of it (a front face the close pairs did not see).
-        return (best_tri == tri) | (best >= t - self.scene_tolerance)
+    def _confirm_inside(self, plan, fv, fs, res, c2, pos, normals):
+        """1 for each far back-face hit c2 that is the ray's first hit on the body (the vertex is
+        inside), else 0: tested exactly (C) against the triangles of every collider cluster whose
+        box the segment crosses, on the current geometry - no scene to fit or rebuild. (Hits that
+        a nearer hit of the same ray already disproves are dropped before, by drop_dominated.)"""
+        target = plan.target
+        d = normals[fv[c2]] * np.where(fs[c2] == 0, 1.0, -1.0)[:, None]
+        ok = np.empty(c2.size, bool)
+        cl = target.clustering
+        _collide.confirm_inside(target.vertices, target.triangles, cl.tri_order, cl.tri_starts, plan.lo, plan.hi,
+                                pos[fv[c2]], d, res.t[c2], res.tri[c2], RAY_BACKOFF, 1e-6, ok)
+        return ok
 
     @staticmethod
     def cluster_extent(target):
+        """Diagonal (m) of the collider's bounding box: the longest a ray inside it can travel."""
         lo = target.vertices.min(axis=0)
         hi = target.vertices.max(axis=0)
         return float(np.linalg.norm(hi - lo))
 
-    def _merge_and_classify(self, name, target, walked, found, pos, normals):
-        """Merge walked tracks with new hits (nearest per vertex and slot), classify, store the
-        tracks for the next step. Returns dense per-vertex (depth (n,), normal, velocity,
-        friction) of this collider's deepest contact, depth -inf where none."""
+    def _merge_and_classify(self, plan, pos, normals):
+        """Merge walked tracks with new hits (nearest per vertex and slot), classify (C), store the
+        tracks for the next step. Returns this collider's deepest contact per vertex, sorted by
+        vertex: (vertex, depth, normal, velocity, friction)."""
+        name, target = plan.name, plan.target
         tracks = self._tracks[name]
-        n = pos.shape[0]
-        tri = np.full((n, 2), -1, np.int64)
-        t = np.full((n, 2), np.inf)
-        u = np.zeros((n, 2))
-        vv = np.zeros((n, 2))
-        side = np.zeros((n, 2), np.int8)
-        v_w, s_w, r_w = walked
-        ok = r_w.tri >= 0
-        vw, sw = v_w[ok], s_w[ok]
-        tri[vw, sw], t[vw, sw], u[vw, sw], vv[vw, sw] = r_w.tri[ok], r_w.t[ok], r_w.u[ok], r_w.v[ok]
-        mem = tracks.side[vw, sw]
-        # Remembered side, flipped when the walk crossed an edge of opposite winding.
-        side[vw, sw] = np.where(r_w.flips[ok], -mem, mem)
-        if found is not None and found[0].size:
-            v_f, s_f, r_f = found
-            key = v_f * 2 + s_f
-            order = np.lexsort((np.abs(r_f.t), key))
-            first = np.ones(order.size, bool)
-            first[1:] = key[order[1:]] != key[order[:-1]]
-            sel = order[first]
-            vf, sf = v_f[sel], s_f[sel]
-            # Strictly nearer only: on a tie the walked track wins, it carries the memory.
-            nearer = np.abs(r_f.t[sel]) < np.abs(t[vf, sf])
-            vf, sf, sel = vf[nearer], sf[nearer], sel[nearer]
-            ftri = r_f.tri[sel]
-            tri[vf, sf], t[vf, sf], u[vf, sf], vv[vf, sf] = ftri, r_f.t[sel], r_f.u[sel], r_f.v[sel]
-            # A new hit on a triangle this vertex already tracked (either slot) keeps its memory.
-            fmem = np.zeros(vf.size, np.int8)
-            for k in (0, 1):
-                same = tracks.tri[vf, k] == ftri
-                fmem[same] = tracks.side[vf[same], k]
-            side[vf, sf] = fmem
-
-        av, asl = np.nonzero(tri >= 0)
-        atri = tri[av, asl]
-        at = t[av, asl]
-        tris = target.triangles[atri]
-        nrm, _ = face_normals(target.vertices, tris)
-        sd = np.einsum("ij,ij->i", pos[av] - target.vertices[tris[:, 0]], nrm)
-        th = self.thickness
-        aside = side[av, asl]
-        if target.kind == "volume":
-            # Only the nearest hit along the normal line decides inside / outside.
-            near_slot = np.argmin(np.abs(t), axis=1)
-            nearest = asl == near_slot[av]
-            inside = nearest & (sd < 0)
-            depth = th - sd  # inside (sd < 0): |sd| + thickness; outside: thickness - distance
-            contact = nearest & (depth > 0)
-            normal = nrm
-            keep = (np.abs(at) <= self.track_range) | (sd < 0)
-            tracks.inside = np.zeros(n, bool)
-            tracks.inside[av[inside]] = True
-            aside = np.ones(av.size, np.int8)
+        if tracks.key.size == 0 and plan.found is None:
+            # nothing tracked, nothing found: no tracks, nobody inside, no contact
+            tracks.inside = kernels.EMPTY_I64
+            return kernels.EMPTY_I64, None, None, None, target.friction
+        is_self = name == "__self__"
+        r_w = plan.walked
+        if plan.found is not None:
+            v_f, s_f, r_f, st = plan.found
         else:
-            new = aside == 0
-            if new.any():
-                aside[new] = self._initial_side(name, target, av[new], atri[new], pos, sd[new])
-            inverted = np.where(sd >= 0, 1, -1) != aside
-            dist = np.abs(sd)
-            depth = np.where(inverted, th + dist, th - dist)
-            contact = depth > 0
-            normal = nrm * aside[:, None].astype(np.float64)
-            if name == "__self__":
-                # Layer over layer only: where the other triangle stands edge-on to this vertex's
-                # surface (a fold, a torn rim), its normal lies in this vertex's plane, and
-                # prescribing velocity along it pins the stiff membrane in-plane - that is how a
-                # handful of such contacts pumped a draped cloth to 15 m/s.
-                contact &= np.abs(np.einsum("ij,ij->i", nrm, normals[av])) >= 0.5
-            keep = (np.abs(at) <= self.track_range) | (inverted & (dist <= self.track_range + th))
-            # Both slots on one triangle would double the memory (copied across above): keep
-            # slot 0 only.
-            both = (tri[av, 0] == atri) & (asl == 1)
-            keep &= ~(both & (tri[av, 0] >= 0) & (np.abs(t[av, 0]) <= self.track_range))
-
-        new_tri = np.full((n, 2), -1, np.int64)
-        new_side = np.zeros((n, 2), np.int8)
-        new_tri[av[keep], asl[keep]] = atri[keep]
-        new_side[av[keep], asl[keep]] = aside[keep]
-        tracks.tri, tracks.side = new_tri, new_side
-
-        # Deepest contact per vertex (two slots).
-        dense = np.full((n, 2), -np.inf)
-        c = np.flatnonzero(contact)
-        dense[av[c], asl[c]] = depth[c]
-        best_slot = np.argmax(dense, axis=1)
-        best_depth = dense[np.arange(n), best_slot]
-        has = np.isfinite(best_depth)
-        # Row index into the active list of each vertex's best (vertex, slot).
-        row = np.full((n, 2), -1, np.int64)
-        row[av, asl] = np.arange(av.size)
-        r = row[np.flatnonzero(has), best_slot[has]]
-        out_normal = np.zeros((n, 3))
-        out_vel = np.zeros((n, 3))
-        out_normal[has] = normal[r]
-        vel = target.velocities
-        tr = tris[r]
-        ur, vr = u[av[r], asl[r]], vv[av[r], asl[r]]
-        # hits are found on lines, so (u, v) can fall outside the triangle; the surface velocity
-        # must be an interpolation, never an extrapolation (which once reported 10 m/s on a cloth
-        # falling at 1 m/s and blew the solver up)
-        ur, vr = np.clip(ur, 0.0, 1.0), np.clip(vr, 0.0, 1.0)
-        over = ur + vr > 1.0
-        scale = np.where(over, 1.0 / np.maximum(ur + vr, 1e-300), 1.0)
-        ur, vr = ur * scale, vr * scale
-        out_vel[has] = ((1.0 - ur - vr)[:, None] * vel[tr[:, 0]] + ur[:, None] * vel[tr[:, 1]]
-                        + vr[:, None] * vel[tr[:, 2]])
-        if name == "__self__":
-            # Two cloth layers meeting: an inelastic collision of similar masses ends at their
-            # common (mean) velocity. Handing each side the other's velocity instead swaps them -
-            # an elastic bounce that, through many contacts, pumped a draped cloth to 25 m/s.
-            own = self.cloth.velocities[np.flatnonzero(has)]
-            out_vel[has] = 0.5 * (out_vel[has] + own)
-        return best_depth, out_normal, out_vel, target.friction
-
-    def _initial_side(self, name, target, v, tri, pos, sd_now):
-        """Side memory for new tracks, from the motion of the last step (see narrow.initial_side)."""
-        if self._first:
-            return np.where(sd_now >= 0, 1, -1).astype(np.int8)
-        prev_target = self._cloth_prev if name == "__self__" else target.measured
-        tris = target.triangles[tri]
-        return initial_side(self._cloth_prev[v], pos[v], prev_target[tris], target.vertices[tris])
-
-    @staticmethod
-    def _assemble(rows):
-        """Deepest contact per vertex over all colliders (dense rows from _merge_and_classify)."""
-        if not rows:
-            return Contacts()
-        depth = np.stack([r[0] for r in rows])
-        which = np.argmax(depth, axis=0)
-        best = depth[which, np.arange(depth.shape[1])]
-        v = np.flatnonzero(best > 0)
-        w = which[v]
-        normal = np.stack([r[1] for r in rows])[w, v]
-        vel = np.stack([r[2] for r in rows])[w, v]
-        fric = np.array([r[3] for r in rows], np.float64)[w]
-        return Contacts(v.astype(np.int32), normal, best[v], vel, fric)
-
-    @staticmethod
-    def _assemble_all(rows):
-        """One contact per vertex per collider (rows as for _assemble), sorted by vertex."""
-        parts = []
-        for depth, normal, vel, fric in rows:
-            v = np.flatnonzero(depth > 0)
-            if v.size:
-                parts.append((v, normal[v], depth[v], vel[v], np.full(v.size, fric, np.float64)))
-        if not parts:
-            return Contacts()
-        v = np.concatenate([p[0] for p in parts])
-        order = np.argsort(v, kind="stable")
-        return Contacts(
-            v[order].astype(np.int32),
-            np.concatenate([p[1] for p in parts])[order],
-            np.concatenate([p[2] for p in parts])[order],
-            np.concatenate([p[3] for p in parts])[order],
-            np.concatenate([p[4] for p in parts])[order],
+            v_f = s_f = kernels.EMPTY_I64
+            r_f, st = kernels.NO_HITS, None
+        cap = tracks.key.size + v_f.size
+        okey, otri, oin, cv = np.empty((4, cap), np.int64)
+        oside = np.empty(cap, np.int8)
+        depth = np.empty(cap)
+        normal, velocity = np.empty((2, cap, 3))
+        cloth_vel = self.cloth.velocities
+        nt, ni, nc = _collide.merge_classify(
+            positions=pos, normals=normals, previous=self._cloth_prev, velocity=cloth_vel,
+            target_vertices=target.vertices, target_triangles=target.triangles,
+            target_previous=self._cloth_prev if is_self else target.measured,
+            target_velocity=cloth_vel if is_self else target.velocities,
+            kind=kernels.KIND["self" if is_self else target.kind], first=self._first,
+            thickness=self.thickness, track_range=self.track_range,
+            track_key=tracks.key, track_tri=tracks.tri, track_side=tracks.side,
+            walked_tri=r_w.tri, walked_t=r_w.t, walked_u=r_w.u, walked_v=r_w.v, walked_flips=r_w.flips,
+            found_vertex=v_f, found_slot=s_f, found_tri=r_f.tri, found_t=r_f.t, found_u=r_f.u, found_v=r_f.v,
+            found_flips=r_f.flips, found_status=None if st is None else st.view(bool),
+            out_key=okey, out_tri=otri, out_side=oside, out_inside=oin,
+            contact_vertex=cv, depth=depth, normal=normal, contact_velocity=velocity,
         )
+        tracks.key, tracks.tri, tracks.side = okey[:nt], otri[:nt], oside[:nt]
+        if target.kind == "volume" and not is_self:
+            tracks.inside = oin[:ni]
+        return cv[:nc], depth[:nc], normal[:nc], velocity[:nc], target.friction
+
+    @staticmethod
+    def _assemble_rows(rows, n):
+        """(deepest contact per vertex over all colliders, every collider's contact per vertex
+        sorted by vertex) from each collider's contacts (C)."""
+        sizes = [r[0].size for r in rows]
+        total = sum(sizes)
+        if total == 0:
+            return Contacts(), Contacts()
+        seg = np.zeros(len(rows) + 1, np.int64)
+        np.cumsum(sizes, out=seg[1:])
+        some = [r for r in rows if r[0].size]
+        v = np.concatenate([r[0] for r in some])
+        depth = np.concatenate([r[1] for r in some])
+        normal = np.concatenate([r[2] for r in some])
+        velocity = np.concatenate([r[3] for r in some])
+        friction = np.array([r[4] for r in rows], np.float64)
+        deep = (np.empty(total, np.int32), np.empty((total, 3)), np.empty(total), np.empty((total, 3)),
+                np.empty(total))
+        every = (np.empty(total, np.int32), np.empty((total, 3)), np.empty(total), np.empty((total, 3)),
+                 np.empty(total))
+        kd, ka = _collide.assemble(seg, v, depth, normal, velocity, friction, n, *deep, *every)
+        return Contacts(*(a[:kd] for a in deep)), Contacts(*(a[:ka] for a in every))
 
     # ------------------------------------------------------------------ reference
     def brute_force_detect(self, positions, triangles, velocities=None):
@@ -796,11 +800,3 @@ def _barycentric(p, a, b, c):
     v = (d22 * d1p - d12 * d2p) / den
     w = (d11 * d2p - d12 * d1p) / den
     return np.stack([1 - v - w, v, w], axis=1)
-
-
-def _subset(res, mask):
-    from .incremental import WalkResult
-
-    out = WalkResult(int(mask.sum()))
-    out.tri, out.t, out.u, out.v, out.flips = res.tri[mask], res.t[mask], res.u[mask], res.v[mask], res.flips[mask]
-    return out

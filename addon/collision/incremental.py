@@ -6,9 +6,10 @@ adjacency that follows a ray's hit from one step to the next.
 Why: a cluster pair whose relative displacement stays under the threshold has moved little since
 its last full detection, so the triangle each ray hit then is, or is a few edges away from, the
 one it hits now. Re-testing that triangle and stepping across the edge the hit point fell
-outside of (the most negative barycentric coordinate) costs a handful of vectorised numpy passes
-for all tracked rays together, independent of the collider size, and needs no acceleration
-structure (which embreex could not refit anyway).
+outside of (the most negative barycentric coordinate) costs a few dozen flops per tracked ray,
+independent of the collider size, and needs no acceleration structure (which embreex could not
+refit anyway). The detector runs this walk in C (``native/collide/walk.c``, the same arithmetic);
+``walk`` here is its numpy specification.
 
 Rays are treated as *lines*: t may be negative. A tracked vertex that crossed the surface it was
 tracking still finds the same triangle (behind it), which is exactly what inversion handling and

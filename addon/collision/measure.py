@@ -15,17 +15,32 @@ dis_dev), cluster AABBs, close pairs by AABB overlap, and the accumulated measur
   detector doubles the tracking margin in this mode (``CollisionDetector.track_range``).
 * 'full': every close pair, every step.
 
+Batching (``lookahead``): full detection has a fixed cost per step (vertex normals, one Embree call
+and one fit per collider cluster, refinement, merging) that dwarfs its cost per ray. Per-pair
+accumulators drift out of phase, so the relative measure left alone triggers a few pairs in almost
+every step and pays that fixed cost every step. With ``lookahead`` L > 0, a step in which some
+pair (a cluster, for the absolute measure) passes the threshold also runs full detection for the
+pairs that, at this step's rate (the amount eq. 4 just added), would pass it within L steps; they
+are reset with the others. A full detection earlier than needed is always safe. Measured on the
+walking mannequin with L = 3 (the detector's choice, for both measures): full detections in 42
+steps of 117 instead of 100, 6 % more pairs detected, the median step 4x and the mean step 1.2-1.4x
+cheaper.
+
 Why boxes are inflated by (displacement_threshold + thickness)/2: the paper inflates by
 threshold/2 so that two clusters cannot touch before their measure reaches the threshold; a
 contact here starts at a distance of ``thickness`` (the cloth's proximity), so the thickness is
 added to keep that guarantee.
 
-Everything is vectorised; cluster counts are ~30-1000, pairs a few hundred.
+The functions here are numpy and are the specification of the C kernels the detector runs
+(``kernels.py``: cluster motion, boxes, pairs; ``RelativeMeasure.step`` calls C itself).
+Cluster counts are ~30-1000, pairs a few hundred.
 Units: metres.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from .. import _collide
 
 __all__ = [
     "cluster_motion",
@@ -87,17 +102,44 @@ def pair_keys(i, j):
 
 
 class RelativeMeasure:
-    """Accumulated relative displacement of the close pairs of one object pair (eqs. 1-4)."""
+    """Accumulated relative displacement of the close pairs of one object pair (eqs. 1-4).
 
-    def __init__(self, threshold):
+    ``lookahead`` (steps, 0 = off): batching, see the module docs."""
+
+    def __init__(self, threshold, lookahead=0.0):
         self.threshold = float(threshold)
+        self.lookahead = float(lookahead)
         self.keys = np.zeros(0, np.int64)
         self.rel_avg = np.zeros((0, 3))
         self.rel_dev = np.zeros(0)
 
     def step(self, i, j, avg_a, dev_a, avg_b, dev_b, force=None):
         """Update with this step's close pairs (i in object a, j in object b); returns a bool
-        mask of the pairs that need full detection now (their measure is then reset)."""
+        mask of the pairs that need full detection now (their measure is then reset).
+
+        One C pass (``_collide.relative_measure``) merges the stored, sorted pair keys with this
+        step's pairs; ``step_reference`` is the numpy specification."""
+        i = np.ascontiguousarray(i, np.int64)
+        j = np.ascontiguousarray(j, np.int64)
+        p = i.shape[0]
+        keys = np.empty(p, np.int64)
+        rel_avg = np.empty((p, 3))
+        rel_dev = np.empty(p)
+        amplitude = np.empty(p)
+        full = np.empty(p, bool)
+        _collide.relative_measure(
+            self.keys, self.rel_avg, self.rel_dev, i, j,
+            np.ascontiguousarray(avg_a, np.float64), np.ascontiguousarray(dev_a, np.float64),
+            np.ascontiguousarray(avg_b, np.float64), np.ascontiguousarray(dev_b, np.float64),
+            None if force is None else np.ascontiguousarray(force, bool), self.threshold,
+            keys, rel_avg, rel_dev, amplitude, full, self.lookahead,
+        )
+        self.keys, self.rel_avg, self.rel_dev = keys, rel_avg, rel_dev
+        self.amplitude = amplitude
+        return full
+
+    def step_reference(self, i, j, avg_a, dev_a, avg_b, dev_b, force=None):
+        """The numpy specification of ``step`` (same state, same result)."""
         keys = pair_keys(i, j)
         rel_avg = np.zeros((keys.size, 3))
         rel_dev = np.zeros(keys.size)
@@ -113,6 +155,9 @@ class RelativeMeasure:
         full = amplitude > self.threshold
         if force is not None:
             full |= force
+        if full.any() and self.lookahead > 0:
+            rate = np.linalg.norm(avg_a[i] - avg_b[j], axis=1) + dev_a[i] + dev_b[j]
+            full |= amplitude + self.lookahead * rate > self.threshold
         rel_avg[full] = 0.0
         rel_dev[full] = 0.0
         order = np.argsort(keys)
@@ -134,10 +179,13 @@ class RelativeMeasure:
 
 
 class AbsoluteMeasure:
-    """Accumulated absolute displacement of every cluster of one object, with no pairing."""
+    """Accumulated absolute displacement of every cluster of one object, with no pairing.
 
-    def __init__(self, threshold):
+    ``lookahead`` (steps, 0 = off): batching, see the module docs."""
+
+    def __init__(self, threshold, lookahead=0.0):
         self.threshold = float(threshold)
+        self.lookahead = float(lookahead)
         self.acc_avg = np.zeros((0, 3))
         self.acc_dev = np.zeros(0)
 
@@ -156,6 +204,9 @@ class AbsoluteMeasure:
         self.acc_dev += dev
         amplitude = np.sqrt(np.einsum("ij,ij->i", self.acc_avg, self.acc_avg)) + self.acc_dev
         due = amplitude > self.threshold
+        if self.lookahead > 0 and due.any():
+            rate = np.sqrt(np.einsum("ij,ij->i", avg, avg)) + dev
+            due |= amplitude + self.lookahead * rate > self.threshold
         self.acc_avg[due] = 0.0
         self.acc_dev[due] = 0.0
         return due

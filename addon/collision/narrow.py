@@ -25,21 +25,22 @@ triangle normal points to):
 Scenes: the embreex cost model (measured, shared/notes/collision.md and ``bench.py``): building a
 scene copies ~1.4 µs per triangle plus the BVH build on first query (a 200-triangle cluster scene
 costs 0.3-0.8 ms to build and query once), while casting 200 rays into it costs 17-60 µs and a
-call's overhead is ~5 µs. A whole 8K-triangle body rebuilt every step would be ~14 ms. So scenes are
-per *cluster* of the target, built lazily on the first full detection that needs them, and kept
-in the cluster's frame of reference: each query fits the rigid motion (Kabsch) of the cluster's
-vertices since the build and casts the rays transformed into the build frame. A scene is rebuilt
-only when the cluster's non-rigid residual exceeds ``tolerance``. A skinned limb or a cloth tube
-moving with it keeps its scenes for the whole animation. Because the scene may be up to
-``tolerance`` stale, its hit is only a candidate: the walker re-finds the exact triangle on the
-current vertices.
+call's overhead is ~5-10 µs. A whole 8K-triangle body rebuilt every step would be ~14 ms. So scenes
+are per *cluster* of the target, built lazily on the first full detection that needs them, and
+kept in the cluster's frame of reference: each query fits the rigid motion of the cluster's
+triangle corners since the build (Horn's method, in C) and casts the rays transformed into the
+build frame. A scene is rebuilt only when the cluster's non-rigid residual exceeds ``tolerance``.
+A skinned limb or a cloth tube moving with it keeps its scenes for the whole animation. Because
+the scene may be up to ``tolerance`` stale, its hit is only a candidate: the walker re-finds the
+exact triangle on the current vertices.
 
 The alternative, exact numpy tests of every candidate ray against every triangle of a cluster
 pair, costs 6.7 ms for 200 rays x 200 triangles (``bench.numpy_vs_embree``: Embree build + query
 0.31 ms, query into the cached scene 0.06 ms), so even a scene rebuilt for a single query beats
 it 20x; the rigid-frame cache makes rebuilds rare (stand-in bench: every scene built once in 80
-moving steps). What remains per full-detected cluster is Python overhead: the Kabsch fit
-(~0.12 ms) and the cast wrapper (~0.12 ms), ~0.25 ms per collider cluster queried.
+moving steps). The detector gathers all rays of a step for one collider cluster (from every cloth
+cluster paired with it) into one Embree call, prepared, culled and refined in C (``kernels``), so
+what is left per collider cluster queried is the fit and the call, ~15 µs plus the rays.
 
 Units: metres; velocities in m/s.
 """
@@ -48,10 +49,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from embreex import rtcore_scene
+from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
-from .incremental import cross, excluded, walk
+from .. import _collide
+from .incremental import cross, excluded
 
 __all__ = [
     "Contacts",
@@ -143,9 +145,36 @@ def vertex_normals(positions, triangles):
     return VertexNormals(positions.shape[0], triangles)(positions)
 
 
+_DEVICE = None  # one Embree device for every scene: creating one per scene cost ~80 µs a build
+_OBJECT_ROWS = True  # see build_scene
+
+
+def _device():
+    global _DEVICE
+    if _DEVICE is None:
+        _DEVICE = rtcore.EmbreeDevice()
+    return _DEVICE
+
+
 def build_scene(vertices, triangles):
-    """An embreex scene of the given triangles (float32 copy; this is the ~1.4 µs/triangle)."""
-    scene = rtcore_scene.EmbreeScene()
+    """An embreex scene of the given triangles.
+
+    embreex copies the arrays element by element through Python indexing (~1.4 µs per triangle
+    with numpy arrays: every ``indices[i][k]`` makes a row view first). Handing it an object array
+    of Python floats and a 1-D object array of per-triangle lists makes each read a plain item
+    fetch: ~2.5x faster builds. Should an embreex release type its arguments, the plain float32 /
+    int32 arrays are used instead."""
+    global _OBJECT_ROWS
+    scene = rtcore_scene.EmbreeScene(_device())
+    if _OBJECT_ROWS:
+        try:
+            rows = np.empty(len(triangles), object)
+            rows[:] = np.asarray(triangles, np.int64).tolist()
+            TriangleMesh(scene, np.asarray(vertices, np.float64).astype(object), rows)
+            return scene
+        except (TypeError, ValueError):
+            _OBJECT_ROWS = False
+            scene = rtcore_scene.EmbreeScene(_device())
     TriangleMesh(scene, np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(triangles, np.int32))
     return scene
 
@@ -219,76 +248,125 @@ def cast(scene, origins, directions, max_dist, prim_to_tri, exclude=None, triang
     return tri_out, t_out
 
 
-class _ClusterScene:
-    __slots__ = ("scene", "tri", "verts", "ref", "ref_centre", "fit_step", "R", "centre", "builds")
-
-
 class ClusterScenes:
     """Lazily built Embree scenes, one per cluster of one collider, valid up to rigid motion.
 
-    ``tolerance`` (m): largest non-rigid residual of a cluster's vertices (after the best rigid
-    fit since the build) for which its scene is reused.
+    ``tolerance`` (m): largest non-rigid residual of a scene's corners (after the best rigid fit
+    since the build) for which its scene is reused. A scene holds the cluster's triangles plus a
+    margin, their neighbours across an edge: a ray that meets the cluster near its border, where
+    the stale pose may have moved the border by up to the tolerance, still finds a candidate (the
+    walker then steps to the exact triangle, in whichever cluster it is).
+
+    Layout, for the C kernels: scene c's triangles are ``tri[ptr[c]:ptr[c + 1]]`` (fixed by the
+    topology), ``ref`` (same rows, 3, 3) their corners when the scene was built, and ``R`` (K, 3, 3),
+    ``centre``, ``ref_centre`` (K, 3) the world -> build frame transform of the last fit:
+    x_build = R^T (x - centre) + ref_centre. ``scene[c]`` is the embreex scene or None.
     """
 
     def __init__(self, tolerance):
         self.tolerance = float(tolerance)
-        self._cache = {}
         self.builds = 0  # scenes (re)built, for stats
         self.build_triangles = 0
+        self.ptr = np.zeros(1, np.int64)
+        self.tri = np.zeros(0, np.int64)
+        self.ref = np.zeros((0, 3, 3))
+        self.scene = []
+        self.fit_step = np.zeros(0, np.int64)
+        self.R = np.zeros((0, 3, 3))
+        self.centre = np.zeros((0, 3))
+        self.ref_centre = np.zeros((0, 3))
 
-    def invalidate(self, clusters=None):
-        if clusters is None:
-            self._cache.clear()
-        else:
-            for c in np.asarray(clusters).reshape(-1).tolist():
-                self._cache.pop(int(c), None)
+    def set_topology(self, triangles, clustering, adj):
+        """Each cluster's scene triangles (its own plus their edge neighbours). A built scene whose
+        triangle list did not change keeps its scene, reference corners and transform."""
+        m = int(triangles.shape[0])
+        k = clustering.n_clusters
+        lab = clustering.tri_labels
+        f = np.arange(m, dtype=np.int64)
+        nb = adj.reshape(-1)
+        ok = nb >= 0
+        key = np.unique(np.concatenate([lab * m + f, np.repeat(lab, 3)[ok] * m + nb[ok]]))
+        ptr = np.zeros(k + 1, np.int64)
+        np.cumsum(np.bincount(key // m, minlength=k), out=ptr[1:])
+        tri = key % m
+        ref = np.zeros((tri.size, 3, 3))
+        scene = [None] * k
+        R = np.tile(np.eye(3), (k, 1, 1))
+        centre, ref_centre = np.zeros((k, 3)), np.zeros((k, 3))
+        for c in range(min(k, len(self.scene))):
+            old = self.tri[self.ptr[c]:self.ptr[c + 1]]
+            if self.scene[c] is not None and np.array_equal(old, tri[ptr[c]:ptr[c + 1]]):
+                scene[c] = self.scene[c]
+                ref[ptr[c]:ptr[c + 1]] = self.ref[self.ptr[c]:self.ptr[c + 1]]
+                R[c], centre[c], ref_centre[c] = self.R[c], self.centre[c], self.ref_centre[c]
+        self.ptr, self.tri, self.ref, self.scene = ptr, tri, ref, scene
+        self.R, self.centre, self.ref_centre = R, centre, ref_centre
+        self.fit_step = np.full(k, -1, np.int64)
 
-    def _build(self, c, positions, triangles, tri_ids):
-        cs = _ClusterScene()
-        tri = triangles[tri_ids]
+    def triangles(self, c):
+        return self.tri[self.ptr[c]:self.ptr[c + 1]]
+
+    def invalidate(self, clusters=None, triangles=None):
+        """Drop the scenes of these clusters (all when both are None) and of any cluster whose
+        scene holds one of these triangles (a margin reaches into the neighbours)."""
+        if clusters is None and triangles is None:
+            self.scene = [None] * len(self.scene)
+            return
+        drop = set()
+        if clusters is not None:
+            drop |= {int(c) for c in np.asarray(clusters).reshape(-1).tolist() if 0 <= c < len(self.scene)}
+        if triangles is not None and len(triangles):
+            hit = np.isin(self.tri, np.asarray(triangles, np.int64).reshape(-1))
+            drop |= set((np.searchsorted(self.ptr, np.flatnonzero(hit), side="right") - 1).tolist())
+        for c in drop:
+            self.scene[c] = None
+
+    def _build(self, c, positions, triangles):
+        s, e = self.ptr[c], self.ptr[c + 1]
+        tri = triangles[self.tri[s:e]]
         verts, local = np.unique(tri.reshape(-1), return_inverse=True)
-        cs.tri = tri_ids
-        cs.verts = verts
-        cs.ref = positions[verts].copy()
-        cs.ref_centre = cs.ref.mean(axis=0)
-        cs.scene = build_scene(cs.ref, local.reshape(-1, 3))
-        cs.fit_step = -1
-        cs.R = np.eye(3)
-        cs.centre = cs.ref_centre.copy()
-        self._cache[c] = cs
+        corners = positions[tri]
+        self.ref[s:e] = corners  # the scene's frame is the pose it is built in
+        self.R[c] = np.eye(3)
+        self.ref_centre[c] = self.centre[c] = corners.reshape(-1, 3).mean(axis=0)
+        self.scene[c] = build_scene(positions[verts], local.reshape(-1, 3))
         self.builds += 1
-        self.build_triangles += tri_ids.size
-        return cs
+        self.build_triangles += int(e - s)
 
-    def _fit(self, cs, positions, step):
-        """Rigid fit of the cluster's current vertices to the build pose; False if too deformed."""
-        if cs.fit_step == step:
-            return True
-        cur = positions[cs.verts]
-        centre = cur.mean(axis=0)
-        x0 = cs.ref - cs.ref_centre
-        x1 = cur - centre
-        u, _, vt = np.linalg.svd(x0.T @ x1)
-        d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
-        R = vt.T @ np.diag([1.0, 1.0, d]) @ u.T  # x1 ≈ R x0
-        resid = x0 @ R.T - x1
-        if np.einsum("ij,ij->i", resid, resid).max(initial=0.0) > self.tolerance**2:
-            return False
-        cs.R, cs.centre, cs.fit_step = R, centre, step
-        return True
+    def fit(self, clusters, positions, triangles, step):
+        """Make the scenes of ``clusters`` usable this step: one C call fits every built one (its
+        transform lands in R, centre, ref_centre); those that deformed more than the tolerance,
+        and those never built, are built now. Returns a bool mask of the clusters that have a
+        scene (a cluster without triangles has none)."""
+        clusters = np.asarray(clusters, np.int64)
+        todo = clusters[self.fit_step[clusters] != step]
+        if todo.size:
+            built = np.array([self.scene[c] is not None for c in todo.tolist()], bool)
+            fit = todo[built]
+            if fit.size:
+                resid2 = np.empty(fit.size)
+                _collide.rigid_fit_many(positions, triangles, self.ptr, self.tri, self.ref, fit, self.R, self.centre,
+                                        self.ref_centre, resid2)
+                stale = fit[~(resid2 <= self.tolerance**2)]
+            else:
+                stale = fit
+            for c in np.concatenate([todo[~built], stale]).tolist():
+                if self.ptr[c + 1] > self.ptr[c]:
+                    self._build(c, positions, triangles)
+            self.fit_step[todo] = step
+        return self.ptr[clusters + 1] > self.ptr[clusters]
 
     def query(self, c, tri_ids, positions, triangles, origins, directions, max_dist, step, exclude=None):
-        """Candidate first hits of rays in cluster ``c`` of this collider: (triangle, t)."""
-        cs = self._cache.get(c)
-        if cs is not None and not self._fit(cs, positions, step):
-            cs = None
-        if cs is None:
-            cs = self._build(c, positions, triangles, tri_ids)
-            cs.fit_step = step
+        """Candidate first hits of rays in cluster ``c`` of this collider: (triangle, t).
+        (One cluster at a time, world-frame rays; the detector batches through ``kernels``.)"""
+        if not self.fit(np.array([c]), positions, triangles, step)[0]:
+            k = origins.shape[0]
+            return np.full(k, -1, np.int64), np.full(k, np.inf)
+        R, centre, ref_centre = self.R[c], self.centre[c], self.ref_centre[c]
         # World -> build frame: x0 = R^T (x - centre) + ref_centre (row vectors: (x - c) @ R).
-        o = (origins - cs.centre) @ cs.R + cs.ref_centre
-        d = directions @ cs.R
-        return cast(cs.scene, o, d, max_dist + self.tolerance, cs.tri, exclude, triangles)
+        o = (origins - centre) @ R + ref_centre
+        d = directions @ R
+        return cast(self.scene[c], o, d, max_dist + self.tolerance, self.triangles(c), exclude, triangles)
 
 
 def initial_side(x_prev, x_now, tri_prev, tri_now):

@@ -61,6 +61,15 @@ typedef struct {
  * triangle. has_normal may be NULL. */
 int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, tcc_error *err);
 
+/* The same normals for the vertices of the listed clusters only (members order[ptr[c]..ptr[c+1]]
+ * of each c in clusters[0..q)), each summed from its incident triangles vt_tri[vt_ptr[v] ..
+ * vt_ptr[v+1]] in ascending order: bit for bit what tcc_vertex_normals gives. Other rows are not
+ * touched. done (k,) may be NULL; else clusters marked there are skipped, and those done are marked. A step needs the normals of the vertices it casts or walks rays from, which in a quiet
+ * step is few clusters or none. */
+int tcc_cluster_normals(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx *vt_tri, tcc_idx nvt,
+                        const tcc_idx *order, tcc_idx norder, const tcc_idx *ptr, tcc_idx k, const tcc_idx *clusters,
+                        tcc_idx q, double *normals, uint8_t *has_normal, uint8_t *done, tcc_error *err);
+
 /* Rigid fit (Horn's quaternion method) of the corners of triangles tris[0..k) now (m->x) to the
  * same corners at build time (ref (k, 3, 3), row i for tris[i]): x_now ~ R (x_ref - ref_centre)
  * + centre. Returns the largest squared residual in *resid2. */
@@ -89,11 +98,13 @@ void tcc_box_pairs(const double *lo_a, const double *hi_a, tcc_idx ka, const dou
  * (sorted, i << 32 | j) with their accumulated rel_avg / rel_dev; this step's pairs (i, j), each
  * once, in any order (tcc_box_pairs' order costs no sort). Writes the new keys / accumulators in
  * key order (reset where full), and in the pairs' order the amplitude before the reset and
- * full = amplitude > threshold or force; *nfull counts the full pairs. */
+ * full = amplitude > threshold or force; *nfull counts the full pairs. When any pair is full and
+ * lookahead > 0, every pair that at this step's rate (|avg_a - avg_b| + dev_a + dev_b) would pass
+ * the threshold within lookahead steps is made full too (batching, measure.py). */
 int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const double *old_dev, tcc_idx nold,
                          const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *avg_a,
                          const double *dev_a, tcc_idx ka, const double *avg_b, const double *dev_b, tcc_idx kb,
-                         const uint8_t *force, double threshold, tcc_idx *keys, double *rel_avg,
+                         const uint8_t *force, double threshold, double lookahead, tcc_idx *keys, double *rel_avg,
                          double *rel_dev, double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err);
 
 /* ---------------------------------------------------------------- walk.c */
@@ -169,15 +180,32 @@ int tcc_accept_hits(const tcc_idx *rays, const int32_t *prim, const float *tfar,
 enum { TCC_VOLUME = 0, TCC_SURFACE = 1, TCC_SELF = 2 };
 
 /* Candidates from Embree refined on the current geometry: each ray with hit_tri >= 0 is walked
- * (max_steps) from it; a found hit with t >= -2e-6 is written (compacted) to out with status
+ * (4 steps at most) from it; a found hit with t >= -2e-6 is written (compacted) to out with status
  * 1 = keep, 2 = needs the inside confirmation (a volume: a back face beyond track_range for a
- * vertex that was not inside), 0 = dropped by the range rules. Returns the count in *count. */
+ * vertex that was not inside), 0 = out of range (kept in the list: a nearer hit of the same ray,
+ * whatever its range, proves a far back face is not the exit). Returns the count in *count. */
 int tcc_refine(const double *cloth_x, const double *normals, tcc_idx n, const tcc_idx *ray_v, const tcc_idx *ray_slot,
                const tcc_idx *hit_tri, tcc_idx r, const tcc_mesh *target, const tcc_ring *ring, int kind,
                double track_range, const uint8_t *inside_prev, tcc_idx *out_v, tcc_idx *out_slot, tcc_hits out,
                uint8_t *status, tcc_idx *count, tcc_error *err);
 
 /* Tracks are sparse: a list sorted by key = 2 * vertex + slot (most vertices track nothing). */
+/* A far back-face hit (status 2) is not the exit if another hit of the same ray (vertex, slot)
+ * is nearer: a candidate among these k (any status) or the ray's walked track (track_key sorted,
+ * walked_tri / walked_t parallel to it). Such hits get status 0; *left counts the status 2 left. */
+int tcc_drop_dominated(const tcc_idx *v, const tcc_idx *slot, const double *t, uint8_t *status, tcc_idx k,
+                       const tcc_idx *track_key, tcc_idx kt, const tcc_idx *walked_tri, const double *walked_t,
+                       tcc_idx *left, tcc_error *err);
+
+/* The inside confirmation of a far exit (tcc_refine's status 2): for each ray o + s d (world),
+ * whether no triangle other than exit_tri[i] is hit for s in [-backoff, t_exit[i] - eps], over
+ * the triangles of every cluster whose box (lo, hi) the segment crosses (tri_order[tri_ptr[c] ..
+ * tri_ptr[c+1]] are cluster c's triangles). Exact, on the current geometry. */
+int tcc_confirm_inside(const tcc_mesh *m, const tcc_idx *tri_order, tcc_idx ntri_order, const tcc_idx *tri_ptr,
+                       tcc_idx k, const double *lo, const double *hi, const double *o, const double *d,
+                       const double *t_exit, const tcc_idx *exit_tri, tcc_idx r, double backoff, double eps,
+                       uint8_t *ok, tcc_error *err);
+
 typedef struct {
     /* cloth */
     const double *x, *normals, *x_prev, *velocity; /* (n,3); velocity may be NULL (zero) */

@@ -76,7 +76,6 @@ int tcc_refine(const double *cloth_x, const double *normals, tcc_idx n, const tc
         } else {
             st = near ? 1 : 0;
         }
-        if (!st) continue;
         out_v[m] = v;
         out_slot[m] = slot;
         out.tri[m] = h.tri;
@@ -89,6 +88,144 @@ int tcc_refine(const double *cloth_x, const double *normals, tcc_idx n, const tc
     }
     *count = m;
     return TCC_OK;
+}
+
+typedef struct {
+    tcc_idx key;
+    double at;
+    tcc_idx i;
+} ranked;
+
+static int by_key_then_at(const void *pa, const void *pb)
+{
+    const ranked *a = pa, *b = pb;
+    if (a->key != b->key) return a->key < b->key ? -1 : 1;
+    if (a->at != b->at) return a->at < b->at ? -1 : 1;
+    return a->i < b->i ? -1 : (a->i > b->i);
+}
+
+static tcc_idx find_sorted(const tcc_idx *keys, tcc_idx k, tcc_idx key);
+
+int tcc_drop_dominated(const tcc_idx *v, const tcc_idx *slot, const double *t, uint8_t *status, tcc_idx k,
+                       const tcc_idx *track_key, tcc_idx kt, const tcc_idx *walked_tri, const double *walked_t,
+                       tcc_idx *left, tcc_error *err)
+{
+    *left = 0;
+    int any = 0;
+    for (tcc_idx i = 0; i < k && !any; i++) any = status[i] == 2;
+    if (!any) return TCC_OK;
+    for (tcc_idx j = 1; j < kt; j++)
+        if (track_key[j] <= track_key[j - 1])
+            return tcc_fail(err, TCC_ERR_VALUE, "track keys must ascend (entry %lld)", (long long)j);
+    ranked *rk = malloc(sizeof *rk * (size_t)k);
+    if (!rk) return tcc_fail(err, TCC_ERR_NOMEM, "out of memory ranking %lld hits", (long long)k);
+    for (tcc_idx i = 0; i < k; i++) {
+        if (v[i] < 0 || (slot[i] != 0 && slot[i] != 1)) {
+            free(rk);
+            return tcc_fail(err, TCC_ERR_INDEX, "hit %lld: (vertex %lld, slot %lld) is not a ray", (long long)i,
+                            (long long)v[i], (long long)slot[i]);
+        }
+        rk[i] = (ranked){2 * v[i] + slot[i], fabs(t[i]), i};
+    }
+    qsort(rk, (size_t)k, sizeof *rk, by_key_then_at);
+    tcc_idx n2 = 0;
+    for (tcc_idx a = 0; a < k;) {
+        tcc_idx b = a;
+        while (b < k && rk[b].key == rk[a].key) b++;
+        double best = rk[a].at; /* the group's nearest */
+        tcc_idx w = find_sorted(track_key, kt, rk[a].key);
+        double walked = w >= 0 && walked_tri[w] >= 0 ? fabs(walked_t[w]) : INFINITY;
+        for (tcc_idx q = a; q < b; q++) {
+            tcc_idx i = rk[q].i;
+            if (status[i] != 2) continue;
+            if (best < rk[q].at || walked < rk[q].at)
+                status[i] = 0;
+            else
+                n2++;
+        }
+        a = b;
+    }
+    free(rk);
+    *left = n2;
+    return TCC_OK;
+}
+
+/* Where the segment o + s d, s in [s0, s1], enters the box [l, h]; -1 if it misses. */
+static int segment_enters(const double o[3], const double d[3], double s0, double s1, const double l[3],
+                          const double h[3], double *enter)
+{
+    for (int a = 0; a < 3; a++) {
+        if (!(l[a] <= h[a])) return 0; /* empty or NaN box */
+        if (fabs(d[a]) < 1e-300) {
+            if (o[a] < l[a] || o[a] > h[a]) return 0;
+            continue;
+        }
+        double inv = 1.0 / d[a], ta = (l[a] - o[a]) * inv, tb = (h[a] - o[a]) * inv;
+        if (ta > tb) {
+            double sw = ta;
+            ta = tb;
+            tb = sw;
+        }
+        s0 = ta > s0 ? ta : s0;
+        s1 = tb < s1 ? tb : s1;
+        if (s0 > s1) return 0;
+    }
+    *enter = s0;
+    return 1;
+}
+
+typedef struct {
+    double enter;
+    tcc_idx c;
+} crossing;
+
+int tcc_confirm_inside(const tcc_mesh *m, const tcc_idx *tri_order, tcc_idx ntri_order, const tcc_idx *tri_ptr,
+                       tcc_idx k, const double *lo, const double *hi, const double *o, const double *d,
+                       const double *t_exit, const tcc_idx *exit_tri, tcc_idx r, double backoff, double eps,
+                       uint8_t *ok, tcc_error *err)
+{
+    for (tcc_idx c = 0; c < k; c++)
+        if (tri_ptr[c] < 0 || tri_ptr[c + 1] < tri_ptr[c] || tri_ptr[c + 1] > ntri_order)
+            return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld's triangles span [%lld, %lld), outside the %lld listed",
+                            (long long)c, (long long)tri_ptr[c], (long long)tri_ptr[c + 1], (long long)ntri_order);
+    crossing *cr = malloc(sizeof *cr * (size_t)(k > 0 ? k : 1));
+    if (!cr) return tcc_fail(err, TCC_ERR_NOMEM, "out of memory for %lld clusters", (long long)k);
+    int rc = TCC_OK;
+    for (tcc_idx i = 0; i < r; i++) {
+        const double *oi = o + 3 * i, *di = d + 3 * i;
+        double smax = t_exit[i] - eps;
+        int blocked = 0;
+        /* the clusters the segment crosses, nearest first: a blocking front face is usually in the
+         * first one, so an outside vertex is settled after one cluster's triangles */
+        tcc_idx nc = 0;
+        for (tcc_idx c = 0; c < k && -backoff <= smax; c++) {
+            double enter;
+            if (!segment_enters(oi, di, -backoff, smax, lo + 3 * c, hi + 3 * c, &enter)) continue;
+            tcc_idx q = nc++;
+            while (q > 0 && cr[q - 1].enter > enter) {
+                cr[q] = cr[q - 1];
+                q--;
+            }
+            cr[q] = (crossing){enter, c};
+        }
+        for (tcc_idx j = 0; j < nc && !blocked; j++) {
+            tcc_idx c = cr[j].c;
+            for (tcc_idx q = tri_ptr[c]; q < tri_ptr[c + 1] && !blocked; q++) {
+                tcc_idx f = tri_order[q];
+                if (f == exit_tri[i]) continue;
+                if ((rc = check_triangle(m, f, err))) goto done;
+                const tcc_idx *tv = m->tri + 3 * f;
+                double t, u, v;
+                if (!tcc_line_triangle(oi, di, m->x + 3 * tv[0], m->x + 3 * tv[1], m->x + 3 * tv[2], &t, &u, &v))
+                    continue;
+                blocked = u >= 0 && v >= 0 && u + v <= 1 && t >= -backoff && t < smax;
+            }
+        }
+        ok[i] = (uint8_t)!blocked;
+    }
+done:
+    free(cr);
+    return rc;
 }
 
 /* Side (+1 / -1 along the triangle normal) a vertex comes from, for a new track (narrow.initial_side):
@@ -158,7 +295,7 @@ static int by_key_then_distance(const void *pa, const void *pb)
 }
 
 /* Index of key in the sorted keys[0..k), or -1. */
-static tcc_idx find_key(const tcc_idx *keys, tcc_idx k, tcc_idx key)
+static tcc_idx find_sorted(const tcc_idx *keys, tcc_idx k, tcc_idx key)
 {
     tcc_idx lo = 0, hi = k;
     while (lo < hi) {
@@ -233,7 +370,7 @@ int tcc_merge_classify(const tcc_merge_in *in, tcc_merge_out *out, tcc_error *er
             /* a new hit on a triangle this vertex already tracked (either slot) keeps its memory */
             int8_t mem = 0;
             for (int k = 0; k < 2; k++) {
-                tcc_idx j = find_key(in->track_key, kt, 2 * v + k);
+                tcc_idx j = find_sorted(in->track_key, kt, 2 * v + k);
                 if (j >= 0 && in->track_tri[j] == f) mem = in->track_side[j];
             }
             e = (entry){key, f, in->f_hit.t[i], in->f_hit.u[i], in->f_hit.v[i], mem};

@@ -58,6 +58,63 @@ int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, 
     return TCC_OK;
 }
 
+int tcc_cluster_normals(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx *vt_tri, tcc_idx nvt,
+                        const tcc_idx *order, tcc_idx norder, const tcc_idx *ptr, tcc_idx k, const tcc_idx *clusters,
+                        tcc_idx q, double *normals, uint8_t *has_normal, uint8_t *done, tcc_error *err)
+{
+    for (tcc_idx g = 0; g < q; g++) {
+        tcc_idx c = clusters[g];
+        if (c < 0 || c >= k)
+            return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld is not in [0, %lld)", (long long)c, (long long)k);
+        if (done) {
+            if (done[c]) continue;
+            done[c] = 1;
+        }
+        tcc_idx s = ptr[c], e = ptr[c + 1];
+        if (s < 0 || e < s || e > norder)
+            return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld spans [%lld, %lld), outside the %lld members",
+                            (long long)c, (long long)s, (long long)e, (long long)norder);
+        for (tcc_idx i = s; i < e; i++) {
+            tcc_idx v = order[i];
+            if (v < 0 || v >= m->nv)
+                return tcc_fail(err, TCC_ERR_INDEX, "order[%lld] = %lld is not a vertex index in [0, %lld)",
+                                (long long)i, (long long)v, (long long)m->nv);
+            tcc_idx a0 = vt_ptr[v], a1 = vt_ptr[v + 1];
+            if (a0 < 0 || a1 < a0 || a1 > nvt)
+                return tcc_fail(err, TCC_ERR_INDEX, "vertex %lld's triangles span [%lld, %lld), outside the %lld listed",
+                                (long long)v, (long long)a0, (long long)a1, (long long)nvt);
+            double acc[3] = {0.0, 0.0, 0.0};
+            for (tcc_idx j = a0; j < a1; j++) {
+                tcc_idx f = vt_tri[j];
+                if (f < 0 || f >= m->nt)
+                    return tcc_fail(err, TCC_ERR_INDEX, "triangle %lld is not in [0, %lld)", (long long)f,
+                                    (long long)m->nt);
+                const tcc_idx *t = m->tri + 3 * f;
+                for (int a = 0; a < 3; a++)
+                    if (t[a] < 0 || t[a] >= m->nv)
+                        return tcc_fail(err, TCC_ERR_INDEX,
+                                        "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)", (long long)f,
+                                        a, (long long)t[a], (long long)m->nv);
+                double e1[3], e2[3], cr[3];
+                v_sub(e1, m->x + 3 * t[1], m->x + 3 * t[0]);
+                v_sub(e2, m->x + 3 * t[2], m->x + 3 * t[0]);
+                v_cross(cr, e1, e2);
+                acc[0] += cr[0];
+                acc[1] += cr[1];
+                acc[2] += cr[2];
+            }
+            double len = sqrt(v_dot(acc, acc));
+            double sc = len > 0 ? len : 1.0;
+            double *nv = normals + 3 * v;
+            nv[0] = acc[0] / sc;
+            nv[1] = acc[1] / sc;
+            nv[2] = acc[2] / sc;
+            has_normal[v] = v_dot(nv, nv) > 0.5;
+        }
+    }
+    return TCC_OK;
+}
+
 int tcc_line_triangle(const double o[3], const double d[3], const double a[3], const double b[3],
                       const double c[3], double *t, double *u, double *v)
 {

@@ -111,7 +111,7 @@ static int by_key(const void *pa, const void *pb)
 int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const double *old_dev, tcc_idx nold,
                          const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *avg_a,
                          const double *dev_a, tcc_idx ka, const double *avg_b, const double *dev_b, tcc_idx kb,
-                         const uint8_t *force, double threshold, tcc_idx *keys, double *rel_avg,
+                         const uint8_t *force, double threshold, double lookahead, tcc_idx *keys, double *rel_avg,
                          double *rel_dev, double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err)
 {
     int sorted = 1;
@@ -137,9 +137,10 @@ int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const d
         qsort(ord, (size_t)np, sizeof *ord, by_key);
         for (tcc_idx q = 1; q < np; q++)
             if (ord[q].key == ord[q - 1].key) {
+                tcc_idx key = ord[q].key;
                 free(ord);
-                return tcc_fail(err, TCC_ERR_VALUE, "pair (%lld, %lld) is listed twice", (long long)(ord[q].key >> 32),
-                                (long long)(ord[q].key & 0xffffffff));
+                return tcc_fail(err, TCC_ERR_VALUE, "pair (%lld, %lld) is listed twice", (long long)(key >> 32),
+                                (long long)(key & 0xffffffff));
             }
     }
     tcc_idx o = 0, nf = 0;
@@ -173,6 +174,23 @@ int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const d
         rel_dev[q] = rd;
         amplitude[p] = amp;
         full[p] = (uint8_t)f;
+    }
+    /* batching: a step that runs full detection anyway also takes the pairs that, at this step's
+     * rate, would pass the threshold within `lookahead` steps: together the fixed costs are paid once */
+    if (nf > 0 && lookahead > 0.0) {
+        for (tcc_idx q = 0; q < np; q++) {
+            tcc_idx p = ord ? ord[q].p : q;
+            if (full[p]) continue;
+            tcc_idx i = pi[p], j = pj[p];
+            double d0 = avg_a[3 * i] - avg_b[3 * j], d1 = avg_a[3 * i + 1] - avg_b[3 * j + 1],
+                   d2 = avg_a[3 * i + 2] - avg_b[3 * j + 2];
+            double rate = sqrt(d0 * d0 + d1 * d1 + d2 * d2) + dev_a[i] + dev_b[j];
+            if (!(amplitude[p] + lookahead * rate > threshold)) continue;
+            full[p] = 1;
+            rel_avg[3 * q] = rel_avg[3 * q + 1] = rel_avg[3 * q + 2] = 0.0;
+            rel_dev[q] = 0.0;
+            nf++;
+        }
     }
     free(ord);
     *nfull = nf;

@@ -88,13 +88,11 @@ static Buf *arg(Ctx *c, PyObject *o, const char *name, int kind, int out, int nd
     if (PyObject_GetBuffer(o, &b->v, flags) < 0) {
         PyObject *t, *v, *tb;
         PyErr_Fetch(&t, &v, &tb);
+        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous%s %s numpy array (%S)", name, out ? ", writable" : "",
+                     KIND_NAME[kind], v ? v : Py_None);
         Py_XDECREF(t);
-        Py_XDECREF(tb);
-        PyObject *why = v ? PyObject_Str(v) : NULL;
         Py_XDECREF(v);
-        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous%s %s numpy array (%U)", name, out ? ", writable" : "",
-                     KIND_NAME[kind], why ? why : Py_None);
-        Py_XDECREF(why);
+        Py_XDECREF(tb);
         return NULL;
     }
     b->held = 1;
@@ -247,6 +245,44 @@ fail:
     return NULL;
 }
 
+static PyObject *py_cluster_normals(PyObject *self, PyObject *args)
+{
+    PyObject *a[10];
+    a[9] = Py_None;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOO|O:cluster_normals", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
+                          &a[8], &a[9]))
+        return NULL;
+    Ctx c = {.n = 0};
+    Buf *x, *t, *vp, *vt, *order, *ptr, *cl, *out, *has, *done;
+    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
+    Py_ssize_t n = ROWS(x);
+    TRY(t = arg(&c, a[1], "triangles", I64, 0, 2, -1, 3, 0));
+    TRY(vp = arg(&c, a[2], "vt_ptr", I64, 0, 1, n + 1, 0, 0));
+    TRY(vt = arg(&c, a[3], "vt_tri", I64, 0, 1, -1, 0, 0));
+    TRY(order = arg(&c, a[4], "order", I64, 0, 1, -1, 0, 0));
+    TRY(ptr = arg(&c, a[5], "ptr", I64, 0, 1, -1, 0, 0));
+    if (ROWS(ptr) < 1) {
+        PyErr_SetString(PyExc_ValueError, "ptr must hold the k + 1 cluster bounds (at least one entry)");
+        goto fail;
+    }
+    TRY(cl = arg(&c, a[6], "clusters", I64, 0, 1, -1, 0, 0));
+    TRY(out = arg(&c, a[7], "normals", F64, 1, 2, n, 3, 0));
+    TRY(has = arg(&c, a[8], "has_normal", BOOL, 1, 1, n, 0, 0));
+    TRY(done = opt(&c, a[9], "done", BOOL, 1, 1, ROWS(ptr) - 1, 0, 0));
+    if (no_overlap(&c)) goto fail;
+    tcc_mesh m = {DATA(x), n, DATA(t), ROWS(t), NULL, NULL};
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_cluster_normals(&m, DATA(vp), DATA(vt), ROWS(vt), DATA(order), ROWS(order), DATA(ptr), ROWS(ptr) - 1,
+                            DATA(cl), ROWS(cl), DATA(out), DATA(has), DATA(done), &err));
+    ctx_release(&c);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    ctx_release(&c);
+    return NULL;
+}
+
 static PyObject *py_cluster_motion(PyObject *self, PyObject *args)
 {
     PyObject *a[6];
@@ -339,12 +375,12 @@ fail:
 static PyObject *py_relative_measure(PyObject *self, PyObject *args)
 {
     PyObject *a[16];
-    double threshold;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOdOOOOO:relative_measure", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6],
-                          &a[7], &a[8], &a[9], &threshold, &a[11], &a[12], &a[13], &a[14], &a[15]))
+    double threshold, lookahead = 0.0;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOdOOOOO|d:relative_measure", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5],
+                          &a[6], &a[7], &a[8], &a[9], &threshold, &a[11], &a[12], &a[13], &a[14], &a[15], &lookahead))
         return NULL;
-    if (isnan(threshold)) {
-        PyErr_SetString(PyExc_ValueError, "threshold must be a number, got nan");
+    if (isnan(threshold) || !isfinite(lookahead) || lookahead < 0) {
+        PyErr_SetString(PyExc_ValueError, "threshold must be a number and lookahead a finite number of steps >= 0");
         return NULL;
     }
     Ctx c = {.n = 0};
@@ -371,7 +407,7 @@ static PyObject *py_relative_measure(PyObject *self, PyObject *args)
     tcc_idx nfull = 0;
     int rc;
     RUN(tcc_relative_measure(DATA(ok), DATA(oa), DATA(od), nold, DATA(pi), DATA(pj), np_, DATA(aa), DATA(da), ROWS(aa),
-                             DATA(ab), DATA(db), ROWS(ab), DATA(force), threshold, DATA(keys), DATA(ra), DATA(rd),
+                             DATA(ab), DATA(db), ROWS(ab), DATA(force), threshold, lookahead, DATA(keys), DATA(ra), DATA(rd),
                              DATA(amp), DATA(full), &nfull, &err));
     ctx_release(&c);
     if (rc) return kernel_error(&err);
@@ -411,6 +447,62 @@ static PyObject *py_rigid_fit(PyObject *self, PyObject *args)
     ctx_release(&c);
     if (rc) return kernel_error(&err);
     return PyFloat_FromDouble(resid2);
+fail:
+    ctx_release(&c);
+    return NULL;
+}
+
+static PyObject *py_rigid_fit_many(PyObject *self, PyObject *args)
+{
+    PyObject *a[10];
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOO:rigid_fit_many", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
+                          &a[8], &a[9]))
+        return NULL;
+    Ctx c = {.n = 0};
+    Buf *x, *t, *ptr, *tris, *ref, *cl, *R, *cen, *rcen, *res;
+    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
+    TRY(t = arg(&c, a[1], "triangles", I64, 0, 2, -1, 3, 0));
+    TRY(ptr = arg(&c, a[2], "scene_ptr", I64, 0, 1, -1, 0, 0));
+    Py_ssize_t k = ROWS(ptr) - 1;
+    if (k < 0) {
+        PyErr_SetString(PyExc_ValueError, "scene_ptr must hold the k + 1 scene bounds (at least one entry)");
+        goto fail;
+    }
+    TRY(tris = arg(&c, a[3], "scene_triangles", I64, 0, 1, -1, 0, 0));
+    TRY(ref = arg(&c, a[4], "ref_corners", F64, 0, 3, ROWS(tris), 3, 3));
+    TRY(cl = arg(&c, a[5], "clusters", I64, 0, 1, -1, 0, 0));
+    Py_ssize_t q = ROWS(cl);
+    TRY(R = arg(&c, a[6], "R", F64, 1, 3, k, 3, 3));
+    TRY(cen = arg(&c, a[7], "centre", F64, 1, 2, k, 3, 0));
+    TRY(rcen = arg(&c, a[8], "ref_centre", F64, 1, 2, k, 3, 0));
+    TRY(res = arg(&c, a[9], "resid2", F64, 1, 1, q, 0, 0));
+    if (no_overlap(&c)) goto fail;
+    tcc_mesh m = {DATA(x), ROWS(x), DATA(t), ROWS(t), NULL, NULL};
+    tcc_error err = {0};
+    int rc = TCC_OK;
+    const tcc_idx *pp = DATA(ptr), *cc = DATA(cl), *tt = DATA(tris);
+    const double *rf = DATA(ref);
+    double *Rp = DATA(R), *cp = DATA(cen), *rp = DATA(rcen), *out = DATA(res);
+    Py_ssize_t nsc = ROWS(tris);
+    Py_BEGIN_ALLOW_THREADS
+    for (Py_ssize_t g = 0; g < q && rc == TCC_OK; g++) {
+        tcc_idx b = cc[g];
+        if (b < 0 || b >= k) {
+            rc = tcc_fail(&err, TCC_ERR_INDEX, "cluster %lld is not in [0, %lld)", (long long)b, (long long)k);
+            break;
+        }
+        tcc_idx s0 = pp[b], s1 = pp[b + 1];
+        if (s0 < 0 || s1 < s0 || s1 > nsc) {
+            rc = tcc_fail(&err, TCC_ERR_INDEX, "scene %lld spans [%lld, %lld), outside the %lld listed", (long long)b,
+                          (long long)s0, (long long)s1, (long long)nsc);
+            break;
+        }
+        rc = tcc_rigid_fit(&m, rf + 9 * s0, tt + s0, s1 - s0, Rp + 9 * b, cp + 3 * b, rp + 3 * b, out + g, &err);
+    }
+    Py_END_ALLOW_THREADS
+    ctx_release(&c);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
 fail:
     ctx_release(&c);
     return NULL;
@@ -612,6 +704,74 @@ fail:
     return NULL;
 }
 
+static PyObject *py_drop_dominated(PyObject *self, PyObject *args)
+{
+    PyObject *a[7];
+    if (!PyArg_ParseTuple(args, "OOOOOOO:drop_dominated", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6])) return NULL;
+    Ctx c = {.n = 0};
+    Buf *v, *s, *t, *st, *tk, *wt, *wtp;
+    TRY(v = arg(&c, a[0], "vertex", I64, 0, 1, -1, 0, 0));
+    Py_ssize_t k = ROWS(v);
+    TRY(s = arg(&c, a[1], "slot", I64, 0, 1, k, 0, 0));
+    TRY(t = arg(&c, a[2], "t", F64, 0, 1, k, 0, 0));
+    TRY(st = arg(&c, a[3], "status", BOOL, 1, 1, k, 0, 0));
+    TRY(tk = arg(&c, a[4], "track_key", I64, 0, 1, -1, 0, 0));
+    TRY(wt = arg(&c, a[5], "walked_tri", I64, 0, 1, ROWS(tk), 0, 0));
+    TRY(wtp = arg(&c, a[6], "walked_t", F64, 0, 1, ROWS(tk), 0, 0));
+    if (no_overlap(&c)) goto fail;
+    tcc_error err = {0};
+    tcc_idx left = 0;
+    int rc;
+    RUN(tcc_drop_dominated(DATA(v), DATA(s), DATA(t), DATA(st), k, DATA(tk), ROWS(tk), DATA(wt), DATA(wtp), &left,
+                           &err));
+    ctx_release(&c);
+    if (rc) return kernel_error(&err);
+    return PyLong_FromLongLong(left);
+fail:
+    ctx_release(&c);
+    return NULL;
+}
+
+static PyObject *py_confirm_inside(PyObject *self, PyObject *args)
+{
+    PyObject *a[13];
+    double backoff, eps;
+    if (!PyArg_ParseTuple(args, "OOOOOOOOOOddO:confirm_inside", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
+                          &a[8], &a[9], &backoff, &eps, &a[12]))
+        return NULL;
+    if (finite_param(backoff, "backoff", 1) || finite_param(eps, "eps", 1)) return NULL;
+    Ctx c = {.n = 0};
+    Buf *order, *ptr, *lo, *hi, *o, *d, *te, *et, *ok;
+    tcc_mesh m;
+    if (mesh_args(&c, &m, a[0], a[1], Py_None, Py_None)) goto fail;
+    TRY(order = arg(&c, a[2], "tri_order", I64, 0, 1, -1, 0, 0));
+    TRY(ptr = arg(&c, a[3], "tri_ptr", I64, 0, 1, -1, 0, 0));
+    Py_ssize_t k = ROWS(ptr) - 1;
+    if (k < 0) {
+        PyErr_SetString(PyExc_ValueError, "tri_ptr must hold the k + 1 cluster bounds (at least one entry)");
+        goto fail;
+    }
+    TRY(lo = arg(&c, a[4], "lo", F64, 0, 2, k, 3, 0));
+    TRY(hi = arg(&c, a[5], "hi", F64, 0, 2, k, 3, 0));
+    TRY(o = arg(&c, a[6], "origins", F64, 0, 2, -1, 3, 0));
+    Py_ssize_t r = ROWS(o);
+    TRY(d = arg(&c, a[7], "directions", F64, 0, 2, r, 3, 0));
+    TRY(te = arg(&c, a[8], "t_exit", F64, 0, 1, r, 0, 0));
+    TRY(et = arg(&c, a[9], "exit_tri", I64, 0, 1, r, 0, 0));
+    TRY(ok = arg(&c, a[12], "ok", BOOL, 1, 1, r, 0, 0));
+    if (no_overlap(&c)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_confirm_inside(&m, DATA(order), ROWS(order), DATA(ptr), k, DATA(lo), DATA(hi), DATA(o), DATA(d), DATA(te),
+                           DATA(et), r, backoff, eps, DATA(ok), &err));
+    ctx_release(&c);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    ctx_release(&c);
+    return NULL;
+}
+
 static PyObject *py_merge_classify(PyObject *self, PyObject *args, PyObject *kw)
 {
     static char *kwl[] = {"positions", "normals", "previous", "velocity", "target_vertices", "target_triangles",
@@ -762,6 +922,9 @@ fail:
 static PyMethodDef methods[] = {
     {"vertex_normals", py_vertex_normals, METH_VARARGS,
      "vertex_normals(positions, triangles, normals_out, has_normal_out): area-weighted unit vertex normals."},
+    {"cluster_normals", py_cluster_normals, METH_VARARGS,
+     "cluster_normals(positions, triangles, vt_ptr, vt_tri, order, ptr, clusters, normals_out, has_normal_out, "
+     "done=None): vertex normals of the listed clusters' vertices only (skipping and marking done clusters)."},
     {"cluster_motion", py_cluster_motion, METH_VARARGS,
      "cluster_motion(positions, previous, order, ptr, avg_out, dev_out): mean and deviation of the displacement."},
     {"cluster_boxes", py_cluster_boxes, METH_VARARGS,
@@ -770,9 +933,12 @@ static PyMethodDef methods[] = {
      "box_pairs(lo_a, hi_a, lo_b, hi_b, self_pairs, i_out, j_out) -> count (> len(i_out): call again, larger)."},
     {"relative_measure", py_relative_measure, METH_VARARGS,
      "relative_measure(old_keys, old_avg, old_dev, i, j, avg_a, dev_a, avg_b, dev_b, force, threshold, keys_out, "
-     "rel_avg_out, rel_dev_out, amplitude_out, full_out) -> number of full pairs."},
+     "rel_avg_out, rel_dev_out, amplitude_out, full_out, lookahead=0) -> number of full pairs."},
     {"rigid_fit", py_rigid_fit, METH_VARARGS,
      "rigid_fit(positions, triangles, ref_corners, scene_triangles, R, centre, ref_centre, row) -> max residual^2."},
+    {"rigid_fit_many", py_rigid_fit_many, METH_VARARGS,
+     "rigid_fit_many(positions, triangles, scene_ptr, scene_triangles, ref_corners, clusters, R, centre, ref_centre, "
+     "resid2_out): the rigid fit of each listed cluster's scene (rows R[c] ...), its max residual^2."},
     {"walk", py_walk, METH_VARARGS,
      "walk(positions, normals, ray_vertex, ray_slot, start, target_vertices, target_triangles, adjacency, flip, "
      "ring, max_steps, tri_out, t_out, u_out, v_out, flips_out)."},
@@ -787,6 +953,12 @@ static PyMethodDef methods[] = {
      "refine(positions, normals, ray_vertex, ray_slot, hit_triangle, target_vertices, target_triangles, adjacency, "
      "flip, ring, kind, track_range, inside_prev, vertex_out, slot_out, tri_out, t_out, u_out, v_out, flips_out, "
      "status_out) -> count."},
+    {"drop_dominated", py_drop_dominated, METH_VARARGS,
+     "drop_dominated(vertex, slot, t, status, track_key, walked_tri, walked_t) -> far back-face hits left: those "
+     "a nearer hit of the same ray beats get status 0."},
+    {"confirm_inside", py_confirm_inside, METH_VARARGS,
+     "confirm_inside(target_vertices, target_triangles, tri_order, tri_ptr, lo, hi, origins, directions, t_exit, "
+     "exit_tri, backoff, eps, ok_out): ok where no other triangle is hit before the exit."},
     {"merge_classify", (PyCFunction)(void (*)(void))py_merge_classify, METH_VARARGS | METH_KEYWORDS,
      "merge_classify(**arrays) -> (tracks, inside, contacts): the new tracks, the vertices inside and the "
      "deepest contact per vertex of one collider."},

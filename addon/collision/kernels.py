@@ -1,0 +1,158 @@
+"""Python face of the native collision kernels (``tearcloth._collide``, sources ``native/collide/``).
+
+This file owns the calls into C: it allocates the outputs, keeps the workspaces that grow with
+the scene (pair lists, ray buffers) and hands back numpy arrays. The C module checks every
+argument (dtype, shape, contiguity, overlap, every index it reads) and raises TypeError /
+ValueError / IndexError itself; what is here is bookkeeping, not validation.
+
+Each kernel has a numpy reference in this package that is its specification (the tests compare
+them on random inputs): ``narrow.VertexNormals``, ``measure.cluster_motion``, ``cluster_boxes``,
+``box_pairs``, ``RelativeMeasure.step_reference``, ``incremental.walk``, and
+``reference.merge_classify`` / ``reference.assemble``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import _collide
+
+__all__ = [
+    "vertex_normals",
+    "cluster_motion",
+    "cluster_boxes",
+    "box_pairs",
+    "walk",
+    "Hits",
+    "RayBuffer",
+    "KIND",
+]
+
+KIND = {"volume": 0, "surface": 1, "self": 2}
+
+EMPTY_I64 = np.zeros(0, np.int64)
+EMPTY_F64 = np.zeros(0, np.float64)
+EMPTY_BOOL = np.zeros(0, bool)
+
+
+NO_HITS = None  # set below, once Hits exists
+
+
+def vertex_normals(positions, triangles):
+    """Area-weighted unit vertex normals (n, 3) and has_normal (n,) bool."""
+    n = positions.shape[0]
+    out = np.empty((n, 3))
+    has = np.empty(n, bool)
+    _collide.vertex_normals(positions, triangles, out, has)
+    return out, has
+
+
+def cluster_motion(clustering, positions, previous):
+    """dis_avg (K, 3) and dis_dev (K,) of the displacement positions - previous per cluster."""
+    k = clustering.n_clusters
+    avg = np.empty((k, 3))
+    dev = np.empty(k)
+    _collide.cluster_motion(positions, previous, clustering.order, clustering.ptr, avg, dev)
+    return avg, dev
+
+
+def cluster_boxes(clustering, positions, inflate):
+    """Inflated AABBs (lo, hi) (K, 3) of each cluster's vertices and triangles."""
+    k = clustering.n_clusters
+    lo = np.empty((k, 3))
+    hi = np.empty((k, 3))
+    _collide.cluster_boxes(positions, clustering.box_index, clustering.box_ptr, float(inflate), lo, hi)
+    return lo, hi
+
+
+def box_pairs(lo_a, hi_a, lo_b, hi_b, self_pairs=False):
+    """Overlapping box pairs (i, j), row-major; with self_pairs only j >= i."""
+    ka, kb = lo_a.shape[0], lo_b.shape[0]
+    cap = max(16, min(ka * kb, 8 * (ka + kb)))
+    while True:
+        i = np.empty(cap, np.int64)
+        j = np.empty(cap, np.int64)
+        count = _collide.box_pairs(lo_a, hi_a, lo_b, hi_b, bool(self_pairs), i, j)
+        if count <= cap:
+            return i[:count], j[:count]
+        cap = count
+
+
+class Hits:
+    """Parallel arrays of ray hits: tri (k,) triangle or -1, t (signed distance along the ray
+    direction), u / v (barycentrics of corners 1 and 2), flips (orientation parity crossed)."""
+
+    __slots__ = ("tri", "t", "u", "v", "flips")
+
+    def __init__(self, k):
+        self.tri = np.empty(k, np.int64)
+        self.t = np.empty(k)
+        self.u = np.empty(k)
+        self.v = np.empty(k)
+        self.flips = np.empty(k, bool)
+
+    @staticmethod
+    def view(tri, t, u, v, flips):
+        out = Hits.__new__(Hits)
+        out.tri, out.t, out.u, out.v, out.flips = tri, t, u, v, flips
+        return out
+
+    def head(self, k):
+        out = Hits.__new__(Hits)
+        out.tri, out.t, out.u, out.v, out.flips = self.tri[:k], self.t[:k], self.u[:k], self.v[:k], self.flips[:k]
+        return out
+
+
+NO_HITS = Hits(0)
+
+
+def walk(positions, normals, ray_vertex, ray_slot, start, target, ring=None, max_steps=8):
+    """Walk the rays (vertex, slot) from their start triangles over ``target``'s adjacency."""
+    res = Hits(ray_vertex.shape[0])
+    _collide.walk(positions, normals, ray_vertex, ray_slot, start, target.vertices, target.triangles, target.adj,
+                  target.flip, ring, int(max_steps), res.tri, res.t, res.u, res.v, res.flips)
+    return res
+
+
+class RayBuffer:
+    """Reused float32 ray arrays for Embree, grown when a step needs more rays."""
+
+    def __init__(self):
+        self._grow(1024)
+
+    def _grow(self, cap):
+        self.cap = int(cap)
+        self.o = np.empty((cap, 3), np.float32)
+        self.d = np.empty((cap, 3), np.float32)
+        self.dist = np.empty(cap, np.float32)
+        self.vertex = np.empty(cap, np.int64)
+        self.slot = np.empty(cap, np.int64)
+
+    _none = (np.empty((0, 3), np.float32), np.empty((0, 3), np.float32), np.empty(0, np.float32),
+             np.empty(0, np.int64), np.empty(0, np.int64))
+
+    def count(self, positions, normals, has_normal, long_mask, clustering, box_lo, box_hi, pair_a, pair_b,
+              clusters, scenes, short_dist, long_dist, backoff, tolerance):
+        """Only the segment bounds (q + 1) of ``prepare``: how many rays each cluster would get."""
+        seg = np.empty(clusters.size + 1, np.int64)
+        _collide.prepare_rays(
+            positions, normals, has_normal, long_mask, clustering.order, clustering.ptr, box_lo, box_hi,
+            pair_a, pair_b, clusters, scenes.R, scenes.centre, scenes.ref_centre, float(short_dist),
+            float(long_dist), float(backoff), float(tolerance), *self._none, seg,
+        )
+        return seg
+
+    def prepare(self, positions, normals, has_normal, long_mask, clustering, box_lo, box_hi, pair_a, pair_b,
+                clusters, scenes, short_dist, long_dist, backoff, tolerance):
+        """Rays of the pairs (pair_a cloth cluster, pair_b collider cluster, sorted by pair_b),
+        culled against the collider boxes, in each scene's build frame. Returns (count, seg)."""
+        seg = np.empty(clusters.size + 1, np.int64)
+        while True:
+            count = _collide.prepare_rays(
+                positions, normals, has_normal, long_mask, clustering.order, clustering.ptr, box_lo, box_hi,
+                pair_a, pair_b, clusters, scenes.R, scenes.centre, scenes.ref_centre, float(short_dist),
+                float(long_dist), float(backoff), float(tolerance), self.o, self.d, self.dist, self.vertex,
+                self.slot, seg,
+            )
+            if count <= self.cap:
+                return count, seg
+            self._grow(max(count, 2 * self.cap))
