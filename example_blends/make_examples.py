@@ -15,9 +15,8 @@ along +Y at sheets that face -Y):
 * ``banknote.blend``: a US-size banknote (``scenes.banknote`` with a 4 mm notch in its top edge,
   "banknote" preset, snap tolerance 45 %) pinched at both ends by two hands (empties) that hold
   still for a quarter second, then pull apart in the note's plane at 2 cm/s each; the tear runs
-  from the notch down within a few frames. Meant to have self-collision as its only collision;
-  it is OFF for now (``BANKNOTE_SELF_COLLISION``: fresh tear lips blow up against each other
-  with the current collision module). ~1 ms steps.
+  from the notch down within a few frames. Self-collision is its only collision, as in the paper
+  (``BANKNOTE_SELF_COLLISION``; the two lips of a fresh tear count as neighbours). ~1 ms steps.
 * ``tshirt.blend``: the mannequin (``scenes.mannequin``) as a mesh skinned to an ARMATURE built
   from ``Body.bones`` (one vertex group per bone, an Armature modifier), keyframed every frame so
   Blender's skinning reproduces ``scenes.bone_matrices(body, t)`` exactly: it walks in place for
@@ -78,7 +77,7 @@ BANKNOTE_CG_TOLERANCE = 1e-4
 # other's topological neighbours, and are pushed apart as a deep contact: the sheet blows up
 # within a few steps of the first tear (any sheet: the square cloth too). Switch this on once
 # fresh tear lips are excluded from self-contacts; the file is otherwise ready for it.
-BANKNOTE_SELF_COLLISION = False
+BANKNOTE_SELF_COLLISION = True
 
 # T-shirt
 SHIRT_END = 97  # t = 4 s: walk (0-2 s), reach (2-3 s), pull (3-4 s)
