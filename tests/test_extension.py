@@ -83,9 +83,29 @@ def test_the_package_builds_and_validates(package):
 
 # Both children start by making the source tree unimportable: only what the package installs runs.
 ISOLATE = r"""
-import importlib.util, json, os, shutil, sys
-sys.path[:] = [p for p in sys.path if not os.path.exists(os.path.join(p or ".", "tearcloth"))]
-assert importlib.util.find_spec("tearcloth") is None, "the source tree is still importable"
+import importlib.abc, importlib.machinery, importlib.util, json, os, shutil, sys
+# Hide every tearcloth the test environment has (a source tree on the path, or the copy pip
+# installed next to bpy in site-packages) while keeping those folders on sys.path for bpy & co:
+# only a tearcloth that Blender's extension install adds later may be found.
+_hidden = [p for p in sys.path if os.path.exists(os.path.join(p or ".", "tearcloth"))]
+
+
+class _HideTestTearcloth(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name != "tearcloth":
+            return None
+        spec = importlib.machinery.PathFinder.find_spec(name, [p for p in sys.path if p not in _hidden])
+        if spec is None:
+            raise ModuleNotFoundError("no tearcloth outside the test environment", name=name)
+        return spec
+
+
+sys.meta_path.insert(0, _HideTestTearcloth())
+try:
+    importlib.import_module("tearcloth")
+    raise AssertionError("the test environment's tearcloth is still importable")
+except ModuleNotFoundError:
+    pass
 import bpy
 """
 
