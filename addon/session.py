@@ -119,6 +119,8 @@ class Session:
         self._handle_tracks: dict[int, _Track] = {}
         self.detector = None
         self.last = StepReport()
+        self.max_substeps = 16  # an exploding step is retried in up to this many sub-steps
+        self.retries = 0        # steps that needed a retry, for reports
         if self.collision is not None:
             from .collision import CollisionDetector
 
@@ -169,8 +171,6 @@ class Session:
             track.add(m, t)
 
     # ---- time ----
-    max_substeps: int = 16
-
     def _step_adaptive(self, dt: float) -> None:
         """A step that blew up was rolled back by the core; retry it in more, smaller sub-steps
         (the native step interpolates handle targets across them) before giving up."""
@@ -186,8 +186,6 @@ class Session:
                     raise
                 substeps *= 2
                 self.retries += 1
-
-    retries: int = 0
 
     def step(self, dt: float) -> StepReport:
         """Advance by dt seconds: collisions, then the native FEM + tearing step."""
