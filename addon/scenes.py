@@ -1096,8 +1096,9 @@ class _Builder:
         return v[used], labels[used], remap[tris]
 
 
-def _column_profile(scale):
-    c = _COLUMN * scale
+def _ring_profile(table, scale):
+    """(scaled table, at(z) -> (..., 3) interpolated columns) for a body part's ring table."""
+    c = table * scale
 
     def at(z):
         return np.stack(
@@ -1106,18 +1107,14 @@ def _column_profile(scale):
         )
 
     return c, at
+
+
+def _column_profile(scale):
+    return _ring_profile(_COLUMN, scale)
 
 
 def _leg_profile(scale):
-    c = _LEG * scale
-
-    def at(z):
-        return np.stack(
-            [_pchip(c[:, 0], c[:, 1], z), _pchip(c[:, 0], c[:, 2], z), _pchip(c[:, 0], c[:, 3], z)],
-            axis=-1,
-        )
-
-    return c, at
+    return _ring_profile(_LEG, scale)
 
 
 def _arm_profile(scale):

@@ -53,7 +53,7 @@ import numpy as np
 from .. import _collide
 from . import kernels
 from .clusters import Clustering
-from .incremental import triangle_adjacency
+from .incremental import barycentric, triangle_adjacency
 from .measure import (
     MEASURES,
     AbsoluteMeasure,
@@ -816,7 +816,7 @@ class CollisionDetector:
             ctri = tt[htri[sel]]
             # Barycentrics for the surface velocity at the hit point.
             hp = pos[hv[sel]] + ht[sel, None] * d[hit][sel]
-            w = _barycentric(hp, tv[ctri[:, 0]], tv[ctri[:, 1]], tv[ctri[:, 2]])
+            w = barycentric(hp, tv[ctri[:, 0]], tv[ctri[:, 1]], tv[ctri[:, 2]])
             velocity = np.einsum("ik,ikj->ij", w, vel[ctri])
             rows.append((hv[sel], normal[c], depth[c], velocity, np.full(sel.size, fr)))
         if not rows:
@@ -824,14 +824,3 @@ class CollisionDetector:
         return Contacts.deepest(*(np.concatenate([r[k] for r in rows]) for k in range(5)))
 
 
-def _barycentric(p, a, b, c):
-    e1, e2, ep = b - a, c - a, p - a
-    d11 = np.einsum("ij,ij->i", e1, e1)
-    d12 = np.einsum("ij,ij->i", e1, e2)
-    d22 = np.einsum("ij,ij->i", e2, e2)
-    d1p = np.einsum("ij,ij->i", e1, ep)
-    d2p = np.einsum("ij,ij->i", e2, ep)
-    den = np.maximum(d11 * d22 - d12 * d12, 1e-30)
-    v = (d22 * d1p - d12 * d2p) / den
-    w = (d11 * d2p - d12 * d1p) / den
-    return np.stack([1 - v - w, v, w], axis=1)

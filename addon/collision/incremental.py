@@ -112,6 +112,20 @@ def excluded(tri_vertices, exclude):
     return (tri_vertices[:, :, None] == exclude[:, None, :]).any(axis=(1, 2))
 
 
+def barycentric(p, a, b, c):
+    """Barycentric weights (k, 3) of points p in triangles (a, b, c), least squares in the plane."""
+    e1, e2, ep = b - a, c - a, p - a
+    d11 = np.einsum("ij,ij->i", e1, e1)
+    d12 = np.einsum("ij,ij->i", e1, e2)
+    d22 = np.einsum("ij,ij->i", e2, e2)
+    d1p = np.einsum("ij,ij->i", e1, ep)
+    d2p = np.einsum("ij,ij->i", e2, ep)
+    den = np.maximum(d11 * d22 - d12 * d12, 1e-30)
+    v = (d22 * d1p - d12 * d2p) / den
+    w = (d11 * d2p - d12 * d1p) / den
+    return np.stack([1 - v - w, v, w], axis=1)
+
+
 # Vertex with the most negative barycentric -> the edge opposite it (edge k = (tri[k], tri[k+1])).
 _EDGE_OPPOSITE = np.array([1, 2, 0])
 

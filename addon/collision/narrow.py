@@ -53,7 +53,7 @@ from embreex import rtcore, rtcore_scene
 from embreex.mesh_construction import TriangleMesh
 
 from .. import _collide
-from .incremental import cross, excluded
+from .incremental import barycentric, cross, excluded
 
 __all__ = [
     "Contacts",
@@ -391,15 +391,7 @@ def initial_side(x_prev, x_now, tri_prev, tri_now):
         x = (1 - alpha) * x_prev[i] + alpha * x_now[i]
         t = (1 - alpha[:, None]) * tri_prev[i] + alpha[:, None] * tri_now[i]
         # Barycentrics of x in the interpolated triangle (x lies in its plane at the crossing).
-        e1, e2, ex = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], x - t[:, 0]
-        d11 = np.einsum("ij,ij->i", e1, e1)
-        d12 = np.einsum("ij,ij->i", e1, e2)
-        d22 = np.einsum("ij,ij->i", e2, e2)
-        d1x = np.einsum("ij,ij->i", e1, ex)
-        d2x = np.einsum("ij,ij->i", e2, ex)
-        den = np.maximum(d11 * d22 - d12 * d12, 1e-30)
-        v = (d22 * d1x - d12 * d2x) / den
-        w = (d11 * d2x - d12 * d1x) / den
+        _, v, w = barycentric(x, t[:, 0], t[:, 1], t[:, 2]).T
         through = (v >= -1e-6) & (w >= -1e-6) & (v + w <= 1 + 1e-6)
         side[i[through]] = np.where(s_prev[i[through]] >= 0, 1, -1)
     return side
