@@ -78,6 +78,19 @@ def test_the_package_builds_and_validates(package):
     assert "_native" in compiled and all(f"{m}.py" in names for m in compiled), compiled
     junk = [n for n in names if "__pycache__" in n or n.endswith((".so", ".pyc", ".blend")) or n.startswith("tests/")]
     assert not junk, junk
+    # what only measures or generates stays out, of the add-on folder and of our wheel alike
+    with zipfile.ZipFile(zip_path) as z, zipfile.ZipFile(z.open(own)) as wheel:
+        in_wheel = [n[len("tearcloth/"):] for n in wheel.namelist() if n.startswith("tearcloth/")]
+        sources = {n: z.read(n).decode() for n in names if n.endswith(".py")}
+    dev = _build_module().DEV_ONLY
+    assert dev and all((REPO / "addon" / d).exists() for d in dev), dev  # the list names real places
+    for listing in (names, in_wheel):
+        shipped_dev = [n for n in listing if any(n == d or n.startswith(d + "/") for d in dev)]
+        assert not shipped_dev, shipped_dev
+    test_code = [n for n, text in sources.items()
+                 if n.rsplit("/", 1)[-1].startswith(("test_", "conftest"))
+                 or re.search(r"^\s*(import|from)\s+(pytest|hypothesis)\b", text, re.M)]
+    assert not test_code, test_code
     assert zip_path.stat().st_size < 40e6  # embreex (Embree's libraries) is most of it
 
 

@@ -77,6 +77,10 @@ OWN = "tearcloth"
 # Left out of the package (relative to addon/): build products, example scenes, caches.
 EXCLUDE_DIRS = {"__pycache__", "data", "tests", "tearcloth_cache", "wheels", "build"}
 EXCLUDE_FILES = ("*.so", "*.pyd", "*.dylib", "*.pyc", "*.zip", ".*")
+# What only measures or generates, never runs inside Blender (relative to addon/): left out of
+# the add-on folder AND of our wheel inside the zip. The pip package keeps them (`tearcloth
+# bench`, `tearcloth demo`); tests/test_layers.py checks that nothing shipped imports them.
+DEV_ONLY = ("bench", "examples", os.path.join("blender", "race.py"))
 
 SHIM = '''"""A native module, inside Blender: this extension is imported as ``bl_ext.<repo>.tearcloth`` and
 carries no compiled module; the wheel ``tearcloth-*-abi3-*.whl`` listed in blender_manifest.toml
@@ -206,7 +210,9 @@ def _ignore(folder: str, names: list[str]) -> set[str]:
     skipped = set()
     for n in names:
         full = os.path.join(folder, n)
-        if os.path.isdir(full) and n in EXCLUDE_DIRS:
+        if os.path.relpath(full, ADDON) in DEV_ONLY:
+            skipped.add(n)
+        elif os.path.isdir(full) and n in EXCLUDE_DIRS:
             skipped.add(n)
         elif any(fnmatch.fnmatch(n, pattern) for pattern in EXCLUDE_FILES):
             skipped.add(n)
