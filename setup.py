@@ -65,7 +65,7 @@ setup(
         Extension(
             "tearcloth._collide",
             sources=COLLIDE_SOURCES,
-            include_dirs=[os.path.join("native", "collide")],
+            include_dirs=[os.path.join("native", "collide"), "native"],  # native/: the shared vecmath.h
             define_macros=[("Py_LIMITED_API", "0x030B0000")],
             py_limited_api=True,
             extra_compile_args=compile_args,

@@ -29,58 +29,6 @@
 #include <math.h>
 #include <string.h>
 
-#define FAN_MAX 256
-#define TC_PI 3.14159265358979323846  /* far above any sane valence; a fan larger than this stops the tear there */
-
-tc_tear_settings tc_cloth_tearing(const tc_cloth *c) { return c->tear; }
-
-int tc_cloth_set_tearing(tc_cloth *c, const tc_tear_settings *s)
-{
-    if (s->scan_period < 1 || s->scan_period > 100000) { tc_set_err(c, "scan_period must lie in [1, 100000] (got %d)", s->scan_period); return TC_ERR_INPUT; }
-    if (!(s->min_angle_deg >= 0 && s->min_angle_deg < 30)) { tc_set_err(c, "min_angle_deg must lie in [0, 30) (got %g)", s->min_angle_deg); return TC_ERR_INPUT; }
-    c->tear = *s;
-    return TC_OK;
-}
-
-int tc_cloth_set_tear_strength(tc_cloth *c, const double *f, int32_t n)
-{
-    if (n != c->nv) { tc_set_err(c, "expected %d tear strength factors, got %d", (int)c->nv, (int)n); return TC_ERR_INPUT; }
-    for (int32_t i = 0; i < n; i++)
-        if (!(f[i] > 0 && isfinite(f[i]))) { tc_set_err(c, "tear strength factor of vertex %d must be > 0 and finite (got %g)", (int)i, f[i]); return TC_ERR_INPUT; }
-    memcpy(tc_vec_ptr(&c->strength), f, (size_t)n * sizeof(double));
-    return TC_OK;
-}
-
-void tc_events_clear(tc_cloth *c)
-{
-    c->ev_newv.len = c->ev_par.len = c->ev_w.len = c->ev_chg.len = c->ev_newt.len = 0;
-}
-
-tc_events tc_cloth_events(const tc_cloth *c)
-{
-    tc_events e = {
-        .n_new_vertices = (int32_t)c->ev_newv.len, .new_vertices = tc_vec_ptr(&c->ev_newv),
-        .parents = tc_vec_ptr(&c->ev_par), .weights = tc_vec_ptr(&c->ev_w),
-        .n_changed_triangles = (int32_t)c->ev_chg.len, .changed_triangles = tc_vec_ptr(&c->ev_chg),
-        .n_new_triangles = (int32_t)c->ev_newt.len, .new_triangles = tc_vec_ptr(&c->ev_newt),
-        .n_tips = (int32_t)c->tips.len, .tips = tc_vec_ptr(&c->tips),
-    };
-    return e;
-}
-
-static int push_i32(tc_vec *v, int32_t x)
-{
-    if (tc_vec_resize(v, v->len + 1)) return TC_ERR_NOMEM;
-    ((int32_t *)tc_vec_ptr(v))[v->len - 1] = x;
-    return TC_OK;
-}
-
-static int push_f64(tc_vec *v, double x)
-{
-    if (tc_vec_resize(v, v->len + 1)) return TC_ERR_NOMEM;
-    ((double *)tc_vec_ptr(v))[v->len - 1] = x;
-    return TC_OK;
-}
 
 /* ---------------- fans ---------------- */
 
@@ -124,9 +72,9 @@ static int fan_walk(const tc_cloth *c, int32_t u, int32_t start, const int32_t *
 
 static bool is_boundary_vertex(const tc_cloth *c, int32_t u)
 {
-    int32_t fan[FAN_MAX];
+    int32_t fan[TC_FAN_MAX];
     bool closed;
-    int n = fan_walk(c, u, ((int32_t *)tc_vec_ptr(&c->vtri))[u], NULL, 0, fan, FAN_MAX, &closed);
+    int n = fan_walk(c, u, ((int32_t *)tc_vec_ptr(&c->vtri))[u], NULL, 0, fan, TC_FAN_MAX, &closed);
     return n < 0 || !closed;
 }
 
@@ -134,7 +82,7 @@ static bool is_boundary_vertex(const tc_cloth *c, int32_t u)
 
 static void tangent_basis(const double *n, double *t1, double *t2)
 {
-    double a[3] = {fabs(n[0]) < 0.6 ? 1.0 : 0.0, fabs(n[0]) < 0.6 ? 0.0 : 1.0, 0.0};
+    double a[3] = {fabs(n[0]) < TC_TANGENT_AXIS_LIMIT ? 1.0 : 0.0, fabs(n[0]) < TC_TANGENT_AXIS_LIMIT ? 0.0 : 1.0, 0.0};
     cross3(n, a, t1);
     double l = sqrt(dot3(t1, t1));
     t1[0] /= l; t1[1] /= l; t1[2] /= l;
@@ -171,9 +119,9 @@ static void tri_normal(const tc_cloth *c, int32_t t, double *n)
 /* Stress of one vertex by walking its fan (used for tips and scan slices). */
 static double vertex_stress(tc_cloth *c, int32_t v, double *dir, double *normal)
 {
-    int32_t fan[FAN_MAX];
+    int32_t fan[TC_FAN_MAX];
     bool closed;
-    int nf = fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, FAN_MAX, &closed);
+    int nf = fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
     if (nf <= 0) return 0.0;
     const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
     double S[9] = {0}, n[3] = {0}, wsum = 0.0;
@@ -202,17 +150,6 @@ int tc_cloth_vertex_stress(tc_cloth *c, int32_t v, double *value, double directi
 }
 
 /* ---------------- local remeshing primitives ---------------- */
-
-static int record_changed(tc_cloth *c, int32_t t)
-{
-    const int32_t *e = tc_vec_ptr(&c->ev_chg);
-    for (size_t i = 0; i < c->ev_chg.len; i++)
-        if (e[i] == t) return TC_OK;
-    const int32_t *nt = tc_vec_ptr(&c->ev_newt);
-    for (size_t i = 0; i < c->ev_newt.len; i++)
-        if (nt[i] == t) return TC_OK;
-    return push_i32(&c->ev_chg, t);
-}
 
 static void tri_unlink(tc_cloth *c, int32_t t)
 {
@@ -289,8 +226,7 @@ static int32_t new_vertex(tc_cloth *c, int32_t a, int32_t b, double s)
         double gp[3] = {wa * ga[0] + wb * gb[0], wa * ga[1] + wb * gb[1], wa * ga[2] + wb * gb[2]};
         if (tc_handle_add_member(c, vh[a], v, gp)) return -1;
     }
-    if (push_i32(&c->ev_newv, v) || push_i32(&c->ev_par, a) || push_i32(&c->ev_par, b) || push_f64(&c->ev_w, wa))
-        return -1;
+    if (tc_event_new_vertex(c, v, a, b, wa)) return -1;
     return v;
 }
 
@@ -371,7 +307,7 @@ static int32_t split_edge(tc_cloth *c, int32_t a, int32_t b, double s)
             tc_set_err(c, "internal: a split produced a degenerate triangle");
             return -1;
         }
-        if (record_changed(c, t) || push_i32(&c->ev_newt, t2)) return -1;
+        if (tc_event_changed_triangle(c, t) || tc_event_new_triangle(c, t2)) return -1;
         touched[nt++] = t;
         touched[nt++] = t2;
     }
@@ -386,9 +322,9 @@ static int32_t split_edge(tc_cloth *c, int32_t a, int32_t b, double s)
  * pair to cut in *pair. `avoid` lists pairs already in the cut so the path never folds back. */
 static int32_t prepare_segment(tc_cloth *c, int32_t v, const double *dir, const int32_t *avoid, int navoid, int32_t *pair)
 {
-    int32_t fan[FAN_MAX];
+    int32_t fan[TC_FAN_MAX];
     bool closed;
-    int nf = fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, FAN_MAX, &closed);
+    int nf = fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
     if (nf <= 0) return -1;
     const double *x = tc_vec_ptr(&c->x);
     int32_t best_t = -1;
@@ -416,18 +352,18 @@ static int32_t prepare_segment(tc_cloth *c, int32_t v, const double *dir, const 
         double sa = dot3(ca, n) / (la * ld), sb = dot3(cb, n) / (lb * ld);
         /* inside the corner when both are >= 0; the best fit maximises the smaller one */
         double score = sa < sb ? sa : sb;
-        if (dot3(d, ea) < 0 && dot3(d, eb) < 0) score -= 2.0;  /* pointing backwards */
+        if (dot3(d, ea) < 0 && dot3(d, eb) < 0) score -= TC_CORNER_BACKWARDS_PENALTY;  /* pointing backwards */
         if (score > best_score) {
             double eab[3] = {eb[0] - ea[0], eb[1] - ea[1], eb[2] - ea[2]}, cab[3];
             cross3(eab, d, cab);
             double den = dot3(cab, n);
-            double s = fabs(den) > 1e-300 ? -dot3(ca, n) / den : 0.5;
+            double s = fabs(den) > TC_TINY ? -dot3(ca, n) / den : TC_PARALLEL_SPLIT;
             if (s < 0) s = 0;
             if (s > 1) s = 1;
             best_score = score; best_t = t; best_s = s; best_a = a; best_b = b;
         }
     }
-    if (best_t < 0 || best_score < -0.05) return -1;
+    if (best_t < 0 || best_score < TC_CORNER_MIN_SCORE) return -1;
     /* Snap when the path passes within snap_tolerance * |ab| of a or b (distance measured across the
        path, as WWD14's snapping does): the cut then follows an existing edge, adding nothing. */
     double tol = c->mat.snap_tolerance;
@@ -461,7 +397,7 @@ static int32_t prepare_segment(tc_cloth *c, int32_t v, const double *dir, const 
         if (i == 1) {
             double e[3];
             sub3(x + 3 * cand[i], x + 3 * v, e);
-            if (dot3(e, dir) <= 0.7 * sqrt(dot3(e, e)) * dl) continue;
+            if (dot3(e, dir) <= TC_FAR_END_COS * sqrt(dot3(e, e)) * dl) continue;
         }
         *pair = p;
         return cand[i];
@@ -475,13 +411,13 @@ static int separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *ve
 {
     /* every vertex's whole fan is listed before anything changes: once one endpoint is duplicated,
        the cut edge is a real boundary and a walk could no longer reach the far side */
-    int32_t all[4][FAN_MAX], fan[FAN_MAX], affected[4 * FAN_MAX] = {0};
+    int32_t all[4][TC_FAN_MAX], fan[TC_FAN_MAX], affected[4 * TC_FAN_MAX] = {0};
     int nall[4], naff = 0;
     bool closed;
     *dup_mask = 0;
     if (nverts > 4) return TC_ERR_INPUT;
     for (int i = 0; i < nverts; i++) {
-        nall[i] = fan_walk(c, verts[i], ((int32_t *)tc_vec_ptr(&c->vtri))[verts[i]], NULL, 0, all[i], FAN_MAX, &closed);
+        nall[i] = fan_walk(c, verts[i], ((int32_t *)tc_vec_ptr(&c->vtri))[verts[i]], NULL, 0, all[i], TC_FAN_MAX, &closed);
         if (nall[i] <= 0) return TC_ERR_INPUT;
         for (int j = 0; j < nall[i]; j++)
             if (!in_set(affected, naff, all[i][j])) affected[naff++] = all[i][j];
@@ -490,13 +426,13 @@ static int separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *ve
     for (int i = 0; i < nverts; i++) {
         int32_t u = verts[i];
         int n = nall[i];
-        bool assigned[FAN_MAX] = {false};
-        int nf = fan_walk(c, u, all[i][0], cut, ncut, fan, FAN_MAX, &closed);
+        bool assigned[TC_FAN_MAX] = {false};
+        int nf = fan_walk(c, u, all[i][0], cut, ncut, fan, TC_FAN_MAX, &closed);
         if (nf <= 0) return TC_ERR_INPUT;
         for (int j = 0; j < n; j++) assigned[j] = in_set(fan, nf, all[i][j]);
         for (int j = 0; j < n; j++) {
             if (assigned[j]) continue;
-            int m = fan_walk(c, u, all[i][j], cut, ncut, fan, FAN_MAX, &closed);
+            int m = fan_walk(c, u, all[i][j], cut, ncut, fan, TC_FAN_MAX, &closed);
             if (m <= 0) return TC_ERR_INPUT;
             int32_t u2 = new_vertex(c, u, -1, 0.0);
             if (u2 < 0) return TC_ERR_NOMEM;
@@ -507,7 +443,7 @@ static int separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *ve
                 tri_unlink(c, t);
                 int32_t *T = (int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)t;
                 for (int k = 0; k < 3; k++) if (T[k] == u) T[k] = u2;
-                if (tri_link(c, t) || record_changed(c, t)) return TC_ERR_NOMEM;
+                if (tri_link(c, t) || tc_event_changed_triangle(c, t)) return TC_ERR_NOMEM;
             }
         }
         /* u keeps the first fan; vtri must point into it */
@@ -523,7 +459,7 @@ static int separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *ve
 
 static int tip_add(tc_cloth *c, int32_t v, const double *dir)
 {
-    if (push_i32(&c->tips, v)) return TC_ERR_NOMEM;
+    if (tc_vec_push_i32(&c->tips, v)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->tipdir, 3 * c->tips.len)) return TC_ERR_NOMEM;
     memcpy((double *)tc_vec_ptr(&c->tipdir) + 3 * (c->tips.len - 1), dir, 3 * sizeof(double));
     return TC_OK;
@@ -630,13 +566,12 @@ static bool held(const tc_cloth *c, int32_t v)
     return ((const int8_t *)tc_vec_ptr(&c->vpin))[v] || ((const int32_t *)tc_vec_ptr(&c->vhandle))[v] >= 0;
 }
 
-#define NCAND 4
 typedef struct { double ratio; int32_t v; double dir[3]; } candidate;
 
 static void cand_push(candidate *cs, int *n, double r, int32_t v, const double *dir)
 {
-    int i = *n < NCAND ? (*n)++ : NCAND - 1;
-    if (i == NCAND - 1 && *n == NCAND && cs[i].ratio >= r && cs[i].v >= 0) return;
+    int i = *n < TC_TEAR_CANDIDATES ? (*n)++ : TC_TEAR_CANDIDATES - 1;
+    if (i == TC_TEAR_CANDIDATES - 1 && *n == TC_TEAR_CANDIDATES && cs[i].ratio >= r && cs[i].v >= 0) return;
     cs[i].ratio = r; cs[i].v = v; memcpy(cs[i].dir, dir, sizeof cs[i].dir);
     for (; i > 0 && cs[i].ratio > cs[i - 1].ratio; i--) { candidate t = cs[i]; cs[i] = cs[i - 1]; cs[i - 1] = t; }
 }
@@ -669,7 +604,7 @@ static int scan_all(tc_cloth *c, candidate *cs)
     for (int32_t v = 0; v < c->nv; v++) {
         if (!(W[v] > 0) || held(c, v)) continue;
         const double *s = S + 9 * v;
-        double floor_r = n == NCAND ? cs[NCAND - 1].ratio : 1.0;
+        double floor_r = n == TC_TEAR_CANDIDATES ? cs[TC_TEAR_CANDIDATES - 1].ratio : 1.0;
         /* cheap bound first: no eigenvalue of a projection exceeds the Frobenius norm */
         double fro = 0, lim = thr * strength[v] * floor_r * W[v];
         for (int q = 0; q < 9; q++) fro += s[q] * s[q];
@@ -709,7 +644,7 @@ static bool near_tip(const tc_cloth *c, int32_t v)
         sub3(x + 3 * T[(k + 1) % 3], x + 3 * T[k], e);
         len += sqrt(dot3(e, e)) / 3.0;
     }
-    double r2 = 16.0 * len * len;
+    double r2 = TC_NEAR_TIP_RADIUS2 * len * len;
     for (size_t i = 0; i < c->tips.len; i++) {
         sub3(x + 3 * tp[i], x + 3 * v, e);
         if (dot3(e, e) < r2) return true;
@@ -722,7 +657,7 @@ int tc_tear_step(tc_cloth *c)
     if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); }
     double dir[3];
     if (c->tips.len == 0) {
-        candidate cs[NCAND];
+        candidate cs[TC_TEAR_CANDIDATES];
         int n = scan_all(c, cs);
         /* several vertices may pass in one step: the highest starts the tear; the next ones are
            tried only if no segment can be cut from it (e.g. its direction runs along the rim) */
@@ -782,7 +717,7 @@ int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3]
     if (rc < 0) return TC_ERR_NOMEM;
     if (rc == 0) { tc_set_err(c, "cannot tear from vertex %d along (%g, %g, %g): no triangle there to cut", (int)start, d[0], d[1], d[2]); return TC_ERR_INPUT; }
     /* follow the tip this tear created until the length is covered */
-    for (int guard = 0; guard < 100000 && c->tips.len > ntips; guard++) {
+    for (int guard = 0; guard < TC_SCRIPTED_MAX_CUTS && c->tips.len > ntips; guard++) {
         size_t ti = c->tips.len - 1;
         int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[ti];
         x = tc_vec_ptr(&c->x);
@@ -793,7 +728,7 @@ int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3]
         double along = dot3(off, d), lat[3];
         for (int k = 0; k < 3; k++) lat[k] = off[k] - along * d[k];
         double step_dir[3];
-        for (int k = 0; k < 3; k++) step_dir[k] = d[k] - 0.5 * lat[k] / (fabs(along) + 1e-3);
+        for (int k = 0; k < 3; k++) step_dir[k] = d[k] - TC_STEER_GAIN * lat[k] / (fabs(along) + TC_STEER_SOFTENING);
         if (!advance_tip(c, ti, step_dir)) break;
     }
     /* a scripted tear leaves its end as a running tip only if tearing is enabled */
