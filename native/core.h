@@ -15,7 +15,8 @@
  *   fem.c         element pass (rotations, stresses, forces), assembly, matrix-vector product, energies
  *   constraints.c pins, handles, contacts: the velocity filter of Baraff & Witkin and its basis
  *   solver.c      block-Jacobi preconditioned CG on the constraint manifold
- *   tear.c        tearing: where, which way, the local remesh, tips
+ *   remesh.c      the local remesh of a cut: fans, segments, edge splits, separation
+ *   tear.c        tearing: where a tear starts, which way it runs, its tips
  *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
  *   cloth.c       life cycle, setters and getters, zero-copy arrays
  *
@@ -216,6 +217,18 @@ void tc_handle_forces(tc_cloth *c);
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);
 int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double *residual);
+
+/* ---------------- remesh.c ---------------- */
+/* Triangles around u reachable from `start` without crossing a boundary or a pair in `cut`: the
+ * count, or -1 if the fan exceeds cap; *closed tells whether it wraps around. */
+int tc_fan_walk(const tc_cloth *c, int32_t u, int32_t start, const int32_t *cut, int ncut, int32_t *out, int cap,
+                bool *closed);
+bool tc_is_boundary_vertex(const tc_cloth *c, int32_t u);
+/* The segment from tip v along dir (snapping or splitting): its far vertex, or -1; the pair to cut
+ * in *pair. `avoid` lists pairs already in the cut, so the path never folds back. */
+int32_t tc_prepare_segment(tc_cloth *c, int32_t v, const double *dir, const int32_t *avoid, int navoid, int32_t *pair);
+/* Separates the mesh along the pairs in `cut`; bit i of *dup_mask set when verts[i] was duplicated. */
+int tc_separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *verts, int nverts, unsigned *dup_mask);
 
 /* ---------------- tear.c ---------------- */
 int tc_tear_step(tc_cloth *c);
