@@ -5,8 +5,11 @@
  * an `Array` holds a reference to the core's block (tc_buf), so it stays valid even when tearing
  * grows the cloth (it then shows the state before the growth; fetch a new one).
  *
- * Everything from Python is validated here or in the core before use; failures become
- * InvalidInputError (a ValueError) or SimulationError (a RuntimeError) naming the problem. The GIL
+ * Everything from Python is validated here or in the core before use (arrays by the argument
+ * helper shared with tearcloth._collide, native/py/pyarg.h); failures become InvalidInputError (a
+ * ValueError) or SimulationError (a RuntimeError) naming the problem. The core formats its messages
+ * with the C library, and so does pyarg_error() here: PyErr_Format has no %g. defaults() hands out
+ * the core's default settings so that tests hold them against the Python presets. The GIL
  * is released during a step; a `busy` flag refuses concurrent use of one cloth from two threads.
  */
 #include "pyarg.h"

@@ -69,9 +69,8 @@ static int bounds_ok(Py_ssize_t rows, const char *name, const char *what)
 
 /* A target mesh from four consecutive rows: vertices (nv, 3), triangles (nt, 3), adjacency and
  * flip (nt, 3) or absent. */
-static int mesh_from(pyarg_set *sp, int first, tcc_mesh *m)
+static int mesh_from(pyarg_set *p, int first, tcc_mesh *m)
 {
-    pyarg_set *p = sp;
     Py_ssize_t nt = pyarg_nrows(p, first + 1);
     if (pyarg_rows(p, first + 2, nt) || pyarg_rows(p, first + 3, nt)) return -1;
     m->x = pyarg_data(p, first);
@@ -90,6 +89,15 @@ static tcc_ring ring_from(const pyarg_set *p, int i)
     return r;
 }
 
+/* rays of cloth vertices: positions (n, 3), normals (n, 3), ray_vertex (r,), ray_slot (r,) */
+#define RAY_ROWS                                                                                                      \
+    ARR("positions", PA_F64, 0, 2, 3, 0), ARR("normals", PA_F64, 0, 2, 3, 0), ARR("ray_vertex", PA_I64, 0, 1, 0, 0), \
+        ARR("ray_slot", PA_I64, 0, 1, 0, 0)
+#define RING_ROW ARR("ring", PA_I64, OPT, 2, -1, 0)
+/* a tcc_hits output: triangle, t, u, v, flips (r,) each */
+#define HITS_ROWS(tri, t, u, v, flips)                                                                                \
+    ARR(tri, PA_I64, OUT, 1, 0, 0), ARR(t, PA_F64, OUT, 1, 0, 0), ARR(u, PA_F64, OUT, 1, 0, 0),                       \
+        ARR(v, PA_F64, OUT, 1, 0, 0), ARR(flips, PA_BOOL, OUT, 1, 0, 0)
 #define MESH_ROWS(prefix)                                                                                             \
     ARR(prefix "vertices", PA_F64, 0, 2, 3, 0), ARR(prefix "triangles", PA_I64, 0, 2, 3, 0),                          \
         ARR("adjacency", PA_I64, OPT, 2, 3, 0), ARR("flip", PA_BOOL, OPT, 2, 3, 0)
@@ -408,19 +416,12 @@ fail:
 }
 
 static const pyarg_spec WALK[] = {
-    ARR("positions", PA_F64, 0, 2, 3, 0),
-    ARR("normals", PA_F64, 0, 2, 3, 0),
-    ARR("ray_vertex", PA_I64, 0, 1, 0, 0),
-    ARR("ray_slot", PA_I64, 0, 1, 0, 0),
+    RAY_ROWS,
     ARR("start", PA_I64, 0, 1, 0, 0),
     MESH_ROWS("target_"),
-    ARR("ring", PA_I64, OPT, 2, -1, 0),
+    RING_ROW,
     VAL("max_steps", PA_INT),
-    ARR("tri_out", PA_I64, OUT, 1, 0, 0),
-    ARR("t_out", PA_F64, OUT, 1, 0, 0),
-    ARR("u_out", PA_F64, OUT, 1, 0, 0),
-    ARR("v_out", PA_F64, OUT, 1, 0, 0),
-    ARR("flips_out", PA_BOOL, OUT, 1, 0, 0),
+    HITS_ROWS("tri_out", "t_out", "u_out", "v_out", "flips_out"),
 };
 enum { WK_X, WK_NRM, WK_RV, WK_RS, WK_START, WK_MESH, WK_RING = WK_MESH + 4, WK_MAX, WK_TRI, WK_T, WK_U, WK_V,
        WK_FLIPS, WK_N };
@@ -526,7 +527,7 @@ static const pyarg_spec ACCEPT_HITS[] = {
     ARR("scene_triangles", PA_I64, 0, 1, 0, 0),
     ARR("ray_vertex", PA_I64, 0, 1, 0, 0),
     ARR("target_triangles", PA_I64, 0, 2, 3, 0),
-    ARR("ring", PA_I64, OPT, 2, -1, 0),
+    RING_ROW,
     ARR("origins", PA_F32, OUT, 2, 3, 0),
     ARR("directions", PA_F32, 0, 2, 3, 0),
     ARR("dists", PA_F32, OUT, 1, 0, 0),
@@ -563,23 +564,16 @@ fail:
 }
 
 static const pyarg_spec REFINE[] = {
-    ARR("positions", PA_F64, 0, 2, 3, 0),
-    ARR("normals", PA_F64, 0, 2, 3, 0),
-    ARR("ray_vertex", PA_I64, 0, 1, 0, 0),
-    ARR("ray_slot", PA_I64, 0, 1, 0, 0),
+    RAY_ROWS,
     ARR("hit_triangle", PA_I64, 0, 1, 0, 0),
     MESH_ROWS("target_"),
-    ARR("ring", PA_I64, OPT, 2, -1, 0),
+    RING_ROW,
     VAL("kind", PA_INT),
     VAL("track_range", PA_DOUBLE),
     ARR("inside_prev", PA_BOOL, OPT, 1, 0, 0),
     ARR("out_vertex", PA_I64, OUT, 1, 0, 0),
     ARR("out_slot", PA_I64, OUT, 1, 0, 0),
-    ARR("out_tri", PA_I64, OUT, 1, 0, 0),
-    ARR("out_t", PA_F64, OUT, 1, 0, 0),
-    ARR("out_u", PA_F64, OUT, 1, 0, 0),
-    ARR("out_v", PA_F64, OUT, 1, 0, 0),
-    ARR("out_flips", PA_BOOL, OUT, 1, 0, 0),
+    HITS_ROWS("out_tri", "out_t", "out_u", "out_v", "out_flips"),
     ARR("status", PA_BOOL, OUT, 1, 0, 0),
 };
 enum { RE_X, RE_NRM, RE_RV, RE_RS, RE_HIT, RE_MESH, RE_RING = RE_MESH + 4, RE_KIND, RE_RANGE, RE_INSIDE, RE_OV,
