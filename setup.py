@@ -33,15 +33,15 @@ class BuildPyWithExamples(build_py):
             self.copy_file(src, target)
 
 
-NATIVE_SOURCES = sorted(
-    os.path.join("native", f) for f in os.listdir(os.path.join(HERE, "native")) if f.endswith(".c")
-)
+def _c_files(*parts):
+    return sorted(os.path.join(*parts, f) for f in os.listdir(os.path.join(HERE, *parts)) if f.endswith(".c"))
+
+
+# Both modules link the shared argument tables of native/py/ (pyarg.c).
+PY_HELPER_SOURCES = _c_files("native", "py")
+NATIVE_SOURCES = _c_files("native") + PY_HELPER_SOURCES
 # The collision kernels (clustered ray-traced detection): a second abi3 module, same flags.
-COLLIDE_SOURCES = sorted(
-    os.path.join("native", "collide", f)
-    for f in os.listdir(os.path.join(HERE, "native", "collide"))
-    if f.endswith(".c")
-)
+COLLIDE_SOURCES = _c_files("native", "collide") + PY_HELPER_SOURCES
 
 if sys.platform == "win32":
     compile_args = ["/O2", "/std:c17"]
@@ -57,7 +57,7 @@ setup(
         Extension(
             "tearcloth._native",
             sources=NATIVE_SOURCES,
-            include_dirs=["native"],
+            include_dirs=["native", os.path.join("native", "py")],
             define_macros=[("Py_LIMITED_API", "0x030B0000")],
             py_limited_api=True,
             extra_compile_args=compile_args,
@@ -65,7 +65,8 @@ setup(
         Extension(
             "tearcloth._collide",
             sources=COLLIDE_SOURCES,
-            include_dirs=[os.path.join("native", "collide")],
+            # native/: the shared vecmath.h; native/py/: the argument tables
+            include_dirs=[os.path.join("native", "collide"), "native", os.path.join("native", "py")],
             define_macros=[("Py_LIMITED_API", "0x030B0000")],
             py_limited_api=True,
             extra_compile_args=compile_args,

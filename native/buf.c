@@ -1,4 +1,4 @@
-/* buf.c - reference-counted blocks and growable arrays.
+/* buf.c - reference-counted blocks and growable arrays (tc_buf, tc_vec).
  *
  * Python readers hold a tc_buf directly, so when tearing grows an array the old block stays alive
  * (and keeps its old size) until the last reader lets go: a stale view shows old data, never freed
@@ -62,5 +62,19 @@ int tc_vec_resize(tc_vec *v, size_t len)
     }
     if (len > v->len) memset(v->buf->data + v->len * v->item, 0, (len - v->len) * v->item);
     v->len = len;
+    return TC_OK;
+}
+
+int tc_vec_push_i32(tc_vec *v, int32_t x)
+{
+    if (tc_vec_resize(v, v->len + 1)) return TC_ERR_NOMEM;
+    ((int32_t *)tc_vec_ptr(v))[v->len - 1] = x;
+    return TC_OK;
+}
+
+int tc_vec_push_f64(tc_vec *v, double x)
+{
+    if (tc_vec_resize(v, v->len + 1)) return TC_ERR_NOMEM;
+    ((double *)tc_vec_ptr(v))[v->len - 1] = x;
     return TC_OK;
 }

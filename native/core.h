@@ -1,4 +1,24 @@
-/* core.h - internal layout of a cloth, shared by the core's source files (not installed).
+/* core.h - internal layout of a cloth and the internal interface of each part of the core (not
+ * installed; the public API is tearcloth.h).
+ *
+ * One header for all parts on purpose: every part works on the one struct tc_cloth below, so each
+ * .c file needs this layout anyway, and a header per part would hold three to eight declarations.
+ * The declarations are grouped in one section per source file instead, named after it, in the
+ * order of the dependencies (a file calls only the files in the sections above its own, never one
+ * below: no circles):
+ *
+ *   util.c        clock, error text
+ *   buf.c         reference-counted blocks, growable arrays
+ *   settings.c    defaults and checks of the material, solver and tearing settings
+ *   mesh.c        pairs (edges, bending flaps), adjacency, rest elements, masses, stencils
+ *   events.c      topology events of one step
+ *   fem.c         element pass (rotations, stresses, forces), assembly, matrix-vector product, energies
+ *   constraints.c pins, handles, contacts: the velocity filter of Baraff & Witkin and its basis
+ *   solver.c      block-Jacobi preconditioned CG on the constraint manifold
+ *   remesh.c      the local remesh of a cut: fans, segments, edge splits, separation
+ *   tear.c        tearing: where a tear starts, which way it runs, its tips
+ *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
+ *   cloth.c       life cycle, setters and getters, zero-copy arrays
  *
  * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The stiffness
  * matrix is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils), not
@@ -9,9 +29,13 @@
 #define TEARCLOTH_CORE_H
 
 #include "tearcloth.h"
+#include "constants.h"
+#include "vecmath.h"
 
 #include <stdatomic.h>
 #include <stdbool.h>
+
+/* ---------------- buf.c: blocks and growable arrays ---------------- */
 
 struct tc_buf {
     atomic_int refs;
@@ -32,6 +56,10 @@ void tc_vec_free(tc_vec *v);
 int tc_vec_reserve(tc_vec *v, size_t cap);       /* keeps contents; never shrinks */
 int tc_vec_resize(tc_vec *v, size_t len);        /* new items are zeroed */
 static inline void *tc_vec_ptr(const tc_vec *v) { return v->buf ? (void *)v->buf->data : 0; }
+int tc_vec_push_i32(tc_vec *v, int32_t x);        /* append one item (an int32 / a double array) */
+int tc_vec_push_f64(tc_vec *v, double x);
+
+/* ---------------- the cloth ---------------- */
 
 enum { VC_FREE = 0, VC_PINNED = 1, VC_HANDLE = 2, VC_CONTACT = 3 };
 
@@ -132,7 +160,15 @@ struct tc_cloth {
 #define TC_HOT
 #endif
 
-/* mesh.c */
+/* ---------------- util.c ---------------- */
+double tc_now(void);                                  /* wall clock (s), for the step statistics */
+void tc_set_err(tc_cloth *c, const char *fmt, ...);   /* the message of tc_cloth_error() */
+
+/* ---------------- settings.c ---------------- */
+int tc_solver_check(const tc_solver_settings *s, char *msg, size_t msz);
+int tc_tear_check(const tc_tear_settings *s, char *msg, size_t msz);
+
+/* ---------------- mesh.c ---------------- */
 int tc_mesh_build(tc_cloth *c, char *msg, size_t msz);
 int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b);
 int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b);  /* find or create, use += 1 */
@@ -151,27 +187,54 @@ static inline int32_t tc_nbr(const tc_cloth *c, int32_t t, int k)
     const int32_t *pt = (const int32_t *)tc_vec_ptr(&c->ptris) + 2 * (size_t)p;
     return pt[0] == t ? pt[1] : pt[0];
 }
-void tc_set_err(tc_cloth *c, const char *fmt, ...);
 
-/* fem.c */
+/* ---------------- events.c ---------------- */
+void tc_events_clear(tc_cloth *c);
+/* new vertex v from parents a and b (b = -1: a copy of a), wa the weight of a */
+int tc_event_new_vertex(tc_cloth *c, int32_t v, int32_t a, int32_t b, double wa);
+int tc_event_new_triangle(tc_cloth *c, int32_t t);
+int tc_event_changed_triangle(tc_cloth *c, int32_t t);  /* once per step; never for a new one */
+
+/* ---------------- fem.c ---------------- */
 double tc_element_pass(tc_cloth *c, const double *x);  /* returns the largest stretch (NaN if not finite) */
 void tc_bending_force(const tc_cloth *c, const double *x, double *f);
 void tc_assemble(tc_cloth *c, double dt);
 void tc_matvec(const tc_cloth *c, const double *p, double *y);
-double tc_elastic_energy(const tc_cloth *c, const double *x);
-double tc_bending_energy(const tc_cloth *c, const double *x);
 
-/* tear.c */
-int tc_tear_step(tc_cloth *c);
+/* ---------------- constraints.c ---------------- */
 int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3]);
-double tc_now(void);
-void tc_events_clear(tc_cloth *c);
+/* vflag and sfix for one sub-step of length dt ending at fraction alpha of the handles' motion */
+void tc_constraints_begin(tc_cloth *c, double dt, double alpha);
+void tc_contact_basis(tc_cloth *c, double dt);
+void tc_constraint_filter(const tc_cloth *c, double *r);             /* r := S r */
+void tc_constraint_project(const tc_cloth *c, double *v, const double *fix);  /* v := S v + fix */
+void tc_constraint_offsets(const tc_cloth *c, const double *v0, double *fix);  /* fix -= (I - S) v0 */
+int tc_contacts_release(tc_cloth *c, const double *J, const double *b);   /* pulling contacts off */
+int32_t tc_contacts_friction(tc_cloth *c, double *v, const double *J, const double *b);
+void tc_contacts_take_back_push(const tc_cloth *c, double *v, double dt);
+void tc_handle_forces(tc_cloth *c);
 
-/* small vector helpers */
-static inline double dot3(const double *a, const double *b) { return a[0]*b[0] + a[1]*b[1] + a[2]*b[2]; }
-static inline void sub3(const double *a, const double *b, double *o) { o[0]=a[0]-b[0]; o[1]=a[1]-b[1]; o[2]=a[2]-b[2]; }
-static inline void cross3(const double *a, const double *b, double *o) {
-    o[0] = a[1]*b[2] - a[2]*b[1]; o[1] = a[2]*b[0] - a[0]*b[2]; o[2] = a[0]*b[1] - a[1]*b[0];
-}
+/* ---------------- solver.c ---------------- */
+void tc_precondition_build(tc_cloth *c);
+int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double *residual);
+
+/* ---------------- remesh.c ---------------- */
+/* Triangles around u reachable from `start` without crossing a boundary or a pair in `cut`: the
+ * count, or -1 if the fan exceeds cap; *closed tells whether it wraps around. */
+int tc_fan_walk(const tc_cloth *c, int32_t u, int32_t start, const int32_t *cut, int ncut, int32_t *out, int cap,
+                bool *closed);
+bool tc_is_boundary_vertex(const tc_cloth *c, int32_t u);
+/* The segment from tip v along dir (snapping or splitting): its far vertex, or -1; the pair to cut
+ * in *pair. `avoid` lists pairs already in the cut, so the path never folds back. */
+int32_t tc_prepare_segment(tc_cloth *c, int32_t v, const double *dir, const int32_t *avoid, int navoid, int32_t *pair);
+/* Separates the mesh along the pairs in `cut`; bit i of *dup_mask set when verts[i] was duplicated. */
+int tc_separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *verts, int nverts, unsigned *dup_mask);
+
+/* ---------------- tear.c ---------------- */
+int tc_tear_step(tc_cloth *c);
+
+/* ---------------- step.c ---------------- */
+void tc_total_force(tc_cloth *c, const double *x);
+void tc_refresh(tc_cloth *c);  /* element state and forces of the current positions, if stale */
 
 #endif

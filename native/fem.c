@@ -1,6 +1,6 @@
 /* fem.c - co-rotational linear FEM on constant-strain triangles (plane stress) and the quadratic
  * bending energy: per-element rotation, stress and forces, assembly of the implicit Euler system
- * and its matrix-vector product.
+ * and its matrix-vector product, and the elastic and bending energies.
  *
  * Co-rotation: F = R S (polar decomposition of the 3x2 deformation gradient), strain
  * eps = sym(R^T F) - I, so rigid motions give exactly zero stress. The stiffness uses R frozen over
@@ -24,7 +24,7 @@ static void corotate(const double *F0, const double *F1, double *R, double eps[3
 {
     double a = dot3(F0, F0), b = dot3(F0, F1), d = dot3(F1, F1);
     double det = a * d - b * b;
-    if (det > 1e-16 * (a + d) * (a + d)) {
+    if (det > TC_COLLAPSE_DET * (a + d) * (a + d)) {
         double s = sqrt(det), t = sqrt(a + d + 2.0 * s);
         double S00 = (a + s) / t, S01 = b / t, S11 = (d + s) / t;
         double i00 = S11 / s, i01 = -S01 / s, i11 = S00 / s;  /* S^-1, det S = s */
@@ -35,12 +35,12 @@ static void corotate(const double *F0, const double *F1, double *R, double eps[3
     } else {
         /* collapsed element: keep a frame by Gram-Schmidt on whatever direction survives */
         double n0 = sqrt(a);
-        if (n0 > 1e-300) for (int k = 0; k < 3; k++) R[k] = F0[k] / n0;
+        if (n0 > TC_TINY) for (int k = 0; k < 3; k++) R[k] = F0[k] / n0;
         double p = dot3(R + 3, R);
         double r1[3] = {R[3] - p * R[0], R[4] - p * R[1], R[5] - p * R[2]};
         double n1 = sqrt(dot3(r1, r1));
-        if (n1 < 1e-12) {  /* pick any unit vector orthogonal to R0 */
-            double ax[3] = {fabs(R[0]) < 0.9 ? 1.0 : 0.0, fabs(R[0]) < 0.9 ? 0.0 : 1.0, 0.0};
+        if (n1 < TC_COLLAPSE_COLUMN) {  /* pick any unit vector orthogonal to R0 */
+            double ax[3] = {fabs(R[0]) < TC_COLLAPSE_AXIS_LIMIT ? 1.0 : 0.0, fabs(R[0]) < TC_COLLAPSE_AXIS_LIMIT ? 0.0 : 1.0, 0.0};
             double q = dot3(ax, R);
             r1[0] = ax[0] - q * R[0]; r1[1] = ax[1] - q * R[1]; r1[2] = ax[2] - q * R[2];
             n1 = sqrt(dot3(r1, r1));
@@ -260,7 +260,7 @@ TC_HOT void tc_matvec(const tc_cloth *c, const double *restrict p, double *restr
     }
 }
 
-double tc_elastic_energy(const tc_cloth *c, const double *x)
+static double tc_elastic_energy(const tc_cloth *c, const double *x)
 {
     double lambda, mu;
     lame(&c->mat, &lambda, &mu);
@@ -284,7 +284,7 @@ double tc_elastic_energy(const tc_cloth *c, const double *x)
     return e;
 }
 
-double tc_bending_energy(const tc_cloth *c, const double *x)
+static double tc_bending_energy(const tc_cloth *c, const double *x)
 {
     const double *vb = tc_vec_ptr(&c->vbend), *pb = tc_vec_ptr(&c->pbend);
     const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
@@ -294,4 +294,17 @@ double tc_bending_energy(const tc_cloth *c, const double *x)
     for (size_t p = 0; p < np; p++)
         if (pi[p] >= 0) e += pb[p] * dot3(x + 3 * pi[p], x + 3 * pj[p]);
     return c->mat.bending * e;
+}
+
+tc_energy tc_cloth_energy(tc_cloth *c)
+{
+    tc_energy e = {0};
+    const double *x = tc_vec_ptr(&c->x), *v = tc_vec_ptr(&c->v), *m = tc_vec_ptr(&c->mass);
+    for (int32_t i = 0; i < c->nv; i++) {
+        e.kinetic += 0.5 * m[i] * dot3(v + 3 * i, v + 3 * i);
+        e.gravity -= m[i] * dot3(c->solver.gravity, x + 3 * i);
+    }
+    e.elastic = tc_elastic_energy(c, x);
+    e.bending = tc_bending_energy(c, x);
+    return e;
 }

@@ -1,4 +1,4 @@
-/* mesh.c - creation, validation and topology of a cloth: vertex and triangle storage, the pair
+/* mesh.c - validation and topology of a cloth's mesh: vertex and triangle storage, the pair
  * table (mesh edges and bending flaps, with a hash for lookup), triangle adjacency, rest-shape
  * elements, lumped masses and bending stencils.
  *
@@ -9,50 +9,9 @@
 #include "core.h"
 
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-void tc_set_err(tc_cloth *c, const char *fmt, ...)
-{
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(c->err, sizeof c->err, fmt, ap);
-    va_end(ap);
-}
-
-const char *tc_cloth_error(const tc_cloth *c) { return c->err; }
-
-tc_material tc_material_default(void)
-{
-    /* A medium cotton (see addon/materials.py for sources of the presets). */
-    tc_material m = {
-        .young = 5.0e6, .poisson = 0.3, .thickness = 5.0e-4, .density = 300.0,
-        .bending = 2.0e-5, .damping_mass = 0.1, .damping_stiffness = 1.0e-4,
-        .tear_stress = 2.0e6, .snap_tolerance = 0.3,
-    };
-    return m;
-}
-
-int tc_material_check(const tc_material *m, char *msg, size_t msz)
-{
-#define BAD(...) do { snprintf(msg, msz, __VA_ARGS__); return TC_ERR_INPUT; } while (0)
-    if (!(isfinite(m->young) && m->young > 0)) BAD("young (Young's modulus) must be > 0 Pa and finite (got %g)", m->young);
-    if (!(m->poisson > -1.0 && m->poisson < 0.5)) BAD("poisson (Poisson ratio) must lie in (-1, 0.5) (got %g)", m->poisson);
-    if (!(isfinite(m->thickness) && m->thickness > 0)) BAD("thickness must be > 0 m and finite (got %g)", m->thickness);
-    if (!(isfinite(m->density) && m->density > 0)) BAD("density must be > 0 kg/m^3 and finite (got %g)", m->density);
-    if (!(isfinite(m->bending) && m->bending >= 0)) BAD("bending (stiffness) must be >= 0 N m and finite (got %g)", m->bending);
-    if (!(isfinite(m->damping_mass) && m->damping_mass >= 0)) BAD("damping_mass must be >= 0 1/s (got %g)", m->damping_mass);
-    if (!(isfinite(m->damping_stiffness) && m->damping_stiffness >= 0)) BAD("damping_stiffness must be >= 0 s (got %g)", m->damping_stiffness);
-    if (!(m->tear_stress > 0)) BAD("tear_stress must be > 0 Pa (got %g)", m->tear_stress);
-    if (!(m->snap_tolerance >= 0 && m->snap_tolerance < 0.5)) BAD("snap_tolerance must lie in [0, 0.5) (got %g)", m->snap_tolerance);
-    if (m->young > 1e13) BAD("young = %g Pa is beyond any sheet material (diamond is ~1e12)", m->young);
-    if (m->density > 1e5) BAD("density = %g kg/m^3 is beyond any material", m->density);
-    if (m->thickness > 1.0) BAD("thickness = %g m is not a thin sheet", m->thickness);
-    return TC_OK;
-#undef BAD
-}
 
 /* ---------------- pair hash ---------------- */
 
@@ -98,8 +57,10 @@ int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b)
     int32_t p = tc_pair_find(c, a, b);
     if (p >= 0) { ((int32_t *)tc_vec_ptr(&c->puse))[p]++; return p; }
     if (a > b) { int32_t t = a; a = b; b = t; }
+    /* at half load (live keys and tombstones) rebuild: twice as large when the live keys alone
+       fill a quarter of it, else the same size (that only sweeps the tombstones away) */
     if ((c->hcount + c->htomb + 1) * 2 > c->hcap) {
-        if (hash_rehash(c, c->hcount * 4 + 64 > c->hcap ? c->hcap * 2 : c->hcap)) return -1;
+        if (hash_rehash(c, c->hcount * 4 + TC_HASH_INITIAL > c->hcap ? c->hcap * 2 : c->hcap)) return -1;
     }
     if (c->pfree.len) {
         p = ((int32_t *)tc_vec_ptr(&c->pfree))[--c->pfree.len];
@@ -200,9 +161,8 @@ int tc_tri_rest(tc_cloth *c, int32_t t, char *msg, size_t msz)
     double e3[3]; sub3(d, b, e3);
     double l3 = sqrt(dot3(e3, e3));
     if (l3 > lmax) lmax = l3;
-    /* relative test: a sliver whose area is below 1e-10 of its longest edge squared cannot be
-       inverted reliably in double precision */
-    if (!(area > 1e-10 * lmax * lmax) || !isfinite(area)) {
+    /* relative test (TC_SLIVER_AREA): a sliver cannot be inverted reliably in double precision */
+    if (!(area > TC_SLIVER_AREA * lmax * lmax) || !isfinite(area)) {
         if (msg) snprintf(msg, msz, "triangle %d (vertices %d, %d, %d) is degenerate: rest area %.3g m^2", (int)t,
                           (int)T[0], (int)T[1], (int)T[2], area);
         return TC_ERR_INPUT;

@@ -5,13 +5,14 @@
  * an `Array` holds a reference to the core's block (tc_buf), so it stays valid even when tearing
  * grows the cloth (it then shows the state before the growth; fetch a new one).
  *
- * Everything from Python is validated here or in the core before use; failures become
- * InvalidInputError (a ValueError) or SimulationError (a RuntimeError) naming the problem. The GIL
+ * Everything from Python is validated here or in the core before use (arrays by the argument
+ * helper shared with tearcloth._collide, native/py/pyarg.h); failures become InvalidInputError (a
+ * ValueError) or SimulationError (a RuntimeError) naming the problem. The core formats its messages
+ * with the C library, and so does pyarg_error() here: PyErr_Format has no %g. defaults() hands out
+ * the core's default settings so that tests hold them against the Python presets. The GIL
  * is released during a step; a `busy` flag refuses concurrent use of one cloth from two threads.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-
+#include "pyarg.h"
 #include "tearcloth.h"
 
 #include <math.h>
@@ -104,59 +105,18 @@ static PyObject *make_array(tc_buf *buf, size_t rows, size_t cols, size_t item, 
 
 /* ---------------- buffer arguments ---------------- */
 
-typedef struct { Py_buffer view; int held; } Arg;
+/* Arrays come in as flat tables checked by the shared helper (native/py/pyarg.h): float64 or int32,
+ * C-contiguous, one dimension (cols 0) or rows of cols values; wrong shapes raise
+ * InvalidInputError. */
+typedef pyarg_value Arg;
 
-static void arg_release(Arg *a) { if (a->held) { PyBuffer_Release(&a->view); a->held = 0; } }
+static void arg_release(Arg *a) { pyarg_value_release(a); }
 
-/* Reads a C-contiguous array of float64 ('d') or int32 ('i') with `cols` columns (0 = any 1-D). */
 static int arg_get(PyObject *obj, const char *name, char kind, Py_ssize_t cols, Arg *out, Py_ssize_t *rows)
 {
-    out->held = 0;
-    if (PyObject_GetBuffer(obj, &out->view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
-        PyErr_Clear();
-        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous array (numpy.ascontiguousarray)", name);
-        return -1;
-    }
-    out->held = 1;
-    const char *f = out->view.format ? out->view.format : "B";
-    if (*f == '<' || *f == '=' || *f == '@') f++;
-    Py_ssize_t want = kind == 'd' ? 8 : 4;
-    int ok = out->view.itemsize == want &&
-             (kind == 'd' ? *f == 'd' : (*f == 'i' || (*f == 'l' && want == sizeof(long)) || *f == 'I'));
-    if (!ok) {
-        PyErr_Format(PyExc_TypeError, "%s must have dtype %s (got format '%s', item size %zd)", name,
-                     kind == 'd' ? "float64" : "int32", out->view.format ? out->view.format : "?", out->view.itemsize);
-        arg_release(out);
-        return -1;
-    }
-    Py_ssize_t n = out->view.len / want;
-    if (cols > 0) {
-        int nd = out->view.ndim;
-        Py_ssize_t last = (nd >= 2 && out->view.shape) ? out->view.shape[nd - 1] : -1;
-        if (nd >= 2 && out->view.shape) {
-            Py_ssize_t prod = 1;
-            for (int i = 1; i < nd; i++) prod *= out->view.shape[i];
-            last = prod;
-        }
-        if (last != cols || n % cols) {
-            PyErr_Format(InvalidInputError, "%s must have shape (N, %zd) (got %zd values in %d dimensions)", name, cols, n, nd);
-            arg_release(out);
-            return -1;
-        }
-        *rows = n / cols;
-    } else {
-        if (out->view.ndim > 1) {
-            PyErr_Format(InvalidInputError, "%s must be one-dimensional (got %d dimensions)", name, out->view.ndim);
-            arg_release(out);
-            return -1;
-        }
-        *rows = n;
-    }
-    if (*rows > 0x7fffffff / 16) {
-        PyErr_Format(InvalidInputError, "%s is too large (%zd rows)", name, *rows);
-        arg_release(out);
-        return -1;
-    }
+    pyarg_spec spec = {name, kind == 'd' ? PA_F64 : PA_I32, 0, 0, {cols, 0, 0}};
+    if (pyarg_buffer(obj, &spec, InvalidInputError, out)) return -1;
+    *rows = out->rows;
     return 0;
 }
 
@@ -248,15 +208,16 @@ static PyObject *Cloth_set_material(PyObject *o, PyObject *args, PyObject *kw)
     Py_RETURN_NONE;
 }
 
+static PyObject *material_dict(const tc_material *m);
+static PyObject *solver_dict(const tc_solver_settings *s);
+static PyObject *tearing_dict(const tc_tear_settings *s);
+
 static PyObject *Cloth_material(PyObject *o, PyObject *unused)
 {
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_material m = tc_cloth_material(self->c);
-    return Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d}", "young", m.young, "poisson", m.poisson,
-                         "thickness", m.thickness, "density", m.density, "bending", m.bending, "damping_mass",
-                         m.damping_mass, "damping_stiffness", m.damping_stiffness, "tear_stress", m.tear_stress,
-                         "snap_tolerance", m.snap_tolerance);
+    return material_dict(&m);
 }
 
 static PyObject *Cloth_set_solver(PyObject *o, PyObject *args, PyObject *kw)
@@ -281,10 +242,7 @@ static PyObject *Cloth_solver(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_solver_settings s = tc_cloth_solver(self->c);
-    return Py_BuildValue("{s:(ddd),s:d,s:i,s:d,s:d,s:d}", "gravity", s.gravity[0], s.gravity[1], s.gravity[2],
-                         "cg_tolerance", s.cg_tolerance, "cg_max_iterations", s.cg_max_iterations, "max_stretch",
-                         s.max_stretch, "contact_max_push", s.contact_max_push, "contact_correction",
-                         s.contact_correction);
+    return solver_dict(&s);
 }
 
 static PyObject *Cloth_set_tearing(PyObject *o, PyObject *args, PyObject *kw)
@@ -304,8 +262,7 @@ static PyObject *Cloth_tearing(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_tear_settings s = tc_cloth_tearing(self->c);
-    return Py_BuildValue("{s:O,s:i,s:d}", "enabled", s.enabled ? Py_True : Py_False, "scan_period", s.scan_period,
-                         "min_angle_deg", s.min_angle_deg);
+    return tearing_dict(&s);
 }
 
 static PyObject *vertex_array_call(ClothObject *self, PyObject *arr, int which)
@@ -319,7 +276,7 @@ static PyObject *vertex_array_call(ClothObject *self, PyObject *arr, int which)
             double f = ((double *)A.view.buf)[i];
             if (!(f > 0 && isfinite(f))) {
                 arg_release(&A);
-                return PyErr_Format(InvalidInputError, "tear strength factor of vertex %zd must be > 0 and finite (got %g)", i, f);
+                return pyarg_error(InvalidInputError, "tear strength factor of vertex %zd must be > 0 and finite (got %g)", i, f);
             }
         }
         rc = tc_cloth_set_tear_strength(self->c, A.view.buf, (int32_t)n);
@@ -594,7 +551,48 @@ static PyType_Slot Cloth_slots[] = {
 static PyType_Spec Cloth_spec = {"tearcloth._native.Cloth", sizeof(ClothObject), 0,
                                  Py_TPFLAGS_DEFAULT | Py_TPFLAGS_BASETYPE, Cloth_slots};
 
-static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_native", "Tear Cloth native core.", -1, NULL, NULL, NULL, NULL, NULL};
+/* The C defaults (settings.c) with the C struct field names, so a test can hold them against the
+ * Python side's presets: {"material": {...}, "solver": {...}, "tearing": {...}}. */
+static PyObject *material_dict(const tc_material *m)
+{
+    return Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d}", "young", m->young, "poisson", m->poisson,
+                         "thickness", m->thickness, "density", m->density, "bending", m->bending, "damping_mass",
+                         m->damping_mass, "damping_stiffness", m->damping_stiffness, "tear_stress", m->tear_stress,
+                         "snap_tolerance", m->snap_tolerance);
+}
+
+static PyObject *solver_dict(const tc_solver_settings *s)
+{
+    return Py_BuildValue("{s:(ddd),s:d,s:i,s:d,s:d,s:d}", "gravity", s->gravity[0], s->gravity[1], s->gravity[2],
+                         "cg_tolerance", s->cg_tolerance, "cg_max_iterations", s->cg_max_iterations, "max_stretch",
+                         s->max_stretch, "contact_max_push", s->contact_max_push, "contact_correction",
+                         s->contact_correction);
+}
+
+static PyObject *tearing_dict(const tc_tear_settings *s)
+{
+    return Py_BuildValue("{s:O,s:i,s:d}", "enabled", s->enabled ? Py_True : Py_False, "scan_period", s->scan_period,
+                         "min_angle_deg", s->min_angle_deg);
+}
+
+static PyObject *native_defaults(PyObject *mod, PyObject *unused)
+{
+    tc_material m = tc_material_default();
+    tc_solver_settings s = tc_solver_default();
+    tc_tear_settings t = tc_tear_default();
+    return Py_BuildValue("{s:N,s:N,s:N}", "material", material_dict(&m), "solver", solver_dict(&s), "tearing",
+                         tearing_dict(&t));
+}
+
+static PyMethodDef module_methods[] = {
+    {"defaults", native_defaults, METH_NOARGS,
+     "defaults() -> {'material': {...}, 'solver': {...}, 'tearing': {...}}: the C core's default settings, by the "
+     "C struct field names (gravity as a 3-tuple)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "_native", "Tear Cloth native core.", -1, module_methods,
+                                    NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__native(void)
 {

@@ -52,7 +52,7 @@ typedef struct tc_material {
     double snap_tolerance;    /* fraction of an edge, in [0, 0.5): cut points this close to a vertex snap to it */
 } tc_material;
 
-tc_material tc_material_default(void);
+tc_material tc_material_default(void);  /* the "cotton" preset of addon/materials.py */
 /* Returns TC_OK or TC_ERR_INPUT with a message in msg (at least 256 bytes). */
 int tc_material_check(const tc_material *m, char *msg, size_t msg_size);
 

@@ -487,6 +487,41 @@ def test_bad_arrays_raise_clear_errors():
         _collide.vertex_normals(p, t, out)
 
 
+def test_kernels_take_their_arguments_by_position_or_by_name():
+    """One argument table per kernel: positional calls in the documented order and keyword calls
+    are the same call; a wrong, doubled or missing name is a TypeError naming it."""
+    p, t = wavy_sheet(7, 5, 1)
+    n = p.shape[0]
+    by_pos = np.empty((n, 3)), np.empty(n, bool)
+    _collide.vertex_normals(p, t, *by_pos)
+    by_name = np.empty((n, 3)), np.empty(n, bool)
+    _collide.vertex_normals(has_normal=by_name[1], normals=by_name[0], triangles=t, positions=p)
+    np.testing.assert_array_equal(by_pos[0], by_name[0])
+    np.testing.assert_array_equal(by_pos[1], by_name[1])
+    mixed = np.empty((n, 3)), np.empty(n, bool)
+    _collide.vertex_normals(p, t, normals=mixed[0], has_normal=mixed[1])
+    np.testing.assert_array_equal(by_pos[0], mixed[0])
+    with pytest.raises(TypeError, match="unexpected keyword argument 'normal_out'"):
+        _collide.vertex_normals(p, t, normal_out=mixed[0], has_normal=mixed[1])
+    with pytest.raises(TypeError, match="'positions' by position and by keyword"):
+        _collide.vertex_normals(p, t, mixed[0], mixed[1], positions=p)
+    with pytest.raises(TypeError, match="missing required argument 'has_normal'"):
+        _collide.vertex_normals(p, t, mixed[0])
+    with pytest.raises(TypeError, match="at most 4 arguments"):
+        _collide.vertex_normals(p, t, mixed[0], mixed[1], mixed[1])
+    # an optional argument may be left out or passed as None; a scalar takes an integer or a float
+    k = 4
+    lo_a = np.zeros((k, 3))
+    hi_a = np.ones((k, 3))
+    i, j = np.empty(32, np.int64), np.empty(32, np.int64)
+    assert _collide.box_pairs(lo_a, hi_a, lo_a, hi_a, True, i, j) == k * (k + 1) // 2
+    assert _collide.box_pairs(lo_a=lo_a, hi_a=hi_a, lo_b=lo_a, hi_b=hi_a, self_pairs=np.bool_(False), i=i,
+                              j=j) == k * k
+    with pytest.raises(ValueError, match="inflate must be a finite number, got nan"):
+        _collide.cluster_boxes(p, np.zeros(0, np.int64), np.zeros(1, np.int64), float("nan"), np.empty((0, 3)),
+                               np.empty((0, 3)))
+
+
 def test_bad_indices_raise_in_every_kernel():
     p, t = wavy_sheet(8, 8, 0)
     n = p.shape[0]

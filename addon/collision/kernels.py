@@ -1,7 +1,9 @@
 """Python face of the native collision kernels (``tearcloth._collide``, sources ``native/collide/``).
 
 This file owns the calls into C: it allocates the outputs, keeps the workspaces that grow with
-the scene (pair lists, ray buffers) and hands back numpy arrays. The C module checks every
+the scene (pair lists, ray buffers) and hands back numpy arrays. It passes every argument by
+keyword: the names are those of each kernel's argument table (``native/collide/pymodule.c``, also
+in each kernel's docstring), so a call cannot shift an array into the wrong slot. The C module checks every
 argument (dtype, shape, contiguity, overlap, every index it reads) and raises TypeError /
 ValueError / IndexError itself; what is here is bookkeeping, not validation.
 
@@ -42,7 +44,7 @@ def vertex_normals(positions, triangles):
     n = positions.shape[0]
     out = np.empty((n, 3))
     has = np.empty(n, bool)
-    _collide.vertex_normals(positions, triangles, out, has)
+    _collide.vertex_normals(positions=positions, triangles=triangles, normals=out, has_normal=has)
     return out, has
 
 
@@ -51,7 +53,8 @@ def cluster_motion(clustering, positions, previous):
     k = clustering.n_clusters
     avg = np.empty((k, 3))
     dev = np.empty(k)
-    _collide.cluster_motion(positions, previous, clustering.order, clustering.ptr, avg, dev)
+    _collide.cluster_motion(positions=positions, previous=previous, order=clustering.order, ptr=clustering.ptr,
+                            avg=avg, dev=dev)
     return avg, dev
 
 
@@ -60,7 +63,8 @@ def cluster_boxes(clustering, positions, inflate):
     k = clustering.n_clusters
     lo = np.empty((k, 3))
     hi = np.empty((k, 3))
-    _collide.cluster_boxes(positions, clustering.box_index, clustering.box_ptr, float(inflate), lo, hi)
+    _collide.cluster_boxes(positions=positions, index=clustering.box_index, ptr=clustering.box_ptr,
+                           inflate=float(inflate), lo=lo, hi=hi)
     return lo, hi
 
 
@@ -71,7 +75,7 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, self_pairs=False):
     while True:
         i = np.empty(cap, np.int64)
         j = np.empty(cap, np.int64)
-        count = _collide.box_pairs(lo_a, hi_a, lo_b, hi_b, bool(self_pairs), i, j)
+        count = _collide.box_pairs(lo_a=lo_a, hi_a=hi_a, lo_b=lo_b, hi_b=hi_b, self_pairs=bool(self_pairs), i=i, j=j)
         if count <= cap:
             return i[:count], j[:count]
         cap = count
@@ -108,8 +112,10 @@ NO_HITS = Hits(0)
 def walk(positions, normals, ray_vertex, ray_slot, start, target, ring=None, max_steps=8):
     """Walk the rays (vertex, slot) from their start triangles over ``target``'s adjacency."""
     res = Hits(ray_vertex.shape[0])
-    _collide.walk(positions, normals, ray_vertex, ray_slot, start, target.vertices, target.triangles, target.adj,
-                  target.flip, ring, int(max_steps), res.tri, res.t, res.u, res.v, res.flips)
+    _collide.walk(positions=positions, normals=normals, ray_vertex=ray_vertex, ray_slot=ray_slot, start=start,
+                  target_vertices=target.vertices, target_triangles=target.triangles, adjacency=target.adj,
+                  flip=target.flip, ring=ring, max_steps=int(max_steps), tri_out=res.tri, t_out=res.t, u_out=res.u,
+                  v_out=res.v, flips_out=res.flips)
     return res
 
 
@@ -130,14 +136,24 @@ class RayBuffer:
     _none = (np.empty((0, 3), np.float32), np.empty((0, 3), np.float32), np.empty(0, np.float32),
              np.empty(0, np.int64), np.empty(0, np.int64))
 
+    def _setup(self, positions, normals, has_normal, long_mask, clustering, box_lo, box_hi, pair_a, pair_b,
+               clusters, scenes, short_dist, long_dist, backoff, tolerance):
+        """The inputs of ``_collide.prepare_rays`` by name (its outputs are added by the callers)."""
+        return dict(positions=positions, normals=normals, has_normal=has_normal, long_mask=long_mask,
+                    order=clustering.order, ptr=clustering.ptr, box_lo=box_lo, box_hi=box_hi, pair_a=pair_a,
+                    pair_b=pair_b, clusters=clusters, R=scenes.R, centre=scenes.centre,
+                    ref_centre=scenes.ref_centre, short_dist=float(short_dist), long_dist=float(long_dist),
+                    backoff=float(backoff), tolerance=float(tolerance))
+
     def count(self, positions, normals, has_normal, long_mask, clustering, box_lo, box_hi, pair_a, pair_b,
               clusters, scenes, short_dist, long_dist, backoff, tolerance):
         """Only the segment bounds (q + 1) of ``prepare``: how many rays each cluster would get."""
         seg = np.empty(clusters.size + 1, np.int64)
+        o, d, dist, vertex, slot = self._none
         _collide.prepare_rays(
-            positions, normals, has_normal, long_mask, clustering.order, clustering.ptr, box_lo, box_hi,
-            pair_a, pair_b, clusters, scenes.R, scenes.centre, scenes.ref_centre, float(short_dist),
-            float(long_dist), float(backoff), float(tolerance), *self._none, seg,
+            **self._setup(positions, normals, has_normal, long_mask, clustering, box_lo, box_hi, pair_a, pair_b,
+                          clusters, scenes, short_dist, long_dist, backoff, tolerance),
+            origins=o, directions=d, dists=dist, ray_vertex=vertex, ray_slot=slot, segments=seg,
         )
         return seg
 
@@ -146,13 +162,11 @@ class RayBuffer:
         """Rays of the pairs (pair_a cloth cluster, pair_b collider cluster, sorted by pair_b),
         culled against the collider boxes, in each scene's build frame. Returns (count, seg)."""
         seg = np.empty(clusters.size + 1, np.int64)
+        inputs = self._setup(positions, normals, has_normal, long_mask, clustering, box_lo, box_hi, pair_a, pair_b,
+                             clusters, scenes, short_dist, long_dist, backoff, tolerance)
         while True:
-            count = _collide.prepare_rays(
-                positions, normals, has_normal, long_mask, clustering.order, clustering.ptr, box_lo, box_hi,
-                pair_a, pair_b, clusters, scenes.R, scenes.centre, scenes.ref_centre, float(short_dist),
-                float(long_dist), float(backoff), float(tolerance), self.o, self.d, self.dist, self.vertex,
-                self.slot, seg,
-            )
+            count = _collide.prepare_rays(**inputs, origins=self.o, directions=self.d, dists=self.dist,
+                                          ray_vertex=self.vertex, ray_slot=self.slot, segments=seg)
             if count <= self.cap:
                 return count, seg
             self._grow(max(count, 2 * self.cap))

@@ -7,8 +7,9 @@
  * wins; on a tie the walked track wins over a new hit, because it carries the side memory.
  */
 #include "collide.h"
-#include "vec.h"
+#include "vecmath.h"
 
+#include <math.h>
 #include <stdlib.h>
 
 /* Unit normal of triangle f (zero if degenerate) and the signed distance of p to its plane. */
@@ -17,16 +18,16 @@ static double plane_distance(const tcc_mesh *m, tcc_idx f, const double p[3], do
     const tcc_idx *t = m->tri + 3 * f;
     const double *a = m->x + 3 * t[0];
     double e1[3], e2[3], r[3];
-    v_sub(e1, m->x + 3 * t[1], a);
-    v_sub(e2, m->x + 3 * t[2], a);
-    v_cross(nrm, e1, e2);
-    double len = sqrt(v_dot(nrm, nrm));
+    sub3(m->x + 3 * t[1], a, e1);
+    sub3(m->x + 3 * t[2], a, e2);
+    cross3(e1, e2, nrm);
+    double len = sqrt(dot3(nrm, nrm));
     double s = len > 0 ? len : 1.0;
     nrm[0] /= s;
     nrm[1] /= s;
     nrm[2] /= s;
-    v_sub(r, p, a);
-    return v_dot(r, nrm);
+    sub3(p, a, r);
+    return dot3(r, nrm);
 }
 
 static int check_triangle(const tcc_mesh *m, tcc_idx f, tcc_error *err)
@@ -234,16 +235,16 @@ done:
 static double corner_plane(const double x[3], const double t[3][3])
 {
     double e1[3], e2[3], nrm[3], r[3];
-    v_sub(e1, t[1], t[0]);
-    v_sub(e2, t[2], t[0]);
-    v_cross(nrm, e1, e2);
-    double len = sqrt(v_dot(nrm, nrm));
+    sub3(t[1], t[0], e1);
+    sub3(t[2], t[0], e2);
+    cross3(e1, e2, nrm);
+    double len = sqrt(dot3(nrm, nrm));
     double s = len > 1e-30 ? len : 1e-30;
     nrm[0] /= s;
     nrm[1] /= s;
     nrm[2] /= s;
-    v_sub(r, x, t[0]);
-    return v_dot(r, nrm);
+    sub3(x, t[0], r);
+    return dot3(r, nrm);
 }
 
 static double sgn(double x) { return x > 0 ? 1.0 : (x < 0 ? -1.0 : 0.0); }
@@ -260,10 +261,10 @@ static int8_t initial_side(const double xp[3], const double xn[3], const double 
             for (int k = 0; k < 3; k++) t[k][a] = (1 - alpha) * tp[k][a] + alpha * tn[k][a];
         }
         double e1[3], e2[3], ex[3];
-        v_sub(e1, t[1], t[0]);
-        v_sub(e2, t[2], t[0]);
-        v_sub(ex, x, t[0]);
-        double d11 = v_dot(e1, e1), d12 = v_dot(e1, e2), d22 = v_dot(e2, e2), d1x = v_dot(e1, ex), d2x = v_dot(e2, ex);
+        sub3(t[1], t[0], e1);
+        sub3(t[2], t[0], e2);
+        sub3(x, t[0], ex);
+        double d11 = dot3(e1, e1), d12 = dot3(e1, e2), d22 = dot3(e2, e2), d1x = dot3(e1, ex), d2x = dot3(e2, ex);
         double den = d11 * d22 - d12 * d12;
         if (den < 1e-30) den = 1e-30; /* np.maximum(den, 1e-30); NaN stays NaN */
         double v = (d22 * d1x - d12 * d2x) / den, w = (d11 * d2x - d12 * d1x) / den;
@@ -436,7 +437,7 @@ int tcc_merge_classify(const tcc_merge_in *in, tcc_merge_out *out, tcc_error *er
                 if (in->kind == TCC_SELF) {
                     /* layer over layer only: a triangle standing edge-on to this vertex's surface (a
                      * fold, a torn rim) would pin the membrane in-plane (narrow.py, detector.py) */
-                    contact = contact && fabs(v_dot(nrm, in->normals + 3 * v)) >= 0.5;
+                    contact = contact && fabs(dot3(nrm, in->normals + 3 * v)) >= 0.5;
                 }
                 keep = fabs(e->t) <= tr || (inverted && dist <= tr + th);
                 /* both slots on one triangle would double the memory: keep slot 0 only */

@@ -7,7 +7,9 @@
  * exact, always proper (det +1, no reflection fix-up as with an SVD) and a few hundred flops.
  */
 #include "collide.h"
-#include "vec.h"
+#include "vecmath.h"
+
+#include <math.h>
 
 #include <stdarg.h>
 #include <stdio.h>
@@ -36,9 +38,9 @@ int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, 
                                 (long long)f, k, (long long)t[k], (long long)m->nv);
         const double *a = m->x + 3 * t[0], *b = m->x + 3 * t[1], *c = m->x + 3 * t[2];
         double e1[3], e2[3], cr[3];
-        v_sub(e1, b, a);
-        v_sub(e2, c, a);
-        v_cross(cr, e1, e2); /* |cr| = twice the area: the area weighting */
+        sub3(b, a, e1);
+        sub3(c, a, e2);
+        cross3(e1, e2, cr); /* |cr| = twice the area: the area weighting */
         for (int k = 0; k < 3; k++) {
             double *acc = normals + 3 * t[k];
             acc[0] += cr[0];
@@ -48,12 +50,12 @@ int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, 
     }
     for (tcc_idx v = 0; v < m->nv; v++) {
         double *nv = normals + 3 * v;
-        double len = sqrt(v_dot(nv, nv));
+        double len = sqrt(dot3(nv, nv));
         double s = len > 0 ? len : 1.0;
         nv[0] /= s;
         nv[1] /= s;
         nv[2] /= s;
-        if (has_normal) has_normal[v] = v_dot(nv, nv) > 0.5;
+        if (has_normal) has_normal[v] = dot3(nv, nv) > 0.5;
     }
     return TCC_OK;
 }
@@ -96,20 +98,20 @@ int tcc_cluster_normals(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx 
                                         "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)", (long long)f,
                                         a, (long long)t[a], (long long)m->nv);
                 double e1[3], e2[3], cr[3];
-                v_sub(e1, m->x + 3 * t[1], m->x + 3 * t[0]);
-                v_sub(e2, m->x + 3 * t[2], m->x + 3 * t[0]);
-                v_cross(cr, e1, e2);
+                sub3(m->x + 3 * t[1], m->x + 3 * t[0], e1);
+                sub3(m->x + 3 * t[2], m->x + 3 * t[0], e2);
+                cross3(e1, e2, cr);
                 acc[0] += cr[0];
                 acc[1] += cr[1];
                 acc[2] += cr[2];
             }
-            double len = sqrt(v_dot(acc, acc));
+            double len = sqrt(dot3(acc, acc));
             double sc = len > 0 ? len : 1.0;
             double *nv = normals + 3 * v;
             nv[0] = acc[0] / sc;
             nv[1] = acc[1] / sc;
             nv[2] = acc[2] / sc;
-            has_normal[v] = v_dot(nv, nv) > 0.5;
+            has_normal[v] = dot3(nv, nv) > 0.5;
         }
     }
     return TCC_OK;
@@ -120,18 +122,18 @@ int tcc_line_triangle(const double o[3], const double d[3], const double a[3], c
 {
     /* incremental.line_triangle, expression for expression */
     double e1[3], e2[3], p[3], s[3], q[3];
-    v_sub(e1, b, a);
-    v_sub(e2, c, a);
-    v_cross(p, d, e2);
-    double det = v_dot(e1, p);
-    double e11 = v_dot(e1, e1);
+    sub3(b, a, e1);
+    sub3(c, a, e2);
+    cross3(d, e2, p);
+    double det = dot3(e1, p);
+    double e11 = dot3(e1, e1);
     int ok = fabs(det) > 1e-14 * (e11 > 1e-30 ? e11 : 1e-30);
     double inv = ok ? 1.0 / det : 0.0;
-    v_sub(s, o, a);
-    *u = v_dot(s, p) * inv;
-    v_cross(q, s, e1);
-    *v = v_dot(d, q) * inv;
-    *t = v_dot(e2, q) * inv;
+    sub3(o, a, s);
+    *u = dot3(s, p) * inv;
+    cross3(s, e1, q);
+    *v = dot3(d, q) * inv;
+    *t = dot3(e2, q) * inv;
     return ok;
 }
 

@@ -2,165 +2,40 @@
  *
  * CPython limited API 3.11 (abi3), like `tearcloth._native`: one build serves every Blender from
  * 4.2 on. Arrays come in through the buffer protocol (numpy arrays, zero copy) and results go into
- * arrays the caller allocated, so this module never depends on numpy's C API. Every argument is
- * checked here before a kernel runs - dtype, number of dimensions, shape against the other
- * arguments, C-contiguity, writability of outputs, and that no output overlaps another argument -
- * and the kernels check every index they read (collide.h). Wrong types raise TypeError, wrong
- * shapes or values ValueError, out-of-range indices IndexError. The GIL is released while a kernel
- * runs.
+ * arrays the caller allocated, so this module never depends on numpy's C API.
+ *
+ * Each kernel's arguments are one table (pyarg_spec, native/py/pyarg.h) in the order of its
+ * docstring: name, dtype, shape, output or optional. A kernel takes them by position in that order
+ * or by keyword (addon/collision/kernels.py calls them by name). Every argument is checked before a
+ * kernel runs - dtype, number of dimensions, shape against the other arguments, C-contiguity,
+ * writability of outputs, and that no output overlaps another argument - and the kernels check
+ * every index they read (collide.h). Wrong types raise TypeError, wrong shapes or values
+ * ValueError, out-of-range indices IndexError. The GIL is released while a kernel runs.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
+#include "pyarg.h"
 
 #include "collide.h"
 
 #include <math.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
 
-/* ---------------------------------------------------------------- arguments */
+/* table rows: an array (rows checked against other arguments after parsing), a scalar */
+#define ARR(name, type, flags, ndim, d1, d2) {name, type, flags, ndim, {-1, d1, d2}}
+#define VAL(name, type) {name, type, 0, 0, {0, 0, 0}}
+#define OUT PA_OUT
+#define OPT PA_OPTIONAL
 
-enum { F64, F32, I64, I32, BOOL, I8 };
-static const char *KIND_NAME[] = {"float64", "float32", "int64", "int32", "bool", "int8"};
-
-typedef struct {
-    Py_buffer v;
-    int held, out;
-    const char *name;
-} Buf;
-
-#define MAXBUF 48
-typedef struct {
-    Buf b[MAXBUF];
-    int n;
-} Ctx;
-
-static void ctx_release(Ctx *c)
-{
-    for (int i = 0; i < c->n; i++)
-        if (c->b[i].held) {
-            PyBuffer_Release(&c->b[i].v);
-            c->b[i].held = 0;
-        }
-    c->n = 0;
-}
-
-static int format_ok(const char *f, int kind, Py_ssize_t itemsize)
-{
-    if (!f) f = "B";
-    if (*f == '<' || *f == '=' || *f == '@' || *f == '|') f++;
-    if (f[0] == 0 || f[1] != 0) return 0;
-    char ch = f[0];
-    switch (kind) {
-    case F64: return ch == 'd' && itemsize == 8;
-    case F32: return ch == 'f' && itemsize == 4;
-    case I64: return (ch == 'q' || ch == 'l' || ch == 'n') && itemsize == 8;
-    case I32: return (ch == 'i' || ch == 'l') && itemsize == 4;
-    case BOOL: return (ch == '?' || ch == 'B') && itemsize == 1;
-    case I8: return ch == 'b' && itemsize == 1;
-    }
-    return 0;
-}
-
-static void shape_text(char *s, size_t size, int ndim, const Py_ssize_t *d)
-{
-    size_t k = (size_t)snprintf(s, size, "(");
-    for (int i = 0; i < ndim && k < size; i++)
-        k += (size_t)snprintf(s + k, size - k, i + 1 < ndim ? "%zd, " : (ndim == 1 ? "%zd," : "%zd"), d[i]);
-    if (k < size) snprintf(s + k, size - k, ")");
-}
-
-/* An array argument: dtype `kind`, `ndim` dimensions, each of the given size (-1: any).
- * out: must be writable. Returns NULL with an exception set on failure. */
-static Buf *arg(Ctx *c, PyObject *o, const char *name, int kind, int out, int ndim, Py_ssize_t d0, Py_ssize_t d1,
-                Py_ssize_t d2)
-{
-    if (c->n >= MAXBUF) {
-        PyErr_SetString(PyExc_RuntimeError, "too many array arguments");
-        return NULL;
-    }
-    Buf *b = &c->b[c->n];
-    memset(b, 0, sizeof *b);
-    b->name = name;
-    b->out = out;
-    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (out ? PyBUF_WRITABLE : 0);
-    if (PyObject_GetBuffer(o, &b->v, flags) < 0) {
-        PyObject *t, *v, *tb;
-        PyErr_Fetch(&t, &v, &tb);
-        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous%s %s numpy array (%S)", name, out ? ", writable" : "",
-                     KIND_NAME[kind], v ? v : Py_None);
-        Py_XDECREF(t);
-        Py_XDECREF(v);
-        Py_XDECREF(tb);
-        return NULL;
-    }
-    b->held = 1;
-    c->n++;
-    if (!format_ok(b->v.format, kind, b->v.itemsize)) {
-        PyErr_Format(PyExc_TypeError, "%s must have dtype %s (got buffer format '%s', item size %zd)", name,
-                     KIND_NAME[kind], b->v.format ? b->v.format : "B", b->v.itemsize);
-        return NULL;
-    }
-    Py_ssize_t want[3] = {d0, d1, d2};
-    int bad = b->v.ndim != ndim || !b->v.shape;
-    for (int i = 0; !bad && i < ndim; i++) bad = want[i] >= 0 && b->v.shape[i] != want[i];
-    if (bad) {
-        char got[96], exp[96] = "(";
-        if (b->v.shape)
-            shape_text(got, sizeof got, b->v.ndim, b->v.shape);
-        else
-            snprintf(got, sizeof got, "no shape");
-        size_t k = 1;
-        for (int i = 0; i < ndim && k < sizeof exp; i++) {
-            const char *sep = i + 1 < ndim ? ", " : (ndim == 1 ? "," : "");
-            k += want[i] >= 0 ? (size_t)snprintf(exp + k, sizeof exp - k, "%zd%s", want[i], sep)
-                              : (size_t)snprintf(exp + k, sizeof exp - k, "any%s", sep);
-        }
-        if (k < sizeof exp) snprintf(exp + k, sizeof exp - k, ")");
-        PyErr_Format(PyExc_ValueError, "%s must have shape %s, got %s", name, exp, got);
-        return NULL;
-    }
-    return b;
-}
-
-/* Optional array: None gives an empty Buf whose data pointer is NULL. */
-static Buf *opt(Ctx *c, PyObject *o, const char *name, int kind, int out, int ndim, Py_ssize_t d0, Py_ssize_t d1,
-                Py_ssize_t d2)
-{
-    if (o != Py_None) return arg(c, o, name, kind, out, ndim, d0, d1, d2);
-    if (c->n >= MAXBUF) {
-        PyErr_SetString(PyExc_RuntimeError, "too many array arguments");
-        return NULL;
-    }
-    Buf *b = &c->b[c->n++];
-    memset(b, 0, sizeof *b);
-    b->name = name;
-    return b;
-}
-
-#define DATA(b) ((b)->v.buf)
-#define ROWS(b) ((b)->v.shape[0])
-
-/* No output may share memory with any other argument: a kernel reads its inputs while writing. */
-static int no_overlap(Ctx *c)
-{
-    for (int i = 0; i < c->n; i++) {
-        Buf *a = &c->b[i];
-        if (!a->held || !a->out || a->v.len == 0) continue;
-        const char *a0 = a->v.buf, *a1 = a0 + a->v.len;
-        for (int j = 0; j < c->n; j++) {
-            Buf *b = &c->b[j];
-            if (j == i || !b->held || b->v.len == 0) continue;
-            const char *b0 = b->v.buf, *b1 = b0 + b->v.len;
-            if (a0 < b1 && b0 < a1) {
-                PyErr_Format(PyExc_ValueError, "output %s shares memory with %s: pass separate arrays", a->name, b->name);
-                return -1;
-            }
-        }
-    }
-    return 0;
-}
+#define D(i) pyarg_data(&s, i)
+#define ROWS(i) pyarg_nrows(&s, i)
+#define CHECK_ROWS(i, r) \
+    if (pyarg_rows(&s, i, r)) goto fail
+#define PARSE(name, table, count)                                                                                     \
+    pyarg_set s;                                                                                                      \
+    if (pyarg_parse(&s, name, table, count, PyExc_ValueError, args, kw)) return NULL
+#define RUN(call)                                                                                                     \
+    do {                                                                                                              \
+        Py_BEGIN_ALLOW_THREADS rc = (call);                                                                           \
+        Py_END_ALLOW_THREADS                                                                                          \
+    } while (0)
 
 static PyObject *kernel_error(const tcc_error *e)
 {
@@ -172,318 +47,350 @@ static PyObject *kernel_error(const tcc_error *e)
 static int finite_param(double x, const char *name, int positive)
 {
     if (!isfinite(x) || (positive && x < 0)) {
-        char msg[160];
-        snprintf(msg, sizeof msg, "%s must be a finite%s number, got %g", name, positive ? " non-negative" : "", x);
-        PyErr_SetString(PyExc_ValueError, msg);
+        pyarg_error(PyExc_ValueError, "%s must be a finite%s number, got %g", name, positive ? " non-negative" : "", x);
         return -1;
     }
     return 0;
 }
 
-#define TRY(x)                                                                                                        \
-    if (!(x)) goto fail
-#define RUN(call)                                                                                                     \
-    do {                                                                                                              \
-        Py_BEGIN_ALLOW_THREADS rc = (call);                                                                           \
-        Py_END_ALLOW_THREADS                                                                                          \
-    } while (0)
-
-/* A mesh from (vertices (nv,3) f64, triangles (nt,3) i64, adjacency (nt,3) i64 | None, flip (nt,3) bool | None). */
-static int mesh_args(Ctx *c, tcc_mesh *m, PyObject *x, PyObject *tri, PyObject *adj, PyObject *flip)
+static int kind_ok(int kind)
 {
-    Buf *bx = arg(c, x, "target vertices", F64, 0, 2, -1, 3, 0);
-    if (!bx) return -1;
-    Buf *bt = arg(c, tri, "target triangles", I64, 0, 2, -1, 3, 0);
-    if (!bt) return -1;
-    Py_ssize_t nt = ROWS(bt);
-    Buf *ba = opt(c, adj, "adjacency", I64, 0, 2, nt, 3, 0);
-    if (!ba) return -1;
-    Buf *bf = opt(c, flip, "flip", BOOL, 0, 2, nt, 3, 0);
-    if (!bf) return -1;
-    m->x = DATA(bx);
-    m->nv = ROWS(bx);
-    m->tri = DATA(bt);
+    if (kind >= TCC_VOLUME && kind <= TCC_SELF) return 1;
+    PyErr_Format(PyExc_ValueError, "kind must be 0 (volume), 1 (surface) or 2 (self), got %d", kind);
+    return 0;
+}
+
+static int bounds_ok(Py_ssize_t rows, const char *name, const char *what)
+{
+    if (rows >= 1) return 1;
+    PyErr_Format(PyExc_ValueError, "%s must hold the k + 1 %s bounds (at least one entry)", name, what);
+    return 0;
+}
+
+/* A target mesh from four consecutive rows: vertices (nv, 3), triangles (nt, 3), adjacency and
+ * flip (nt, 3) or absent. */
+static int mesh_from(pyarg_set *p, int first, tcc_mesh *m)
+{
+    Py_ssize_t nt = pyarg_nrows(p, first + 1);
+    if (pyarg_rows(p, first + 2, nt) || pyarg_rows(p, first + 3, nt)) return -1;
+    m->x = pyarg_data(p, first);
+    m->nv = pyarg_nrows(p, first);
+    m->tri = pyarg_data(p, first + 1);
     m->nt = nt;
-    m->adj = DATA(ba);
-    m->flip = DATA(bf);
+    m->adj = pyarg_data(p, first + 2);
+    m->flip = pyarg_data(p, first + 3);
     return 0;
 }
 
-static int ring_arg(Ctx *c, tcc_ring *r, PyObject *o)
+static tcc_ring ring_from(const pyarg_set *p, int i)
 {
-    Buf *b = opt(c, o, "ring", I64, 0, 2, -1, -1, 0);
-    if (!b) return -1;
-    r->table = DATA(b);
-    r->rows = b->held ? ROWS(b) : 0;
-    r->width = b->held ? b->v.shape[1] : 0;
-    return 0;
+    const pyarg_value *v = &p->v[i];
+    tcc_ring r = {pyarg_data(p, i), v->held ? v->rows : 0, v->held ? v->view.shape[1] : 0};
+    return r;
 }
+
+/* rays of cloth vertices: positions (n, 3), normals (n, 3), ray_vertex (r,), ray_slot (r,) */
+#define RAY_ROWS                                                                                                      \
+    ARR("positions", PA_F64, 0, 2, 3, 0), ARR("normals", PA_F64, 0, 2, 3, 0), ARR("ray_vertex", PA_I64, 0, 1, 0, 0), \
+        ARR("ray_slot", PA_I64, 0, 1, 0, 0)
+#define RING_ROW ARR("ring", PA_I64, OPT, 2, -1, 0)
+/* a tcc_hits output: triangle, t, u, v, flips (r,) each */
+#define HITS_ROWS(tri, t, u, v, flips)                                                                                \
+    ARR(tri, PA_I64, OUT, 1, 0, 0), ARR(t, PA_F64, OUT, 1, 0, 0), ARR(u, PA_F64, OUT, 1, 0, 0),                       \
+        ARR(v, PA_F64, OUT, 1, 0, 0), ARR(flips, PA_BOOL, OUT, 1, 0, 0)
+#define MESH_ROWS(prefix)                                                                                             \
+    ARR(prefix "vertices", PA_F64, 0, 2, 3, 0), ARR(prefix "triangles", PA_I64, 0, 2, 3, 0),                          \
+        ARR("adjacency", PA_I64, OPT, 2, 3, 0), ARR("flip", PA_BOOL, OPT, 2, 3, 0)
 
 /* ---------------------------------------------------------------- functions */
 
-static PyObject *py_vertex_normals(PyObject *self, PyObject *args)
+static const pyarg_spec VERTEX_NORMALS[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("normals", PA_F64, OUT, 2, 3, 0),
+    ARR("has_normal", PA_BOOL, OUT, 1, 0, 0),
+};
+enum { VN_X, VN_T, VN_NORMALS, VN_HAS, VN_N };
+
+static PyObject *py_vertex_normals(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[4];
-    if (!PyArg_ParseTuple(args, "OOOO:vertex_normals", &a[0], &a[1], &a[2], &a[3])) return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *t, *out, *has;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t n = ROWS(x);
-    TRY(t = arg(&c, a[1], "triangles", I64, 0, 2, -1, 3, 0));
-    TRY(out = arg(&c, a[2], "normals", F64, 1, 2, n, 3, 0));
-    TRY(has = arg(&c, a[3], "has_normal", BOOL, 1, 1, n, 0, 0));
-    if (no_overlap(&c)) goto fail;
-    tcc_mesh m = {DATA(x), n, DATA(t), ROWS(t), NULL, NULL};
+    PARSE("vertex_normals", VERTEX_NORMALS, VN_N);
+    Py_ssize_t n = ROWS(VN_X);
+    CHECK_ROWS(VN_NORMALS, n);
+    CHECK_ROWS(VN_HAS, n);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(VN_X), n, D(VN_T), ROWS(VN_T), NULL, NULL};
     tcc_error err = {0};
     int rc;
-    RUN(tcc_vertex_normals(&m, DATA(out), DATA(has), &err));
-    ctx_release(&c);
+    RUN(tcc_vertex_normals(&m, D(VN_NORMALS), D(VN_HAS), &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_cluster_normals(PyObject *self, PyObject *args)
+static const pyarg_spec CLUSTER_NORMALS[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("vt_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("vt_tri", PA_I64, 0, 1, 0, 0),
+    ARR("order", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    ARR("clusters", PA_I64, 0, 1, 0, 0),
+    ARR("normals", PA_F64, OUT, 2, 3, 0),
+    ARR("has_normal", PA_BOOL, OUT, 1, 0, 0),
+    ARR("done", PA_BOOL, OUT | OPT, 1, 0, 0),
+};
+enum { CN_X, CN_T, CN_VP, CN_VT, CN_ORDER, CN_PTR, CN_CL, CN_NORMALS, CN_HAS, CN_DONE, CN_N };
+
+static PyObject *py_cluster_normals(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[10];
-    a[9] = Py_None;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOO|O:cluster_normals", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
-                          &a[8], &a[9]))
-        return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *t, *vp, *vt, *order, *ptr, *cl, *out, *has, *done;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t n = ROWS(x);
-    TRY(t = arg(&c, a[1], "triangles", I64, 0, 2, -1, 3, 0));
-    TRY(vp = arg(&c, a[2], "vt_ptr", I64, 0, 1, n + 1, 0, 0));
-    TRY(vt = arg(&c, a[3], "vt_tri", I64, 0, 1, -1, 0, 0));
-    TRY(order = arg(&c, a[4], "order", I64, 0, 1, -1, 0, 0));
-    TRY(ptr = arg(&c, a[5], "ptr", I64, 0, 1, -1, 0, 0));
-    if (ROWS(ptr) < 1) {
-        PyErr_SetString(PyExc_ValueError, "ptr must hold the k + 1 cluster bounds (at least one entry)");
-        goto fail;
-    }
-    TRY(cl = arg(&c, a[6], "clusters", I64, 0, 1, -1, 0, 0));
-    TRY(out = arg(&c, a[7], "normals", F64, 1, 2, n, 3, 0));
-    TRY(has = arg(&c, a[8], "has_normal", BOOL, 1, 1, n, 0, 0));
-    TRY(done = opt(&c, a[9], "done", BOOL, 1, 1, ROWS(ptr) - 1, 0, 0));
-    if (no_overlap(&c)) goto fail;
-    tcc_mesh m = {DATA(x), n, DATA(t), ROWS(t), NULL, NULL};
+    PARSE("cluster_normals", CLUSTER_NORMALS, CN_N);
+    Py_ssize_t n = ROWS(CN_X);
+    CHECK_ROWS(CN_VP, n + 1);
+    if (!bounds_ok(ROWS(CN_PTR), "ptr", "cluster")) goto fail;
+    CHECK_ROWS(CN_NORMALS, n);
+    CHECK_ROWS(CN_HAS, n);
+    CHECK_ROWS(CN_DONE, ROWS(CN_PTR) - 1);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(CN_X), n, D(CN_T), ROWS(CN_T), NULL, NULL};
     tcc_error err = {0};
     int rc;
-    RUN(tcc_cluster_normals(&m, DATA(vp), DATA(vt), ROWS(vt), DATA(order), ROWS(order), DATA(ptr), ROWS(ptr) - 1,
-                            DATA(cl), ROWS(cl), DATA(out), DATA(has), DATA(done), &err));
-    ctx_release(&c);
+    RUN(tcc_cluster_normals(&m, D(CN_VP), D(CN_VT), ROWS(CN_VT), D(CN_ORDER), ROWS(CN_ORDER), D(CN_PTR),
+                            ROWS(CN_PTR) - 1, D(CN_CL), ROWS(CN_CL), D(CN_NORMALS), D(CN_HAS), D(CN_DONE), &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_cluster_motion(PyObject *self, PyObject *args)
+static const pyarg_spec CLUSTER_MOTION[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("previous", PA_F64, 0, 2, 3, 0),
+    ARR("order", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    ARR("avg", PA_F64, OUT, 2, 3, 0),
+    ARR("dev", PA_F64, OUT, 1, 0, 0),
+};
+enum { CM_X, CM_PREV, CM_ORDER, CM_PTR, CM_AVG, CM_DEV, CM_N };
+
+static PyObject *py_cluster_motion(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[6];
-    if (!PyArg_ParseTuple(args, "OOOOOO:cluster_motion", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5])) return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *p, *order, *ptr, *avg, *dev;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t n = ROWS(x);
-    TRY(p = arg(&c, a[1], "previous", F64, 0, 2, n, 3, 0));
-    TRY(order = arg(&c, a[2], "order", I64, 0, 1, -1, 0, 0));
-    TRY(ptr = arg(&c, a[3], "ptr", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t k = ROWS(ptr) - 1;
-    if (k < 0) {
-        PyErr_SetString(PyExc_ValueError, "ptr must hold the k + 1 cluster bounds (at least one entry)");
-        goto fail;
-    }
-    TRY(avg = arg(&c, a[4], "avg", F64, 1, 2, k, 3, 0));
-    TRY(dev = arg(&c, a[5], "dev", F64, 1, 1, k, 0, 0));
-    if (no_overlap(&c)) goto fail;
+    PARSE("cluster_motion", CLUSTER_MOTION, CM_N);
+    Py_ssize_t n = ROWS(CM_X);
+    CHECK_ROWS(CM_PREV, n);
+    if (!bounds_ok(ROWS(CM_PTR), "ptr", "cluster")) goto fail;
+    Py_ssize_t k = ROWS(CM_PTR) - 1;
+    CHECK_ROWS(CM_AVG, k);
+    CHECK_ROWS(CM_DEV, k);
+    if (pyarg_no_overlap(&s)) goto fail;
     tcc_error err = {0};
     int rc;
-    RUN(tcc_cluster_motion(DATA(x), DATA(p), n, DATA(order), ROWS(order), DATA(ptr), k, DATA(avg), DATA(dev), &err));
-    ctx_release(&c);
+    RUN(tcc_cluster_motion(D(CM_X), D(CM_PREV), n, D(CM_ORDER), ROWS(CM_ORDER), D(CM_PTR), k, D(CM_AVG), D(CM_DEV),
+                           &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_cluster_boxes(PyObject *self, PyObject *args)
+static const pyarg_spec CLUSTER_BOXES[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("index", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    VAL("inflate", PA_DOUBLE),
+    ARR("lo", PA_F64, OUT, 2, 3, 0),
+    ARR("hi", PA_F64, OUT, 2, 3, 0),
+};
+enum { CB_X, CB_INDEX, CB_PTR, CB_INFLATE, CB_LO, CB_HI, CB_N };
+
+static PyObject *py_cluster_boxes(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[6];
-    double inflate;
-    if (!PyArg_ParseTuple(args, "OOOdOO:cluster_boxes", &a[0], &a[1], &a[2], &inflate, &a[4], &a[5])) return NULL;
-    if (finite_param(inflate, "inflate", 0)) return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *index, *ptr, *lo, *hi;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    TRY(index = arg(&c, a[1], "index", I64, 0, 1, -1, 0, 0));
-    TRY(ptr = arg(&c, a[2], "ptr", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t k = ROWS(ptr) - 1;
-    if (k < 0) {
-        PyErr_SetString(PyExc_ValueError, "ptr must hold the k + 1 box bounds (at least one entry)");
-        goto fail;
-    }
-    TRY(lo = arg(&c, a[4], "lo", F64, 1, 2, k, 3, 0));
-    TRY(hi = arg(&c, a[5], "hi", F64, 1, 2, k, 3, 0));
-    if (no_overlap(&c)) goto fail;
+    PARSE("cluster_boxes", CLUSTER_BOXES, CB_N);
+    double inflate = s.v[CB_INFLATE].d;
+    if (finite_param(inflate, "inflate", 0)) goto fail;
+    if (!bounds_ok(ROWS(CB_PTR), "ptr", "box")) goto fail;
+    Py_ssize_t k = ROWS(CB_PTR) - 1;
+    CHECK_ROWS(CB_LO, k);
+    CHECK_ROWS(CB_HI, k);
+    if (pyarg_no_overlap(&s)) goto fail;
     tcc_error err = {0};
     int rc;
-    RUN(tcc_cluster_boxes(DATA(x), ROWS(x), DATA(index), ROWS(index), DATA(ptr), k, inflate, DATA(lo), DATA(hi), &err));
-    ctx_release(&c);
+    RUN(tcc_cluster_boxes(D(CB_X), ROWS(CB_X), D(CB_INDEX), ROWS(CB_INDEX), D(CB_PTR), k, inflate, D(CB_LO), D(CB_HI),
+                          &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_box_pairs(PyObject *self, PyObject *args)
+static const pyarg_spec BOX_PAIRS[] = {
+    ARR("lo_a", PA_F64, 0, 2, 3, 0),
+    ARR("hi_a", PA_F64, 0, 2, 3, 0),
+    ARR("lo_b", PA_F64, 0, 2, 3, 0),
+    ARR("hi_b", PA_F64, 0, 2, 3, 0),
+    VAL("self_pairs", PA_FLAG),
+    ARR("i", PA_I64, OUT, 1, 0, 0),
+    ARR("j", PA_I64, OUT, 1, 0, 0),
+};
+enum { BP_LOA, BP_HIA, BP_LOB, BP_HIB, BP_SELF, BP_I, BP_J, BP_N };
+
+static PyObject *py_box_pairs(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[7];
-    int self_pairs;
-    if (!PyArg_ParseTuple(args, "OOOOpOO:box_pairs", &a[0], &a[1], &a[2], &a[3], &self_pairs, &a[5], &a[6]))
-        return NULL;
-    Ctx c = {.n = 0};
-    Buf *la, *ha, *lb, *hb, *oi, *oj;
-    TRY(la = arg(&c, a[0], "lo_a", F64, 0, 2, -1, 3, 0));
-    TRY(ha = arg(&c, a[1], "hi_a", F64, 0, 2, ROWS(la), 3, 0));
-    TRY(lb = arg(&c, a[2], "lo_b", F64, 0, 2, -1, 3, 0));
-    TRY(hb = arg(&c, a[3], "hi_b", F64, 0, 2, ROWS(lb), 3, 0));
-    if (self_pairs && ROWS(la) != ROWS(lb)) {
+    PARSE("box_pairs", BOX_PAIRS, BP_N);
+    int self_pairs = s.v[BP_SELF].i;
+    CHECK_ROWS(BP_HIA, ROWS(BP_LOA));
+    CHECK_ROWS(BP_HIB, ROWS(BP_LOB));
+    if (self_pairs && ROWS(BP_LOA) != ROWS(BP_LOB)) {
         PyErr_SetString(PyExc_ValueError, "self pairs need the same boxes on both sides");
         goto fail;
     }
-    TRY(oi = arg(&c, a[5], "i", I64, 1, 1, -1, 0, 0));
-    TRY(oj = arg(&c, a[6], "j", I64, 1, 1, ROWS(oi), 0, 0));
-    if (no_overlap(&c)) goto fail;
+    CHECK_ROWS(BP_J, ROWS(BP_I));
+    if (pyarg_no_overlap(&s)) goto fail;
     tcc_idx count = 0;
-    Py_BEGIN_ALLOW_THREADS tcc_box_pairs(DATA(la), DATA(ha), ROWS(la), DATA(lb), DATA(hb), ROWS(lb), self_pairs,
-                                         DATA(oi), DATA(oj), ROWS(oi), &count);
-    Py_END_ALLOW_THREADS ctx_release(&c);
+    Py_BEGIN_ALLOW_THREADS tcc_box_pairs(D(BP_LOA), D(BP_HIA), ROWS(BP_LOA), D(BP_LOB), D(BP_HIB), ROWS(BP_LOB),
+                                         self_pairs, D(BP_I), D(BP_J), ROWS(BP_I), &count);
+    Py_END_ALLOW_THREADS pyarg_release(&s);
     return PyLong_FromLongLong(count);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_relative_measure(PyObject *self, PyObject *args)
+static const pyarg_spec RELATIVE_MEASURE[] = {
+    ARR("old_keys", PA_I64, 0, 1, 0, 0),
+    ARR("old_avg", PA_F64, 0, 2, 3, 0),
+    ARR("old_dev", PA_F64, 0, 1, 0, 0),
+    ARR("i", PA_I64, 0, 1, 0, 0),
+    ARR("j", PA_I64, 0, 1, 0, 0),
+    ARR("avg_a", PA_F64, 0, 2, 3, 0),
+    ARR("dev_a", PA_F64, 0, 1, 0, 0),
+    ARR("avg_b", PA_F64, 0, 2, 3, 0),
+    ARR("dev_b", PA_F64, 0, 1, 0, 0),
+    ARR("force", PA_BOOL, OPT, 1, 0, 0),
+    VAL("threshold", PA_DOUBLE),
+    ARR("keys", PA_I64, OUT, 1, 0, 0),
+    ARR("rel_avg", PA_F64, OUT, 2, 3, 0),
+    ARR("rel_dev", PA_F64, OUT, 1, 0, 0),
+    ARR("amplitude", PA_F64, OUT, 1, 0, 0),
+    ARR("full", PA_BOOL, OUT, 1, 0, 0),
+    {"lookahead", PA_DOUBLE, OPT, 0, {0, 0, 0}},  /* steps; absent: 0 */
+};
+enum { RM_OK, RM_OA, RM_OD, RM_I, RM_J, RM_AA, RM_DA, RM_AB, RM_DB, RM_FORCE, RM_THRESHOLD, RM_KEYS, RM_RA, RM_RD,
+       RM_AMP, RM_FULL, RM_LOOKAHEAD, RM_N };
+
+static PyObject *py_relative_measure(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[16];
-    double threshold, lookahead = 0.0;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOdOOOOO|d:relative_measure", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5],
-                          &a[6], &a[7], &a[8], &a[9], &threshold, &a[11], &a[12], &a[13], &a[14], &a[15], &lookahead))
-        return NULL;
+    PARSE("relative_measure", RELATIVE_MEASURE, RM_N);
+    double threshold = s.v[RM_THRESHOLD].d, lookahead = s.v[RM_LOOKAHEAD].d;
     if (isnan(threshold) || !isfinite(lookahead) || lookahead < 0) {
         PyErr_SetString(PyExc_ValueError, "threshold must be a number and lookahead a finite number of steps >= 0");
-        return NULL;
+        goto fail;
     }
-    Ctx c = {.n = 0};
-    Buf *ok, *oa, *od, *pi, *pj, *aa, *da, *ab, *db, *force, *keys, *ra, *rd, *amp, *full;
-    TRY(ok = arg(&c, a[0], "old_keys", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t nold = ROWS(ok);
-    TRY(oa = arg(&c, a[1], "old_avg", F64, 0, 2, nold, 3, 0));
-    TRY(od = arg(&c, a[2], "old_dev", F64, 0, 1, nold, 0, 0));
-    TRY(pi = arg(&c, a[3], "i", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t np_ = ROWS(pi);
-    TRY(pj = arg(&c, a[4], "j", I64, 0, 1, np_, 0, 0));
-    TRY(aa = arg(&c, a[5], "avg_a", F64, 0, 2, -1, 3, 0));
-    TRY(da = arg(&c, a[6], "dev_a", F64, 0, 1, ROWS(aa), 0, 0));
-    TRY(ab = arg(&c, a[7], "avg_b", F64, 0, 2, -1, 3, 0));
-    TRY(db = arg(&c, a[8], "dev_b", F64, 0, 1, ROWS(ab), 0, 0));
-    TRY(force = opt(&c, a[9], "force", BOOL, 0, 1, np_, 0, 0));
-    TRY(keys = arg(&c, a[11], "keys", I64, 1, 1, np_, 0, 0));
-    TRY(ra = arg(&c, a[12], "rel_avg", F64, 1, 2, np_, 3, 0));
-    TRY(rd = arg(&c, a[13], "rel_dev", F64, 1, 1, np_, 0, 0));
-    TRY(amp = arg(&c, a[14], "amplitude", F64, 1, 1, np_, 0, 0));
-    TRY(full = arg(&c, a[15], "full", BOOL, 1, 1, np_, 0, 0));
-    if (no_overlap(&c)) goto fail;
+    Py_ssize_t nold = ROWS(RM_OK), np_ = ROWS(RM_I);
+    CHECK_ROWS(RM_OA, nold);
+    CHECK_ROWS(RM_OD, nold);
+    CHECK_ROWS(RM_J, np_);
+    CHECK_ROWS(RM_DA, ROWS(RM_AA));
+    CHECK_ROWS(RM_DB, ROWS(RM_AB));
+    CHECK_ROWS(RM_FORCE, np_);
+    CHECK_ROWS(RM_KEYS, np_);
+    CHECK_ROWS(RM_RA, np_);
+    CHECK_ROWS(RM_RD, np_);
+    CHECK_ROWS(RM_AMP, np_);
+    CHECK_ROWS(RM_FULL, np_);
+    if (pyarg_no_overlap(&s)) goto fail;
     tcc_error err = {0};
     tcc_idx nfull = 0;
     int rc;
-    RUN(tcc_relative_measure(DATA(ok), DATA(oa), DATA(od), nold, DATA(pi), DATA(pj), np_, DATA(aa), DATA(da), ROWS(aa),
-                             DATA(ab), DATA(db), ROWS(ab), DATA(force), threshold, lookahead, DATA(keys), DATA(ra), DATA(rd),
-                             DATA(amp), DATA(full), &nfull, &err));
-    ctx_release(&c);
+    RUN(tcc_relative_measure(D(RM_OK), D(RM_OA), D(RM_OD), nold, D(RM_I), D(RM_J), np_, D(RM_AA), D(RM_DA), ROWS(RM_AA),
+                             D(RM_AB), D(RM_DB), ROWS(RM_AB), D(RM_FORCE), threshold, lookahead, D(RM_KEYS), D(RM_RA),
+                             D(RM_RD), D(RM_AMP), D(RM_FULL), &nfull, &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return PyLong_FromLongLong(nfull);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_rigid_fit(PyObject *self, PyObject *args)
+static const pyarg_spec RIGID_FIT[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("ref_corners", PA_F64, 0, 3, 3, 3),
+    ARR("scene_triangles", PA_I64, 0, 1, 0, 0),
+    ARR("R", PA_F64, OUT, 3, 3, 3),
+    ARR("centre", PA_F64, OUT, 2, 3, 0),
+    ARR("ref_centre", PA_F64, OUT, 2, 3, 0),
+    VAL("row", PA_SSIZE),
+};
+enum { RF_X, RF_T, RF_REF, RF_TRIS, RF_R, RF_CEN, RF_RCEN, RF_ROW, RF_N };
+
+static PyObject *py_rigid_fit(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[8];
-    Py_ssize_t row;
-    if (!PyArg_ParseTuple(args, "OOOOOOOn:rigid_fit", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &row))
-        return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *t, *ref, *tris, *R, *cen, *rc_;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    TRY(t = arg(&c, a[1], "triangles", I64, 0, 2, -1, 3, 0));
-    TRY(tris = arg(&c, a[3], "scene_triangles", I64, 0, 1, -1, 0, 0));
-    TRY(ref = arg(&c, a[2], "ref_corners", F64, 0, 3, ROWS(tris), 3, 3));
-    TRY(R = arg(&c, a[4], "R", F64, 1, 3, -1, 3, 3));
-    Py_ssize_t k = ROWS(R);
-    TRY(cen = arg(&c, a[5], "centre", F64, 1, 2, k, 3, 0));
-    TRY(rc_ = arg(&c, a[6], "ref_centre", F64, 1, 2, k, 3, 0));
+    PARSE("rigid_fit", RIGID_FIT, RF_N);
+    Py_ssize_t row = s.v[RF_ROW].n, k = ROWS(RF_R);
+    CHECK_ROWS(RF_REF, ROWS(RF_TRIS));
+    CHECK_ROWS(RF_CEN, k);
+    CHECK_ROWS(RF_RCEN, k);
     if (row < 0 || row >= k) {
         PyErr_Format(PyExc_IndexError, "row %zd is not in [0, %zd)", row, k);
         goto fail;
     }
-    if (no_overlap(&c)) goto fail;
-    tcc_mesh m = {DATA(x), ROWS(x), DATA(t), ROWS(t), NULL, NULL};
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(RF_X), ROWS(RF_X), D(RF_T), ROWS(RF_T), NULL, NULL};
     tcc_error err = {0};
     double resid2 = 0.0;
     int rc;
-    RUN(tcc_rigid_fit(&m, DATA(ref), DATA(tris), ROWS(tris), (double *)DATA(R) + 9 * row,
-                      (double *)DATA(cen) + 3 * row, (double *)DATA(rc_) + 3 * row, &resid2, &err));
-    ctx_release(&c);
+    RUN(tcc_rigid_fit(&m, D(RF_REF), D(RF_TRIS), ROWS(RF_TRIS), (double *)D(RF_R) + 9 * row,
+                      (double *)D(RF_CEN) + 3 * row, (double *)D(RF_RCEN) + 3 * row, &resid2, &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return PyFloat_FromDouble(resid2);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_rigid_fit_many(PyObject *self, PyObject *args)
+static const pyarg_spec RIGID_FIT_MANY[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("scene_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("scene_triangles", PA_I64, 0, 1, 0, 0),
+    ARR("ref_corners", PA_F64, 0, 3, 3, 3),
+    ARR("clusters", PA_I64, 0, 1, 0, 0),
+    ARR("R", PA_F64, OUT, 3, 3, 3),
+    ARR("centre", PA_F64, OUT, 2, 3, 0),
+    ARR("ref_centre", PA_F64, OUT, 2, 3, 0),
+    ARR("resid2", PA_F64, OUT, 1, 0, 0),
+};
+enum { RM2_X, RM2_T, RM2_PTR, RM2_TRIS, RM2_REF, RM2_CL, RM2_R, RM2_CEN, RM2_RCEN, RM2_RES, RM2_N };
+
+static PyObject *py_rigid_fit_many(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[10];
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOO:rigid_fit_many", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
-                          &a[8], &a[9]))
-        return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *t, *ptr, *tris, *ref, *cl, *R, *cen, *rcen, *res;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    TRY(t = arg(&c, a[1], "triangles", I64, 0, 2, -1, 3, 0));
-    TRY(ptr = arg(&c, a[2], "scene_ptr", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t k = ROWS(ptr) - 1;
-    if (k < 0) {
-        PyErr_SetString(PyExc_ValueError, "scene_ptr must hold the k + 1 scene bounds (at least one entry)");
-        goto fail;
-    }
-    TRY(tris = arg(&c, a[3], "scene_triangles", I64, 0, 1, -1, 0, 0));
-    TRY(ref = arg(&c, a[4], "ref_corners", F64, 0, 3, ROWS(tris), 3, 3));
-    TRY(cl = arg(&c, a[5], "clusters", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t q = ROWS(cl);
-    TRY(R = arg(&c, a[6], "R", F64, 1, 3, k, 3, 3));
-    TRY(cen = arg(&c, a[7], "centre", F64, 1, 2, k, 3, 0));
-    TRY(rcen = arg(&c, a[8], "ref_centre", F64, 1, 2, k, 3, 0));
-    TRY(res = arg(&c, a[9], "resid2", F64, 1, 1, q, 0, 0));
-    if (no_overlap(&c)) goto fail;
-    tcc_mesh m = {DATA(x), ROWS(x), DATA(t), ROWS(t), NULL, NULL};
+    PARSE("rigid_fit_many", RIGID_FIT_MANY, RM2_N);
+    if (!bounds_ok(ROWS(RM2_PTR), "scene_ptr", "scene")) goto fail;
+    Py_ssize_t k = ROWS(RM2_PTR) - 1, q = ROWS(RM2_CL), nsc = ROWS(RM2_TRIS);
+    CHECK_ROWS(RM2_REF, nsc);
+    CHECK_ROWS(RM2_R, k);
+    CHECK_ROWS(RM2_CEN, k);
+    CHECK_ROWS(RM2_RCEN, k);
+    CHECK_ROWS(RM2_RES, q);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(RM2_X), ROWS(RM2_X), D(RM2_T), ROWS(RM2_T), NULL, NULL};
     tcc_error err = {0};
     int rc = TCC_OK;
-    const tcc_idx *pp = DATA(ptr), *cc = DATA(cl), *tt = DATA(tris);
-    const double *rf = DATA(ref);
-    double *Rp = DATA(R), *cp = DATA(cen), *rp = DATA(rcen), *out = DATA(res);
-    Py_ssize_t nsc = ROWS(tris);
+    const tcc_idx *pp = D(RM2_PTR), *cc = D(RM2_CL), *tt = D(RM2_TRIS);
+    const double *rf = D(RM2_REF);
+    double *Rp = D(RM2_R), *cp = D(RM2_CEN), *rp = D(RM2_RCEN), *out = D(RM2_RES);
     Py_BEGIN_ALLOW_THREADS
     for (Py_ssize_t g = 0; g < q && rc == TCC_OK; g++) {
         tcc_idx b = cc[g];
@@ -500,477 +407,497 @@ static PyObject *py_rigid_fit_many(PyObject *self, PyObject *args)
         rc = tcc_rigid_fit(&m, rf + 9 * s0, tt + s0, s1 - s0, Rp + 9 * b, cp + 3 * b, rp + 3 * b, out + g, &err);
     }
     Py_END_ALLOW_THREADS
-    ctx_release(&c);
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_walk(PyObject *self, PyObject *args)
+static const pyarg_spec WALK[] = {
+    RAY_ROWS,
+    ARR("start", PA_I64, 0, 1, 0, 0),
+    MESH_ROWS("target_"),
+    RING_ROW,
+    VAL("max_steps", PA_INT),
+    HITS_ROWS("tri_out", "t_out", "u_out", "v_out", "flips_out"),
+};
+enum { WK_X, WK_NRM, WK_RV, WK_RS, WK_START, WK_MESH, WK_RING = WK_MESH + 4, WK_MAX, WK_TRI, WK_T, WK_U, WK_V,
+       WK_FLIPS, WK_N };
+
+static PyObject *py_walk(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[16];
-    int max_steps;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOiOOOOO:walk", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7], &a[8],
-                          &a[9], &max_steps, &a[11], &a[12], &a[13], &a[14], &a[15]))
-        return NULL;
+    PARSE("walk", WALK, WK_N);
+    int max_steps = s.v[WK_MAX].i;
     if (max_steps < 0 || max_steps > 1000) {
         PyErr_Format(PyExc_ValueError, "max_steps must be in [0, 1000], got %d", max_steps);
-        return NULL;
+        goto fail;
     }
-    Ctx c = {.n = 0};
-    Buf *x, *nrm, *rv, *rs, *st, *ot, *otp, *ou, *ov, *of;
+    Py_ssize_t n = ROWS(WK_X), k = ROWS(WK_RV);
+    CHECK_ROWS(WK_NRM, n);
+    CHECK_ROWS(WK_RS, k);
+    CHECK_ROWS(WK_START, k);
     tcc_mesh m;
-    tcc_ring ring;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t n = ROWS(x);
-    TRY(nrm = arg(&c, a[1], "normals", F64, 0, 2, n, 3, 0));
-    TRY(rv = arg(&c, a[2], "ray_vertex", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t k = ROWS(rv);
-    TRY(rs = arg(&c, a[3], "ray_slot", I64, 0, 1, k, 0, 0));
-    TRY(st = arg(&c, a[4], "start", I64, 0, 1, k, 0, 0));
-    if (mesh_args(&c, &m, a[5], a[6], a[7], a[8])) goto fail;
-    if (ring_arg(&c, &ring, a[9])) goto fail;
-    TRY(ot = arg(&c, a[11], "tri", I64, 1, 1, k, 0, 0));
-    TRY(otp = arg(&c, a[12], "t", F64, 1, 1, k, 0, 0));
-    TRY(ou = arg(&c, a[13], "u", F64, 1, 1, k, 0, 0));
-    TRY(ov = arg(&c, a[14], "v", F64, 1, 1, k, 0, 0));
-    TRY(of = arg(&c, a[15], "flips", BOOL, 1, 1, k, 0, 0));
-    if (no_overlap(&c)) goto fail;
-    tcc_hits out = {DATA(ot), DATA(otp), DATA(ou), DATA(ov), DATA(of)};
+    if (mesh_from(&s, WK_MESH, &m)) goto fail;
+    tcc_ring ring = ring_from(&s, WK_RING);
+    for (int i = WK_TRI; i <= WK_FLIPS; i++) CHECK_ROWS(i, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_hits out = {D(WK_TRI), D(WK_T), D(WK_U), D(WK_V), D(WK_FLIPS)};
     tcc_error err = {0};
     int rc;
-    RUN(tcc_walk(DATA(x), DATA(nrm), n, DATA(rv), DATA(rs), DATA(st), k, &m, &ring, max_steps, out, &err));
-    ctx_release(&c);
+    RUN(tcc_walk(D(WK_X), D(WK_NRM), n, D(WK_RV), D(WK_RS), D(WK_START), k, &m, &ring, max_steps, out, &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_prepare_rays(PyObject *self, PyObject *args)
+static const pyarg_spec PREPARE_RAYS[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("normals", PA_F64, 0, 2, 3, 0),
+    ARR("has_normal", PA_BOOL, 0, 1, 0, 0),
+    ARR("long_mask", PA_BOOL, OPT, 1, 0, 0),
+    ARR("order", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    ARR("box_lo", PA_F64, 0, 2, 3, 0),
+    ARR("box_hi", PA_F64, 0, 2, 3, 0),
+    ARR("pair_a", PA_I64, 0, 1, 0, 0),
+    ARR("pair_b", PA_I64, 0, 1, 0, 0),
+    ARR("clusters", PA_I64, 0, 1, 0, 0),
+    ARR("R", PA_F64, 0, 3, 3, 3),
+    ARR("centre", PA_F64, 0, 2, 3, 0),
+    ARR("ref_centre", PA_F64, 0, 2, 3, 0),
+    VAL("short_dist", PA_DOUBLE),
+    VAL("long_dist", PA_DOUBLE),
+    VAL("backoff", PA_DOUBLE),
+    VAL("tolerance", PA_DOUBLE),
+    ARR("origins", PA_F32, OUT, 2, 3, 0),
+    ARR("directions", PA_F32, OUT, 2, 3, 0),
+    ARR("dists", PA_F32, OUT, 1, 0, 0),
+    ARR("ray_vertex", PA_I64, OUT, 1, 0, 0),
+    ARR("ray_slot", PA_I64, OUT, 1, 0, 0),
+    ARR("segments", PA_I64, OUT, 1, 0, 0),
+};
+enum { PR_X, PR_NRM, PR_HAS, PR_LONG, PR_ORDER, PR_PTR, PR_BLO, PR_BHI, PR_PA, PR_PB, PR_CL, PR_R, PR_CEN, PR_RCEN,
+       PR_SD, PR_LD, PR_BACKOFF, PR_TOL, PR_O, PR_D, PR_DIST, PR_RV, PR_RS, PR_SEG, PR_N };
+
+static PyObject *py_prepare_rays(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[24];
-    double sd, ld, backoff, tol;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOOOOddddOOOOOO:prepare_rays", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5],
-                          &a[6], &a[7], &a[8], &a[9], &a[10], &a[11], &a[12], &a[13], &sd, &ld, &backoff, &tol, &a[18],
-                          &a[19], &a[20], &a[21], &a[22], &a[23]))
-        return NULL;
+    PARSE("prepare_rays", PREPARE_RAYS, PR_N);
+    double sd = s.v[PR_SD].d, ld = s.v[PR_LD].d, backoff = s.v[PR_BACKOFF].d, tol = s.v[PR_TOL].d;
     if (finite_param(sd, "short_dist", 1) || finite_param(ld, "long_dist", 1) || finite_param(backoff, "backoff", 1) ||
         finite_param(tol, "tolerance", 1))
-        return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *nrm, *has, *lm, *order, *ptr, *blo, *bhi, *pa, *pb, *ub, *R, *cen, *rcen, *o, *d, *dist, *rv, *rs, *seg;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t n = ROWS(x);
-    TRY(nrm = arg(&c, a[1], "normals", F64, 0, 2, n, 3, 0));
-    TRY(has = arg(&c, a[2], "has_normal", BOOL, 0, 1, n, 0, 0));
-    TRY(lm = opt(&c, a[3], "long_mask", BOOL, 0, 1, n, 0, 0));
-    TRY(order = arg(&c, a[4], "order", I64, 0, 1, -1, 0, 0));
-    TRY(ptr = arg(&c, a[5], "ptr", I64, 0, 1, -1, 0, 0));
-    if (ROWS(ptr) < 1) {
-        PyErr_SetString(PyExc_ValueError, "ptr must hold the k + 1 cluster bounds (at least one entry)");
         goto fail;
-    }
-    TRY(blo = arg(&c, a[6], "box_lo", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t kb = ROWS(blo);
-    TRY(bhi = arg(&c, a[7], "box_hi", F64, 0, 2, kb, 3, 0));
-    TRY(pa = arg(&c, a[8], "pair_a", I64, 0, 1, -1, 0, 0));
-    TRY(pb = arg(&c, a[9], "pair_b", I64, 0, 1, ROWS(pa), 0, 0));
-    TRY(ub = arg(&c, a[10], "clusters", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t q = ROWS(ub);
-    TRY(R = arg(&c, a[11], "R", F64, 0, 3, kb, 3, 3));
-    TRY(cen = arg(&c, a[12], "centre", F64, 0, 2, kb, 3, 0));
-    TRY(rcen = arg(&c, a[13], "ref_centre", F64, 0, 2, kb, 3, 0));
-    TRY(o = arg(&c, a[18], "origins", F32, 1, 2, -1, 3, 0));
-    Py_ssize_t cap = ROWS(o);
-    TRY(d = arg(&c, a[19], "directions", F32, 1, 2, cap, 3, 0));
-    TRY(dist = arg(&c, a[20], "dists", F32, 1, 1, cap, 0, 0));
-    TRY(rv = arg(&c, a[21], "ray_vertex", I64, 1, 1, cap, 0, 0));
-    TRY(rs = arg(&c, a[22], "ray_slot", I64, 1, 1, cap, 0, 0));
-    TRY(seg = arg(&c, a[23], "segments", I64, 1, 1, q + 1, 0, 0));
-    if (no_overlap(&c)) goto fail;
-    tcc_ray_setup s = {DATA(x), DATA(nrm), DATA(has), DATA(lm), n, DATA(order), DATA(ptr), ROWS(order), ROWS(ptr) - 1,
-                       DATA(blo), DATA(bhi), kb, sd, ld, backoff, tol};
+    Py_ssize_t n = ROWS(PR_X);
+    CHECK_ROWS(PR_NRM, n);
+    CHECK_ROWS(PR_HAS, n);
+    CHECK_ROWS(PR_LONG, n);
+    if (!bounds_ok(ROWS(PR_PTR), "ptr", "cluster")) goto fail;
+    Py_ssize_t kb = ROWS(PR_BLO), q = ROWS(PR_CL), cap = ROWS(PR_O);
+    CHECK_ROWS(PR_BHI, kb);
+    CHECK_ROWS(PR_PB, ROWS(PR_PA));
+    CHECK_ROWS(PR_R, kb);
+    CHECK_ROWS(PR_CEN, kb);
+    CHECK_ROWS(PR_RCEN, kb);
+    for (int i = PR_D; i <= PR_RS; i++) CHECK_ROWS(i, cap);
+    CHECK_ROWS(PR_SEG, q + 1);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_ray_setup setup = {D(PR_X), D(PR_NRM), D(PR_HAS), D(PR_LONG), n, D(PR_ORDER), D(PR_PTR), ROWS(PR_ORDER),
+                           ROWS(PR_PTR) - 1, D(PR_BLO), D(PR_BHI), kb, sd, ld, backoff, tol};
     tcc_error err = {0};
     tcc_idx count = 0;
     int rc;
-    RUN(tcc_prepare_rays(&s, DATA(pa), DATA(pb), ROWS(pa), DATA(ub), DATA(R), DATA(cen), DATA(rcen), q, DATA(o), DATA(d),
-                         DATA(dist), DATA(rv), DATA(rs), cap, DATA(seg), &count, &err));
-    ctx_release(&c);
+    RUN(tcc_prepare_rays(&setup, D(PR_PA), D(PR_PB), ROWS(PR_PA), D(PR_CL), D(PR_R), D(PR_CEN), D(PR_RCEN), q, D(PR_O),
+                         D(PR_D), D(PR_DIST), D(PR_RV), D(PR_RS), cap, D(PR_SEG), &count, &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return PyLong_FromLongLong(count);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_accept_hits(PyObject *self, PyObject *args)
+static const pyarg_spec ACCEPT_HITS[] = {
+    ARR("rays", PA_I64, 0, 1, 0, 0),
+    ARR("prim", PA_I32, 0, 1, 0, 0),
+    ARR("tfar", PA_F32, OPT, 1, 0, 0),
+    ARR("scene_triangles", PA_I64, 0, 1, 0, 0),
+    ARR("ray_vertex", PA_I64, 0, 1, 0, 0),
+    ARR("target_triangles", PA_I64, 0, 2, 3, 0),
+    RING_ROW,
+    ARR("origins", PA_F32, OUT, 2, 3, 0),
+    ARR("directions", PA_F32, 0, 2, 3, 0),
+    ARR("dists", PA_F32, OUT, 1, 0, 0),
+    ARR("hit_triangle", PA_I64, OUT, 1, 0, 0),
+    ARR("retry", PA_I64, OUT, 1, 0, 0),
+};
+enum { AH_RAYS, AH_PRIM, AH_TFAR, AH_STRIS, AH_RV, AH_TT, AH_RING, AH_O, AH_D, AH_DIST, AH_HIT, AH_RETRY, AH_N };
+
+static PyObject *py_accept_hits(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[12];
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOOO:accept_hits", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
-                          &a[8], &a[9], &a[10], &a[11]))
-        return NULL;
-    Ctx c = {.n = 0};
-    Buf *rays, *prim, *tfar, *stris, *rv, *tt, *o, *d, *dist, *hit, *retry;
-    tcc_ring ring;
-    TRY(rays = arg(&c, a[0], "rays", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t r = ROWS(rays);
-    TRY(prim = arg(&c, a[1], "prim", I32, 0, 1, r, 0, 0));
-    TRY(tfar = opt(&c, a[2], "tfar", F32, 0, 1, r, 0, 0));
-    TRY(stris = arg(&c, a[3], "scene_triangles", I64, 0, 1, -1, 0, 0));
-    TRY(rv = arg(&c, a[4], "ray_vertex", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t nr = ROWS(rv);
-    TRY(tt = arg(&c, a[5], "target triangles", I64, 0, 2, -1, 3, 0));
-    if (ring_arg(&c, &ring, a[6])) goto fail;
-    TRY(o = arg(&c, a[7], "origins", F32, 1, 2, nr, 3, 0));
-    TRY(d = arg(&c, a[8], "directions", F32, 0, 2, nr, 3, 0));
-    TRY(dist = arg(&c, a[9], "dists", F32, 1, 1, nr, 0, 0));
-    TRY(hit = arg(&c, a[10], "hit_triangle", I64, 1, 1, nr, 0, 0));
-    TRY(retry = arg(&c, a[11], "retry", I64, 1, 1, -1, 0, 0));
-    if (ring.table && ROWS(retry) < r) {
-        PyErr_Format(PyExc_ValueError, "retry must have room for the %zd rays (has %zd)", r, ROWS(retry));
+    PARSE("accept_hits", ACCEPT_HITS, AH_N);
+    Py_ssize_t r = ROWS(AH_RAYS), nr = ROWS(AH_RV);
+    CHECK_ROWS(AH_PRIM, r);
+    CHECK_ROWS(AH_TFAR, r);
+    tcc_ring ring = ring_from(&s, AH_RING);
+    for (int i = AH_O; i <= AH_HIT; i++) CHECK_ROWS(i, nr);
+    if (ring.table && ROWS(AH_RETRY) < r) {
+        PyErr_Format(PyExc_ValueError, "retry must have room for the %zd rays (has %zd)", r, ROWS(AH_RETRY));
         goto fail;
     }
-    if (no_overlap(&c)) goto fail;
-    tcc_mesh m = {NULL, 0, DATA(tt), ROWS(tt), NULL, NULL};
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {NULL, 0, D(AH_TT), ROWS(AH_TT), NULL, NULL};
     tcc_error err = {0};
     tcc_idx nretry = 0;
     int rc;
-    RUN(tcc_accept_hits(DATA(rays), DATA(prim), DATA(tfar), r, DATA(stris), ROWS(stris), DATA(rv), nr, &m, &ring,
-                        DATA(o), DATA(d), DATA(dist), DATA(hit), DATA(retry), &nretry, &err));
-    ctx_release(&c);
+    RUN(tcc_accept_hits(D(AH_RAYS), D(AH_PRIM), D(AH_TFAR), r, D(AH_STRIS), ROWS(AH_STRIS), D(AH_RV), nr, &m, &ring,
+                        D(AH_O), D(AH_D), D(AH_DIST), D(AH_HIT), D(AH_RETRY), &nretry, &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return PyLong_FromLongLong(nretry);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_refine(PyObject *self, PyObject *args)
+static const pyarg_spec REFINE[] = {
+    RAY_ROWS,
+    ARR("hit_triangle", PA_I64, 0, 1, 0, 0),
+    MESH_ROWS("target_"),
+    RING_ROW,
+    VAL("kind", PA_INT),
+    VAL("track_range", PA_DOUBLE),
+    ARR("inside_prev", PA_BOOL, OPT, 1, 0, 0),
+    ARR("out_vertex", PA_I64, OUT, 1, 0, 0),
+    ARR("out_slot", PA_I64, OUT, 1, 0, 0),
+    HITS_ROWS("out_tri", "out_t", "out_u", "out_v", "out_flips"),
+    ARR("status", PA_BOOL, OUT, 1, 0, 0),
+};
+enum { RE_X, RE_NRM, RE_RV, RE_RS, RE_HIT, RE_MESH, RE_RING = RE_MESH + 4, RE_KIND, RE_RANGE, RE_INSIDE, RE_OV,
+       RE_OS, RE_OT, RE_OTP, RE_OU, RE_OVV, RE_OF, RE_STATUS, RE_N };
+
+static PyObject *py_refine(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[22];
-    int kind;
-    double track_range;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOidOOOOOOOOO:refine", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
-                          &a[8], &a[9], &kind, &track_range, &a[12], &a[13], &a[14], &a[15], &a[16], &a[17], &a[18],
-                          &a[19], &a[20]))
-        return NULL;
-    if (kind < TCC_VOLUME || kind > TCC_SELF) {
-        PyErr_Format(PyExc_ValueError, "kind must be 0 (volume), 1 (surface) or 2 (self), got %d", kind);
-        return NULL;
-    }
-    if (finite_param(track_range, "track_range", 1)) return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *nrm, *rv, *rs, *hit, *ip, *ov, *os, *ot, *otp, *ou, *ovv, *of, *st;
+    PARSE("refine", REFINE, RE_N);
+    int kind = s.v[RE_KIND].i;
+    double track_range = s.v[RE_RANGE].d;
+    if (!kind_ok(kind) || finite_param(track_range, "track_range", 1)) goto fail;
+    Py_ssize_t n = ROWS(RE_X), r = ROWS(RE_RV);
+    CHECK_ROWS(RE_NRM, n);
+    CHECK_ROWS(RE_RS, r);
+    CHECK_ROWS(RE_HIT, r);
     tcc_mesh m;
-    tcc_ring ring;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t n = ROWS(x);
-    TRY(nrm = arg(&c, a[1], "normals", F64, 0, 2, n, 3, 0));
-    TRY(rv = arg(&c, a[2], "ray_vertex", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t r = ROWS(rv);
-    TRY(rs = arg(&c, a[3], "ray_slot", I64, 0, 1, r, 0, 0));
-    TRY(hit = arg(&c, a[4], "hit_triangle", I64, 0, 1, r, 0, 0));
-    if (mesh_args(&c, &m, a[5], a[6], a[7], a[8])) goto fail;
-    if (ring_arg(&c, &ring, a[9])) goto fail;
-    TRY(ip = opt(&c, a[12], "inside_prev", BOOL, 0, 1, n, 0, 0));
-    TRY(ov = arg(&c, a[13], "out_vertex", I64, 1, 1, r, 0, 0));
-    TRY(os = arg(&c, a[14], "out_slot", I64, 1, 1, r, 0, 0));
-    TRY(ot = arg(&c, a[15], "out_tri", I64, 1, 1, r, 0, 0));
-    TRY(otp = arg(&c, a[16], "out_t", F64, 1, 1, r, 0, 0));
-    TRY(ou = arg(&c, a[17], "out_u", F64, 1, 1, r, 0, 0));
-    TRY(ovv = arg(&c, a[18], "out_v", F64, 1, 1, r, 0, 0));
-    TRY(of = arg(&c, a[19], "out_flips", BOOL, 1, 1, r, 0, 0));
-    TRY(st = arg(&c, a[20], "status", BOOL, 1, 1, r, 0, 0));
+    if (mesh_from(&s, RE_MESH, &m)) goto fail;
+    tcc_ring ring = ring_from(&s, RE_RING);
+    CHECK_ROWS(RE_INSIDE, n);
+    for (int i = RE_OV; i <= RE_STATUS; i++) CHECK_ROWS(i, r);
     if (!m.adj || !m.flip) {
         PyErr_SetString(PyExc_ValueError, "refine walks: adjacency and flip are required");
         goto fail;
     }
-    if (no_overlap(&c)) goto fail;
-    tcc_hits out = {DATA(ot), DATA(otp), DATA(ou), DATA(ovv), DATA(of)};
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_hits out = {D(RE_OT), D(RE_OTP), D(RE_OU), D(RE_OVV), D(RE_OF)};
     tcc_error err = {0};
     tcc_idx count = 0;
     int rc;
-    RUN(tcc_refine(DATA(x), DATA(nrm), n, DATA(rv), DATA(rs), DATA(hit), r, &m, &ring, kind, track_range, DATA(ip),
-                   DATA(ov), DATA(os), out, DATA(st), &count, &err));
-    ctx_release(&c);
+    RUN(tcc_refine(D(RE_X), D(RE_NRM), n, D(RE_RV), D(RE_RS), D(RE_HIT), r, &m, &ring, kind, track_range, D(RE_INSIDE),
+                   D(RE_OV), D(RE_OS), out, D(RE_STATUS), &count, &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return PyLong_FromLongLong(count);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_drop_dominated(PyObject *self, PyObject *args)
+static const pyarg_spec DROP_DOMINATED[] = {
+    ARR("vertex", PA_I64, 0, 1, 0, 0),
+    ARR("slot", PA_I64, 0, 1, 0, 0),
+    ARR("t", PA_F64, 0, 1, 0, 0),
+    ARR("status", PA_BOOL, OUT, 1, 0, 0),
+    ARR("track_key", PA_I64, 0, 1, 0, 0),
+    ARR("walked_tri", PA_I64, 0, 1, 0, 0),
+    ARR("walked_t", PA_F64, 0, 1, 0, 0),
+};
+enum { DD_V, DD_S, DD_T, DD_ST, DD_TK, DD_WT, DD_WTP, DD_N };
+
+static PyObject *py_drop_dominated(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[7];
-    if (!PyArg_ParseTuple(args, "OOOOOOO:drop_dominated", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6])) return NULL;
-    Ctx c = {.n = 0};
-    Buf *v, *s, *t, *st, *tk, *wt, *wtp;
-    TRY(v = arg(&c, a[0], "vertex", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t k = ROWS(v);
-    TRY(s = arg(&c, a[1], "slot", I64, 0, 1, k, 0, 0));
-    TRY(t = arg(&c, a[2], "t", F64, 0, 1, k, 0, 0));
-    TRY(st = arg(&c, a[3], "status", BOOL, 1, 1, k, 0, 0));
-    TRY(tk = arg(&c, a[4], "track_key", I64, 0, 1, -1, 0, 0));
-    TRY(wt = arg(&c, a[5], "walked_tri", I64, 0, 1, ROWS(tk), 0, 0));
-    TRY(wtp = arg(&c, a[6], "walked_t", F64, 0, 1, ROWS(tk), 0, 0));
-    if (no_overlap(&c)) goto fail;
+    PARSE("drop_dominated", DROP_DOMINATED, DD_N);
+    Py_ssize_t k = ROWS(DD_V);
+    CHECK_ROWS(DD_S, k);
+    CHECK_ROWS(DD_T, k);
+    CHECK_ROWS(DD_ST, k);
+    CHECK_ROWS(DD_WT, ROWS(DD_TK));
+    CHECK_ROWS(DD_WTP, ROWS(DD_TK));
+    if (pyarg_no_overlap(&s)) goto fail;
     tcc_error err = {0};
     tcc_idx left = 0;
     int rc;
-    RUN(tcc_drop_dominated(DATA(v), DATA(s), DATA(t), DATA(st), k, DATA(tk), ROWS(tk), DATA(wt), DATA(wtp), &left,
+    RUN(tcc_drop_dominated(D(DD_V), D(DD_S), D(DD_T), D(DD_ST), k, D(DD_TK), ROWS(DD_TK), D(DD_WT), D(DD_WTP), &left,
                            &err));
-    ctx_release(&c);
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return PyLong_FromLongLong(left);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_confirm_inside(PyObject *self, PyObject *args)
+static const pyarg_spec CONFIRM_INSIDE[] = {
+    ARR("target_vertices", PA_F64, 0, 2, 3, 0),
+    ARR("target_triangles", PA_I64, 0, 2, 3, 0),
+    ARR("tri_order", PA_I64, 0, 1, 0, 0),
+    ARR("tri_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("lo", PA_F64, 0, 2, 3, 0),
+    ARR("hi", PA_F64, 0, 2, 3, 0),
+    ARR("origins", PA_F64, 0, 2, 3, 0),
+    ARR("directions", PA_F64, 0, 2, 3, 0),
+    ARR("t_exit", PA_F64, 0, 1, 0, 0),
+    ARR("exit_tri", PA_I64, 0, 1, 0, 0),
+    VAL("backoff", PA_DOUBLE),
+    VAL("eps", PA_DOUBLE),
+    ARR("ok", PA_BOOL, OUT, 1, 0, 0),
+};
+enum { CI_TX, CI_TT, CI_ORDER, CI_PTR, CI_LO, CI_HI, CI_O, CI_D, CI_TE, CI_ET, CI_BACKOFF, CI_EPS, CI_OK, CI_N };
+
+static PyObject *py_confirm_inside(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[13];
-    double backoff, eps;
-    if (!PyArg_ParseTuple(args, "OOOOOOOOOOddO:confirm_inside", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &a[6], &a[7],
-                          &a[8], &a[9], &backoff, &eps, &a[12]))
-        return NULL;
-    if (finite_param(backoff, "backoff", 1) || finite_param(eps, "eps", 1)) return NULL;
-    Ctx c = {.n = 0};
-    Buf *order, *ptr, *lo, *hi, *o, *d, *te, *et, *ok;
-    tcc_mesh m;
-    if (mesh_args(&c, &m, a[0], a[1], Py_None, Py_None)) goto fail;
-    TRY(order = arg(&c, a[2], "tri_order", I64, 0, 1, -1, 0, 0));
-    TRY(ptr = arg(&c, a[3], "tri_ptr", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t k = ROWS(ptr) - 1;
-    if (k < 0) {
-        PyErr_SetString(PyExc_ValueError, "tri_ptr must hold the k + 1 cluster bounds (at least one entry)");
-        goto fail;
-    }
-    TRY(lo = arg(&c, a[4], "lo", F64, 0, 2, k, 3, 0));
-    TRY(hi = arg(&c, a[5], "hi", F64, 0, 2, k, 3, 0));
-    TRY(o = arg(&c, a[6], "origins", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t r = ROWS(o);
-    TRY(d = arg(&c, a[7], "directions", F64, 0, 2, r, 3, 0));
-    TRY(te = arg(&c, a[8], "t_exit", F64, 0, 1, r, 0, 0));
-    TRY(et = arg(&c, a[9], "exit_tri", I64, 0, 1, r, 0, 0));
-    TRY(ok = arg(&c, a[12], "ok", BOOL, 1, 1, r, 0, 0));
-    if (no_overlap(&c)) goto fail;
+    PARSE("confirm_inside", CONFIRM_INSIDE, CI_N);
+    double backoff = s.v[CI_BACKOFF].d, eps = s.v[CI_EPS].d;
+    if (finite_param(backoff, "backoff", 1) || finite_param(eps, "eps", 1)) goto fail;
+    if (!bounds_ok(ROWS(CI_PTR), "tri_ptr", "cluster")) goto fail;
+    Py_ssize_t k = ROWS(CI_PTR) - 1, r = ROWS(CI_O);
+    CHECK_ROWS(CI_LO, k);
+    CHECK_ROWS(CI_HI, k);
+    CHECK_ROWS(CI_D, r);
+    CHECK_ROWS(CI_TE, r);
+    CHECK_ROWS(CI_ET, r);
+    CHECK_ROWS(CI_OK, r);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(CI_TX), ROWS(CI_TX), D(CI_TT), ROWS(CI_TT), NULL, NULL};
     tcc_error err = {0};
     int rc;
-    RUN(tcc_confirm_inside(&m, DATA(order), ROWS(order), DATA(ptr), k, DATA(lo), DATA(hi), DATA(o), DATA(d), DATA(te),
-                           DATA(et), r, backoff, eps, DATA(ok), &err));
-    ctx_release(&c);
+    RUN(tcc_confirm_inside(&m, D(CI_ORDER), ROWS(CI_ORDER), D(CI_PTR), k, D(CI_LO), D(CI_HI), D(CI_O), D(CI_D),
+                           D(CI_TE), D(CI_ET), r, backoff, eps, D(CI_OK), &err));
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
+static const pyarg_spec MERGE_CLASSIFY[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("normals", PA_F64, 0, 2, 3, 0),
+    ARR("previous", PA_F64, 0, 2, 3, 0),
+    ARR("velocity", PA_F64, OPT, 2, 3, 0),
+    ARR("target_vertices", PA_F64, 0, 2, 3, 0),
+    ARR("target_triangles", PA_I64, 0, 2, 3, 0),
+    ARR("target_previous", PA_F64, 0, 2, 3, 0),
+    ARR("target_velocity", PA_F64, OPT, 2, 3, 0),
+    VAL("kind", PA_INT),
+    VAL("first", PA_FLAG),
+    VAL("thickness", PA_DOUBLE),
+    VAL("track_range", PA_DOUBLE),
+    ARR("track_key", PA_I64, 0, 1, 0, 0),
+    ARR("track_tri", PA_I64, 0, 1, 0, 0),
+    ARR("track_side", PA_I8, 0, 1, 0, 0),
+    ARR("walked_tri", PA_I64, 0, 1, 0, 0),
+    ARR("walked_t", PA_F64, 0, 1, 0, 0),
+    ARR("walked_u", PA_F64, 0, 1, 0, 0),
+    ARR("walked_v", PA_F64, 0, 1, 0, 0),
+    ARR("walked_flips", PA_BOOL, 0, 1, 0, 0),
+    ARR("found_vertex", PA_I64, 0, 1, 0, 0),
+    ARR("found_slot", PA_I64, 0, 1, 0, 0),
+    ARR("found_tri", PA_I64, 0, 1, 0, 0),
+    ARR("found_t", PA_F64, 0, 1, 0, 0),
+    ARR("found_u", PA_F64, 0, 1, 0, 0),
+    ARR("found_v", PA_F64, 0, 1, 0, 0),
+    ARR("found_flips", PA_BOOL, 0, 1, 0, 0),
+    ARR("found_status", PA_BOOL, OPT, 1, 0, 0),
+    ARR("out_key", PA_I64, OUT, 1, 0, 0),
+    ARR("out_tri", PA_I64, OUT, 1, 0, 0),
+    ARR("out_side", PA_I8, OUT, 1, 0, 0),
+    ARR("out_inside", PA_I64, OUT, 1, 0, 0),
+    ARR("contact_vertex", PA_I64, OUT, 1, 0, 0),
+    ARR("depth", PA_F64, OUT, 1, 0, 0),
+    ARR("normal", PA_F64, OUT, 2, 3, 0),
+    ARR("contact_velocity", PA_F64, OUT, 2, 3, 0),
+};
+enum { MC_X, MC_NRM, MC_XP, MC_VEL, MC_TX, MC_TT, MC_TP, MC_TV, MC_KIND, MC_FIRST, MC_TH, MC_TR, MC_TK, MC_TTRI,
+       MC_TSIDE, MC_WT, MC_WTP, MC_WU, MC_WV, MC_WF, MC_FV, MC_FS, MC_FT, MC_FTP, MC_FU, MC_FVV, MC_FF, MC_FST,
+       MC_OKEY, MC_OTRI, MC_OSIDE, MC_OIN, MC_CV, MC_DEP, MC_ONRM, MC_OVEL, MC_N };
+
 static PyObject *py_merge_classify(PyObject *self, PyObject *args, PyObject *kw)
 {
-    static char *kwl[] = {"positions", "normals", "previous", "velocity", "target_vertices", "target_triangles",
-                          "target_previous", "target_velocity", "kind", "first", "thickness", "track_range",
-                          "track_key", "track_tri", "track_side", "walked_tri", "walked_t", "walked_u", "walked_v",
-                          "walked_flips", "found_vertex", "found_slot", "found_tri", "found_t", "found_u", "found_v",
-                          "found_flips", "found_status", "out_key", "out_tri", "out_side", "out_inside",
-                          "contact_vertex", "depth", "normal", "contact_velocity", NULL};
-    PyObject *a[36];
-    int kind, first;
-    double th, tr;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "OOOOOOOOipddOOOOOOOOOOOOOOOOOOOOOOOO:merge_classify", kwl, &a[0], &a[1],
-                                     &a[2], &a[3], &a[4], &a[5], &a[6], &a[7], &kind, &first, &th, &tr, &a[12], &a[13],
-                                     &a[14], &a[15], &a[16], &a[17], &a[18], &a[19], &a[20], &a[21], &a[22], &a[23],
-                                     &a[24], &a[25], &a[26], &a[27], &a[28], &a[29], &a[30], &a[31], &a[32], &a[33],
-                                     &a[34], &a[35]))
-        return NULL;
-    if (kind < TCC_VOLUME || kind > TCC_SELF) {
-        PyErr_Format(PyExc_ValueError, "kind must be 0 (volume), 1 (surface) or 2 (self), got %d", kind);
-        return NULL;
-    }
-    if (finite_param(th, "thickness", 1) || finite_param(tr, "track_range", 1)) return NULL;
-    Ctx c = {.n = 0};
-    Buf *x, *nrm, *xp, *vel, *tx, *tt, *tp, *tv, *tk, *ttri, *tside;
-    Buf *wt, *wtp, *wu, *wvv, *wf, *fv, *fs, *ft, *ftp, *fu, *fvv, *ff, *fst;
-    Buf *okey, *otri, *oside, *oin, *cv, *dep, *onrm, *ovel;
-    TRY(x = arg(&c, a[0], "positions", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t n = ROWS(x);
-    TRY(nrm = arg(&c, a[1], "normals", F64, 0, 2, n, 3, 0));
-    TRY(xp = arg(&c, a[2], "previous", F64, 0, 2, n, 3, 0));
-    TRY(vel = opt(&c, a[3], "velocity", F64, 0, 2, n, 3, 0));
-    TRY(tx = arg(&c, a[4], "target_vertices", F64, 0, 2, -1, 3, 0));
-    Py_ssize_t nv = ROWS(tx);
-    TRY(tt = arg(&c, a[5], "target_triangles", I64, 0, 2, -1, 3, 0));
-    TRY(tp = arg(&c, a[6], "target_previous", F64, 0, 2, nv, 3, 0));
-    TRY(tv = opt(&c, a[7], "target_velocity", F64, 0, 2, nv, 3, 0));
-    TRY(tk = arg(&c, a[12], "track_key", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t kt = ROWS(tk);
-    TRY(ttri = arg(&c, a[13], "track_tri", I64, 0, 1, kt, 0, 0));
-    TRY(tside = arg(&c, a[14], "track_side", I8, 0, 1, kt, 0, 0));
-    TRY(wt = arg(&c, a[15], "walked_tri", I64, 0, 1, kt, 0, 0));
-    TRY(wtp = arg(&c, a[16], "walked_t", F64, 0, 1, kt, 0, 0));
-    TRY(wu = arg(&c, a[17], "walked_u", F64, 0, 1, kt, 0, 0));
-    TRY(wvv = arg(&c, a[18], "walked_v", F64, 0, 1, kt, 0, 0));
-    TRY(wf = arg(&c, a[19], "walked_flips", BOOL, 0, 1, kt, 0, 0));
-    TRY(fv = arg(&c, a[20], "found_vertex", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t kf = ROWS(fv);
-    TRY(fs = arg(&c, a[21], "found_slot", I64, 0, 1, kf, 0, 0));
-    TRY(ft = arg(&c, a[22], "found_tri", I64, 0, 1, kf, 0, 0));
-    TRY(ftp = arg(&c, a[23], "found_t", F64, 0, 1, kf, 0, 0));
-    TRY(fu = arg(&c, a[24], "found_u", F64, 0, 1, kf, 0, 0));
-    TRY(fvv = arg(&c, a[25], "found_v", F64, 0, 1, kf, 0, 0));
-    TRY(ff = arg(&c, a[26], "found_flips", BOOL, 0, 1, kf, 0, 0));
-    TRY(fst = opt(&c, a[27], "found_status", BOOL, 0, 1, kf, 0, 0));
-    TRY(okey = arg(&c, a[28], "out_key", I64, 1, 1, -1, 0, 0));
-    Py_ssize_t cap = ROWS(okey);
+    PARSE("merge_classify", MERGE_CLASSIFY, MC_N);
+    int kind = s.v[MC_KIND].i;
+    double th = s.v[MC_TH].d, tr = s.v[MC_TR].d;
+    if (!kind_ok(kind) || finite_param(th, "thickness", 1) || finite_param(tr, "track_range", 1)) goto fail;
+    Py_ssize_t n = ROWS(MC_X), nv = ROWS(MC_TX), kt = ROWS(MC_TK), kf = ROWS(MC_FV), cap = ROWS(MC_OKEY);
+    CHECK_ROWS(MC_NRM, n);
+    CHECK_ROWS(MC_XP, n);
+    CHECK_ROWS(MC_VEL, n);
+    CHECK_ROWS(MC_TP, nv);
+    CHECK_ROWS(MC_TV, nv);
+    for (int i = MC_TTRI; i <= MC_WF; i++) CHECK_ROWS(i, kt);
+    for (int i = MC_FS; i <= MC_FST; i++) CHECK_ROWS(i, kf);
     if (cap < kt + kf) {
         PyErr_Format(PyExc_ValueError, "the outputs need room for %zd entries (tracks + new hits), out_key has %zd",
                      kt + kf, cap);
         goto fail;
     }
-    TRY(otri = arg(&c, a[29], "out_tri", I64, 1, 1, cap, 0, 0));
-    TRY(oside = arg(&c, a[30], "out_side", I8, 1, 1, cap, 0, 0));
-    TRY(oin = arg(&c, a[31], "out_inside", I64, 1, 1, cap, 0, 0));
-    TRY(cv = arg(&c, a[32], "contact_vertex", I64, 1, 1, cap, 0, 0));
-    TRY(dep = arg(&c, a[33], "depth", F64, 1, 1, cap, 0, 0));
-    TRY(onrm = arg(&c, a[34], "normal", F64, 1, 2, cap, 3, 0));
-    TRY(ovel = arg(&c, a[35], "contact_velocity", F64, 1, 2, cap, 3, 0));
-    if (no_overlap(&c)) goto fail;
-    tcc_mesh m = {DATA(tx), nv, DATA(tt), ROWS(tt), NULL, NULL};
+    for (int i = MC_OTRI; i <= MC_OVEL; i++) CHECK_ROWS(i, cap);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(MC_TX), nv, D(MC_TT), ROWS(MC_TT), NULL, NULL};
     tcc_merge_in in = {
-        .x = DATA(x), .normals = DATA(nrm), .x_prev = DATA(xp), .velocity = DATA(vel), .n = n, .target = &m,
-        .target_prev = DATA(tp), .target_velocity = DATA(tv), .kind = kind, .first = first, .thickness = th,
-        .track_range = tr, .track_key = DATA(tk), .track_tri = DATA(ttri), .track_side = DATA(tside), .kt = kt,
-        .walked = {DATA(wt), DATA(wtp), DATA(wu), DATA(wvv), DATA(wf)},
-        .f_v = DATA(fv), .f_slot = DATA(fs), .f_hit = {DATA(ft), DATA(ftp), DATA(fu), DATA(fvv), DATA(ff)},
-        .f_status = DATA(fst), .kf = kf,
+        .x = D(MC_X), .normals = D(MC_NRM), .x_prev = D(MC_XP), .velocity = D(MC_VEL), .n = n, .target = &m,
+        .target_prev = D(MC_TP), .target_velocity = D(MC_TV), .kind = kind, .first = s.v[MC_FIRST].i,
+        .thickness = th, .track_range = tr, .track_key = D(MC_TK), .track_tri = D(MC_TTRI),
+        .track_side = D(MC_TSIDE), .kt = kt, .walked = {D(MC_WT), D(MC_WTP), D(MC_WU), D(MC_WV), D(MC_WF)},
+        .f_v = D(MC_FV), .f_slot = D(MC_FS), .f_hit = {D(MC_FT), D(MC_FTP), D(MC_FU), D(MC_FVV), D(MC_FF)},
+        .f_status = D(MC_FST), .kf = kf,
     };
-    tcc_merge_out out = {.track_key = DATA(okey), .track_tri = DATA(otri), .track_side = DATA(oside),
-                         .inside = DATA(oin), .contact_v = DATA(cv), .depth = DATA(dep), .normal = DATA(onrm),
-                         .velocity = DATA(ovel)};
+    tcc_merge_out out = {.track_key = D(MC_OKEY), .track_tri = D(MC_OTRI), .track_side = D(MC_OSIDE),
+                         .inside = D(MC_OIN), .contact_v = D(MC_CV), .depth = D(MC_DEP), .normal = D(MC_ONRM),
+                         .velocity = D(MC_OVEL)};
     tcc_error err = {0};
     int rc;
     RUN(tcc_merge_classify(&in, &out, &err));
-    ctx_release(&c);
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return Py_BuildValue("(LLL)", (long long)out.ntracks, (long long)out.ninside, (long long)out.ncontacts);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
-static PyObject *py_assemble(PyObject *self, PyObject *args)
+static const pyarg_spec ASSEMBLE[] = {
+    ARR("segments", PA_I64, 0, 1, 0, 0),
+    ARR("vertex", PA_I64, 0, 1, 0, 0),
+    ARR("depth", PA_F64, 0, 1, 0, 0),
+    ARR("normal", PA_F64, 0, 2, 3, 0),
+    ARR("velocity", PA_F64, 0, 2, 3, 0),
+    ARR("friction", PA_F64, 0, 1, 0, 0),
+    VAL("n", PA_SSIZE),
+    ARR("deep_vertex", PA_I32, OUT, 1, 0, 0),
+    ARR("deep_normal", PA_F64, OUT, 2, 3, 0),
+    ARR("deep_depth", PA_F64, OUT, 1, 0, 0),
+    ARR("deep_velocity", PA_F64, OUT, 2, 3, 0),
+    ARR("deep_friction", PA_F64, OUT, 1, 0, 0),
+    ARR("all_vertex", PA_I32, OUT, 1, 0, 0),
+    ARR("all_normal", PA_F64, OUT, 2, 3, 0),
+    ARR("all_depth", PA_F64, OUT, 1, 0, 0),
+    ARR("all_velocity", PA_F64, OUT, 2, 3, 0),
+    ARR("all_friction", PA_F64, OUT, 1, 0, 0),
+};
+enum { AS_SEG, AS_V, AS_DEP, AS_NRM, AS_VEL, AS_FR, AS_NV, AS_DV, AS_DN, AS_DD, AS_DVEL, AS_DFR, AS_AV, AS_AN,
+       AS_AD, AS_AVEL, AS_AFR, AS_N };
+
+static PyObject *py_assemble(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PyObject *a[17];
-    Py_ssize_t n;
-    if (!PyArg_ParseTuple(args, "OOOOOOnOOOOOOOOOO:assemble", &a[0], &a[1], &a[2], &a[3], &a[4], &a[5], &n, &a[7],
-                          &a[8], &a[9], &a[10], &a[11], &a[12], &a[13], &a[14], &a[15], &a[16]))
-        return NULL;
+    PARSE("assemble", ASSEMBLE, AS_N);
+    Py_ssize_t n = s.v[AS_NV].n;
     if (n < 0 || n > 0x7fffffff) {
         PyErr_Format(PyExc_ValueError, "n must be a vertex count in [0, 2^31), got %zd", n);
-        return NULL;
+        goto fail;
     }
-    Ctx c = {.n = 0};
-    Buf *seg, *v, *dep, *nrm, *vel, *fr, *dv, *dn, *dd, *dvel, *dfr, *av, *an, *ad, *avel, *afr;
-    TRY(seg = arg(&c, a[0], "segments", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t cc = ROWS(seg) - 1;
-    if (cc < 0) {
+    if (ROWS(AS_SEG) < 1) {
         PyErr_SetString(PyExc_ValueError, "segments must hold the c + 1 bounds (at least one entry)");
         goto fail;
     }
-    TRY(v = arg(&c, a[1], "vertex", I64, 0, 1, -1, 0, 0));
-    Py_ssize_t k = ROWS(v);
-    TRY(dep = arg(&c, a[2], "depth", F64, 0, 1, k, 0, 0));
-    TRY(nrm = arg(&c, a[3], "normal", F64, 0, 2, k, 3, 0));
-    TRY(vel = arg(&c, a[4], "velocity", F64, 0, 2, k, 3, 0));
-    TRY(fr = arg(&c, a[5], "friction", F64, 0, 1, cc, 0, 0));
-    const tcc_idx *sp = DATA(seg);
+    Py_ssize_t cc = ROWS(AS_SEG) - 1, k = ROWS(AS_V);
+    CHECK_ROWS(AS_DEP, k);
+    CHECK_ROWS(AS_NRM, k);
+    CHECK_ROWS(AS_VEL, k);
+    CHECK_ROWS(AS_FR, cc);
+    const tcc_idx *sp = D(AS_SEG);
     if (sp[cc] != k) {
         PyErr_Format(PyExc_ValueError, "segments must end at the %zd contacts, ends at %lld", k, (long long)sp[cc]);
         goto fail;
     }
-    TRY(dv = arg(&c, a[7], "deep_vertex", I32, 1, 1, k, 0, 0));
-    TRY(dn = arg(&c, a[8], "deep_normal", F64, 1, 2, k, 3, 0));
-    TRY(dd = arg(&c, a[9], "deep_depth", F64, 1, 1, k, 0, 0));
-    TRY(dvel = arg(&c, a[10], "deep_velocity", F64, 1, 2, k, 3, 0));
-    TRY(dfr = arg(&c, a[11], "deep_friction", F64, 1, 1, k, 0, 0));
-    TRY(av = arg(&c, a[12], "all_vertex", I32, 1, 1, k, 0, 0));
-    TRY(an = arg(&c, a[13], "all_normal", F64, 1, 2, k, 3, 0));
-    TRY(ad = arg(&c, a[14], "all_depth", F64, 1, 1, k, 0, 0));
-    TRY(avel = arg(&c, a[15], "all_velocity", F64, 1, 2, k, 3, 0));
-    TRY(afr = arg(&c, a[16], "all_friction", F64, 1, 1, k, 0, 0));
-    if (no_overlap(&c)) goto fail;
+    for (int i = AS_DV; i <= AS_AFR; i++) CHECK_ROWS(i, k);
+    if (pyarg_no_overlap(&s)) goto fail;
     tcc_idx kd = 0, ka = 0;
     tcc_error err = {0};
     int rc;
-    RUN(tcc_assemble(DATA(seg), cc, DATA(v), DATA(dep), DATA(nrm), DATA(vel), DATA(fr), n, DATA(dv), DATA(dn),
-                     DATA(dd), DATA(dvel), DATA(dfr), &kd, DATA(av), DATA(an), DATA(ad), DATA(avel), DATA(afr), &ka,
+    RUN(tcc_assemble(D(AS_SEG), cc, D(AS_V), D(AS_DEP), D(AS_NRM), D(AS_VEL), D(AS_FR), n, D(AS_DV), D(AS_DN),
+                     D(AS_DD), D(AS_DVEL), D(AS_DFR), &kd, D(AS_AV), D(AS_AN), D(AS_AD), D(AS_AVEL), D(AS_AFR), &ka,
                      &err));
-    ctx_release(&c);
+    pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return Py_BuildValue("(LL)", (long long)kd, (long long)ka);
 fail:
-    ctx_release(&c);
+    pyarg_release(&s);
     return NULL;
 }
 
+#define KERNEL(name, doc) {#name, (PyCFunction)(void (*)(void))py_##name, METH_VARARGS | METH_KEYWORDS, doc}
+
 static PyMethodDef methods[] = {
-    {"vertex_normals", py_vertex_normals, METH_VARARGS,
-     "vertex_normals(positions, triangles, normals_out, has_normal_out): area-weighted unit vertex normals."},
-    {"cluster_normals", py_cluster_normals, METH_VARARGS,
-     "cluster_normals(positions, triangles, vt_ptr, vt_tri, order, ptr, clusters, normals_out, has_normal_out, "
-     "done=None): vertex normals of the listed clusters' vertices only (skipping and marking done clusters)."},
-    {"cluster_motion", py_cluster_motion, METH_VARARGS,
-     "cluster_motion(positions, previous, order, ptr, avg_out, dev_out): mean and deviation of the displacement."},
-    {"cluster_boxes", py_cluster_boxes, METH_VARARGS,
-     "cluster_boxes(positions, index, ptr, inflate, lo_out, hi_out): inflated AABB per cluster."},
-    {"box_pairs", py_box_pairs, METH_VARARGS,
-     "box_pairs(lo_a, hi_a, lo_b, hi_b, self_pairs, i_out, j_out) -> count (> len(i_out): call again, larger)."},
-    {"relative_measure", py_relative_measure, METH_VARARGS,
-     "relative_measure(old_keys, old_avg, old_dev, i, j, avg_a, dev_a, avg_b, dev_b, force, threshold, keys_out, "
-     "rel_avg_out, rel_dev_out, amplitude_out, full_out, lookahead=0) -> number of full pairs."},
-    {"rigid_fit", py_rigid_fit, METH_VARARGS,
-     "rigid_fit(positions, triangles, ref_corners, scene_triangles, R, centre, ref_centre, row) -> max residual^2."},
-    {"rigid_fit_many", py_rigid_fit_many, METH_VARARGS,
-     "rigid_fit_many(positions, triangles, scene_ptr, scene_triangles, ref_corners, clusters, R, centre, ref_centre, "
-     "resid2_out): the rigid fit of each listed cluster's scene (rows R[c] ...), its max residual^2."},
-    {"walk", py_walk, METH_VARARGS,
-     "walk(positions, normals, ray_vertex, ray_slot, start, target_vertices, target_triangles, adjacency, flip, "
-     "ring, max_steps, tri_out, t_out, u_out, v_out, flips_out)."},
-    {"prepare_rays", py_prepare_rays, METH_VARARGS,
-     "prepare_rays(positions, normals, has_normal, long_mask, order, ptr, box_lo, box_hi, pair_a, pair_b, clusters, "
-     "R, centre, ref_centre, short_dist, long_dist, backoff, tolerance, origins_out, directions_out, dists_out, "
-     "ray_vertex_out, ray_slot_out, segments_out) -> ray count (> capacity: call again, larger)."},
-    {"accept_hits", py_accept_hits, METH_VARARGS,
-     "accept_hits(rays, prim, tfar, scene_triangles, ray_vertex, target_triangles, ring, origins, directions, "
-     "dists, hit_triangle_out, retry_out) -> number of rays to cast again."},
-    {"refine", py_refine, METH_VARARGS,
-     "refine(positions, normals, ray_vertex, ray_slot, hit_triangle, target_vertices, target_triangles, adjacency, "
-     "flip, ring, kind, track_range, inside_prev, vertex_out, slot_out, tri_out, t_out, u_out, v_out, flips_out, "
-     "status_out) -> count."},
-    {"drop_dominated", py_drop_dominated, METH_VARARGS,
-     "drop_dominated(vertex, slot, t, status, track_key, walked_tri, walked_t) -> far back-face hits left: those "
-     "a nearer hit of the same ray beats get status 0."},
-    {"confirm_inside", py_confirm_inside, METH_VARARGS,
-     "confirm_inside(target_vertices, target_triangles, tri_order, tri_ptr, lo, hi, origins, directions, t_exit, "
-     "exit_tri, backoff, eps, ok_out): ok where no other triangle is hit before the exit."},
-    {"merge_classify", (PyCFunction)(void (*)(void))py_merge_classify, METH_VARARGS | METH_KEYWORDS,
-     "merge_classify(**arrays) -> (tracks, inside, contacts): the new tracks, the vertices inside and the "
-     "deepest contact per vertex of one collider."},
-    {"assemble", py_assemble, METH_VARARGS,
-     "assemble(segments, vertex, depth, normal, velocity, friction, n, deep outputs x5, all outputs x5) -> "
-     "(deep count, all count)."},
+    KERNEL(vertex_normals,
+           "vertex_normals(positions, triangles, normals, has_normal): area-weighted unit vertex normals into the "
+           "outputs normals and has_normal."),
+    KERNEL(cluster_normals,
+           "cluster_normals(positions, triangles, vt_ptr, vt_tri, order, ptr, clusters, normals, has_normal, "
+           "done=None): vertex normals of the listed clusters' vertices only (skipping and marking done clusters)."),
+    KERNEL(cluster_motion,
+           "cluster_motion(positions, previous, order, ptr, avg, dev): mean and deviation of the displacement."),
+    KERNEL(cluster_boxes, "cluster_boxes(positions, index, ptr, inflate, lo, hi): inflated AABB per cluster."),
+    KERNEL(box_pairs,
+           "box_pairs(lo_a, hi_a, lo_b, hi_b, self_pairs, i, j) -> count (> len(i): call again, larger)."),
+    KERNEL(relative_measure,
+           "relative_measure(old_keys, old_avg, old_dev, i, j, avg_a, dev_a, avg_b, dev_b, force, threshold, keys, "
+           "rel_avg, rel_dev, amplitude, full, lookahead=0) -> number of full pairs."),
+    KERNEL(rigid_fit,
+           "rigid_fit(positions, triangles, ref_corners, scene_triangles, R, centre, ref_centre, row) -> max "
+           "residual^2."),
+    KERNEL(rigid_fit_many,
+           "rigid_fit_many(positions, triangles, scene_ptr, scene_triangles, ref_corners, clusters, R, centre, "
+           "ref_centre, resid2): the rigid fit of each listed cluster's scene (rows R[c] ...), its max residual^2."),
+    KERNEL(walk,
+           "walk(positions, normals, ray_vertex, ray_slot, start, target_vertices, target_triangles, adjacency, flip, "
+           "ring, max_steps, tri_out, t_out, u_out, v_out, flips_out)."),
+    KERNEL(prepare_rays,
+           "prepare_rays(positions, normals, has_normal, long_mask, order, ptr, box_lo, box_hi, pair_a, pair_b, "
+           "clusters, R, centre, ref_centre, short_dist, long_dist, backoff, tolerance, origins, directions, dists, "
+           "ray_vertex, ray_slot, segments) -> ray count (> capacity: call again, larger)."),
+    KERNEL(accept_hits,
+           "accept_hits(rays, prim, tfar, scene_triangles, ray_vertex, target_triangles, ring, origins, directions, "
+           "dists, hit_triangle, retry) -> number of rays to cast again."),
+    KERNEL(refine,
+           "refine(positions, normals, ray_vertex, ray_slot, hit_triangle, target_vertices, target_triangles, "
+           "adjacency, flip, ring, kind, track_range, inside_prev, out_vertex, out_slot, out_tri, out_t, out_u, "
+           "out_v, out_flips, status) -> count."),
+    KERNEL(drop_dominated,
+           "drop_dominated(vertex, slot, t, status, track_key, walked_tri, walked_t) -> far back-face hits left: "
+           "those a nearer hit of the same ray beats get status 0."),
+    KERNEL(confirm_inside,
+           "confirm_inside(target_vertices, target_triangles, tri_order, tri_ptr, lo, hi, origins, directions, "
+           "t_exit, exit_tri, backoff, eps, ok): ok where no other triangle is hit before the exit."),
+    KERNEL(merge_classify,
+           "merge_classify(positions, normals, previous, velocity, target_vertices, target_triangles, "
+           "target_previous, target_velocity, kind, first, thickness, track_range, track_key, track_tri, track_side, "
+           "walked_tri, walked_t, walked_u, walked_v, walked_flips, found_vertex, found_slot, found_tri, found_t, "
+           "found_u, found_v, found_flips, found_status, out_key, out_tri, out_side, out_inside, contact_vertex, "
+           "depth, normal, contact_velocity) -> (tracks, inside, contacts): the new tracks, the vertices inside and "
+           "the deepest contact per vertex of one collider."),
+    KERNEL(assemble,
+           "assemble(segments, vertex, depth, normal, velocity, friction, n, deep_vertex, deep_normal, deep_depth, "
+           "deep_velocity, deep_friction, all_vertex, all_normal, all_depth, all_velocity, all_friction) -> "
+           "(deep count, all count)."),
     {NULL, NULL, 0, NULL},
 };
 
 static struct PyModuleDef moddef = {
     PyModuleDef_HEAD_INIT, "_collide",
-    "Kernels of clustered ray-traced collision detection (numpy arrays in and out; see collide.h).", -1, methods,
-    NULL, NULL, NULL, NULL};
+    "Kernels of clustered ray-traced collision detection (numpy arrays in and out, by position or keyword; see "
+    "collide.h).",
+    -1, methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__collide(void) { return PyModule_Create(&moddef); }

@@ -12,7 +12,9 @@
  * such a hit advances the ray just past it and the ray is cast again (tcc_accept_hits).
  */
 #include "collide.h"
-#include "vec.h"
+#include "vecmath.h"
+
+#include <math.h>
 
 /* Whether the segment o + s d, s in [0, len], meets the box [lo, hi]. */
 static int segment_box(const double o[3], const double d[3], double len, const double lo[3], const double hi[3])

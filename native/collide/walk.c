@@ -9,7 +9,9 @@
  * is lost there instead.
  */
 #include "collide.h"
-#include "vec.h"
+#include "vecmath.h"
+
+#include <math.h>
 
 #define BARY_EPS 1e-9 /* a hit on a shared edge is not bounced back and forth */
 

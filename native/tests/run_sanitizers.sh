@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
 # Builds the native core with AddressSanitizer + UndefinedBehaviorSanitizer (any report aborts)
 # and runs its C tests; the core is plain C with no Python, so it is tested here on its own.
+# The core is every .c file of native/ except the Python bindings (pymodule.c, py/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out=${TMPDIR:-/tmp}/tearcloth_native_tests
+core=$(ls *.c | grep -v '^pymodule\.c$')
+# shellcheck disable=SC2086
 cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all \
    -DTC_NO_CLONES -Wall -Wextra -Wno-unused-parameter -I. \
-   buf.c mesh.c fem.c cloth.c tear.c tests/test_core.c -lm -o "$out"
+   $core tests/test_core.c -lm -o "$out"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"

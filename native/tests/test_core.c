@@ -174,9 +174,34 @@ static void test_contacts_and_arrays(void)
     free(V); free(T); free(uv); free(groups); free(idx); free(nrm); free(dep); free(fr);
 }
 
+/* The defaults (settings.c) are accepted by the setters that check them, and a cloth made without
+ * a material starts from the default one. */
+static void test_defaults_pass_their_checks(void)
+{
+    double V[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    int32_t T[3] = {0, 1, 2};
+    char msg[512] = "";
+    tc_material m = tc_material_default();
+    CHECK(tc_material_check(&m, msg, sizeof msg) == TC_OK, "default material rejected: %s", msg);
+    tc_cloth *c = tc_cloth_create(V, 3, T, 1, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    CHECK(c != NULL, "create: %s", msg);
+    if (!c) return;
+    tc_material got = tc_cloth_material(c);
+    CHECK(memcmp(&got, &m, sizeof m) == 0, "a cloth without material does not start from the default");
+    tc_solver_settings s = tc_solver_default();
+    CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "default solver rejected: %s", tc_cloth_error(c));
+    tc_tear_settings t = tc_tear_default();
+    CHECK(tc_cloth_set_tearing(c, &t) == TC_OK, "default tearing rejected: %s", tc_cloth_error(c));
+    t.min_angle_deg = 45.0;
+    CHECK(tc_cloth_set_tearing(c, &t) == TC_ERR_INPUT && strstr(tc_cloth_error(c), "(got 45)"),
+          "bad min_angle_deg: %s", tc_cloth_error(c));
+    tc_cloth_destroy(c);
+}
+
 int main(void)
 {
     test_bad_input();
+    test_defaults_pass_their_checks();
     test_strip_and_tear();
     test_contacts_and_arrays();
     printf("%d passed, %d failed\n", checks - failures, failures);

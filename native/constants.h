@@ -1,0 +1,86 @@
+/* constants.h - every tuning constant of the native core in one place, each with its unit and the
+ * reason for its value (Box2D v3's constants.h is the model). Validation limits of user settings
+ * stay beside the checks that print them (settings.c), since their messages quote the numbers.
+ *
+ * Changing a value here changes simulation results: the test suite and the example bakes pin them.
+ */
+#ifndef TEARCLOTH_CONSTANTS_H
+#define TEARCLOTH_CONSTANTS_H
+
+#define TC_PI 3.14159265358979323846
+
+/* ---- helper axes ----
+ * Two places build a vector orthogonal to a unit vector u by crossing or Gram-Schmidt against a
+ * coordinate axis: x when |u_x| is below a limit, else y. Any limit in (1/sqrt(3), 1) works (some
+ * component of a unit vector always reaches 1/sqrt(3) = 0.577). They are the same idea with two
+ * values, kept apart on purpose: unifying them would change which axis is picked for normals with
+ * |n_x| in [0.6, 0.9), and with it the last bits of every vertex stress and tear direction there
+ * (the eigenvalue does not depend on the basis, its round-off does). */
+#define TC_TANGENT_AXIS_LIMIT 0.6   /* 1: tear.c, tangent basis of a vertex normal (every vertex stress) */
+#define TC_COLLAPSE_AXIS_LIMIT 0.9  /* 1: fem.c, second rotation column of a collapsed element (rare) */
+
+/* ---- co-rotation (fem.c) ---- */
+/* det(F^T F) below this fraction of trace^2: the element is collapsed to a line or a point and the
+ * polar decomposition is ill-conditioned; Gram-Schmidt keeps a frame instead. (1) */
+#define TC_COLLAPSE_DET 1e-16
+/* A column this short (after removing its projection) has no direction left: pick an axis. (1) */
+#define TC_COLLAPSE_COLUMN 1e-12
+
+/* ---- rest elements (mesh.c) ---- */
+/* A sliver whose area is below this fraction of its longest edge squared cannot be inverted
+ * reliably in double precision: rejected as degenerate. (1) */
+#define TC_SLIVER_AREA 1e-10
+
+/* ---- pair hash (mesh.c) ---- */
+#define TC_HASH_INITIAL 64          /* slots of a new cloth's pair hash (power of two) */
+
+/* ---- constraints (constraints.c) ---- */
+/* A contact normal is accepted when its length is within this of 1 (then renormalised). (1) */
+#define TC_UNIT_NORMAL_TOLERANCE 1e-3
+/* A new contact normal adds a direction to a vertex's contact basis only when its part orthogonal
+ * to the directions already there is at least this long; a smaller part (a vertex squeezed between
+ * two nearly parallel layers) would make an ill-conditioned basis, so it shares the speed of the
+ * closest existing direction instead. (1, |n| = 1) */
+#define TC_CONTACT_NEW_DIRECTION 0.25
+/* Share of the disagreement moved when two contacts prescribe different speeds along one
+ * direction: halfway, so neither layer wins. (1) */
+#define TC_CONTACT_SHARE 0.5
+
+/* ---- linear solver (solver.c) ---- */
+/* A cloth at rest has almost no net force: the residual need not go below the tolerance times
+ * this fraction of the full right-hand side's norm (else the relative tolerance chases round-off).
+ * (1, on the squared preconditioned norm) */
+#define TC_CG_FLOOR 1e-2
+/* A 3x3 diagonal block with |det| below this is singular (cannot happen with positive masses):
+ * its preconditioner block is zero instead of a division by zero. (N s/m)^3 */
+#define TC_SINGULAR_DET 1e-300
+/* Stand-in for a zero right-hand-side norm, so the stopping test never divides by zero. */
+#define TC_TINY 1e-300
+
+/* ---- tearing (tear.c) ---- */
+/* Largest fan (triangles around one vertex) a tear walks; far above any sane valence, and a fan
+ * larger than this stops the tear there. (triangles) */
+#define TC_FAN_MAX 256
+/* Candidate tear starts kept per full scan, best first: the next ones are tried when no segment
+ * can be cut from the best (its direction runs along the rim). */
+#define TC_TEAR_CANDIDATES 4
+/* Corner fit of a segment direction: a triangle whose corner holds the direction scores >= 0; a
+ * direction pointing away from both edges of the corner loses this much, so any corner that holds
+ * it wins; a best score below the limit means no corner holds the direction. (1: sine of angle) */
+#define TC_CORNER_BACKWARDS_PENALTY 2.0
+#define TC_CORNER_MIN_SCORE (-0.05)
+/* Parallel path and edge: no meeting point, split the edge in the middle. (1) */
+#define TC_PARALLEL_SPLIT 0.5
+/* Snapping to the farther end of the opposite edge only when it lies within about 45 degrees of the
+ * path (cos 45 deg = 0.707): beyond that, following the edge would turn the tear. (1) */
+#define TC_FAR_END_COS 0.7
+/* A running tip concentrates the stress around itself; the slice scan leaves alone a disc of
+ * radius 4 mean edge lengths around every tip (so this is 4^2), else it would only branch the tear. */
+#define TC_NEAR_TIP_RADIUS2 16.0
+/* Scripted tears steer back to their line: the lateral offset is corrected by this gain over the
+ * distance already travelled (plus a softening length), so snapping errors do not accumulate. */
+#define TC_STEER_GAIN 0.5
+#define TC_STEER_SOFTENING 1e-3     /* m */
+#define TC_SCRIPTED_MAX_CUTS 100000 /* cuts of one scripted tear: a guard against a path that loops */
+
+#endif

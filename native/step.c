@@ -1,0 +1,128 @@
+/* step.c - one time step: tc_cloth_step runs `substeps` implicit Euler sub-steps, then tearing.
+ *
+ * One sub-step: with rotations R frozen at x0,
+ *   ((1 + dt a) M + (dt^2 + dt b)(K + B)) v1 = M v0 + dt f(x0),  x1 = x0 + dt v1,
+ * solved by conjugate gradients preconditioned with the inverse 3x3 diagonal blocks and warm-started
+ * from the last velocity change (solver.c). Constraints enter as velocity filters (constraints.c):
+ * pins and handles fix all three components, a contact fixes the normal one to the touched surface's
+ * (inelastic). A contact whose reaction would pull (adhesion) is released and the system solved
+ * once more; friction then caps the tangential velocity change at mu times the normal impulse.
+ * Penetration is recovered by a bounded extra normal speed inside the solve (contact_correction of
+ * the depth per step, at most contact_max_push), taken back out of the velocity after the step, so
+ * a vertex pushed out never keeps the speed to bounce away.
+ *
+ * A sub-step whose positions hold non-finite values or a stretch above max_stretch is rolled back
+ * to where it started, and the step fails with TC_ERR_UNSTABLE (positions are never NaN).
+ */
+#include "core.h"
+
+#include <math.h>
+#include <string.h>
+
+/* Per-vertex force at positions x: elastic (fel, already computed) + bending + gravity. */
+void tc_total_force(tc_cloth *c, const double *x)
+{
+    double *f = tc_vec_ptr(&c->force);
+    const double *fe = tc_vec_ptr(&c->fel), *m = tc_vec_ptr(&c->mass);
+    const double *g = c->solver.gravity;
+    for (int32_t i = 0; i < c->nv; i++)
+        for (int k = 0; k < 3; k++) f[3 * i + k] = fe[3 * i + k] + m[i] * g[k];
+    tc_bending_force(c, x, f);
+}
+
+void tc_refresh(tc_cloth *c)
+{
+    if (!c->dirty) return;
+    tc_element_pass(c, tc_vec_ptr(&c->x));
+    tc_total_force(c, tc_vec_ptr(&c->x));
+    c->dirty = false;
+}
+
+static int substep(tc_cloth *c, double dt, double alpha_target)
+{
+    const int32_t n = c->nv;
+    const size_t n3 = 3 * (size_t)n;
+    double *x = tc_vec_ptr(&c->x), *v = tc_vec_ptr(&c->v);
+    double *x0 = tc_vec_ptr(&c->x0), *v0 = tc_vec_ptr(&c->v0), *b = tc_vec_ptr(&c->sb);
+    tc_refresh(c);
+    memcpy(x0, x, n3 * sizeof(double));
+    memcpy(v0, v, n3 * sizeof(double));
+    tc_constraints_begin(c, dt, alpha_target);
+    const int32_t nc = (int32_t)c->cvert.len;
+
+    /* right-hand side M v0 + dt f(x0) */
+    const double *m = tc_vec_ptr(&c->mass), *f = tc_vec_ptr(&c->force);
+    for (int32_t i = 0; i < n; i++)
+        for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * f[3 * i + q];
+
+    tc_assemble(c, dt);
+    tc_precondition_build(c);
+    double res = 0.0;
+    /* warm start: the velocity change of the last step (constant acceleration), exact for a
+       falling cloth and close for any smooth motion; pcg projects it onto this step's constraints */
+    const double *dv_prev = tc_vec_ptr(&c->sdv);
+    for (size_t k = 0; k < n3; k++) v[k] = v0[k] + dv_prev[k];
+    int it = tc_solve_dv(c, v, v0, b, &res);
+
+    if (nc) {
+        /* release contacts whose reaction pulls the cloth onto the surface, then friction */
+        double *J = tc_vec_ptr(&c->sq);
+        tc_matvec(c, v, J);
+        if (tc_contacts_release(c, J, b)) {
+            tc_contact_basis(c, dt);
+            it += tc_solve_dv(c, v, v0, b, &res);
+            tc_matvec(c, v, J);
+        }
+        c->stats.contacts = tc_contacts_friction(c, v, J, b);
+    } else {
+        c->stats.contacts = 0;
+    }
+
+    for (size_t k = 0; k < n3; k++) x[k] = x0[k] + dt * v[k];
+    tc_contacts_take_back_push(c, v, dt);
+    {
+        double *dv = tc_vec_ptr(&c->sdv);
+        for (size_t k = 0; k < n3; k++) dv[k] = v[k] - v0[k];
+    }
+    double worst = tc_element_pass(c, x);
+    int bad = !(worst == worst) || worst > c->solver.max_stretch;
+    for (size_t k = 0; k < n3 && !bad; k++) bad = !isfinite(v[k]);
+    if (bad) {
+        memcpy(x, x0, n3 * sizeof(double));
+        memcpy(v, v0, n3 * sizeof(double));
+        tc_element_pass(c, x);  /* stresses and rotations back to the state rolled back to */
+        tc_total_force(c, x);
+        tc_set_err(c, "step rolled back: %s (largest stretch %g, limit %g; CG %d iterations, residual %g). "
+                      "Reduce the time step or raise sub-steps.",
+                   worst == worst ? "exploding strain" : "non-finite values", worst, c->solver.max_stretch, it, res);
+        return TC_ERR_UNSTABLE;
+    }
+    tc_total_force(c, x);
+    c->stats.cg_iterations += it;
+    c->stats.cg_residual = res;
+    return TC_OK;
+}
+
+int tc_cloth_step(tc_cloth *c, double dt, int substeps)
+{
+    if (!(dt > 0) || !isfinite(dt) || dt > 10.0) { tc_set_err(c, "time step must lie in (0, 10] s (got %g)", dt); return TC_ERR_INPUT; }
+    if (substeps < 1 || substeps > 10000) { tc_set_err(c, "sub-steps must lie in [1, 10000] (got %d)", substeps); return TC_ERR_INPUT; }
+    double t0 = tc_now();
+    tc_events_clear(c);
+    c->stats.cg_iterations = 0;
+    double h = dt / substeps;
+    int rc = TC_OK;
+    for (int s = 0; s < substeps && rc == TC_OK; s++) rc = substep(c, h, (double)(s + 1) / substeps);
+    if (rc == TC_OK)
+        for (int32_t k = 0; k < c->nh; k++) memcpy(c->handles[k].prev, c->handles[k].target, 12 * sizeof(double));
+    tc_handle_forces(c);
+    double t1 = tc_now();
+    c->stats.fem_seconds = t1 - t0;
+    c->stats.tear_seconds = 0.0;
+    if (rc == TC_OK && c->tear.enabled) {
+        rc = tc_tear_step(c);
+        c->stats.tear_seconds = tc_now() - t1;
+    }
+    c->stats.steps++;
+    return rc;
+}
