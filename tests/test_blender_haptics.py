@@ -10,7 +10,7 @@ modal's TIMER branch calls) through ``haptic_session.run_for``, the operator's `
 (``duration=...``, the same loop), and the operator's ``modal`` method itself, fed hand-made events
 on a stand-in for the operator instance (TIMER, arrows, Ctrl + mouse, blocked undo and Tab, Esc).
 
-The sheet: the paper's square cloth (``scenes.square_cloth``, ~300 triangles, hanging in the XZ
+The sheet: the paper's square cloth (``examples.square_cloth``, ~300 triangles, hanging in the XZ
 plane) with a quarter of cotton's tear stress; the emulated hands hold 0.05 s, then pull the grips
 1.5 cm apart over 0.5 s of SIMULATED time (the same pull on a fast or a loaded machine). It tears
 after about 0.3 s of simulated time.
@@ -30,7 +30,7 @@ from test_blender_bake import run_blender  # noqa: E402  (tests/ is on sys.path,
 
 SCENE = '''
 import logging, threading
-from tearcloth import scenes
+from tearcloth import examples
 from tearcloth.blender import haptic_session as hs
 
 logged = []
@@ -47,7 +47,7 @@ def haptic_scene(folder, record=False, save=True):
     tearcloth.register()
     scene = bpy.context.scene
     scene.render.fps = 24
-    m = scenes.square_cloth(target_triangles=300)
+    m = examples.square_cloth(target_triangles=300)
     mesh = bpy.data.meshes.new("Sheet")
     mesh.from_pydata(m.vertices.tolist(), [], m.triangles.tolist())
     corner = np.empty(len(mesh.loops), np.int32)
