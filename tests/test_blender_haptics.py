@@ -18,6 +18,7 @@ after about 0.3 s of simulated time.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -28,8 +29,11 @@ pytest.importorskip("bpy")  # only checks that it is installed; Blender runs in 
 pytest.importorskip("pxr")
 from test_blender_bake import run_blender  # noqa: E402  (tests/ is on sys.path, see conftest.py)
 
+# The children import the tests' own modules (fakes.py) from this folder.
+TESTS_DIR_LINE = f"TESTS_DIR = {os.path.dirname(os.path.abspath(__file__))!r}\n"
 SCENE = '''
 import logging, threading
+sys.path.insert(0, TESTS_DIR)  # the tests' own modules (fakes.py) for the child
 from tearcloth import examples
 from tearcloth.blender import haptic_session as hs
 
@@ -144,7 +148,7 @@ def draw_haptics(obj):
 
 def child(body: str) -> str:
     """A Blender child's script: the shared helpers, then the test's own (indented) body."""
-    return SCENE + LAYOUT + textwrap.dedent(body)
+    return TESTS_DIR_LINE + SCENE + LAYOUT + textwrap.dedent(body)
 
 
 def test_register_discover_and_panel(tmp_path):
@@ -458,7 +462,8 @@ def test_unplug_stop_button_firmware_homing_errors_keyboard_and_modal_events(tmp
 
         # a SpaceMouse (a fake HID device) mapped by scale and offset: deflected right, it drags the
         # handle right; input only, so no force is sent to it
-        from tearcloth.haptics.spacemouse import FakeHid, translation_report
+        from fakes import FakeHid  # tests/fakes.py: TESTS_DIR is on the child's sys.path
+        from tearcloth.haptics.spacemouse import translation_report
         puck = FakeHid()
         hs.find_spacemice = lambda: [dict(path=b"/dev/hidraw-fake", vid=0x256F, pid=0xC635, model="SpaceMouse Compact",
                                           layout="split", serial="")]
@@ -635,7 +640,7 @@ def test_quitting_blender_zeroes_the_force(tmp_path):
     from test_blender_bake import PRELUDE
 
     script = tmp_path / "quit.py"
-    script.write_text(PRELUDE + textwrap.dedent(SCENE) + textwrap.dedent('''
+    script.write_text(PRELUDE + TESTS_DIR_LINE + textwrap.dedent(SCENE) + textwrap.dedent('''
         import atexit
         obj = haptic_scene(sys.argv[1], save=False)
         run = hs.HapticRun(bpy.context, obj)

@@ -31,11 +31,10 @@ from tearcloth.haptics.live import (
     FALCON_CENTRE_BUTTON,
     LiveSession,
     emulated_falcon,
-    emulated_session,
     falcon_coupling,
-    measure_live_servo,
     stall_timeout_rule,
 )
+from tearcloth.bench.servo import emulated_session, measure_live_servo
 from tearcloth.materials import material
 
 TEAR_STRESS = 2.0e6  # Pa: a quarter of cotton's, so the square tears within ~0.3 s of simulated time

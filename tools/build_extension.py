@@ -21,7 +21,8 @@ is written into the source tree but the final zip):
    --python-version 3.11 --implementation cp --abi cp311 <name>==<version>``. ``--no-deps``
    because the manifest lists every wheel needed (numpy ships with Blender; pyftdi's pyserial is
    left out on purpose).
-3. The extension folder: a copy of ``addon/`` without ``__pycache__``, in-place native builds
+3. The extension folder: a copy of ``addon/`` without the dev-only ``bench/``, ``examples/`` and
+   ``blender/race.py`` (also left out of our wheel), ``__pycache__``, in-place native builds
    (``*.so``/``*.pyd``), ``data/`` (example .blend files), tests and caches; plus the wheels under
    ``wheels/`` and, for each compiled module the wheel carries (``_native``, ``_collide``), a
    two-line ``<module>.py`` that makes ``from . import _native`` (``cloth.py``) or
@@ -77,6 +78,10 @@ OWN = "tearcloth"
 # Left out of the package (relative to addon/): build products, example scenes, caches.
 EXCLUDE_DIRS = {"__pycache__", "data", "tests", "tearcloth_cache", "wheels", "build"}
 EXCLUDE_FILES = ("*.so", "*.pyd", "*.dylib", "*.pyc", "*.zip", ".*")
+# Dev-only parts of the package (paths relative to addon/): the benchmarks, the example geometry
+# (which needs scipy) and the bpy half of the bench's race. They never run inside Blender;
+# `tearcloth bench` and the example generators are used from a pip install.
+DEV_ONLY = {"bench", "examples", os.path.join("blender", "race.py")}
 
 SHIM = '''"""A native module, inside Blender: this extension is imported as ``bl_ext.<repo>.tearcloth`` and
 carries no compiled module; the wheel ``tearcloth-*-abi3-*.whl`` listed in blender_manifest.toml
@@ -206,7 +211,9 @@ def _ignore(folder: str, names: list[str]) -> set[str]:
     skipped = set()
     for n in names:
         full = os.path.join(folder, n)
-        if os.path.isdir(full) and n in EXCLUDE_DIRS:
+        if os.path.relpath(full, ADDON) in DEV_ONLY:
+            skipped.add(n)
+        elif os.path.isdir(full) and n in EXCLUDE_DIRS:
             skipped.add(n)
         elif any(fnmatch.fnmatch(n, pattern) for pattern in EXCLUDE_FILES):
             skipped.add(n)
