@@ -14,16 +14,9 @@ One file per part:
   * ``report``     BENCHMARKS.md from one run's results
   * ``machine``    the load average recorded with the results
 
-The scenes come from ``tearcloth.examples`` (which needs scipy: ``pip install 'tearcloth[bench]'``).
+The scenes come from ``tearcloth.examples``, which needs scipy (``pip install 'tearcloth[bench]'``);
+without it, importing this package fails with that instruction.
 """
-try:
-    import scipy  # noqa: F401  (the example geometry's one dependency beyond numpy)
-except ImportError as exc:  # pragma: no cover - depends on the environment
-    raise ImportError(
-        "tearcloth bench needs scipy for its example scenes: pip install 'tearcloth[bench]' "
-        "(or pip install scipy)"
-    ) from exc
-
 from .collision import cluster_picture
 from .suite import PARTS, run
 

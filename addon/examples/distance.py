@@ -90,6 +90,23 @@ def _closest_on_triangles(p, a, b, c):
     return q, region
 
 
+def _cell_pairs(grid, cell, pts, ids, offs):
+    """(point, triangle) candidate pairs: every triangle listed in the grid cells at ``offs``
+    (cell offsets, (c, 3)) around the cell of each point ``ids``; ``grid`` = (origin, dims, sorted
+    cell keys, their triangles) of cell size ``cell``."""
+    origin, dims, cell_keys, cell_tris = grid
+    gi = np.floor((pts[ids] - origin) / cell).astype(np.int64)
+    nb = (gi[:, None, :] + offs[None]).reshape(-1, 3)
+    inside = np.all((nb >= 0) & (nb < dims), axis=1)
+    key = np.where(inside, (nb[:, 0] * dims[1] + nb[:, 1]) * dims[2] + nb[:, 2], -1)
+    s = np.searchsorted(cell_keys, key, side="left")
+    e = np.where(inside, np.searchsorted(cell_keys, key, side="right"), s)
+    n = e - s
+    pid = np.repeat(np.repeat(ids, len(offs)), n)
+    within = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    return pid, cell_tris[np.repeat(s, n) + within]
+
+
 class MeshDistance:
     """Signed distance queries against a fixed triangle mesh.
 
@@ -179,20 +196,9 @@ class MeshDistance:
         return best_q, sign * best_d, best_t
 
     def _search(self, pts, todo, grid, cell, best_d, best_q, best_t, best_r):
-        origin, dims, cell_keys, cell_tris = grid
         offs = np.array([(i, j, l) for i in (-1, 0, 1) for j in (-1, 0, 1) for l in (-1, 0, 1)])
         for chunk in range(0, len(todo), 2048):
-            ids = todo[chunk : chunk + 2048]
-            gi = np.floor((pts[ids] - origin) / cell).astype(np.int64)
-            nb = (gi[:, None, :] + offs[None]).reshape(-1, 3)
-            inside = np.all((nb >= 0) & (nb < dims), axis=1)
-            key = np.where(inside, (nb[:, 0] * dims[1] + nb[:, 1]) * dims[2] + nb[:, 2], -1)
-            s = np.searchsorted(cell_keys, key, side="left")
-            e = np.where(inside, np.searchsorted(cell_keys, key, side="right"), s)
-            n = e - s
-            pid = np.repeat(np.repeat(ids, 27), n)
-            within = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-            tri = cell_tris[np.repeat(s, n) + within]
+            pid, tri = _cell_pairs(grid, cell, pts, todo[chunk : chunk + 2048], offs)
             # Cheap pruning before the exact test: a triangle whose bounding box is farther than
             # some candidate's corner cannot be the closest.
             p = pts[pid]
@@ -242,7 +248,6 @@ class MeshDistance:
         (k, K) index array (-1 = none). Lets an iterative fit test only a short list per point."""
         pts = np.asarray(points, dtype=np.float64)
         radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (len(pts),))
-        origin, dims, cell_keys, cell_tris = self.grids[0]
         cell = self.cells[0]
         rc = int(math.ceil(float(radius.max()) / cell))
         r = np.arange(-rc, rc + 1)
@@ -251,16 +256,7 @@ class MeshDistance:
         step = max(1, 200_000 // len(offs))
         for chunk in range(0, len(pts), step):
             ids = np.arange(chunk, min(chunk + step, len(pts)))
-            gi = np.floor((pts[ids] - origin) / cell).astype(np.int64)
-            nb = (gi[:, None, :] + offs[None]).reshape(-1, 3)
-            inside = np.all((nb >= 0) & (nb < dims), axis=1)
-            key = np.where(inside, (nb[:, 0] * dims[1] + nb[:, 1]) * dims[2] + nb[:, 2], -1)
-            s = np.searchsorted(cell_keys, key, side="left")
-            e = np.where(inside, np.searchsorted(cell_keys, key, side="right"), s)
-            n = e - s
-            pid = np.repeat(np.repeat(ids, len(offs)), n)
-            within = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-            tri = cell_tris[np.repeat(s, n) + within]
+            pid, tri = _cell_pairs(self.grids[0], cell, pts, ids, offs)
             p = pts[pid]
             gap = np.maximum(self.box_lo[tri] - p, 0.0) + np.maximum(p - self.box_hi[tri], 0.0)
             keep = np.einsum("ij,ij->i", gap, gap) <= radius[pid] ** 2
