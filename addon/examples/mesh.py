@@ -23,12 +23,8 @@ from scipy.sparse.csgraph import connected_components
 MIN_TARGET_TRIANGLES = 50
 
 
-# ------------------------------------------------------------------------------------------------
-# Data
-# ------------------------------------------------------------------------------------------------
-
-
 def check_count(target_triangles):
+    """A scene's triangle target as an int, or ValueError (not an integer, or too few)."""
     if isinstance(target_triangles, bool) or not isinstance(target_triangles, (int, np.integer)):
         raise ValueError(f"target_triangles must be an integer, got {target_triangles!r}")
     if target_triangles < MIN_TARGET_TRIANGLES:
@@ -39,10 +35,16 @@ def check_count(target_triangles):
 
 
 def check_positive(name, value):
+    """A length in metres as a float, or ValueError naming ``name`` (not finite, or <= 0)."""
     value = float(value)
     if not (value > 0.0 and math.isfinite(value)):
         raise ValueError(f"{name} must be a positive length in metres, got {value}")
     return value
+
+
+# ------------------------------------------------------------------------------------------------
+# Data
+# ------------------------------------------------------------------------------------------------
 
 
 @dataclass
