@@ -8,7 +8,6 @@ from pathlib import Path
 
 import numpy as np
 
-from . import scenes
 from .cloth import Cloth
 from .haptics.forcelog import ForceLog
 from .materials import material
@@ -19,7 +18,9 @@ SPEED = 0.05  # m/s per hand, apart
 
 def simulate(duration: float = 1.6, tear_stress: float = 2.0e6):
     """Returns (cloth, force log, first tear time or None)."""
-    mesh = scenes.square_cloth()
+    from . import examples  # dev-only (scipy): only the bpy-free demo generates its sheet
+
+    mesh = examples.square_cloth()
     c = Cloth(mesh.vertices, mesh.triangles, material("cotton", tear_stress=tear_stress), uv=mesh.loop_uv(),
               groups=mesh.groups)
     hl, hr = c.add_handle("handle_left"), c.add_handle("handle_right")

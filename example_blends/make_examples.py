@@ -7,21 +7,21 @@
 What each file holds (SI: one Blender unit is one metre, 24 fps, Z up, the front view looks
 along +Y at sheets that face -Y):
 
-* ``square_cloth.blend``: the paper's Fig. 1. The square cloth (``scenes.square_cloth``, ~1.4K
+* ``square_cloth.blend``: the paper's Fig. 1. The square cloth (``examples.square_cloth``, ~1.4K
   triangles, cotton with a tear stress of 2 MPa) hangs from two handles at its top corners; each
   follows an empty ("hand_left", "hand_right") that holds still for a few frames, then moves
   outward at 5 cm/s. The cloth tears from the top edge down between the hands within about a
   second. No collision, ~2 ms steps.
-* ``banknote.blend``: a US-size banknote (``scenes.banknote`` with a 4 mm notch in its top edge,
+* ``banknote.blend``: a US-size banknote (``examples.banknote`` with a 4 mm notch in its top edge,
   "banknote" preset, snap tolerance 45 %) pinched at both ends by two hands (empties) that hold
   still for a quarter second, then pull apart in the note's plane at 2 cm/s each; the tear runs
   from the notch down within a few frames. Self-collision is its only collision, as in the paper
   (``BANKNOTE_SELF_COLLISION``; the two lips of a fresh tear count as neighbours). ~1 ms steps.
-* ``tshirt.blend``: the mannequin (``scenes.mannequin``) as a mesh skinned to an ARMATURE built
+* ``tshirt.blend``: the mannequin (``examples.mannequin``) as a mesh skinned to an ARMATURE built
   from ``Body.bones`` (one vertex group per bone, an Armature modifier), keyframed every frame so
-  Blender's skinning reproduces ``scenes.bone_matrices(body, t)`` exactly: it walks in place for
+  Blender's skinning reproduces ``examples.bone_matrices(body, t)`` exactly: it walks in place for
   2 s, brings both hands to the front of the shirt hem (2-3 s) and pulls outward (3-4 s). The
-  T-shirt (``scenes.tshirt``) sits 12 mm outside the body at rest (checked here: no vertex inside
+  T-shirt (``examples.tshirt``) sits 12 mm outside the body at rest (checked here: no vertex inside
   the body, none closer than 1 cm). Its handles ``hem_left`` / ``hem_right`` follow two empties
   that hold the hem where it is until the hands arrive (frame 73, t = 3 s) and then move with the
   hands (the displacement of each hand since it arrived); the grip stays 12 mm off the body all
@@ -33,7 +33,7 @@ Every file: a camera, a sun (for Eevee; Workbench uses studio light), Workbench 
 that work headless (PyPI ``bpy``), "Standard" colour management, a dark world so holes in the
 cloth read as background, and a colour-grid texture through the UVs. The texture is a GENERATED
 image (Blender keeps only its parameters, no pixels), so nothing is packed; files are saved
-compressed. Reproducible: the meshes come from the seeded generators of ``tearcloth.scenes``
+compressed. Reproducible: the meshes come from the seeded generators of ``tearcloth.examples``
 and every setting is written here (the bytes of a .blend still differ between saves).
 
 ``--pictures DIR`` bakes each example with ``tearcloth bake`` (``addon/bake_cli.py``) in a
@@ -333,11 +333,11 @@ def save(path: Path) -> Path:
 
 
 def build_square_cloth():
-    from tearcloth import scenes
+    from tearcloth import examples
 
     bpy = _bpy()
     scene = new_scene(SQUARE_END)
-    sheet = scenes.square_cloth()
+    sheet = examples.square_cloth()
     cloth = mesh_object("SquareCloth", sheet.vertices, sheet.triangles, sheet.loop_uv(), sheet.groups)
     cloth.data.materials.append(grid_material("Cloth"))
     settings = enable_tear_cloth(cloth, "cotton", tear_stress=SQUARE_TEAR_STRESS, steps_per_frame=SQUARE_STEPS,
@@ -357,10 +357,10 @@ def build_square_cloth():
 
 
 def build_banknote():
-    from tearcloth import scenes
+    from tearcloth import examples
 
     scene = new_scene(BANKNOTE_END)
-    note = scenes.banknote(notch=BANKNOTE_NOTCH)
+    note = examples.banknote(notch=BANKNOTE_NOTCH)
     paper = mesh_object("Banknote", note.vertices, note.triangles, note.loop_uv(), note.groups)
     paper.data.materials.append(grid_material("Paper"))
     enable_tear_cloth(paper, "banknote", steps_per_frame=BANKNOTE_STEPS, use_collision=True,
@@ -389,8 +389,8 @@ def build_banknote():
 def build_body_rig(body, frames, name: str = "Mannequin"):
     """The body as a skinned mesh: an armature from ``Body.bones``, one vertex group per bone
     from the skin weights, an Armature modifier; pose keys on every frame reproduce
-    ``scenes.bone_matrices`` (checked by the caller)."""
-    from tearcloth import scenes
+    ``examples.bone_matrices`` (checked by the caller)."""
+    from tearcloth import examples
 
     bpy = _bpy()
     import mathutils
@@ -429,7 +429,7 @@ def build_body_rig(body, frames, name: str = "Mannequin"):
     rest = {b.name: np.array(b.matrix_local)[:3, :3] for b in arm_data.bones}
     previous = {}
     for frame in frames:
-        mats = scenes.bone_matrices(body, (frame - 1) / FPS)
+        mats = examples.bone_matrices(body, (frame - 1) / FPS)
         for j, (bone_name, _head, _tail, parent) in enumerate(body.bones):
             local = mats[j] if parent < 0 else np.linalg.inv(mats[parent]) @ mats[j]
             rr = rest[bone_name]
@@ -460,22 +460,22 @@ def evaluated_vertices(obj) -> np.ndarray:
 
 def hand_position(body, t: float, side: str) -> np.ndarray:
     """Where a hand is at time t: the tail of its forearm bone, posed."""
-    from tearcloth import scenes
+    from tearcloth import examples
 
     j = body.bone_index(f"forearm.{side}")
-    m = scenes.bone_matrices(body, t)[j]
+    m = examples.bone_matrices(body, t)[j]
     return (m @ np.r_[np.asarray(body.bones[j][2], dtype=np.float64), 1.0])[:3]
 
 
 def build_tshirt(check: bool = True):
-    from tearcloth import scenes
+    from tearcloth import examples
 
     bpy = _bpy()
     scene = new_scene(SHIRT_END)
-    body = scenes.mannequin()
-    shirt = scenes.tshirt(body)
+    body = examples.mannequin()
+    shirt = examples.tshirt(body)
     if check:
-        _, distance, _ = scenes.closest_points(body.vertices, body.triangles, shirt.vertices)
+        _, distance, _ = examples.closest_points(body.vertices, body.triangles, shirt.vertices)
         if distance.min() < 0.01:
             raise RuntimeError(f"the T-shirt does not fit: a vertex is {distance.min() * 1e3:.1f} mm from the body "
                                "(negative: inside)")
@@ -502,14 +502,14 @@ def build_tshirt(check: bool = True):
         key_locations(hand, keys)
         add_handle(cloth, group, hand)
     if check:
-        # Blender's skinning of the rig must be the body of scenes.body_pose, frame for frame
+        # Blender's skinning of the rig must be the body of examples.body_pose, frame for frame
         worst = 0.0
         for frame in (1, 13, 37, 61, 73, 97):
             scene.frame_set(frame)
             posed = evaluated_vertices(mannequin)
-            worst = max(worst, float(np.abs(posed - scenes.body_pose(body, (frame - 1) / FPS)).max()))
+            worst = max(worst, float(np.abs(posed - examples.body_pose(body, (frame - 1) / FPS)).max()))
         if worst > 1e-4:
-            raise RuntimeError(f"the rig does not reproduce scenes.body_pose: {worst * 1e3:.3f} mm off")
+            raise RuntimeError(f"the rig does not reproduce examples.body_pose: {worst * 1e3:.3f} mm off")
     camera((0.55, -1.75, 1.2), (0.0, 0.0, 1.08), lens=50.0)
     sun((0.0, 0.0, 1.0), location=(2.0, -3.0, 4.0))
     scene.frame_set(1)

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from tearcloth import bench_scaling as bs
-from tearcloth.bench_blender import blender_cloth_settings, hand_offsets, mean_edge_length
+from tearcloth.bench import scaling as bs
+from tearcloth.bench.race import blender_cloth_settings, hand_offsets, mean_edge_length
 from tearcloth.materials import material
 from tearcloth.session import CollisionSettings
 
@@ -154,7 +154,7 @@ def test_blender_gravity_mapping_gives_a_free_fall_at_9_81():
 
 def test_race_tiny_returns_the_documented_keys():
     pytest.importorskip("bpy")
-    from tearcloth.bench_blender import format_race, race_blender_cloth
+    from tearcloth.bench.race import format_race, race_blender_cloth
 
     r = race_blender_cloth(frames=2, substeps=3, target_triangles=600)
     assert r["ours_error"] is None and r["frames_raced"] == 2

@@ -10,7 +10,7 @@ modal's TIMER branch calls) through ``haptic_session.run_for``, the operator's `
 (``duration=...``, the same loop), and the operator's ``modal`` method itself, fed hand-made events
 on a stand-in for the operator instance (TIMER, arrows, Ctrl + mouse, blocked undo and Tab, Esc).
 
-The sheet: the paper's square cloth (``scenes.square_cloth``, ~300 triangles, hanging in the XZ
+The sheet: the paper's square cloth (``examples.square_cloth``, ~300 triangles, hanging in the XZ
 plane) with a quarter of cotton's tear stress; the emulated hands hold 0.05 s, then pull the grips
 1.5 cm apart over 0.5 s of SIMULATED time (the same pull on a fast or a loaded machine). It tears
 after about 0.3 s of simulated time.
@@ -18,6 +18,7 @@ after about 0.3 s of simulated time.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -28,9 +29,12 @@ pytest.importorskip("bpy")  # only checks that it is installed; Blender runs in 
 pytest.importorskip("pxr")
 from test_blender_bake import run_blender  # noqa: E402  (tests/ is on sys.path, see conftest.py)
 
+# The children import the tests' own modules (fakes.py) from this folder.
+TESTS_DIR_LINE = f"TESTS_DIR = {os.path.dirname(os.path.abspath(__file__))!r}\n"
 SCENE = '''
 import logging, threading
-from tearcloth import scenes
+sys.path.insert(0, TESTS_DIR)  # the tests' own modules (fakes.py) for the child
+from tearcloth import examples
 from tearcloth.blender import haptic_session as hs
 
 logged = []
@@ -47,7 +51,7 @@ def haptic_scene(folder, record=False, save=True):
     tearcloth.register()
     scene = bpy.context.scene
     scene.render.fps = 24
-    m = scenes.square_cloth(target_triangles=300)
+    m = examples.square_cloth(target_triangles=300)
     mesh = bpy.data.meshes.new("Sheet")
     mesh.from_pydata(m.vertices.tolist(), [], m.triangles.tolist())
     corner = np.empty(len(mesh.loops), np.int32)
@@ -144,7 +148,7 @@ def draw_haptics(obj):
 
 def child(body: str) -> str:
     """A Blender child's script: the shared helpers, then the test's own (indented) body."""
-    return SCENE + LAYOUT + textwrap.dedent(body)
+    return TESTS_DIR_LINE + SCENE + LAYOUT + textwrap.dedent(body)
 
 
 def test_register_discover_and_panel(tmp_path):
@@ -458,7 +462,8 @@ def test_unplug_stop_button_firmware_homing_errors_keyboard_and_modal_events(tmp
 
         # a SpaceMouse (a fake HID device) mapped by scale and offset: deflected right, it drags the
         # handle right; input only, so no force is sent to it
-        from tearcloth.haptics.spacemouse import FakeHid, translation_report
+        from fakes import FakeHid  # tests/fakes.py: TESTS_DIR is on the child's sys.path
+        from tearcloth.haptics.spacemouse import translation_report
         puck = FakeHid()
         hs.find_spacemice = lambda: [dict(path=b"/dev/hidraw-fake", vid=0x256F, pid=0xC635, model="SpaceMouse Compact",
                                           layout="split", serial="")]
@@ -635,7 +640,7 @@ def test_quitting_blender_zeroes_the_force(tmp_path):
     from test_blender_bake import PRELUDE
 
     script = tmp_path / "quit.py"
-    script.write_text(PRELUDE + textwrap.dedent(SCENE) + textwrap.dedent('''
+    script.write_text(PRELUDE + TESTS_DIR_LINE + textwrap.dedent(SCENE) + textwrap.dedent('''
         import atexit
         obj = haptic_scene(sys.argv[1], save=False)
         run = hs.HapticRun(bpy.context, obj)

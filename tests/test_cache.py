@@ -617,7 +617,9 @@ def test_imports_without_usd_core():
 
 
 def test_bench_reports_time_and_size(tmp_path):
-    result = cache.bench(tmp_path, frames=3, triangles=200)
+    from tearcloth.bench.cache import cache_bench
+
+    result = cache_bench(tmp_path, frames=3, triangles=200)
     assert result["frames"] == 3 and result["triangles"] >= 200
     assert result["ms_per_frame"] > 0 and result["bytes_per_frame"] > 1000
     assert os.listdir(tmp_path) == []  # the benchmark cleans up after itself

@@ -6,8 +6,9 @@ import pytest
 import trimesh
 from hypothesis import given, settings, strategies as st
 
+import collision_reference as reference  # tests/ is on sys.path (conftest.py)
 from tearcloth import _collide
-from tearcloth.collision import kernels, reference
+from tearcloth.collision import kernels
 from tearcloth.collision.clusters import Clustering
 from tearcloth.collision.incremental import triangle_adjacency, walk as walk_reference
 from tearcloth.collision.measure import RelativeMeasure, box_pairs, cluster_boxes, cluster_motion

@@ -135,10 +135,10 @@ def test_body_that_starts_inside_the_cloth_is_resolved_without_explosion():
 def test_shirt_on_a_walking_character_that_raises_its_arms_stays_outside():
     """The T-shirt worn by the mannequin while it walks and then raises its arms (the animation
     played 4x faster so 1000 steps of 1 ms cover both): no shirt vertex inside the body."""
-    from tearcloth import scenes
+    from tearcloth import examples
 
-    body = scenes.mannequin()
-    shirt = scenes.tshirt(body)
+    body = examples.mannequin()
+    shirt = examples.tshirt(body)
     c = Cloth(shirt.vertices, shirt.triangles, material("cotton"), uv=shirt.loop_uv(), groups=shirt.groups)
     s = Session(c, CollisionSettings(thickness=TH, self_collision=False))
     s.add_body("body", body.vertices, body.triangles)
@@ -146,10 +146,10 @@ def test_shirt_on_a_walking_character_that_raises_its_arms_stays_outside():
     worst = np.inf
     for i in range(1000):
         t = (i + 1) * DT
-        s.set_body_keyframe("body", scenes.body_pose(body, speedup * t), t)
+        s.set_body_keyframe("body", examples.body_pose(body, speedup * t), t)
         s.step(DT)
         if i % 50 == 0 or i == 999:
-            _, sd, _ = scenes.closest_points(scenes.body_pose(body, speedup * t), body.triangles, c.positions)
+            _, sd, _ = examples.closest_points(examples.body_pose(body, speedup * t), body.triangles, c.positions)
             worst = min(worst, sd.min())
     print(f"walking body: closest shirt vertex {worst * 1e3:.2f} mm from the skin (negative = inside)")
     assert np.isfinite(c.positions).all()
@@ -159,9 +159,9 @@ def test_shirt_on_a_walking_character_that_raises_its_arms_stays_outside():
 def test_tearing_with_self_collision_stays_calm():
     """Regression: the two rims of a fresh cut lie on top of each other; counted as strangers they
     were deep self contacts and the sheet blew up (hundreds of m/s). Twins share the two-ring."""
-    from tearcloth import scenes
+    from tearcloth import examples
 
-    m = scenes.square_cloth()
+    m = examples.square_cloth()
     c = Cloth(m.vertices, m.triangles, material("cotton", tear_stress=2e6), uv=m.loop_uv(), groups=m.groups)
     s = Session(c, CollisionSettings(thickness=0.003, self_collision=True))
     hl, hr = c.add_handle("handle_left"), c.add_handle("handle_right")

@@ -26,7 +26,7 @@ import pytest
 
 pytest.importorskip("bpy")  # Blender runs in the children only
 pytest.importorskip("pxr")
-from tearcloth import cache, scenes  # noqa: E402
+from tearcloth import cache, examples  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "example_blends"
@@ -89,7 +89,7 @@ def check_cache_torn(path: Path, first: int, last: int) -> None:
     v0, _, _ = cache.read_frame(path, first)
     v1, t1, uv1 = cache.read_frame(path, last)
     assert len(v1) > len(v0), "no vertex was added: nothing tore"
-    info = scenes.validate_mesh(v1, t1)
+    info = examples.validate_mesh(v1, t1)
     assert info["is_edge_manifold"] and info["is_consistently_wound"] and info["n_degenerate"] == 0, info
     assert uv1 is not None and uv1.shape == (len(t1), 3, 2)  # the grid stays on the torn pieces
 
@@ -118,7 +118,7 @@ def test_banknote_bakes_and_the_render_shows_the_tear(tmp_path):
     root = tmp_path / "tearcloth_cache" / "Banknote.usda"
     check_cache_torn(root, 1, 20)
     v, t, _ = cache.read_frame(root, 20)
-    assert scenes.validate_mesh(v, t)["n_components"] >= 2, "the note is not torn in two by frame 20"
+    assert examples.validate_mesh(v, t)["n_components"] >= 2, "the note is not torn in two by frame 20"
     check_tear_in_renders(tmp_path / "frame_01.png", tmp_path / "frame_20.png")
 
 
@@ -197,15 +197,15 @@ def test_tshirt_bakes_and_stays_outside_the_walking_body(tmp_path):
 
     data = np.load(dump)
     triangles = data["triangles"]
-    body = scenes.mannequin()
+    body = examples.mannequin()
     worst = {}
     for f in range(1, frames + 1):
         posed = data[f"v{f}"]
-        # the rig in the file is the body of scenes.body_pose (float32 round-off apart)
-        assert np.abs(posed - scenes.body_pose(body, (f - 1) / 24.0)).max() < 1e-4
+        # the rig in the file is the body of examples.body_pose (float32 round-off apart)
+        assert np.abs(posed - examples.body_pose(body, (f - 1) / 24.0)).max() < 1e-4
         cloth, _, _ = cache.read_frame(root, f)
         inside = trimesh.Trimesh(posed, triangles, process=False).contains(cloth)
-        _, distance, _ = scenes.closest_points(posed, triangles, cloth)  # > 0 outside
+        _, distance, _ = examples.closest_points(posed, triangles, cloth)  # > 0 outside
         worst[f] = float(distance.min())
         assert not inside.any() and distance.min() > 0.0, (
             f"frame {f}: {int(inside.sum())} shirt vertices inside the body, deepest {-distance.min() * 1e3:.1f} mm")
@@ -219,7 +219,7 @@ def test_tshirt_bakes_and_stays_outside_the_walking_body(tmp_path):
 def test_the_committed_examples_are_what_the_generator_makes(tmp_path):
     """Regenerate all three files and compare every object, mesh (at rest and as posed by the rig),
     Tear Cloth setting and animated position with the committed ones: a change to the generator or
-    to ``tearcloth.scenes`` fails here until the examples are generated again. (The bytes of two
+    to ``tearcloth.examples`` fails here until the examples are generated again. (The bytes of two
     saves differ anyway: Blender writes memory addresses.)"""
     dump = textwrap.dedent('''
         import json, sys, numpy as np, bpy

@@ -13,7 +13,7 @@ import time
 import numpy as np
 import pytest
 
-from tearcloth import scenes
+from tearcloth import examples
 from tearcloth.cloth import Cloth
 from tearcloth.haptics import (
     ConfigError,
@@ -31,11 +31,10 @@ from tearcloth.haptics.live import (
     FALCON_CENTRE_BUTTON,
     LiveSession,
     emulated_falcon,
-    emulated_session,
     falcon_coupling,
-    measure_live_servo,
     stall_timeout_rule,
 )
+from tearcloth.bench.servo import emulated_session, measure_live_servo
 from tearcloth.materials import material
 
 TEAR_STRESS = 2.0e6  # Pa: a quarter of cotton's, so the square tears within ~0.3 s of simulated time
@@ -245,7 +244,7 @@ def test_stop_button_ends_a_threaded_session():
 # Recorder hook
 # ---------------------------------------------------------------------------------------------
 def test_recorder_sees_the_vertex_count_grow_after_the_tear():
-    mesh = scenes.square_cloth()
+    mesh = examples.square_cloth()
     cloth = Cloth(mesh.vertices, mesh.triangles, material("cotton", tear_stress=TEAR_STRESS), uv=mesh.loop_uv(), groups=mesh.groups)
     cloth.set_tearing(True)
     n0 = cloth.num_vertices
@@ -292,7 +291,7 @@ def test_recorder_sees_the_vertex_count_grow_after_the_tear():
 # Clear errors
 # ---------------------------------------------------------------------------------------------
 def small_cloth():
-    mesh = scenes.square_cloth(target_triangles=200)
+    mesh = examples.square_cloth(target_triangles=200)
     return Cloth(mesh.vertices, mesh.triangles, material("cotton"), groups=mesh.groups)
 
 

@@ -21,8 +21,8 @@ from tearcloth.haptics import (
     ServoLoop,
     VirtualDevice,
     Workspace,
-    measure_servo,
 )
+from tearcloth.bench.servo import measure_servo
 from tearcloth.haptics.falcon_emulator import spring_hand
 
 

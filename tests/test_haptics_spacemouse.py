@@ -6,7 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from tearcloth.haptics import DeviceState, FakeHid, ServoLoop, SpaceMouseDevice, Workspace, list_spacemice
+from fakes import FakeHid  # tests/ is on sys.path (conftest.py)
+from tearcloth.haptics import DeviceState, ServoLoop, SpaceMouseDevice, Workspace, list_spacemice
 from tearcloth.haptics.device import ConfigError, ProtocolError
 from tearcloth.haptics.spacemouse import (
     COMBINED,

@@ -1,9 +1,9 @@
-"""Procedural example geometry (tearcloth.scenes): validity of every generated mesh, the fit of the
+"""Procedural example geometry (tearcloth.examples): validity of every generated mesh, the fit of the
 shirt on the mannequin, the skinning animation, refinement and the mesh-fact helper.
 
 Independent checks come from trimesh (watertightness, winding, volume, inside tests, exact
-point-triangle distances) and scipy (reference Delaunay, k-d tree); scenes.py itself uses
-neither. Timing is the bench's business, not the tests'.
+point-triangle distances) and scipy.spatial (reference Delaunay, k-d tree); the generators use
+neither (scipy only for connected components). Timing is the bench's business, not the tests'.
 """
 import math
 
@@ -14,7 +14,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay, cKDTree
 
-from tearcloth import scenes
+from tearcloth import examples
+
+
+def cross2(u, v):
+    """z of the cross product of 2-D vectors (..., 2): numpy 2 no longer takes 2-D np.cross."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -58,7 +63,7 @@ def distances_to(mesh_v, mesh_t, points, reach):
 
 
 def assert_sheet(mesh, loops):
-    facts = scenes.validate_mesh(mesh.vertices, mesh.triangles)
+    facts = examples.validate_mesh(mesh.vertices, mesh.triangles)
     assert facts["is_edge_manifold"], facts
     assert facts["is_consistently_wound"], facts
     assert facts["n_components"] == 1, facts
@@ -71,12 +76,12 @@ def assert_sheet(mesh, loops):
 
 @pytest.fixture(scope="module")
 def body():
-    return scenes.mannequin()
+    return examples.mannequin()
 
 
 @pytest.fixture(scope="module")
 def shirt(body):
-    return scenes.tshirt(body)
+    return examples.tshirt(body)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -88,7 +93,7 @@ def shirt(body):
 @given(st.integers(0, 2**31 - 1), st.integers(3, 400))
 def test_delaunay_matches_scipy(seed, n):
     pts = np.random.default_rng(seed).random((n, 2)) * [3.0, 0.5]
-    ours = {tuple(sorted(t)) for t in scenes.delaunay_2d(pts).tolist()}
+    ours = {tuple(sorted(t)) for t in examples.delaunay_2d(pts).tolist()}
     ref = {tuple(sorted(t)) for t in Delaunay(pts).simplices.tolist()}
     assert ours == ref
 
@@ -96,9 +101,9 @@ def test_delaunay_matches_scipy(seed, n):
 def test_delaunay_is_counter_clockwise_on_a_grid():
     # collinear and cocircular points everywhere: any valid triangulation, none degenerate
     g = np.stack(np.meshgrid(np.linspace(0, 1, 30), np.linspace(0, 1, 30)), -1).reshape(-1, 2)
-    t = scenes.delaunay_2d(g)
+    t = examples.delaunay_2d(g)
     p = g[t]
-    area = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    area = cross2(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
     assert area.min() > 0
     assert np.isclose(area.sum() / 2.0, 1.0)
     assert len(t) == 2 * 29 * 29
@@ -111,22 +116,22 @@ L_SHAPE = np.array([[0, 0], [0.4, 0], [0.4, 0.15], [0.15, 0.15], [0.15, 0.4], [0
 @given(st.integers(0, 10_000), st.integers(150, 800), st.sampled_from(["square", "L"]))
 def test_triangulate_polygon_keeps_outline_and_quality(seed, target, shape):
     poly = L_SHAPE if shape == "L" else np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
-    pts, tris, boundary = scenes.triangulate_polygon(poly, target_triangles=target, seed=seed)
+    pts, tris, boundary = examples.triangulate_polygon(poly, target_triangles=target, seed=seed)
     assert abs(len(tris) - target) <= max(3, 0.03 * target)
-    facts = scenes.validate_mesh(np.c_[pts, np.zeros(len(pts))], tris)
+    facts = examples.validate_mesh(np.c_[pts, np.zeros(len(pts))], tris)
     assert facts["is_edge_manifold"] and facts["is_consistently_wound"]
     assert facts["boundary_loops"] == 1 and facts["n_components"] == 1
     assert facts["min_angle_deg"] >= 18.0  # typically 25 deg; slivers would be a few degrees
     # the outline samples are the mesh border, in order, and every polygon corner is one of them
     n = len(pts)
-    keys = set(scenes._edge_keys(tris.astype(np.int64), n).ravel().tolist())
+    keys = set(examples.mesh.edge_keys(tris.astype(np.int64), n).ravel().tolist())
     for i, j in zip(boundary, np.roll(boundary, -1)):
         assert min(i, j) * n + max(i, j) in keys
     for corner in poly:
         assert np.min(np.linalg.norm(pts[boundary] - corner, axis=1)) < 1e-12
     # area is the polygon's
     p = pts[tris]
-    area = 0.5 * np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]).sum()
+    area = 0.5 * cross2(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]).sum()
     ref = 0.5 * abs(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1) * poly[:, 1]))
     assert area == pytest.approx(ref, rel=1e-9)
 
@@ -134,15 +139,15 @@ def test_triangulate_polygon_keeps_outline_and_quality(seed, target, shape):
 def test_triangulate_polygon_rejects_bad_arguments():
     sq = np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float)
     with pytest.raises(ValueError, match="at least 50"):
-        scenes.triangulate_polygon(sq, target_triangles=10)
+        examples.triangulate_polygon(sq, target_triangles=10)
     with pytest.raises(ValueError, match="exactly one"):
-        scenes.triangulate_polygon(sq)
+        examples.triangulate_polygon(sq)
     with pytest.raises(ValueError, match="exactly one"):
-        scenes.triangulate_polygon(sq, target_triangles=100, spacing=0.1)
+        examples.triangulate_polygon(sq, target_triangles=100, spacing=0.1)
     with pytest.raises(ValueError, match="no area"):
-        scenes.triangulate_polygon(np.array([[0, 0], [1, 0], [2, 0]], float), spacing=0.1)
+        examples.triangulate_polygon(np.array([[0, 0], [1, 0], [2, 0]], float), spacing=0.1)
     with pytest.raises(ValueError, match="at least 3 points"):
-        scenes.delaunay_2d(np.zeros((2, 2)))
+        examples.delaunay_2d(np.zeros((2, 2)))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -151,7 +156,7 @@ def test_triangulate_polygon_rejects_bad_arguments():
 
 
 def test_square_cloth_is_the_papers_square():
-    m = scenes.square_cloth()
+    m = examples.square_cloth()
     assert 1330 <= m.n_triangles <= 1470  # ~1.4K
     facts = assert_sheet(m, loops=1)
     assert facts["min_angle_deg"] >= 20.0
@@ -175,7 +180,7 @@ def test_square_cloth_is_the_papers_square():
 
 
 def test_banknote_is_the_papers_banknote():
-    m = scenes.banknote()
+    m = examples.banknote()
     assert 1800 <= m.n_triangles <= 2000  # ~1.9K
     facts = assert_sheet(m, loops=1)
     assert facts["min_angle_deg"] >= 20.0
@@ -188,8 +193,8 @@ def test_banknote_is_the_papers_banknote():
 
 
 def test_banknote_notch_cuts_a_v_into_the_top_edge():
-    plain = scenes.banknote(target_triangles=600)
-    notched = scenes.banknote(target_triangles=600, notch=0.01)
+    plain = examples.banknote(target_triangles=600)
+    notched = examples.banknote(target_triangles=600, notch=0.01)
     assert_sheet(notched, loops=1)
     depth = 0.01
     half = depth * math.tan(math.radians(30.0))
@@ -204,7 +209,7 @@ def test_banknote_notch_cuts_a_v_into_the_top_edge():
 @settings(max_examples=4)
 @given(st.integers(0, 2**31 - 1), st.integers(200, 800), st.sampled_from(["square", "banknote"]))
 def test_flat_scenes_keep_their_invariants_for_any_seed(seed, target, which):
-    make = scenes.square_cloth if which == "square" else scenes.banknote
+    make = examples.square_cloth if which == "square" else examples.banknote
     m = make(target_triangles=target, seed=seed)
     facts = assert_sheet(m, loops=1)
     assert facts["min_angle_deg"] >= 18.0
@@ -214,7 +219,7 @@ def test_flat_scenes_keep_their_invariants_for_any_seed(seed, target, which):
 
 
 def test_flat_scenes_are_deterministic_per_seed():
-    a, b, c = (scenes.square_cloth(target_triangles=400, seed=s) for s in (7, 7, 8))
+    a, b, c = (examples.square_cloth(target_triangles=400, seed=s) for s in (7, 7, 8))
     assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.triangles, b.triangles)
     assert a.vertices.shape != c.vertices.shape or not np.array_equal(a.vertices, c.vertices)
 
@@ -222,15 +227,15 @@ def test_flat_scenes_are_deterministic_per_seed():
 @pytest.mark.parametrize(
     "call, message",
     [
-        (lambda: scenes.square_cloth(target_triangles=49), "at least 50"),
-        (lambda: scenes.square_cloth(target_triangles=1400.5), "integer"),
-        (lambda: scenes.square_cloth(size=-1.0), "positive length"),
-        (lambda: scenes.banknote(grip=0.08), "nothing between the hands"),
-        (lambda: scenes.banknote(notch=0.06), "notch"),
-        (lambda: scenes.mannequin(height=3.0), "height"),
-        (lambda: scenes.mannequin(edge_length=0.2), "edge_length"),
-        (lambda: scenes.tshirt(target_triangles=20), "at least 50"),
-        (lambda: scenes.tshirt(clearance=0.001), "clearance"),
+        (lambda: examples.square_cloth(target_triangles=49), "at least 50"),
+        (lambda: examples.square_cloth(target_triangles=1400.5), "integer"),
+        (lambda: examples.square_cloth(size=-1.0), "positive length"),
+        (lambda: examples.banknote(grip=0.08), "nothing between the hands"),
+        (lambda: examples.banknote(notch=0.06), "notch"),
+        (lambda: examples.mannequin(height=3.0), "height"),
+        (lambda: examples.mannequin(edge_length=0.2), "edge_length"),
+        (lambda: examples.tshirt(target_triangles=20), "at least 50"),
+        (lambda: examples.tshirt(clearance=0.001), "clearance"),
     ],
 )
 def test_bad_arguments_are_refused_with_a_clear_message(call, message):
@@ -249,7 +254,7 @@ def test_mannequin_is_one_closed_outward_body(body):
     m = trimesh.Trimesh(v, t, process=False)
     assert m.is_watertight and m.is_winding_consistent
     assert 0.05 < m.volume < 0.09  # m^3: an adult is ~70 litres; > 0 means outward normals
-    facts = scenes.validate_mesh(v, t)
+    facts = examples.validate_mesh(v, t)
     assert facts["is_closed"] and facts["n_components"] == 1 and facts["n_degenerate"] == 0
     assert facts["euler_characteristic"] == 2  # genus 0: one welded surface, no handles
     assert facts["min_angle_deg"] > 5.0
@@ -261,7 +266,7 @@ def test_mannequin_is_one_closed_outward_body(body):
 
 
 def test_mannequin_scales_with_height():
-    tall = scenes.mannequin(height=1.9)
+    tall = examples.mannequin(height=1.9)
     assert tall.vertices[:, 2].max() == pytest.approx(1.9)
     assert trimesh.Trimesh(tall.vertices, tall.triangles, process=False).is_watertight
 
@@ -285,11 +290,11 @@ def test_skinning_data_is_consistent(body):
 
 def test_body_pose_walks_then_reaches(body):
     bind = body.vertices
-    assert np.allclose(scenes.body_pose(body, 0.0), bind, atol=1e-12)
-    assert np.allclose(scenes.body_pose(body, scenes.WALK_END), bind, atol=1e-12)
-    walk = scenes.body_pose(body, 1.0 / 4)  # a quarter stride: legs apart
+    assert np.allclose(examples.body_pose(body, 0.0), bind, atol=1e-12)
+    assert np.allclose(examples.body_pose(body, examples.WALK_END), bind, atol=1e-12)
+    walk = examples.body_pose(body, 1.0 / 4)  # a quarter stride: legs apart
     assert np.abs(walk - bind).max() > 0.1
-    assert np.abs(scenes.body_pose(body, 1.0) - bind).max() > 0.01
+    assert np.abs(examples.body_pose(body, 1.0) - bind).max() > 0.01
     # the legs swing in opposition: left foot forward while the right one is back
     foot_l = body.weights[:, body.bone_index("shin.L")] > 0.9
     foot_r = body.weights[:, body.bone_index("shin.R")] > 0.9
@@ -302,18 +307,18 @@ def test_body_pose_walks_then_reaches(body):
     hand_l = body.weights[:, body.bone_index("forearm.L")] > 0.99
     tip = bind[hand_l][np.argmax(bind[hand_l] @ [1.0, 0.0, -1.0])]
     i = np.flatnonzero((bind == tip).all(axis=1))[0]
-    at3 = scenes.body_pose(body, 3.0)[i]
+    at3 = examples.body_pose(body, 3.0)[i]
     assert at3[1] < -0.15 and 0.8 < at3[2] < 1.1 and abs(at3[0]) < 0.35
     # and then move apart
-    at4 = scenes.body_pose(body, 4.0)[i]
+    at4 = examples.body_pose(body, 4.0)[i]
     assert at4[0] > at3[0] + 0.05
     with pytest.raises(ValueError, match="t must be"):
-        scenes.body_pose(body, -1.0)
+        examples.body_pose(body, -1.0)
 
 
 @pytest.mark.parametrize("t", [0.25, 0.75, 1.3, 2.5, 3.0, 3.6, 5.0])
 def test_posed_body_stays_a_clean_surface(body, t):
-    v = scenes.body_pose(body, t)
+    v = examples.body_pose(body, t)
     assert self_intersections(v, body.triangles) == 0
     assert trimesh.Trimesh(v, body.triangles, process=False).volume > 0.05
 
@@ -323,10 +328,10 @@ def test_body_motion_is_smooth_and_moderate(body):
     # the part the shirt covers (torso and shoulders) moves slowly enough for cloth to follow.
     v0 = body.vertices
     covered = (v0[:, 2] > 0.9) & (v0[:, 2] < 1.5) & (np.abs(v0[:, 0]) < 0.25)
-    prev = scenes.body_pose(body, 0.0)
+    prev = examples.body_pose(body, 0.0)
     dt = 0.02
     for t in np.arange(dt, 4.3, dt):
-        cur = scenes.body_pose(body, t)
+        cur = examples.body_pose(body, t)
         step = np.linalg.norm(cur - prev, axis=1)
         assert step.max() < 5.0 * dt, t  # m/s
         assert step[covered].max() < 1.0 * dt, t
@@ -355,7 +360,7 @@ def test_tshirt_sits_outside_the_body_and_fits(body, shirt):
     torso = (np.abs(v[:, 0]) < 0.15) & (v[:, 2] > 0.9) & (v[:, 2] < 1.4)
     assert torso.sum() > 300 and d[torso].max() <= 0.03
     # and our own exact distance query agrees with trimesh
-    _, ours, _ = scenes.closest_points(body.vertices, body.triangles, v)
+    _, ours, _ = examples.closest_points(body.vertices, body.triangles, v)
     near = np.isfinite(d)
     assert np.allclose(ours[near], d[near], atol=1e-9)
 
@@ -364,7 +369,7 @@ def test_tshirt_faces_outward(body, shirt):
     v, t = shirt.vertices, shirt.triangles
     n = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
     c = v[t].mean(axis=1)
-    q, _, _ = scenes.closest_points(body.vertices, body.triangles, c)
+    q, _, _ = examples.closest_points(body.vertices, body.triangles, c)
     assert np.mean(np.einsum("ij,ij->i", n, c - q) > 0) > 0.99
 
 
@@ -396,13 +401,13 @@ def test_tshirt_groups_and_uv(shirt):
 def test_tshirt_is_deterministic_and_seed_independent(body):
     # a small shirt keeps this quick; the same seed gives the same shirt, another seed (the
     # fixture's is 0) another irregular mesh with the same guarantees
-    a = scenes.tshirt(body, target_triangles=700, seed=3)
-    b = scenes.tshirt(body, target_triangles=700, seed=3)
+    a = examples.tshirt(body, target_triangles=700, seed=3)
+    b = examples.tshirt(body, target_triangles=700, seed=3)
     assert np.array_equal(a.triangles, b.triangles) and np.array_equal(a.vertices, b.vertices)
     facts = assert_sheet(a, loops=4)
     assert facts["min_angle_deg"] >= 15.0
     assert abs(a.n_triangles - 700) <= 0.05 * 700
-    _, d, _ = scenes.closest_points(body.vertices, body.triangles, a.vertices)
+    _, d, _ = examples.closest_points(body.vertices, body.triangles, a.vertices)
     assert d.min() >= 0.005
 
 
@@ -412,11 +417,11 @@ def test_tshirt_is_deterministic_and_seed_independent(body):
 
 
 def test_refine_quadruples_and_keeps_shape(shirt):
-    for mesh, loops in ((scenes.banknote(target_triangles=400), 1), (shirt, 4)):
-        r = scenes.refine(mesh, 2)
+    for mesh, loops in ((examples.banknote(target_triangles=400), 1), (shirt, 4)):
+        r = examples.refine(mesh, 2)
         assert r.n_triangles == 16 * mesh.n_triangles
         assert r.area() == pytest.approx(mesh.area(), rel=1e-12)
-        before = scenes.validate_mesh(mesh.vertices, mesh.triangles)
+        before = examples.validate_mesh(mesh.vertices, mesh.triangles)
         after = assert_sheet(r, loops=loops)
         # midpoint subdivision copies each triangle's shape into its four children
         assert after["min_angle_deg"] == pytest.approx(before["min_angle_deg"], abs=1e-9)
@@ -428,12 +433,12 @@ def test_refine_quadruples_and_keeps_shape(shirt):
             assert np.array_equal(r.groups[k][:n], w)
             assert r.groups[k].min() >= 0.0 and r.groups[k].max() <= 1.0
         assert r.loop_uv().shape == (r.n_triangles, 3, 2)
-    assert scenes.refine(shirt, 0).n_triangles == shirt.n_triangles
+    assert examples.refine(shirt, 0).n_triangles == shirt.n_triangles
 
 
 def test_refine_interpolates_midpoints():
-    m = scenes.square_cloth(target_triangles=100)
-    r = scenes.refine(m, 1)
+    m = examples.square_cloth(target_triangles=100)
+    r = examples.refine(m, 1)
     n = m.n_vertices
     # every new vertex is the midpoint of an original edge, in position, UV and weights
     e = np.unique(np.sort(np.concatenate([m.triangles[:, [0, 1]], m.triangles[:, [1, 2]], m.triangles[:, [2, 0]]]), axis=1), axis=0)
@@ -448,12 +453,12 @@ def test_refine_interpolates_midpoints():
 
 
 def test_refine_reaches_benchmark_sizes():
-    big = scenes.refine(scenes.square_cloth(target_triangles=1560), 3)
+    big = examples.refine(examples.square_cloth(target_triangles=1560), 3)
     assert 95_000 <= big.n_triangles <= 105_000
-    facts = scenes.validate_mesh(big.vertices, big.triangles)
+    facts = examples.validate_mesh(big.vertices, big.triangles)
     assert facts["is_edge_manifold"] and facts["is_consistently_wound"] and facts["boundary_loops"] == 1
     with pytest.raises(ValueError, match="levels"):
-        scenes.refine(big, -1)
+        examples.refine(big, -1)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -465,25 +470,25 @@ TETRA_T = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
 
 
 def test_validate_mesh_reports_each_defect():
-    good = scenes.validate_mesh(TETRA_V, TETRA_T)
+    good = examples.validate_mesh(TETRA_V, TETRA_T)
     assert good["is_closed"] and good["is_edge_manifold"] and good["is_consistently_wound"]
     assert good["euler_characteristic"] == 2 and good["boundary_loops"] == 0
     assert good["min_angle_deg"] == pytest.approx(45.0)
     flipped = TETRA_T.copy()
     flipped[0] = flipped[0, ::-1]
-    assert not scenes.validate_mesh(TETRA_V, flipped)["is_consistently_wound"]
-    open_ = scenes.validate_mesh(TETRA_V, TETRA_T[:3])
+    assert not examples.validate_mesh(TETRA_V, flipped)["is_consistently_wound"]
+    open_ = examples.validate_mesh(TETRA_V, TETRA_T[:3])
     assert not open_["is_closed"] and open_["boundary_loops"] == 1
     fin = np.vstack([TETRA_V, [[1, 1, 1]]])
     fan = np.vstack([TETRA_T, [[0, 1, 4]]])  # a third triangle on edge 0-1
-    assert not scenes.validate_mesh(fin, fan)["is_edge_manifold"]
-    two = scenes.validate_mesh(np.vstack([TETRA_V, TETRA_V + 5]), np.vstack([TETRA_T, TETRA_T + 4]))
+    assert not examples.validate_mesh(fin, fan)["is_edge_manifold"]
+    two = examples.validate_mesh(np.vstack([TETRA_V, TETRA_V + 5]), np.vstack([TETRA_T, TETRA_T + 4]))
     assert two["n_components"] == 2
-    degenerate = scenes.validate_mesh(np.vstack([TETRA_V, [[2, 0, 0]]]), np.array([[0, 1, 4]]))
+    degenerate = examples.validate_mesh(np.vstack([TETRA_V, [[2, 0, 0]]]), np.array([[0, 1, 4]]))
     assert degenerate["n_degenerate"] == 1
-    holes = scenes.validate_mesh(np.vstack([TETRA_V, TETRA_V + 5]), np.vstack([TETRA_T[:3], TETRA_T[1:] + 4]))
+    holes = examples.validate_mesh(np.vstack([TETRA_V, TETRA_V + 5]), np.vstack([TETRA_T[:3], TETRA_T[1:] + 4]))
     assert holes["boundary_loops"] == 2
-    assert scenes.validate_mesh(np.vstack([TETRA_V, [[9, 9, 9]]]), TETRA_T)["unreferenced_vertices"] == 1
+    assert examples.validate_mesh(np.vstack([TETRA_V, [[9, 9, 9]]]), TETRA_T)["unreferenced_vertices"] == 1
 
 
 @settings(max_examples=3)
@@ -493,7 +498,7 @@ def test_closest_points_match_trimesh(seed):
     sphere = trimesh.creation.icosphere(2, radius=0.3)
     blob = trimesh.Trimesh(sphere.vertices * [1.0, 0.6, 1.4], sphere.faces)
     p = rng.normal(0.0, 0.3, (200, 3))
-    q, d, tri = scenes.closest_points(blob.vertices, blob.faces, p)
+    q, d, tri = examples.closest_points(blob.vertices, blob.faces, p)
     ref = distances_to(blob.vertices, blob.faces, p, reach=np.linalg.norm(p, axis=1).max() + 0.5)
     assert np.allclose(np.abs(d), ref, atol=1e-12)
     assert np.allclose(np.linalg.norm(p - q, axis=1), np.abs(d))

@@ -21,7 +21,8 @@ is written into the source tree but the final zip):
    --python-version 3.11 --implementation cp --abi cp311 <name>==<version>``. ``--no-deps``
    because the manifest lists every wheel needed (numpy ships with Blender; pyftdi's pyserial is
    left out on purpose).
-3. The extension folder: a copy of ``addon/`` without ``__pycache__``, in-place native builds
+3. The extension folder: a copy of ``addon/`` without the dev-only ``bench/``, ``examples/`` and
+   ``blender/race.py`` (also left out of our wheel), ``__pycache__``, in-place native builds
    (``*.so``/``*.pyd``), ``data/`` (example .blend files), tests and caches; plus the wheels under
    ``wheels/`` and, for each compiled module the wheel carries (``_native``, ``_collide``), a
    two-line ``<module>.py`` that makes ``from . import _native`` (``cloth.py``) or

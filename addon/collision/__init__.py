@@ -8,11 +8,13 @@ detection. What each file owns:
 * ``measure``     per-cluster displacement, cluster AABBs, close pairs, relative / absolute measure
 * ``narrow``      Embree scenes per cluster (rigid-frame cache), contact classification, ``Contacts``
 * ``incremental`` exact line/triangle tests and the walk over triangle adjacency
-* ``detector``    ``CollisionDetector``: the per-step orchestration and the brute-force reference
+* ``detector``    ``CollisionDetector``: the per-step orchestration
 * ``kernels``     the calls into the C kernels (outputs, growing workspaces)
-* ``reference``   numpy specifications of the contact kernels (tests compare C against them)
-* ``bench``       ``collision_experiment``: full / absolute / relative timings of a scene
 * ``preview``     PNG of a cluster decomposition (matplotlib, Agg)
+
+Dev-only companions live elsewhere: the timing experiment in ``tearcloth.bench.collision``, the
+numpy specifications of the contact kernels and the brute-force detection in
+``tests/collision_reference.py``.
 
 The numpy functions of ``measure``, ``incremental`` and ``narrow`` are the specification of the
 kernel that does their job in the detector; they stay public and tested.

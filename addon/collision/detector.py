@@ -53,22 +53,13 @@ import numpy as np
 from .. import _collide
 from . import kernels
 from .clusters import Clustering
-from .incremental import barycentric, triangle_adjacency
+from .incremental import triangle_adjacency
 from .measure import (
     MEASURES,
     AbsoluteMeasure,
     RelativeMeasure,
 )
-from .narrow import (
-    RAY_BACKOFF,
-    ClusterScenes,
-    Contacts,
-    build_scene,
-    cast,
-    face_normals,
-    ring_table,
-    vertex_normals,
-)
+from .narrow import RAY_BACKOFF, ClusterScenes, Contacts, ring_table
 
 __all__ = ["CollisionDetector", "Contacts"]
 
@@ -767,60 +758,3 @@ class CollisionDetector:
                  np.empty(total))
         kd, ka = _collide.assemble(seg, v, depth, normal, velocity, friction, n, *deep, *every)
         return Contacts(*(a[:kd] for a in deep)), Contacts(*(a[:ka] for a in every))
-
-    # ------------------------------------------------------------------ reference
-    def brute_force_detect(self, positions, triangles, velocities=None):
-        """Reference: one Embree scene per collider built now, every vertex's two rays cast into
-        it, no clusters, no history. Thin-surface sides are the current ones (no inversion
-        memory), so compare it with ``detect`` on penetrations of closed bodies and proximity."""
-        pos = np.asarray(positions, np.float64)
-        tri = np.asarray(triangles, np.int64)
-        normals = vertex_normals(pos, tri)
-        has_normal = np.einsum("ij,ij->i", normals, normals) > 0.5
-        verts = np.flatnonzero(has_normal)
-        v2 = np.concatenate([verts, verts])
-        sl = np.repeat([0, 1], verts.size)
-        d = normals[v2] * _SLOT_SIGN[sl][:, None]
-        th = self.thickness
-        rows = []
-        targets = list(self.bodies.items())
-        if self.self_collision:
-            cloth_vel = np.zeros_like(pos) if velocities is None else np.asarray(velocities, np.float64)
-            targets = [("__self__", None)] + targets
-        for name, body in targets:
-            if name == "__self__":
-                tv, tt, kind, vel, fr = pos, tri, "surface", cloth_vel, self.friction
-            else:
-                tv, tt, kind, vel, fr = body.vertices, body.triangles, body.kind, body.velocities, body.friction
-            scene = build_scene(tv, tt)
-            reach = self.track_range if kind != "volume" else 1e30
-            gt, t = cast(scene, pos[v2], d, reach, np.arange(tt.shape[0]),
-                         v2 if name == "__self__" else None, tt)
-            hit = gt >= 0
-            hv, hs, htri, ht = v2[hit], sl[hit], gt[hit], t[hit]
-            nrm, _ = face_normals(tv, tt[htri])
-            sd = np.einsum("ij,ij->i", pos[hv] - tv[tt[htri, 0]], nrm)
-            if kind == "volume":
-                o2 = np.lexsort((ht, hv))
-                f2 = np.ones(o2.size, bool)
-                f2[1:] = hv[o2[1:]] != hv[o2[:-1]]
-                sel = o2[f2]
-                depth = th - sd[sel]
-                normal = nrm[sel]
-            else:
-                sel = np.arange(hv.size)
-                depth = th - np.abs(sd)
-                normal = nrm * np.where(sd >= 0, 1.0, -1.0)[:, None]
-            c = depth > 0
-            sel = sel[c]
-            ctri = tt[htri[sel]]
-            # Barycentrics for the surface velocity at the hit point.
-            hp = pos[hv[sel]] + ht[sel, None] * d[hit][sel]
-            w = barycentric(hp, tv[ctri[:, 0]], tv[ctri[:, 1]], tv[ctri[:, 2]])
-            velocity = np.einsum("ik,ikj->ij", w, vel[ctri])
-            rows.append((hv[sel], normal[c], depth[c], velocity, np.full(sel.size, fr)))
-        if not rows:
-            return Contacts()
-        return Contacts.deepest(*(np.concatenate([r[k] for r in rows]) for k in range(5)))
-
-

@@ -7,10 +7,10 @@ in each kernel's docstring), so a call cannot shift an array into the wrong slot
 argument (dtype, shape, contiguity, overlap, every index it reads) and raises TypeError /
 ValueError / IndexError itself; what is here is bookkeeping, not validation.
 
-Each kernel has a numpy reference in this package that is its specification (the tests compare
+Each kernel has a numpy reference that is its specification (the tests compare
 them on random inputs): ``narrow.VertexNormals``, ``measure.cluster_motion``, ``cluster_boxes``,
 ``box_pairs``, ``RelativeMeasure.step_reference``, ``incremental.walk``, and
-``reference.merge_classify`` / ``reference.assemble``.
+``merge_classify`` / ``assemble`` of ``tests/collision_reference.py``.
 """
 from __future__ import annotations
 

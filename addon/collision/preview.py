@@ -56,7 +56,7 @@ def render_clusters(path, positions, triangles, labels, pairs=None, title=None, 
 
 def main(path="out/clusters.png"):
     """The stand-in tube cloth's clusters with its close self pairs."""
-    from .bench import standin_scene
+    from ..bench.collision import standin_scene  # dev-only: a docs picture, not run in Blender
     from .clusters import Clustering
     from .measure import box_pairs, cluster_boxes
 

@@ -6,7 +6,9 @@ simulation itself (the session wires ``ServoLoop.publish``/``ServoLoop.proxy`` t
 - ``device``: ``HapticDevice`` interface, ``DeviceState``, the ``HapticError`` family;
 - ``falcon*``: Novint Falcon (packets, kinematics, FTDI transports, driver, byte-level emulator);
 - ``spacemouse``: 3Dconnexion HID pucks (input only); ``virtual``: scripted/keyboard device;
-- ``servo``: coupling, mailboxes, servo threads, ``measure_servo``; ``forcelog``: CSV/PNG.
+- ``servo``: coupling, mailboxes, servo threads; ``forcelog``: CSV/PNG; ``live``: the bimanual
+  session over devices (servo timing for the bench is ``tearcloth.bench.servo``, the test fakes
+  are in the tests folder).
 
 Pure Python (numpy; pyftdi/hidapi/matplotlib imported only when used), SI units, no bpy.
 """
@@ -33,8 +35,8 @@ from .falcon import FalconDevice, assign_hands, open_falcons, read_firmware
 from .falcon_emulator import FalconEmulator
 from .falcon_transport import Transport, list_falcons, open_transport
 from .forcelog import ForceLog
-from .servo import HandCoupling, ProxySample, ServoLoop, SimulationMailbox, measure_servo
-from .spacemouse import FakeHid, SpaceMouseDevice, list_spacemice
+from .servo import HandCoupling, ProxySample, ServoLoop, SimulationMailbox
+from .spacemouse import SpaceMouseDevice, list_spacemice
 from .virtual import VirtualDevice
 
 __all__ = [
@@ -68,8 +70,6 @@ __all__ = [
     "ProxySample",
     "ServoLoop",
     "SimulationMailbox",
-    "measure_servo",
-    "FakeHid",
     "SpaceMouseDevice",
     "list_spacemice",
     "VirtualDevice",

@@ -11,13 +11,12 @@ This file owns:
   (zero force, threads joined, devices closed) on ``stop()``, on a stop button, on device loss or
   on a simulation error;
 - ``emulated_falcon`` / ``pulling_hand``: a Falcon emulator with a scripted hand that pulls its
-  grip along a direction (tests, demo, bench);
-- ``emulated_session``: the paper's scenes (square cloth, banknote, T-shirt) grasped by two
-  emulated Falcons that pull apart;
+  grip along a direction (tests, demo, bench; the paper's scenes grasped by two of them,
+  ``emulated_session``, live with the example geometry in ``tearcloth.bench.servo``);
 - ``LiveSession.tension`` / ``LiveSession.phases``: the force along the pull per step and the
   three phases of the paper's Fig. 6 (elastic rise, peak at the first tear, propagation);
-- ``stall_timeout_rule`` and ``measure_live_servo``: the watchdog rule below, and servo timing
-  while the simulation runs flat out (what ``tearcloth bench`` reports as ``servo.*``).
+- ``stall_timeout_rule``: the watchdog rule below (servo timing while the simulation runs flat
+  out, what ``tearcloth bench`` reports as ``servo.*``, is ``tearcloth.bench.servo``).
 
 One simulation step, as data flows (design.md): proxies (servo) -> handle targets -> session step
 (collision, FEM, tearing; the GIL is released in the native step so the servo threads keep their
@@ -76,7 +75,7 @@ at ~60 steps/s of 1 ms runs at 6 % of real time) and pulls faster, in simulated 
 the user does in the real world.
 
 This module sits at the top of ``haptics`` and drives the session layer; it imports
-``..session``/``..scenes``/``..cloth`` lazily inside the functions that need them, so importing
+``..session``/``..cloth`` lazily inside the functions that need them, so importing
 ``tearcloth.haptics`` still pulls in no simulation code. Pure Python, no bpy, SI units.
 """
 from __future__ import annotations
@@ -116,8 +115,6 @@ __all__ = [
     "falcon_coupling",
     "pulling_hand",
     "emulated_falcon",
-    "emulated_session",
-    "measure_live_servo",
 ]
 
 # Falcon frame (x right, y up, z toward the user) -> scene frame (Blender: z up, the front view
@@ -874,7 +871,7 @@ class LiveSession:
 
 
 # ---------------------------------------------------------------------------------------------
-# Devices and scenes for tests, the demo and the bench
+# Emulated devices for tests, the demo and the bench
 # ---------------------------------------------------------------------------------------------
 def falcon_coupling(scene_radius: float, *, rotation=FALCON_TO_SCENE, **kwargs) -> HandCoupling:
     """A Falcon coupling that maps its workspace ball (radius 4 cm) onto a scene ball of
@@ -952,105 +949,8 @@ def emulated_falcon(
     return FalconDevice(transport=emu, hand=hand, max_force=max_force), emu
 
 
-_SCENARIO_GROUPS = {
-    # hand -> vertex group. Hands are the user's, facing the cloth's front (-y): the left hand
-    # grasps the -x side. On the T-shirt that is the wearer's right hem.
-    "cloth": {"left": "handle_left", "right": "handle_right"},
-    "banknote": {"left": "handle_left", "right": "handle_right"},
-    "tshirt": {"left": "hem_right", "right": "hem_left"},
-}
-
-
-def emulated_session(
-    scenario: str = "cloth",
-    *,
-    material_name: Optional[str] = None,
-    tear_stress: Optional[float] = None,
-    material_changes: Optional[Mapping[str, float]] = None,
-    collision: bool = False,
-    pull_distance: float = 0.02,
-    hold_s: float = 0.3,
-    pull_s: float = 2.0,
-    pace: str = "wall",
-    hand_stiffness: float = 1500.0,
-    hand_damping: float = 15.0,
-    emulator_substeps: int = 1,
-    max_force: float = FALCON_MAX_FORCE,
-    scene_radius: float = 0.08,
-    force_scale: float = 0.1,
-    k_position: float = 2000.0,
-    k_velocity: float = 20.0,
-    max_force_rate: float = 1000.0,
-    **live_kwargs,
-) -> Tuple[LiveSession, Dict[str, FalconEmulator]]:
-    """One of the paper's scenes ("cloth" = the square, "banknote", "tshirt") grasped by two
-    emulated Falcons whose scripted hands pull the grips apart along the device x axis (scene x
-    through ``FALCON_TO_SCENE``), each toward its own side, by ``pull_distance`` (device m) over
-    ``pull_s`` after ``hold_s``. ``pace``: "wall" (the hands move in real time, like a user) or
-    "simulation" (they follow the simulated time: reproducible on any machine). Returns
-    (session, {hand: emulator}).
-
-    Coupling: each Falcon's 4 cm workspace maps onto ``scene_radius`` (scale 2 by default); the
-    scene force times ``force_scale`` (0.1: the square cloth's tearing peak of a few tens of N
-    stays inside the Falcon's 8 N) reaches the device. Felt stiffness 0.1·2000·2 = 400 N/m,
-    damping 4 N·s/m, inside the Falcon's 3000 N/m and 20 N·s/m.
-
-    The T-shirt is pinned along its ``shoulders`` group: without collision nothing else would
-    hold it up; with ``collision=True`` it also collides with the mannequin (slower)."""
-    from .. import scenes  # lazily: see the module docstring
-    from ..cloth import Cloth
-    from ..materials import material
-    from ..session import CollisionSettings, Session
-
-    if scenario not in _SCENARIO_GROUPS:
-        raise ConfigError(f"unknown scenario {scenario!r}; scenarios: {', '.join(_SCENARIO_GROUPS)}")
-    if pace not in ("wall", "simulation"):
-        raise ConfigError(f"pace must be 'wall' or 'simulation', got {pace!r}")
-    body = None
-    if scenario == "cloth":
-        mesh, mat_name = scenes.square_cloth(), "cotton"
-    elif scenario == "banknote":
-        mesh, mat_name = scenes.banknote(), "banknote"
-    else:
-        body = scenes.mannequin()
-        mesh, mat_name = scenes.tshirt(body), "cotton"
-    changes = dict(material_changes or {})
-    if tear_stress is not None:
-        changes["tear_stress"] = float(tear_stress)
-    mat = material(material_name or mat_name, **changes)
-    cloth = Cloth(mesh.vertices, mesh.triangles, mat, uv=mesh.loop_uv(), groups=mesh.groups)
-    cloth.set_tearing(True)
-    if scenario == "tshirt":
-        cloth.pin("shoulders")
-    session = Session(cloth, CollisionSettings() if collision else None)
-    if collision and body is not None:
-        session.add_body("mannequin", body.vertices, body.triangles)
-    clock = (lambda: session.time) if pace == "simulation" else None
-    hands = {}
-    emulators = {}
-    for i, (hand, group) in enumerate(_SCENARIO_GROUPS[scenario].items()):
-        side = float(np.sign(mesh.vertices[mesh.groups[group] >= 0.5, 0].mean())) or (1.0 if hand == "right" else -1.0)
-        dev, emu = emulated_falcon(
-            f"EMU-{hand.upper()}-{i}",
-            hand,
-            (side, 0.0, 0.0),
-            distance=pull_distance,
-            hold_s=hold_s,
-            pull_s=pull_s,
-            stiffness=hand_stiffness,
-            damping=hand_damping,
-            clock=clock,
-            substeps=emulator_substeps,
-            max_force=max_force,
-        )
-        coupling = falcon_coupling(scene_radius, k_position=k_position, k_velocity=k_velocity, force_scale=force_scale, max_force_rate=max_force_rate)
-        hands[hand] = (group, dev, coupling)
-        emulators[hand] = emu
-    return LiveSession(session, hands, **live_kwargs), emulators
-
-
 # ---------------------------------------------------------------------------------------------
-# Fig. 6 analysis and the bench probe
+# Fig. 6 analysis
 # ---------------------------------------------------------------------------------------------
 def _moving_average(t: np.ndarray, x: np.ndarray, window: float) -> np.ndarray:
     """Centred moving average over ``window`` (same unit as ``t``); exact for uneven sampling."""
@@ -1060,32 +960,3 @@ def _moving_average(t: np.ndarray, x: np.ndarray, window: float) -> np.ndarray:
     lo = np.searchsorted(t, t - 0.5 * window, side="left")
     hi = np.searchsorted(t, t + 0.5 * window, side="right")
     return (c[hi] - c[lo]) / np.maximum(hi - lo, 1)
-
-
-def measure_live_servo(
-    duration_s: float = 10.0,
-    scenario: str = "tshirt",
-    *,
-    collision: bool = False,
-    emulator_substeps: int = 1,
-    **session_kwargs,
-) -> dict:
-    """Servo timing with two emulated Falcons while the ``scenario``'s simulation (T-shirt by
-    default: ``tshirt()``, cotton, hands on hem_left/hem_right, shoulders pinned, no collision
-    unless ``collision=True``) runs as fast as it can on the calling thread for ``duration_s``.
-
-    Returns ``rate_hz``, ``p50_ms``, ``p99_ms`` (servo, worst hand; what ``tearcloth bench``
-    reports as ``servo.*``), ``sim_steps_per_s``, ``sim_p50_ms``, ``sim_p99_ms``,
-    ``stall_timeout_s``, ``watchdog_trips``, ``overruns``, ``servo_realtime``, ``per_hand`` and
-    the scenario settings. The hands pull apart (in wall time) over 80 % of the run, so the cloth
-    is under load, and may tear, while it is measured."""
-    session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
-    session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
-    live, _emus = emulated_session(scenario, collision=collision, emulator_substeps=emulator_substeps, **session_kwargs)
-    try:
-        live.run_for(duration_s)
-    finally:
-        live.stop()
-    out = live.stats()
-    out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s))
-    return out

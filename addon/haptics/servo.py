@@ -3,8 +3,8 @@
 This file owns:
 - ``HandCoupling``: the affine map device -> scene (the proxy) and the force law;
 - ``SimulationMailbox`` / ``ProxySample``: the only data shared with the simulation thread;
-- ``ServoLoop``: one servo thread per device, watchdog, rate limiting, timing statistics;
-- ``measure_servo``: the timing probe used by ``tearcloth bench``.
+- ``ServoLoop``: one servo thread per device, watchdog, rate limiting, timing statistics (the
+  timing probe of ``tearcloth bench``, ``measure_servo``, lives in ``tearcloth.bench.servo``).
 
 Names (design.md: one name per concept). *Handle* = the grasped, constrained vertices of the
 cloth (simulated, updated at simulation rate). *Proxy* = the image of the device grip in the
@@ -67,7 +67,6 @@ __all__ = [
     "SimulationMailbox",
     "ProxySample",
     "ServoLoop",
-    "measure_servo",
 ]
 
 _ZERO = np.zeros(3)
@@ -587,42 +586,3 @@ class ServoLoop:
     def __exit__(self, *exc):
         self.stop()
         return False
-
-
-def measure_servo(
-    duration_s: float,
-    devices,
-    couplings: Optional[Mapping[str, HandCoupling]] = None,
-    *,
-    while_running: Optional[Callable[[ServoLoop], None]] = None,
-    open_devices: bool = True,
-    **servo_kwargs,
-) -> dict:
-    """Run a servo loop over ``devices`` for ``duration_s`` and return its timing:
-    ``{"rate_hz", "p50_ms", "p99_ms", "per_hand"}`` (worst hand first-level figures).
-
-    ``while_running(loop)`` runs on the calling thread while the servo threads run (the bench
-    steps the simulation there and publishes to ``loop.publish``); the call lasts at least
-    ``duration_s``. Devices that are not open are opened (and closed afterwards)."""
-    loop = ServoLoop(devices, couplings, **servo_kwargs)
-    opened = []
-    try:
-        for hand in loop.hands:
-            dev = loop.device(hand)
-            if open_devices and not dev.is_open:
-                dev.open()
-                opened.append(dev)
-        end = time.perf_counter() + duration_s
-        loop.start()
-        try:
-            if while_running is not None:
-                while_running(loop)
-            remaining = end - time.perf_counter()
-            if remaining > 0.0:
-                time.sleep(remaining)
-        finally:
-            loop.stop()
-        return loop.stats()
-    finally:
-        for dev in opened:
-            dev.close()

@@ -9,7 +9,8 @@ This file owns:
   puck measures a small spring-returned deflection, so by default it is a *rate* (velocity)
   control: the translation axes are integrated into a position kept inside the workspace ball;
   ``mode="position"`` maps deflection directly to an offset from the centre instead;
-- ``FakeHid``: a byte-level stand-in for ``hid.device`` (feed it report bytes) for tests.
+- ``translation_report``, ``rotation_report``, ``combined_report``, ``buttons_report``: the bytes
+  a puck sends, to script input (tests feed them to a stand-in ``hid.device``).
 
 Why read the device directly: Blender's own NDOF events carry no axis values to Python.
 hidapi releases the GIL during reads, and reads are non-blocking here, so a poll never stalls
@@ -17,7 +18,6 @@ the servo tick.
 """
 from __future__ import annotations
 
-import collections
 import struct
 import time
 from typing import Callable, Dict, List, NamedTuple, Optional, Sequence, Tuple
@@ -41,7 +41,6 @@ __all__ = [
     "parse_report",
     "list_spacemice",
     "SpaceMouseDevice",
-    "FakeHid",
     "translation_report",
     "rotation_report",
     "combined_report",
@@ -161,7 +160,7 @@ class SpaceMouseDevice(HapticDevice):
 
     Parameters:
     - ``path`` / ``vid``+``pid``: which device (default: the first known model found);
-    - ``hid_device``: an object with the ``hid.device`` interface (``FakeHid`` in tests);
+    - ``hid_device``: an object with the ``hid.device`` interface (the tests' ``fakes.FakeHid``);
     - ``mode``: ``"velocity"`` (integrate deflection, default) or ``"position"``;
     - ``max_speed`` (m/s at full deflection), ``deadzone`` (fraction of full scale: pucks rarely
       return exactly to zero, and a drifting grasp would slowly pull the cloth);
@@ -321,51 +320,3 @@ class SpaceMouseDevice(HapticDevice):
                 dev.close()
             except (OSError, IOError, ValueError):
                 pass
-
-
-class FakeHid:
-    """Stand-in for ``hid.device`` that plays back report bytes fed to it.
-
-    ``feed(report)`` queues one input report; ``read`` pops one (a list of ints, like hidapi) or
-    returns ``[]`` when empty (non-blocking); ``unplug()`` makes ``read`` raise ``OSError`` like
-    hidapi's "read error"; ``written`` keeps output reports (LED)."""
-
-    def __init__(self, reports: Sequence[bytes] = ()):
-        self._queue = collections.deque(bytes(r) for r in reports)
-        self.written: List[List[int]] = []
-        self.opened: Optional[tuple] = None
-        self.nonblocking = False
-        self.unplugged = False
-        self.closed = False
-
-    def feed(self, report: bytes) -> None:
-        self._queue.append(bytes(report))
-
-    def unplug(self) -> None:
-        self.unplugged = True
-
-    def open(self, vid: int, pid: int, serial=None) -> None:
-        self.opened = ("vidpid", vid, pid)
-
-    def open_path(self, path) -> None:
-        self.opened = ("path", path)
-
-    def set_nonblocking(self, flag) -> int:
-        self.nonblocking = bool(flag)
-        return 0
-
-    def read(self, max_length: int, timeout_ms: int = 0) -> List[int]:
-        if self.unplugged:
-            raise OSError("read error")
-        if not self._queue:
-            return []
-        return list(self._queue.popleft()[:max_length])
-
-    def write(self, data) -> int:
-        if self.unplugged:
-            raise OSError("write error")
-        self.written.append(list(data))
-        return len(data)
-
-    def close(self) -> None:
-        self.closed = True

@@ -1,23 +1,27 @@
 """How step time and memory grow with the mesh (issue 8, part 2).
 
-    from tearcloth.bench_scaling import scaling, plot_scaling
+This file owns the scaling part of ``tearcloth bench``: the meshes of each size (``make_scene``),
+one child process per point (``_child_point``, run as ``python -m tearcloth.bench.scaling``), the
+fitted exponent, the plot and the console table. Dev-only (not in the extension zip).
+
+    from tearcloth.bench.scaling import scaling, plot_scaling
     r = scaling()                      # ~1K .. 100K triangles, tearing off/on, collision off/on
     r["exponent"], r["peak_mb_100k"]   # step_ms ~ triangles ** exponent; MB at 100K triangles
     plot_scaling(r, "scaling.png")
 
 Meshes: two families, each made at a base size between 1K and 4K triangles and refined 1-to-4
-(``scenes.refine``) up to the target: the paper's square cloth (``scenes.square_cloth``, laid
-horizontal at z = 1 m) and the T-shirt (``scenes.tshirt``). Targets 1e3, 3e3, 1e4, 3e4, 1e5 give
+(``examples.refine``) up to the target: the paper's square cloth (``examples.square_cloth``, laid
+horizontal at z = 1 m) and the T-shirt (``examples.tshirt``). Targets 1e3, 3e3, 1e4, 3e4, 1e5 give
 1000, 3000, 2500 x 4, 1875 x 16 and 1562 x 64 triangles (the T-shirt family alike, within the
 mesher's ~2 %).
 
 What steps: each point is one cloth, cotton, grasped by two hands that pull apart along X at
 2 cm/s (the square by its ``handle_left`` / ``handle_right`` corners, the shirt by its front hem),
-stepped at dt = 1 ms (the haptic rate of ``bench.py``) through ``Session.step``; a step's time is
+stepped at dt = 1 ms (the haptic rate of ``table1.py``) through ``Session.step``; a step's time is
 its wall time (collision + FEM + tearing + Python glue).
 - tearing on: ``set_tearing(True)`` with a threshold out of reach (1e12 Pa), so every step scans
   every vertex (Table I's "before" column) and the mesh keeps its size; a running tear's cost is
-  ``bench.py``'s after-cuts figure, not a function of size.
+  ``table1.py``'s after-cuts figure, not a function of size.
 - collision on: ``Session(cloth, CollisionSettings())`` (relative cluster measure, self-collision
   on), with one static closed body: under the square a sphere (radius 0.2 m, 1280 triangles,
   its top 1.5 mm below the cloth, so contacts start at once and the cloth drapes over it); for
@@ -55,8 +59,8 @@ from pathlib import Path
 
 import numpy as np
 
-DT = 1e-3
-PULL_SPEED = 0.02  # m/s per hand, apart
+from .machine import loadavg
+from .table1 import DT, PULL_SPEED  # the same step and pull as Table I
 UNREACHABLE_TEAR_STRESS = 1e12
 SPHERE_RADIUS = 0.2
 SPHERE_GAP = 0.0015
@@ -134,11 +138,11 @@ def make_scene(family: str, target: float, seed: int = 0) -> dict:
     """Arrays of one point's scene: vertices, triangles, the two hands' vertex weights (``hand_a``
     at -X, ``hand_b`` at +X: they move apart), the body (vertices, triangles) used when collision is
     on, and how the mesh was made."""
-    from . import scenes
+    from .. import examples
 
     base, levels = base_and_levels(target)
     if family == "square":
-        mesh = scenes.square_cloth(target_triangles=base, seed=seed)
+        mesh = examples.square_cloth(target_triangles=base, seed=seed)
         v = mesh.vertices
         # lay it flat: (x, 0, z) -> (x, z - 1, 1), the grip edge (top) becomes the +Y edge
         v = np.stack([v[:, 0], v[:, 2] - SQUARE_HEIGHT, np.full(len(v), SQUARE_HEIGHT)], axis=1)
@@ -147,15 +151,15 @@ def make_scene(family: str, target: float, seed: int = 0) -> dict:
         body = icosphere(SPHERE_RADIUS, (0.0, 0.0, SQUARE_HEIGHT - SPHERE_RADIUS - SPHERE_GAP), 3)
         body_name = "sphere r 0.2 m (1280 triangles) under the cloth's centre"
     elif family == "tshirt":
-        man = scenes.mannequin()
-        mesh = scenes.tshirt(man, target_triangles=base, seed=seed)
+        man = examples.mannequin()
+        mesh = examples.tshirt(man, target_triangles=base, seed=seed)
         hands = ("hem_right", "hem_left")  # hem_right is the one at -X
         body = (man.vertices, man.triangles)
         body_name = f"mannequin, bind pose ({len(man.triangles)} triangles)"
     else:
         raise ValueError(f"unknown mesh family {family!r}; families: {', '.join(FAMILIES)}")
     if levels:
-        mesh = scenes.refine(mesh, levels)
+        mesh = examples.refine(mesh, levels)
     return {
         "vertices": mesh.vertices, "triangles": mesh.triangles,
         "hand_a": mesh.groups[hands[0]], "hand_b": mesh.groups[hands[1]],
@@ -202,8 +206,8 @@ def _peak_rss_bytes() -> int:
 
 def _import_all():
     """What every child imports, used or not, so the idle baseline matches."""
-    from . import cloth, materials, session  # noqa: F401
-    from . import collision  # noqa: F401
+    from .. import cloth, materials, session  # noqa: F401
+    from .. import collision  # noqa: F401
 
     return cloth, materials, session
 
@@ -261,10 +265,10 @@ def _child_point(spec: dict) -> dict:
 
 
 def _run_child(args: list[str], timeout: float) -> dict:
-    """Run ``python -m <package>.bench_scaling ARGS`` in a fresh interpreter; its last JSON line."""
+    """Run ``python -m <package>.bench.scaling ARGS`` in a fresh interpreter; its last JSON line."""
     env = dict(os.environ)
-    name = __package__ or "tearcloth"
-    here = Path(__file__).absolute().parent  # not resolved: keep the package's own name
+    name = (__package__ or "tearcloth.bench").split(".")[0]
+    here = Path(__file__).absolute().parent.parent  # the package's folder; not resolved: keep its name
     if here.name == name:
         root = str(here.parent)
     else:  # a source tree whose folder is not named like the package (addon/): link it
@@ -275,7 +279,7 @@ def _run_child(args: list[str], timeout: float) -> dict:
             link.symlink_to(here, target_is_directory=True)
         root = str(shim)
     env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-    cmd = [sys.executable, "-m", f"{name}.bench_scaling", *args]
+    cmd = [sys.executable, "-m", f"{name}.bench.scaling", *args]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
     if proc.returncode != 0 or not lines:
@@ -291,13 +295,6 @@ def idle_baseline_bytes(timeout: float = 120.0) -> int:
 # ------------------------------------------------------------------------------------------------
 # The run
 # ------------------------------------------------------------------------------------------------
-
-
-def _loadavg():
-    try:
-        return os.getloadavg()
-    except OSError:  # pragma: no cover - not on every platform
-        return None
 
 
 def config_label(family: str, tearing: bool, collision: bool) -> str:
@@ -396,7 +393,7 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
         "exponents": exponents,
         "exponent_cpu": exponents_cpu.get(base_label, float("nan")),
         "exponents_cpu": exponents_cpu,
-        "load_average": _loadavg(),
+        "load_average": loadavg(),
         "peak_mb_100k": largest.get(base_label, {}).get("peak_mb", float("nan")),
         "peak_mb_100k_triangles": largest.get(base_label, {}).get("triangles"),
         "peak_mb_largest": largest,

@@ -2,13 +2,19 @@
 the same two hands pulling the hem apart, the same number of sub-steps per frame - seconds per
 frame for each, measured in one process.
 
-    from tearcloth.bench_blender import race_blender_cloth
+This file owns the race's plan and our side of it: the mapping of our material onto Blender's
+cloth settings (``blender_cloth_settings``, pure, no bpy), the hands' offsets, our simulation
+frame by frame (``_Ours``), ``race_blender_cloth`` (which hands the arrays to
+``tearcloth.blender.race.race_frames``, the one file that drives Blender's cloth through bpy)
+and ``format_race``. Dev-only (not in the extension zip).
+
+    from tearcloth.bench.race import race_blender_cloth
     r = race_blender_cloth(frames=24, substeps=10)
     r["ours_s_per_frame"], r["blender_s_per_frame"], r["ratio"]   # ratio = ours / Blender
 
 What runs on each side
 ----------------------
-Scene: ``scenes.tshirt()`` worn by ``scenes.mannequin()``; the body walks (``scenes.body_pose``,
+Scene: ``examples.tshirt()`` worn by ``examples.mannequin()``; the body walks (``examples.body_pose``,
 frame f at time start_time + (f - 1) / fps); the front hem is grabbed by two hands (vertex groups
 ``hem_left`` at +X and ``hem_right`` at -X) that move apart along X at ``pull_speed`` m/s each.
 
@@ -18,7 +24,7 @@ self_collision))``, the body added with ``add_body`` and keyed every frame with
 ``substeps`` steps of dt = 1 / fps / substeps per frame, tearing ON. A frame's time covers
 everything ours needs for it: the pose (numpy skinning), collision detection, the FEM step, tearing.
 
-Blender (through ``bpy``, headless, after ``read_factory_settings(use_empty=True)``):
+Blender (``blender/race.py``, through ``bpy``, headless, after ``read_factory_settings(use_empty=True)``):
 - body: a mesh with an ARMATURE rebuilt from ``Body.bones`` (head, tail, roll 0, parents) and
   the skin weights as one vertex group per bone, an Armature modifier (linear blend skinning,
   volume preservation off), then a Collision modifier. Every frame each pose bone gets a
@@ -74,10 +80,11 @@ import time
 
 import numpy as np
 
-from . import scenes
-from .cloth import Cloth, SimulationError
-from .materials import Material, material
-from .session import CollisionSettings, Session
+from .. import examples
+from ..cloth import Cloth, SimulationError
+from ..materials import Material, material
+from ..session import CollisionSettings, Session
+from .machine import loadavg
 
 FPS = 24
 PULL_SPEED = 0.05  # m/s per hand, apart along X
@@ -205,8 +212,8 @@ def _follow_topology(session: Session) -> list[str]:
     det = session.detector
     if det is None:
         return []
-    from .cloth import TopologyEvents
-    from .collision.narrow import ring_table
+    from ..cloth import TopologyEvents
+    from ..collision.narrow import ring_table
 
     applied = []
     need_dict = not hasattr(TopologyEvents, "get")
@@ -243,7 +250,7 @@ class _Ours:
         self.cloth.set_tearing(True)
         self.session = Session(self.cloth, collision)
         self.shims = _follow_topology(self.session)
-        self.session.add_body("body", scenes.body_pose(body, start_time), body.triangles)
+        self.session.add_body("body", examples.body_pose(body, start_time), body.triangles)
         for h, off in zip(self.hands, hand_offsets(0.0, pull_speed)):
             self.session.set_handle_keyframe(h, _translation(off), 0.0)
         self.parts = {"pose": 0.0, "collision": 0.0, "fem": 0.0, "tearing": 0.0}
@@ -257,7 +264,7 @@ class _Ours:
         t = (f - 1) / self.fps  # race time; the body's clock is start_time + t
         c0 = time.process_time()
         t0 = time.perf_counter()
-        pose = scenes.body_pose(self.body, self.start_time + t)
+        pose = examples.body_pose(self.body, self.start_time + t)
         t1 = time.perf_counter()
         self.session.set_body_keyframe("body", pose, t)
         for h, off in zip(self.hands, hand_offsets(t, self.pull_speed)):
@@ -278,176 +285,6 @@ class _Ours:
         self.cg_iterations += iters
         self.contacts += contacts
         return t2 - t0
-
-
-# ------------------------------------------------------------------------------------------------
-# Blender
-# ------------------------------------------------------------------------------------------------
-
-
-def _set_props(struct, values: dict) -> None:
-    for k, v in values.items():
-        setattr(struct, k, v)
-
-
-def _add_group(obj, name: str, weights) -> None:
-    vg = obj.vertex_groups.new(name=name)
-    w = np.asarray(weights, dtype=np.float64)
-    full = np.flatnonzero(w >= 1.0)
-    if full.size:
-        vg.add(full.tolist(), 1.0, "REPLACE")
-    for i in np.flatnonzero((w > 0.0) & (w < 1.0)):
-        vg.add([int(i)], float(w[i]), "REPLACE")
-
-
-def _mesh_object(bpy, name, vertices, triangles):
-    me = bpy.data.meshes.new(name)
-    me.from_pydata(np.asarray(vertices).tolist(), [], np.asarray(triangles).tolist())
-    me.update()
-    ob = bpy.data.objects.new(name, me)
-    bpy.context.scene.collection.objects.link(ob)
-    return ob
-
-
-def _evaluated_vertices(bpy, ob) -> np.ndarray:
-    dg = bpy.context.evaluated_depsgraph_get()
-    ev = ob.evaluated_get(dg)
-    me = ev.to_mesh()
-    co = np.empty(len(me.vertices) * 3, dtype=np.float32)
-    me.vertices.foreach_get("co", co)
-    ev.to_mesh_clear()
-    return co.reshape(-1, 3).astype(np.float64)
-
-
-class _Blender:
-    """Blender's side: the scene built through bpy, one frame_set per frame."""
-
-    def __init__(self, shirt, body, settings, frames, fps, pull_speed, start_time):
-        import bpy
-        import mathutils
-
-        self.bpy = bpy
-        bpy.ops.wm.read_factory_settings(use_empty=True)
-        scene = bpy.context.scene
-        self.scene = scene
-        scene.render.fps = int(fps)
-        scene.render.fps_base = 1.0
-        scene.frame_start, scene.frame_end = 1, frames + 1
-        scene.use_gravity = True
-        scene.gravity = settings["scene"]["gravity"]
-        # ---- body: mesh + armature rebuilt from Body.bones + skin weights
-        self.body_ob = ob = _mesh_object(bpy, "mannequin", body.vertices, body.triangles)
-        arm_data = bpy.data.armatures.new("mannequin_rig")
-        self.arm = arm = bpy.data.objects.new("mannequin_rig", arm_data)
-        scene.collection.objects.link(arm)
-        bpy.context.view_layer.objects.active = arm
-        bpy.ops.object.mode_set(mode="EDIT")
-        edit = []
-        for name, head, tail, parent in body.bones:
-            eb = arm_data.edit_bones.new(name)
-            eb.head, eb.tail, eb.roll = tuple(map(float, head)), tuple(map(float, tail)), 0.0
-            eb.use_connect = False
-            if parent >= 0:
-                eb.parent = edit[parent]
-            edit.append(eb)
-        bpy.ops.object.mode_set(mode="OBJECT")
-        for j, bone in enumerate(body.bones):
-            _add_group(ob, bone[0], body.weights[:, j])
-        mod = ob.modifiers.new("Armature", "ARMATURE")
-        mod.object = arm
-        mod.use_vertex_groups = True
-        mod.use_bone_envelopes = False
-        mod.use_deform_preserve_volume = False
-        ob.modifiers.new("Collision", "COLLISION")
-        _set_props(ob.collision, settings["body_collision"])
-        rest = {b.name: np.array(b.matrix_local)[:3, :3] for b in arm_data.bones}
-        for f in range(1, frames + 2):
-            mats = scenes.bone_matrices(body, start_time + (f - 1) / fps)
-            for j, (name, _head, _tail, parent) in enumerate(body.bones):
-                # pose basis = rest^-1 . (this bone's own rotation about its head) . rest
-                local = mats[j] if parent < 0 else np.linalg.inv(mats[parent]) @ mats[j]
-                Rr = rest[name]
-                basis = Rr.T @ local[:3, :3] @ Rr
-                pb = arm.pose.bones[name]
-                pb.rotation_mode = "QUATERNION"
-                pb.rotation_quaternion = mathutils.Matrix(basis.tolist()).to_quaternion()
-                pb.keyframe_insert("rotation_quaternion", frame=f)
-        # ---- hands: two empties, keyed every frame
-        self.hands = []
-        for side in ("left", "right"):
-            e = bpy.data.objects.new(f"hand_{side}", None)
-            scene.collection.objects.link(e)
-            self.hands.append(e)
-        for f in range(1, frames + 2):
-            for e, off in zip(self.hands, hand_offsets((f - 1) / fps, pull_speed)):
-                e.location = tuple(off)
-                e.keyframe_insert("location", frame=f)
-        # ---- shirt: hooks, then cloth with the hem pinned
-        self.shirt_ob = sh = _mesh_object(bpy, "tshirt", shirt.vertices, shirt.triangles)
-        for name in ("hem_left", "hem_right"):
-            _add_group(sh, name, shirt.groups[name])
-        _add_group(sh, "pin", np.maximum(shirt.groups["hem_left"], shirt.groups["hem_right"]))
-        for e, name in zip(self.hands, ("hem_left", "hem_right")):
-            hk = sh.modifiers.new(f"hook_{name}", "HOOK")
-            hk.object = e
-            hk.vertex_group = name
-            hk.falloff_type = "NONE"
-            hk.strength = 1.0
-        self.cloth_mod = cm = sh.modifiers.new("Cloth", "CLOTH")
-        cloth = dict(settings["cloth"])
-        _set_props(cm.settings, cloth)
-        _set_props(cm.collision_settings, settings["collision"])
-        cm.point_cache.frame_start = 1
-        cm.point_cache.frame_end = frames + 1
-        self.frames = frames
-        self.iterations = []
-        self.cpu_s = []
-
-    def free_cache(self) -> None:
-        """Drop whatever the point cache holds, so the next frames are simulated."""
-        bpy = self.bpy
-        try:
-            with bpy.context.temp_override(scene=self.scene, point_cache=self.cloth_mod.point_cache):
-                bpy.ops.ptcache.free_bake()
-        except (RuntimeError, TypeError, AttributeError):
-            pass
-        # a settings write resets the (unbaked) cache as well
-        self.cloth_mod.settings.quality = self.cloth_mod.settings.quality
-        if self.cloth_mod.point_cache.is_baked:
-            raise RuntimeError("Blender's cloth point cache is baked; the race would only replay it")
-
-    def start(self) -> None:
-        self.free_cache()
-        self.scene.frame_set(1)
-
-    def frame(self, f: int) -> float:
-        """Evaluate frame f (Blender simulates the cloth there). Wall seconds; CPU seconds of the
-        process (all of Blender's threads) go to ``cpu_s``."""
-        c0 = time.process_time()
-        t0 = time.perf_counter()
-        self.scene.frame_set(f)
-        dt = time.perf_counter() - t0
-        self.cpu_s.append(time.process_time() - c0)
-        res = self._solver_result()
-        if res is not None:
-            self.iterations.append(res)
-        return dt
-
-    def _solver_result(self):
-        dg = self.bpy.context.evaluated_depsgraph_get()
-        mod = self.shirt_ob.evaluated_get(dg).modifiers.get("Cloth")
-        sr = getattr(mod, "solver_result", None) if mod is not None else None
-        if sr is None:
-            return None
-        return float(sr.avg_iterations), int(sr.max_iterations)
-
-    def body_error(self, body, f: int, start_time: float, fps: int) -> float:
-        self.scene.frame_set(f)
-        co = _evaluated_vertices(self.bpy, self.body_ob)
-        return float(np.abs(co - scenes.body_pose(body, start_time + (f - 1) / fps)).max())
-
-    def shirt_vertices(self) -> np.ndarray:
-        return _evaluated_vertices(self.bpy, self.shirt_ob)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -474,40 +311,47 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
         raise ValueError("frames and substeps must be at least 1")
     say = out or (lambda *_: None)
     wall0 = time.perf_counter()
-    body = body if body is not None else scenes.mannequin()
-    shirt = shirt if shirt is not None else scenes.tshirt(body, target_triangles=target_triangles)
+    body = body if body is not None else examples.mannequin()
+    shirt = shirt if shirt is not None else examples.tshirt(body, target_triangles=target_triangles)
     mat = material("cotton", tear_stress=tear_stress)
     collision = collision or CollisionSettings()
     settings = blender_cloth_settings(mat, shirt.vertices, shirt.triangles, fps, substeps, collision,
                                       collision_quality)
-    say("building Blender's scene")
-    bl = _Blender(shirt, body, settings, frames, fps, pull_speed, start_time)
-    pose_err = max(bl.body_error(body, f, start_time, fps) for f in sorted({1, frames + 1, 1 + frames // 2}))
+    from ..blender.race import race_frames  # bpy: only the race itself needs Blender
+
     ours = _Ours(shirt, body, mat, collision, fps, substeps, pull_speed, start_time)
-    bl.start()
-    rest_shirt = bl.shirt_vertices()
-    t_ours, t_bl = [], []
+    t_ours = []
     error = None
-    for f in range(2, frames + 2):
-        t_bl.append(bl.frame(f))
+
+    def our_frame(f, blender_s):
+        nonlocal error
         try:
             t_ours.append(ours.frame(f))
         except SimulationError as e:
             error = f"frame {f}: {e}"
             say(f"ours gave up at {error}")
-            break
-        say(f"frame {f}: ours {t_ours[-1]:.3f} s, Blender {t_bl[-1]:.3f} s")
+            return False
+        say(f"frame {f}: ours {t_ours[-1]:.3f} s, Blender {blender_s:.3f} s")
+        return True
+
+    race_t = [(f - 1) / fps for f in range(1, frames + 2)]  # frames 1 .. frames + 1; the body's clock adds start_time
+    check = sorted({1, frames + 1, 1 + frames // 2})
+    got = race_frames(
+        body_vertices=body.vertices, body_triangles=body.triangles, bones=body.bones, weights=body.weights,
+        bone_matrices=np.stack([examples.bone_matrices(body, start_time + t) for t in race_t]),
+        shirt_vertices=shirt.vertices, shirt_triangles=shirt.triangles, shirt_groups=shirt.groups,
+        hand_offsets=np.array([hand_offsets(t, pull_speed) for t in race_t]),
+        settings=settings, frames=frames, fps=fps, check_frames=check, after_frame=our_frame, say=say)
+    pose_err = max(float(np.abs(got["body_vertices"][f] - examples.body_pose(body, start_time + (f - 1) / fps)).max())
+                   for f in check)
     raced = len(t_ours)
-    moved = float(np.abs(bl.shirt_vertices() - rest_shirt).max())
-    # what a replay from Blender's cache costs, for contrast with the simulated frames
-    t0 = time.perf_counter()
-    for f in range(2, raced + 2):
-        bl.scene.frame_set(f)
-    replay = (time.perf_counter() - t0) / max(1, raced)
+    t_bl = got["frame_s"]
+    moved = float(np.abs(got["shirt_end"] - got["shirt_rest"]).max())
+    replay = got["replay_s_per_frame"]
     st = ours.cloth.stats()
     ours_mean = sum(t_ours) / raced if raced else float("nan")
     bl_mean = sum(t_bl[:raced]) / raced if raced else float("nan")
-    bl_iters = [a for a, _m in bl.iterations[:raced]]
+    bl_iters = [a for a, _m in got["iterations"][:raced]]
     result = {
         "ours_s_per_frame": ours_mean,
         "blender_s_per_frame": bl_mean,
@@ -516,7 +360,7 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
         # CPU seconds of the whole process per frame: above the wall time, a side used several
         # cores (ours steps on one thread; Blender's collision and BVH code may use more)
         "ours_cpu_s_per_frame": ours.cpu_s / raced if raced else float("nan"),
-        "blender_cpu_s_per_frame": sum(bl.cpu_s[:raced]) / raced if raced else float("nan"),
+        "blender_cpu_s_per_frame": sum(got["cpu_s"][:raced]) / raced if raced else float("nan"),
         "blender_s_per_frame_median": statistics.median(t_bl[:raced]) if raced else float("nan"),
         "frames": frames,
         "frames_raced": raced,
@@ -541,11 +385,11 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
         "ours_error": error,
         "ours_shims": ours.shims,
         "blender_cg_iterations_mean": statistics.fmean(bl_iters) if bl_iters else None,
-        "blender_cg_iterations_max": max((m for _a, m in bl.iterations[:raced]), default=None),
+        "blender_cg_iterations_max": max((m for _a, m in got["iterations"][:raced]), default=None),
         "blender_shirt_moved_m": moved,
         "blender_replay_s_per_frame": replay,
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
-                    "blender": _blender_version(), "load_average": _loadavg()},
+                    "blender": got["blender_version"], "load_average": loadavg()},
         "wall_s": time.perf_counter() - wall0,
         "settings": {
             "blender": {"cloth": settings["cloth"], "collision": settings["collision"],
@@ -554,28 +398,12 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
             "ours": {"material": dict(mat.__dict__), "collision": dict(collision.__dict__),
                      "tearing": True, "substeps_per_frame": substeps, "handles": ["hem_left", "hem_right"]},
             "scene": {"pull_speed_m_per_s": pull_speed, "start_time_s": start_time,
-                      "motion": "walk in place (scenes.body_pose)", "shirt": "scenes.tshirt",
-                      "body": "scenes.mannequin"},
+                      "motion": "walk in place (examples.body_pose)", "shirt": "examples.tshirt",
+                      "body": "examples.mannequin"},
             "mapping": settings["derived"],
         },
     }
     return result
-
-
-def _blender_version() -> str:
-    try:
-        import bpy
-
-        return bpy.app.version_string
-    except ImportError:  # pragma: no cover - the race needs bpy anyway
-        return "absent"
-
-
-def _loadavg():
-    try:
-        return os.getloadavg()
-    except OSError:  # pragma: no cover
-        return None
 
 
 def format_race(r: dict) -> str:

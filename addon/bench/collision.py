@@ -1,23 +1,30 @@
-"""Timing experiment of the collision measures (paper section IV-B, the T-shirt comparison).
+"""The collision experiment of the paper (section IV-B): a T-shirt worn by a character, immobile and
+moving; detection time per step with full detection every step, the absolute displacement measure
+and the clustered relative measure.
 
-This file owns ``collision_experiment``, which the lead's ``tearcloth bench`` calls with the
-T-shirt on a moving mannequin, and a stand-in scene (a cylinder "torso" in a cloth tube) to run
-it without the scenes package: ``python -m tearcloth.collision.bench``.
+This file owns ``collision_experiment`` (the three measures replayed on the same motion, each with
+its own ``CollisionDetector``), the worn shirt it runs on in ``tearcloth bench``
+(``worn_shirt``: ``tearcloth.examples``' T-shirt skinned to the walking mannequin, and
+``collision_figures``, ``format_collision``, the paper's figures ``PAPER_COLLISION``), a stand-in
+scene that needs no example geometry (``standin_scene``: a cylinder "torso" in a cloth tube,
+``python -m tearcloth.bench.collision``), the numpy-vs-Embree design numbers of ``narrow.py``
+(``numpy_vs_embree``) and the picture of a scenario's clusters (``cluster_picture``, the paper's
+Fig. 2, for ``tearcloth clusters``).
 
-Each measure ('full', 'absolute', 'relative') replays the same motion with its own detector; the
-per-step time is ``detector.stats['ms']['total']`` (measure + incremental + full + contacts),
-after ``warmup`` steps, so the one-off clustering and first scene builds are not counted (they
-are reported separately as ``setup_ms``).
+Each measure's per-step time is ``detector.stats['ms']['total']`` (measure + incremental + full +
+contacts), after ``warmup`` steps, so the one-off clustering and first scene builds are not
+counted (they are reported separately as ``setup_ms``). Dev-only (not in the extension zip).
 """
 from __future__ import annotations
 
 import time
 
 import numpy as np
+from scipy.spatial import cKDTree
 
-from .detector import CollisionDetector
-
-__all__ = ["collision_experiment", "standin_scene", "numpy_vs_embree"]
+from .. import examples
+from ..collision.detector import CollisionDetector
+from .table1 import DT
 
 
 def collision_experiment(
@@ -144,8 +151,8 @@ def standin_scene(moving=True, thickness=0.005, dt=0.002, seed=0):
 def numpy_vs_embree(rays=200, triangles=200, repeat=20):
     """ms of testing ``rays`` rays against ``triangles`` triangles exhaustively in numpy vs one
     query into a cached embreex scene vs building that scene (the narrow.py design numbers)."""
-    from .incremental import line_triangle
-    from .narrow import build_scene, cast
+    from ..collision.incremental import line_triangle
+    from ..collision.narrow import build_scene, cast
 
     v, t = _cylinder(0.15, 0.6, 10, triangles // 20, capped=False)
     t = t[:triangles]
@@ -172,6 +179,70 @@ def numpy_vs_embree(rays=200, triangles=200, repeat=20):
         cast(scene, o, d, 10.0, np.arange(t.shape[0]))
     query_ms = 1e3 * (time.perf_counter() - tic) / repeat
     return {"numpy_ms": numpy_ms, "embree_build_and_query_ms": build_ms, "embree_query_ms": query_ms}
+
+
+def worn_shirt():
+    """The mannequin and the T-shirt, the shirt skinned to the body (each shirt vertex takes the
+    skin weights of its nearest body vertex) so that it follows the walk as a worn shirt does:
+    the case the relative measure is made for."""
+    body = examples.mannequin()
+    shirt = examples.tshirt(body)
+    V = shirt.vertices
+    nearest = cKDTree(body.vertices).query(V)[1]  # the same vertices as a brute-force argmin
+    weights = body.weights[nearest]
+    bind_inv = np.linalg.inv(examples.bone_matrices(body, 0.0))
+
+    def pose(t):
+        M = examples.bone_matrices(body, t) @ bind_inv  # bind pose -> pose at t
+        h = np.concatenate([V, np.ones((len(V), 1))], axis=1)
+        moved = np.einsum("bij,nj->nbi", M[:, :3, :], h)
+        return np.einsum("nb,nbi->ni", weights, moved)
+
+    return body, shirt, pose
+
+
+def collision_figures(steps: int = 120, dt: float = DT) -> dict:
+    body, shirt, pose = worn_shirt()
+    out = {"triangles": int(len(shirt.triangles)), "body_triangles": int(len(body.triangles)), "steps": steps}
+    t0 = 0.5  # mid-stride
+    frames_immobile = lambda k: (examples.body_pose(body, t0), pose(t0))  # noqa: E731
+    frames_moving = lambda k: (examples.body_pose(body, t0 + k * dt), pose(t0 + k * dt))  # noqa: E731
+    for name, fn in (("immobile", frames_immobile), ("moving", frames_moving)):
+        r = collision_experiment(shirt.vertices, shirt.triangles, fn, steps, body_triangles=body.triangles,
+                                 thickness=0.004, displacement_threshold=0.003)
+        out[name] = {k: r[k] for k in ("full_ms", "absolute_ms", "relative_ms")}
+        out[name]["full_share"] = r["full_share"]
+        out[name]["absolute_full_share"] = r.get("absolute_share", r.get("absolute_full_share"))
+        out[name]["absolute_over_relative"] = r["absolute_ms"] / r["relative_ms"]
+    return out
+
+
+PAPER_COLLISION = {"immobile": {"absolute_ms": 3.65, "relative_ms": 3.37},
+                   "moving": {"absolute_ms": 11.76, "relative_ms": 3.18}}
+
+
+def format_collision(c: dict) -> str:
+    rows = [f"collision, T-shirt ({c['triangles']} triangles) on the mannequin ({c['body_triangles']}), "
+            f"median ms per step over {c['steps']} steps",
+            f"{'':<9} {'full':>8} {'absolute':>9} {'(paper)':>8} {'relative':>9} {'(paper)':>8} {'abs/rel':>8} {'full share':>11}"]
+    for name in ("immobile", "moving"):
+        r, p = c[name], PAPER_COLLISION[name]
+        rows.append(f"{name:<9} {r['full_ms']:>8.2f} {r['absolute_ms']:>9.2f} {p['absolute_ms']:>8.2f} "
+                    f"{r['relative_ms']:>9.2f} {p['relative_ms']:>8.2f} {r['absolute_over_relative']:>8.2f} "
+                    f"{r['full_share']:>11.3f}")
+    return "\n".join(rows)
+
+
+def cluster_picture(path: str, scenario: str = "tshirt", cluster_size: int = 100) -> str:
+    """The cluster decomposition of a scenario's cloth, coloured per cluster (the paper's Fig. 2)."""
+    from ..collision.clusters import Clustering
+    from ..collision.preview import render_clusters
+
+    mesh = {"cloth": examples.square_cloth, "banknote": examples.banknote, "tshirt": examples.tshirt}[scenario]()
+    cl = Clustering(mesh.vertices, mesh.triangles, cluster_size)
+    return render_clusters(path, mesh.vertices, mesh.triangles, cl.labels,
+                           title=f"{scenario}: {len(mesh.vertices)} vertices in {cl.n_clusters} clusters "
+                                 f"(geodesic k-means, ~{cluster_size} each)")
 
 
 def main():

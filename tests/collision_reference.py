@@ -1,17 +1,20 @@
-"""numpy specifications of the contact kernels of ``tearcloth._collide`` (``native/collide/contacts.c``).
+"""Test oracles of the collision package: numpy specifications of the contact kernels of
+``tearcloth._collide`` (``native/collide/contacts.c``) and the brute-force detection.
 
-This file owns nothing the detector runs: it is the readable statement of what the C kernels
-``refine``, ``merge_classify`` and ``assemble`` compute (the detector's former numpy code), and
-the tests compare the two on random inputs. The rules are explained in ``narrow.py``.
+This file owns nothing the detector runs: ``refine``, ``merge_classify`` and ``assemble`` are the
+readable statement of what the C kernels compute (the detector's former numpy code), and
+``brute_force_detect`` is every vertex's rays cast into freshly built scenes, without clusters or
+history; the tests compare the detector and its kernels with them. The rules are explained in
+``tearcloth/collision/narrow.py``. Imported from the tests folder (``import collision_reference``).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .incremental import walk
-from .narrow import face_normals, initial_side
+from tearcloth.collision.incremental import barycentric, walk
+from tearcloth.collision.narrow import Contacts, build_scene, cast, face_normals, initial_side, vertex_normals
 
-__all__ = ["refine", "merge_classify", "assemble", "VOLUME", "SURFACE", "SELF"]
+__all__ = ["refine", "merge_classify", "assemble", "brute_force_detect", "VOLUME", "SURFACE", "SELF"]
 
 VOLUME, SURFACE, SELF = 0, 1, 2
 _SLOT_SIGN = np.array([1.0, -1.0])
@@ -173,3 +176,59 @@ def assemble(depth, normal, velocity, friction):
     every = (vs.astype(np.int32), normal[cols, vs], depth[cols, vs], velocity[cols, vs],
              np.asarray(friction, np.float64)[cols])
     return deep, every
+
+
+def brute_force_detect(detector, positions, triangles, velocities=None):
+    """The contacts ``detector.detect`` should find, found the slow way: one Embree scene per
+    collider of ``detector`` (its bodies, and the cloth itself with self-collision) built now,
+    every vertex's two rays cast into it, no clusters, no history. Thin-surface sides are the current ones (no inversion
+    memory), so compare it with ``detect`` on penetrations of closed bodies and proximity."""
+    pos = np.asarray(positions, np.float64)
+    tri = np.asarray(triangles, np.int64)
+    normals = vertex_normals(pos, tri)
+    has_normal = np.einsum("ij,ij->i", normals, normals) > 0.5
+    verts = np.flatnonzero(has_normal)
+    v2 = np.concatenate([verts, verts])
+    sl = np.repeat([0, 1], verts.size)
+    d = normals[v2] * _SLOT_SIGN[sl][:, None]
+    th = detector.thickness
+    rows = []
+    targets = list(detector.bodies.items())
+    if detector.self_collision:
+        cloth_vel = np.zeros_like(pos) if velocities is None else np.asarray(velocities, np.float64)
+        targets = [("__self__", None)] + targets
+    for name, body in targets:
+        if name == "__self__":
+            tv, tt, kind, vel, fr = pos, tri, "surface", cloth_vel, detector.friction
+        else:
+            tv, tt, kind, vel, fr = body.vertices, body.triangles, body.kind, body.velocities, body.friction
+        scene = build_scene(tv, tt)
+        reach = detector.track_range if kind != "volume" else 1e30
+        gt, t = cast(scene, pos[v2], d, reach, np.arange(tt.shape[0]),
+                     v2 if name == "__self__" else None, tt)
+        hit = gt >= 0
+        hv, hs, htri, ht = v2[hit], sl[hit], gt[hit], t[hit]
+        nrm, _ = face_normals(tv, tt[htri])
+        sd = np.einsum("ij,ij->i", pos[hv] - tv[tt[htri, 0]], nrm)
+        if kind == "volume":
+            o2 = np.lexsort((ht, hv))
+            f2 = np.ones(o2.size, bool)
+            f2[1:] = hv[o2[1:]] != hv[o2[:-1]]
+            sel = o2[f2]
+            depth = th - sd[sel]
+            normal = nrm[sel]
+        else:
+            sel = np.arange(hv.size)
+            depth = th - np.abs(sd)
+            normal = nrm * np.where(sd >= 0, 1.0, -1.0)[:, None]
+        c = depth > 0
+        sel = sel[c]
+        ctri = tt[htri[sel]]
+        # Barycentrics for the surface velocity at the hit point.
+        hp = pos[hv[sel]] + ht[sel, None] * d[hit][sel]
+        w = barycentric(hp, tv[ctri[:, 0]], tv[ctri[:, 1]], tv[ctri[:, 2]])
+        velocity = np.einsum("ik,ikj->ij", w, vel[ctri])
+        rows.append((hv[sel], normal[c], depth[c], velocity, np.full(sel.size, fr)))
+    if not rows:
+        return Contacts()
+    return Contacts.deepest(*(np.concatenate([r[k] for r in rows]) for k in range(5)))

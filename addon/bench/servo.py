@@ -1,0 +1,187 @@
+"""Servo timing for ``tearcloth bench``: the 1 kHz loop measured over emulated Falcons, alone or
+while one of the paper's scenes is simulated flat out on the calling thread.
+
+This file owns ``measure_servo`` (run a ``ServoLoop`` over given devices for a while, return its
+timing), ``emulated_session`` (the square cloth, the banknote or the T-shirt from
+``tearcloth.examples`` grasped by two emulated Falcons whose scripted hands pull apart: a
+``LiveSession`` ready to run) and ``measure_live_servo`` (what the bench reports as
+``servo.*``). The emulator and its scripted hands are a user feature and stay in
+``tearcloth.haptics``; what lives here needs the example geometry, so it is dev-only (not in the
+extension zip). SI units; times reported in ms and Hz.
+"""
+from __future__ import annotations
+
+import time
+from typing import Callable, Dict, Mapping, Optional, Tuple
+
+import numpy as np
+
+from .. import examples
+from ..cloth import Cloth
+from ..haptics.device import ConfigError
+from ..haptics.falcon import FALCON_MAX_FORCE
+from ..haptics.falcon_emulator import FalconEmulator
+from ..haptics.live import LiveSession, emulated_falcon, falcon_coupling
+from ..haptics.servo import HandCoupling, ServoLoop
+from ..materials import material
+from ..session import CollisionSettings, Session
+
+
+def measure_servo(
+    duration_s: float,
+    devices,
+    couplings: Optional[Mapping[str, HandCoupling]] = None,
+    *,
+    while_running: Optional[Callable[[ServoLoop], None]] = None,
+    open_devices: bool = True,
+    **servo_kwargs,
+) -> dict:
+    """Run a servo loop over ``devices`` for ``duration_s`` and return its timing:
+    ``{"rate_hz", "p50_ms", "p99_ms", "per_hand"}`` (worst hand first-level figures).
+
+    ``while_running(loop)`` runs on the calling thread while the servo threads run (the bench
+    steps the simulation there and publishes to ``loop.publish``); the call lasts at least
+    ``duration_s``. Devices that are not open are opened (and closed afterwards)."""
+    loop = ServoLoop(devices, couplings, **servo_kwargs)
+    opened = []
+    try:
+        for hand in loop.hands:
+            dev = loop.device(hand)
+            if open_devices and not dev.is_open:
+                dev.open()
+                opened.append(dev)
+        end = time.perf_counter() + duration_s
+        loop.start()
+        try:
+            if while_running is not None:
+                while_running(loop)
+            remaining = end - time.perf_counter()
+            if remaining > 0.0:
+                time.sleep(remaining)
+        finally:
+            loop.stop()
+        return loop.stats()
+    finally:
+        for dev in opened:
+            dev.close()
+
+
+_SCENARIO_GROUPS = {
+    # hand -> vertex group. Hands are the user's, facing the cloth's front (-y): the left hand
+    # grasps the -x side. On the T-shirt that is the wearer's right hem.
+    "cloth": {"left": "handle_left", "right": "handle_right"},
+    "banknote": {"left": "handle_left", "right": "handle_right"},
+    "tshirt": {"left": "hem_right", "right": "hem_left"},
+}
+
+
+def emulated_session(
+    scenario: str = "cloth",
+    *,
+    material_name: Optional[str] = None,
+    tear_stress: Optional[float] = None,
+    material_changes: Optional[Mapping[str, float]] = None,
+    collision: bool = False,
+    pull_distance: float = 0.02,
+    hold_s: float = 0.3,
+    pull_s: float = 2.0,
+    pace: str = "wall",
+    hand_stiffness: float = 1500.0,
+    hand_damping: float = 15.0,
+    emulator_substeps: int = 1,
+    max_force: float = FALCON_MAX_FORCE,
+    scene_radius: float = 0.08,
+    force_scale: float = 0.1,
+    k_position: float = 2000.0,
+    k_velocity: float = 20.0,
+    max_force_rate: float = 1000.0,
+    **live_kwargs,
+) -> Tuple[LiveSession, Dict[str, FalconEmulator]]:
+    """One of the paper's scenes ("cloth" = the square, "banknote", "tshirt") grasped by two
+    emulated Falcons whose scripted hands pull the grips apart along the device x axis (scene x
+    through ``FALCON_TO_SCENE``), each toward its own side, by ``pull_distance`` (device m) over
+    ``pull_s`` after ``hold_s``. ``pace``: "wall" (the hands move in real time, like a user) or
+    "simulation" (they follow the simulated time: reproducible on any machine). Returns
+    (session, {hand: emulator}).
+
+    Coupling: each Falcon's 4 cm workspace maps onto ``scene_radius`` (scale 2 by default); the
+    scene force times ``force_scale`` (0.1: the square cloth's tearing peak of a few tens of N
+    stays inside the Falcon's 8 N) reaches the device. Felt stiffness 0.1·2000·2 = 400 N/m,
+    damping 4 N·s/m, inside the Falcon's 3000 N/m and 20 N·s/m.
+
+    The T-shirt is pinned along its ``shoulders`` group: without collision nothing else would
+    hold it up; with ``collision=True`` it also collides with the mannequin (slower)."""
+    if scenario not in _SCENARIO_GROUPS:
+        raise ConfigError(f"unknown scenario {scenario!r}; scenarios: {', '.join(_SCENARIO_GROUPS)}")
+    if pace not in ("wall", "simulation"):
+        raise ConfigError(f"pace must be 'wall' or 'simulation', got {pace!r}")
+    body = None
+    if scenario == "cloth":
+        mesh, mat_name = examples.square_cloth(), "cotton"
+    elif scenario == "banknote":
+        mesh, mat_name = examples.banknote(), "banknote"
+    else:
+        body = examples.mannequin()
+        mesh, mat_name = examples.tshirt(body), "cotton"
+    changes = dict(material_changes or {})
+    if tear_stress is not None:
+        changes["tear_stress"] = float(tear_stress)
+    mat = material(material_name or mat_name, **changes)
+    cloth = Cloth(mesh.vertices, mesh.triangles, mat, uv=mesh.loop_uv(), groups=mesh.groups)
+    cloth.set_tearing(True)
+    if scenario == "tshirt":
+        cloth.pin("shoulders")
+    session = Session(cloth, CollisionSettings() if collision else None)
+    if collision and body is not None:
+        session.add_body("mannequin", body.vertices, body.triangles)
+    clock = (lambda: session.time) if pace == "simulation" else None
+    hands = {}
+    emulators = {}
+    for i, (hand, group) in enumerate(_SCENARIO_GROUPS[scenario].items()):
+        side = float(np.sign(mesh.vertices[mesh.groups[group] >= 0.5, 0].mean())) or (1.0 if hand == "right" else -1.0)
+        dev, emu = emulated_falcon(
+            f"EMU-{hand.upper()}-{i}",
+            hand,
+            (side, 0.0, 0.0),
+            distance=pull_distance,
+            hold_s=hold_s,
+            pull_s=pull_s,
+            stiffness=hand_stiffness,
+            damping=hand_damping,
+            clock=clock,
+            substeps=emulator_substeps,
+            max_force=max_force,
+        )
+        coupling = falcon_coupling(scene_radius, k_position=k_position, k_velocity=k_velocity, force_scale=force_scale, max_force_rate=max_force_rate)
+        hands[hand] = (group, dev, coupling)
+        emulators[hand] = emu
+    return LiveSession(session, hands, **live_kwargs), emulators
+
+
+def measure_live_servo(
+    duration_s: float = 10.0,
+    scenario: str = "tshirt",
+    *,
+    collision: bool = False,
+    emulator_substeps: int = 1,
+    **session_kwargs,
+) -> dict:
+    """Servo timing with two emulated Falcons while the ``scenario``'s simulation (T-shirt by
+    default: ``tshirt()``, cotton, hands on hem_left/hem_right, shoulders pinned, no collision
+    unless ``collision=True``) runs as fast as it can on the calling thread for ``duration_s``.
+
+    Returns ``rate_hz``, ``p50_ms``, ``p99_ms`` (servo, worst hand; what ``tearcloth bench``
+    reports as ``servo.*``), ``sim_steps_per_s``, ``sim_p50_ms``, ``sim_p99_ms``,
+    ``stall_timeout_s``, ``watchdog_trips``, ``overruns``, ``servo_realtime``, ``per_hand`` and
+    the scenario settings. The hands pull apart (in wall time) over 80 % of the run, so the cloth
+    is under load, and may tear, while it is measured."""
+    session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
+    session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
+    live, _emus = emulated_session(scenario, collision=collision, emulator_substeps=emulator_substeps, **session_kwargs)
+    try:
+        live.run_for(duration_s)
+    finally:
+        live.stop()
+    out = live.stats()
+    out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s))
+    return out

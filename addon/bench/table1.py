@@ -1,0 +1,192 @@
+"""Table I of the paper (Le Gouis et al., WHC 2017), measured here: FEM and tearing time per step on
+the paper's three scenarios, before a tear and with a tip running, and the step time after 50 cuts.
+
+This file owns the scenarios as the bench builds them (``build``: the square cloth (~1.4K
+triangles), the banknote (~1.9K) and the T-shirt (~3.3K) from ``tearcloth.examples``, grasped by
+two hands that pull apart), ``measure_scenario`` (the figures of one scenario, medians over many
+steps of one run), the paper's own figures (``PAPER_TABLE1``) and the console table
+(``format_table``). Nothing here asserts a speed: tests never fail because a machine is slow.
+Dev-only (not in the extension zip); SI units, times reported in ms.
+"""
+from __future__ import annotations
+
+import statistics
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import examples
+from ..cloth import Cloth, InvalidInputError
+from ..materials import material
+
+PAPER_TABLE1 = {  # ms per step, from the paper (Xeon E5-2620, SOFA)
+    "cloth": dict(triangles=1400, collision_ms=1.8, fem_ms=8.7, tearing_before_ms=3.6, tearing_after_ms=2.2,
+                  total_before_ms=14.1, total_after_ms=12.7),
+    "banknote": dict(triangles=1900, collision_ms=2.0, fem_ms=11.0, tearing_before_ms=4.5, tearing_after_ms=2.3,
+                     total_before_ms=17.5, total_after_ms=15.3),
+    "tshirt": dict(triangles=3300, collision_ms=4.5, fem_ms=14.0, tearing_before_ms=6.0, tearing_after_ms=2.5,
+                   total_before_ms=24.5, total_after_ms=21.0),
+}
+
+DT = 1e-3  # haptic-rate simulation step (s)
+PULL_SPEED = 0.02  # m/s per hand, apart
+
+
+@dataclass
+class Scenario:
+    name: str
+    cloth: Cloth
+    handles: tuple[int, int]
+    axis: np.ndarray  # unit pull direction of the right hand
+
+    def pull(self, t: float) -> None:
+        d = PULL_SPEED * t * self.axis
+        self.cloth.move_handle(self.handles[0], -d)
+        self.cloth.move_handle(self.handles[1], d)
+
+
+def build(name: str) -> Scenario:
+    """The scenario's cloth, grasped by two hands that pull apart along the x axis."""
+    if name == "cloth":
+        mesh, mat = examples.square_cloth(), material("cotton")
+    elif name == "banknote":
+        mesh, mat = examples.banknote(), material("banknote")
+    elif name == "tshirt":
+        mesh, mat = examples.tshirt(), material("cotton")
+    else:
+        raise ValueError(f"unknown scenario {name!r}; scenarios: cloth, banknote, tshirt")
+    c = Cloth(mesh.vertices, mesh.triangles, mat, uv=mesh.loop_uv(), groups=mesh.groups)
+    if name == "tshirt":
+        # without its body (FEM-only figures) the shirt hangs from its shoulders, as on a hanger
+        c.pin("shoulders")
+    left, right = ("hem_left", "hem_right") if name == "tshirt" else ("handle_left", "handle_right")
+    hl, hr = c.add_handle(left), c.add_handle(right)
+    # pull along the line between the two grips, apart (a character's left is +x, so never assume)
+    X = c.positions
+    axis = X[c.group(right) >= 0.5].mean(axis=0) - X[c.group(left) >= 0.5].mean(axis=0)
+    axis[2] = 0.0
+    return Scenario(name, c, (hl, hr), axis / np.linalg.norm(axis))
+
+
+def _median_ms(values) -> float:
+    return 1e3 * statistics.median(values)
+
+
+def measure_scenario(name: str, steps: int = 200) -> dict:
+    """FEM and tearing-exclusive medians for one scenario, plus the step time after 50 cuts."""
+    out: dict = {}
+    sc = build(name)
+    c = sc.cloth
+    out["triangles"] = c.num_triangles
+    out["vertices"] = c.num_vertices
+    # Before any tear: tearing enabled with an unreachable threshold, so every step scans every
+    # vertex (the "before" column) and nothing tears.
+    c.set_material(tear_stress=1e12)
+    c.set_tearing(True)
+    fem, tear, iters = [], [], []
+    for i in range(steps):
+        sc.pull((i + 1) * DT)
+        c.step(DT)
+        st = c.stats()
+        fem.append(st["fem_seconds"])
+        tear.append(st["tear_seconds"])
+        iters.append(st["cg_iterations"])
+    out["fem_ms"] = _median_ms(fem)
+    out["tearing_before_ms"] = _median_ms(tear)
+    out["cg_iterations_median"] = statistics.median(iters)
+    total_before = [f + t for f, t in zip(fem, tear)]
+    # A running tear: a short scripted cut from the rim leaves a tip; from then on only the tip is
+    # examined (plus one 1/scan_period slice of the rest), the "after" column.
+    rim = _rim_vertex(c)
+    c.scripted_tear(rim, _inward(c, rim), 0.01)
+    fem2, tear2 = [], []
+    for i in range(steps):
+        sc.pull((steps + i + 1) * DT)
+        c.step(DT)
+        st = c.stats()
+        fem2.append(st["fem_seconds"])
+        tear2.append(st["tear_seconds"])
+    out["tearing_after_ms"] = _median_ms(tear2)
+    out["tips_running"] = int(len(c.events().tips))
+    # Cost of a cut itself (snap or split, separation, local bookkeeping), from scripted tears.
+    out.update(_after_cuts(name, steps))
+    out["total_before_ms"] = _median_ms(total_before)
+    out["total_after_ms"] = _median_ms([f + t for f, t in zip(fem2, tear2)])
+    return out
+
+
+def _rim_vertex(c: Cloth) -> int:
+    """A vertex on the boundary near the middle of the bottom edge (lowest z, middle x)."""
+    X = c.positions
+    T = c.triangles
+    e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+    uniq, counts = np.unique(e, axis=0, return_counts=True)
+    rim = np.unique(uniq[counts == 1])
+    zlow = X[rim, 2] < X[rim, 2].min() + 0.02
+    cand = rim[zlow]
+    return int(cand[np.argmin(np.abs(X[cand, 0] - X[:, 0].mean()))])
+
+
+def _inward(c: Cloth, v: int) -> tuple[float, float, float]:
+    d = c.positions.mean(axis=0) - c.positions[v]
+    d[1] = 0.0
+    d /= np.linalg.norm(d)
+    return tuple(d)
+
+
+def _after_cuts(name: str, steps: int) -> dict:
+    """Step time on the pristine mesh and after >= 50 cut segments (scripted, across the
+    cloth), tearing on and idle in both; and the median cost of one cut."""
+    sc = build(name)
+    c = sc.cloth
+    c.set_material(tear_stress=1e12)
+
+    def median_step():
+        ts, its = [], []
+        for i in range(steps):
+            sc.pull((i + 1) * DT)
+            c.step(DT)
+            st = c.stats()
+            ts.append(st["fem_seconds"] + st["tear_seconds"])
+            its.append(max(1, st["cg_iterations"]))
+        # per CG iteration as well: a torn cloth moves more, so the solver may iterate more; the
+        # per-iteration time shows whether the data structures themselves slowed down
+        return _median_ms(ts), _median_ms([t / k for t, k in zip(ts, its)])
+
+    before, before_it = median_step()
+    cut_times, cuts = [], 0
+    X = c.positions
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    rng = np.random.default_rng(0)
+    for _attempt in range(1000):
+        if cuts >= 50:
+            break
+        t0 = time.perf_counter()
+        try:
+            k = c.scripted_tear(int(rng.integers(c.num_vertices)), (0.0, 0.0, 1.0), 0.2 * (hi[2] - lo[2]))
+        except InvalidInputError:  # a rim vertex whose direction points off the cloth: pick another
+            continue
+        if k:
+            cut_times.append((time.perf_counter() - t0) / k)
+        cuts += k
+    c.set_tearing(True)
+    after, after_it = median_step()
+    return {"step_ms_pristine": before, "step_ms_after_50_cuts": after, "step_ratio_after_50_cuts": after / before,
+            "step_ratio_per_cg_iteration_after_50_cuts": after_it / before_it,
+            "cut_ms_median": _median_ms(cut_times), "cuts_made": cuts}
+
+
+def format_table(results: dict) -> str:
+    rows = [f"{'scenario':<9} {'tris':>6} {'FEM ms':>8} {'(paper)':>8} {'tear before':>12} {'(paper)':>8} "
+            f"{'tear after':>11} {'(paper)':>8} {'CG it':>6} {'x after 50 cuts':>15} {'(per CG it)':>11}"]
+    for name, r in results["table1"].items():
+        p = PAPER_TABLE1[name]
+        rows.append(
+            f"{name:<9} {r['triangles']:>6} {r['fem_ms']:>8.3f} {p['fem_ms']:>8.1f} {r['tearing_before_ms']:>12.4f} "
+            f"{p['tearing_before_ms']:>8.1f} {r['tearing_after_ms']:>11.4f} {p['tearing_after_ms']:>8.1f} "
+            f"{r['cg_iterations_median']:>6.0f} {r['step_ratio_after_50_cuts']:>15.3f} "
+            f"{r['step_ratio_per_cg_iteration_after_50_cuts']:>11.3f}"
+        )
+    return "\n".join(rows)
+
