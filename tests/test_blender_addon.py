@@ -90,15 +90,16 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
             drawn["menu+button"] = holder.layout.calls
             # while a bake runs: a progress bar in the panel and the status bar
             from types import SimpleNamespace
-            from tearcloth.blender import bake
-            from tearcloth.blender.bake_job import Progress
-            bake.running["Sheet"] = SimpleNamespace(progress=Progress("Sheet", 1, 20))
+            from tearcloth.blender import jobs
+            from tearcloth.bake import Progress
+            fake = SimpleNamespace(object_name="Sheet", kind=jobs.BAKE, progress=Progress("Sheet", 1, 20))
+            jobs.add(fake)
             for key, draw in (("running", ui.TEARCLOTH_PT_main.draw), ("cache_running", ui.TEARCLOTH_PT_cache.draw),
                               ("status", ui.draw_status_bar)):
                 holder = Holder(); holder.layout = Layout()
                 draw(holder, ctx)
                 drawn[key] = holder.layout.calls
-            bake.running.clear()
+            jobs.remove(fake)
         result(dict(states=states, callable_ops=callable_ops, drawn=drawn))
     ''', tmp_path)
     states = got["states"]
