@@ -295,7 +295,7 @@ class BakeJob:
         plan, cloth = self.plan, self.session.cloth
         tears = self._tears_before + int(cloth.stats()["tears_started"])
         if save_state:
-            save_state_file(plan.state_path, inputs.frame, plan, cloth, tears)
+            save_state_file(plan.state_path, inputs.frame, plan, cloth, tears, self._has_uv)
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
@@ -359,10 +359,13 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
 # The state file
 
 
-def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: int) -> None:
+def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: int, has_uv: bool) -> None:
+    """The full simulation state after ``frame``. ``has_uv``: whether the cache holds UVs (the
+    cloth always has a UV array, zeros without a UV map; a resumed bake must write what the
+    cache holds)."""
     names = list(cloth.group_names)
     groups = np.stack([cloth.group(n) for n in names], axis=1) if names else np.zeros((cloth.num_vertices, 0))
-    uv = cloth.corner_uv
+    uv = cloth.corner_uv if has_uv else None
     data = dict(
         version=np.int64(STATE_VERSION),
         frame=np.int64(frame),
