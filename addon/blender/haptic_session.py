@@ -73,10 +73,10 @@ from ..haptics.servo import HandCoupling
 from ..haptics.spacemouse import SpaceMouseDevice
 from ..haptics.virtual import VirtualDevice
 from . import jobs, modifier
-from .inputs import build_plan, gather_inputs
+from .inputs import build_plan, gather_inputs, require_mesh
 from .live_job import LiveFrame, LiveRecorder
 from .props import STOP_BUTTONS
-from .report import BakeError, Reports, log, not_a_mesh
+from .report import BakeError, Reports, log
 
 HANDS = ("left", "right")
 TIMER_INTERVAL = 1.0 / 60.0
@@ -265,12 +265,7 @@ class HapticRun:
         self._servo_mark = 0.0
 
         r = self.reports
-        if obj is None:
-            r.error("no active object: select the mesh to tear")
-            r.raise_if_errors()
-        if obj.type != "MESH":
-            r.error(not_a_mesh(obj))
-            r.raise_if_errors()
+        require_mesh(obj, r)
         self.object_name = obj.name
         scene = context.scene
         self.scene_name = scene.name

@@ -4,7 +4,7 @@ main thread. The bake (``bake.py``) and the live haptic session (``haptic_sessio
 here, so a live session tears the same cloth a bake would and both report the same problems.
 
 What this file owns: ``Sources`` (the names of the data read every frame, never bpy pointers),
-``build_plan`` (validation: every problem goes into a ``Reports``), the cache-location checks,
+``require_mesh`` and ``build_plan`` (validation: every problem goes into a ``Reports``), the cache-location checks,
 and ``gather_inputs`` (move the scene to a frame and copy out what the job needs).
 """
 from __future__ import annotations
@@ -89,6 +89,16 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
         return None
 
 
+def require_mesh(obj, reports: Reports) -> None:
+    """A job needs a mesh object: BakeError (with the reason in ``reports``) otherwise."""
+    if obj is None:
+        reports.error("no active object: select the mesh to tear")
+        reports.raise_if_errors()
+    if obj.type != "MESH":
+        reports.error(not_a_mesh(obj))
+        reports.raise_if_errors()
+
+
 def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
                reports: Reports | None = None, *, hands: dict | None = None,
                with_cache: bool = True) -> tuple[BakePlan, Sources]:
@@ -101,12 +111,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     still) and the frame range is not checked; ``with_cache=False`` skips the cache location
     (nothing is recorded)."""
     reports = reports if reports is not None else Reports()
-    if obj is None:
-        reports.error("no active object: select the mesh to tear")
-        reports.raise_if_errors()
-    if obj.type != "MESH":
-        reports.error(not_a_mesh(obj))
-        reports.raise_if_errors()
+    require_mesh(obj, reports)
     if not modifier.is_enabled(obj):
         reports.error(f"Tear Cloth is not enabled on {obj.name!r} (Properties > Physics > Tear Cloth), "
                       f"or its {modifier.MODIFIER_NAME!r} modifier was removed or renamed")
