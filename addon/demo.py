@@ -1,5 +1,5 @@
 """The paper's Fig. 1 - a square cloth held at its top corners by two hands that pull apart until
-it tears. `tearcloth demo` (``run``) bakes the Blender example through ``bake_cli.demo``;
+it tears. `tearcloth demo` (``run``) bakes the Blender example through ``cli.demo``;
 ``simulate``/``run_without_blender`` do the same with the Python API alone (tests, no bpy)."""
 from __future__ import annotations
 
@@ -67,7 +67,7 @@ def render(c: Cloth, path: Path, title: str) -> None:
 
 def run(out_dir: str = "tearcloth_demo"):
     """The demo as the README runs it: bake example_blends/square_cloth.blend in Blender (bpy)."""
-    from .bake_cli import demo
+    from .cli import demo
 
     return demo(out_dir)
 

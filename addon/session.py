@@ -9,6 +9,12 @@ GIL released) -> tearing (topology events) -> clusters follow the events. Nothin
 Inputs that arrive per frame (a body's deformed mesh, an empty a handle follows) are given as
 keyframes at times in seconds; a step samples them at its own time by linear interpolation, so
 sub-frame steps see smooth motion and body velocities for friction come from the same samples.
+
+Step listeners: a layer above that must know of every step (a bake's progress events, the demo's
+log of the force on each hand) gives ``Session(..., on_step=fn)`` or calls
+``add_step_listener(fn)``; ``fn(session, report)`` runs after each ``step`` on the stepping thread,
+with ``session.time`` already at the step's end. Listeners only read: the step is finished when
+they run, so they cannot change its result.
 """
 from __future__ import annotations
 
@@ -111,8 +117,11 @@ class _Body:
 class Session:
     """A cloth, its bodies and handles, stepped in time."""
 
-    def __init__(self, cloth: Cloth, collision: CollisionSettings | None = None, start_time: float = 0.0):
+    def __init__(self, cloth: Cloth, collision: CollisionSettings | None = None, start_time: float = 0.0,
+                 on_step=None):
         self.cloth = cloth
+        # called as fn(session, report) after every step (see the module docstring)
+        self._step_listeners: list = [on_step] if on_step is not None else []
         self.time = float(start_time)
         self.collision = collision.validate() if collision else None
         self._bodies: dict[str, _Body] = {}
@@ -170,6 +179,15 @@ class Session:
         else:
             track.add(m, t)
 
+    # ---- listeners ----
+    def add_step_listener(self, fn) -> None:
+        """Call ``fn(session, report)`` after every step from now on (in the order added)."""
+        self._step_listeners.append(fn)
+
+    def remove_step_listener(self, fn) -> None:
+        """Stop calling ``fn``; a listener that was never added is an error (ValueError)."""
+        self._step_listeners.remove(fn)
+
     # ---- time ----
     def _step_adaptive(self, dt: float) -> None:
         """A step that blew up was rolled back by the core; retry it in more, smaller sub-steps
@@ -215,4 +233,6 @@ class Session:
             rep.collision_s += time.perf_counter() - t0
         self.time = t_end
         self.last = rep
+        for fn in tuple(self._step_listeners):  # a copy: a listener may remove itself
+            fn(self, rep)
         return rep

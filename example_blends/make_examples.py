@@ -36,7 +36,7 @@ image (Blender keeps only its parameters, no pixels), so nothing is packed; file
 compressed. Reproducible: the meshes come from the seeded generators of ``tearcloth.examples``
 and every setting is written here (the bytes of a .blend still differ between saves).
 
-``--pictures DIR`` bakes each example with ``tearcloth bake`` (``addon/bake_cli.py``) in a
+``--pictures DIR`` bakes each example with ``tearcloth bake`` (``addon/cli.py``) in a
 subprocess and renders a torn frame of each (``DIR/<name>.png``) and a strip of the square cloth
 tearing (``DIR/square_cloth_strip.png``).
 """
@@ -542,7 +542,7 @@ STRIP_FRAMES = (1, 12, 22, 32, 40, 48)
 
 
 def _bake(blend: Path, out: Path) -> Path:
-    cmd = [sys.executable, "-m", "tearcloth.bake_cli", str(blend), "--out", str(out)]
+    cmd = [sys.executable, "-m", "tearcloth.cli", "bake", str(blend), "--out", str(out)]
     subprocess.run(cmd, check=True)
     return out / blend.name
 

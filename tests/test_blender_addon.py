@@ -90,15 +90,16 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
             drawn["menu+button"] = holder.layout.calls
             # while a bake runs: a progress bar in the panel and the status bar
             from types import SimpleNamespace
-            from tearcloth.blender import bake
-            from tearcloth.blender.bake_job import Progress
-            bake.running["Sheet"] = SimpleNamespace(progress=Progress("Sheet", 1, 20))
+            from tearcloth.blender import jobs
+            from tearcloth.bake import Progress
+            fake = SimpleNamespace(object_name="Sheet", kind=jobs.BAKE, progress=Progress("Sheet", 1, 20))
+            jobs.add(fake)
             for key, draw in (("running", ui.TEARCLOTH_PT_main.draw), ("cache_running", ui.TEARCLOTH_PT_cache.draw),
                               ("status", ui.draw_status_bar)):
                 holder = Holder(); holder.layout = Layout()
                 draw(holder, ctx)
                 drawn[key] = holder.layout.calls
-            bake.running.clear()
+            jobs.remove(fake)
         result(dict(states=states, callable_ops=callable_ops, drawn=drawn))
     ''', tmp_path)
     states = got["states"]
@@ -474,3 +475,43 @@ def test_extension_manifest():
     assert len(manifest["tagline"]) <= 64 and manifest["tagline"][-1].isalnum()
     assert tuple(int(x) for x in manifest["blender_version_min"].split(".")) >= (4, 2, 0)
     assert set(manifest.get("permissions", {})) <= {"files", "network", "clipboard", "camera", "microphone"}
+
+
+def test_one_registry_of_running_jobs_keeps_one_job_per_object(tmp_path):
+    """Bakes and live sessions share ``blender.jobs``: while either holds an object, the other
+    (and Free Bake) is refused, and each module's ``running`` is a view of the same registry."""
+    got = run_blender(tmp_path, '''
+        from types import SimpleNamespace
+        from tearcloth.blender import bake, haptic_session, jobs, Reports
+        obj = build_scene(sys.argv[1])
+        ctx = bpy.context
+        out = {}
+        live = SimpleNamespace(object_name=obj.name, kind=jobs.LIVE)
+        jobs.add(live)
+        def refused(fn):
+            try:
+                fn()
+                return None
+            except Exception as exc:
+                return type(exc).__name__ + ": " + str(exc)
+        out["bake_while_live"] = refused(lambda: bake.BakeRun(ctx, obj))
+        reports = Reports()
+        out["free_while_live"] = [bake.free_bake(obj, reports), reports.errors]
+        out["views"] = [list(jobs.live_sessions), list(haptic_session.running), list(jobs.bakes), list(bake.running)]
+        out["second_job"] = refused(lambda: jobs.add(SimpleNamespace(object_name=obj.name, kind=jobs.BAKE)))
+        jobs.remove(live)
+        run = bake.BakeRun(ctx, obj)
+        run.start(ctx)
+        out["while_baking"] = [list(jobs.bakes), jobs.get(obj.name) is run, list(jobs.live_sessions)]
+        out["live_while_baking"] = refused(lambda: haptic_session.HapticRun(ctx, obj))
+        run.finish(ctx)
+        out["after"] = [list(jobs.bakes), jobs.get(obj.name)]
+        result(out)
+    ''', tmp_path)
+    assert got["bake_while_live"].startswith("BakeError: Sheet: a live haptic session is running on this object")
+    assert got["free_while_live"][0] is False and "live haptic session" in got["free_while_live"][1][0]
+    assert got["views"] == [["Sheet"], ["Sheet"], [], []]
+    assert got["second_job"] == "JobBusy: Sheet: a live haptic session is already running on this object"
+    assert got["while_baking"] == [["Sheet"], True, []]
+    assert "its bake is running" in got["live_while_baking"]
+    assert got["after"] == [[], None]

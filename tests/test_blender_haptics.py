@@ -36,6 +36,7 @@ import logging, threading
 sys.path.insert(0, TESTS_DIR)  # the tests' own modules (fakes.py) for the child
 from tearcloth import examples
 from tearcloth.blender import haptic_session as hs
+from tearcloth.haptics import discovery as devices  # the device hooks tests replace
 
 logged = []
 class Collect(logging.Handler):
@@ -175,8 +176,8 @@ def test_register_discover_and_panel(tmp_path):
         drawn["nothing_found"] = draw_haptics(obj)
 
         # Discover with two emulated Falcons, one without firmware
-        hs.find_falcons = lambda: ["EMU-B", "EMU-A"]
-        hs.falcon_transport_factory = lambda serial: FalconEmulator(serial, firmware_loaded=serial == "EMU-A",
+        devices.find_falcons = lambda: ["EMU-B", "EMU-A"]
+        devices.falcon_transport_factory = lambda serial: FalconEmulator(serial, firmware_loaded=serial == "EMU-A",
                                                                     homed=True)
         h = obj.tearcloth.haptics
         h.left.device = h.right.device = "FALCON"
@@ -384,7 +385,7 @@ def test_unplug_stop_button_firmware_homing_errors_keyboard_and_modal_events(tmp
         def emulator(serial):
             made.append(FalconEmulator(serial, firmware_loaded=serial == "EMU-A", homed=True))
             return made[-1]
-        hs.find_falcons, hs.falcon_transport_factory = lambda: ["EMU-A", "EMU-B"], emulator
+        devices.find_falcons, devices.falcon_transport_factory = lambda: ["EMU-A", "EMU-B"], emulator
         out["needs_firmware"] = attempt(lambda: op("haptic_session", obj, duration=1.0))
         out["needs_firmware_efforts"] = [list(e.efforts) for e in made]
 
@@ -400,7 +401,7 @@ def test_unplug_stop_button_firmware_homing_errors_keyboard_and_modal_events(tmp
             made.append(FalconEmulator(serial, firmware_loaded=serial == "EMU-A", homed=False,
                                        hand=spring_hand(homing_gesture(leg=0.1), 1500.0, 15.0)))
             return made[-1]
-        hs.falcon_transport_factory = unhomed
+        devices.falcon_transport_factory = unhomed
         run = hs.HapticRun(ctx, obj)
         run.start(ctx)
         homing = dict(phase=run.status.phase, text=run.status.text(),
@@ -465,9 +466,9 @@ def test_unplug_stop_button_firmware_homing_errors_keyboard_and_modal_events(tmp
         from fakes import FakeHid  # tests/fakes.py: TESTS_DIR is on the child's sys.path
         from tearcloth.haptics.spacemouse import translation_report
         puck = FakeHid()
-        hs.find_spacemice = lambda: [dict(path=b"/dev/hidraw-fake", vid=0x256F, pid=0xC635, model="SpaceMouse Compact",
+        devices.find_spacemice = lambda: [dict(path=b"/dev/hidraw-fake", vid=0x256F, pid=0xC635, model="SpaceMouse Compact",
                                           layout="split", serial="")]
-        hs.spacemouse_hid_factory = lambda path: puck
+        devices.spacemouse_hid_factory = lambda path: puck
         h.right.device, h.right.mapping, h.right.scale = "SPACEMOUSE", "MANUAL", 1.0
         grasp = np.mean([v.co for v in obj.data.vertices if any(g.group == obj.vertex_groups["handle_right"].index
                                                                   for g in v.groups)], axis=0)

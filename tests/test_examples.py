@@ -1,5 +1,5 @@
 """The example scenes (``example_blends/*.blend``) bake headless with ``tearcloth bake``
-(``addon/bake_cli.py``), always in a subprocess; their renders show the tear; the T-shirt never
+(``addon/cli.py``), always in a subprocess; their renders show the tear; the T-shirt never
 enters the walking body; the committed files are what the generator makes; and every bad input
 to ``tearcloth bake`` ends with one error line and a non-zero exit.
 
@@ -36,8 +36,8 @@ SUMMARY = re.compile(r"^(?P<name>\S+): baked frames (?P<a>-?\d+)-(?P<b>-?\d+): (
 
 def bake(blend: Path, out: Path, *args, timeout: float = 240.0) -> dict:
     """`tearcloth bake` in a subprocess; returns {object name: summary} parsed from its output."""
-    proc = subprocess.run([sys.executable, "-m", "tearcloth.bake_cli", str(blend), "--out", str(out), *map(str, args)],
-                          capture_output=True, text=True, timeout=timeout)
+    proc = subprocess.run([sys.executable, "-m", "tearcloth.cli", "bake", str(blend), "--out", str(out),
+                           *map(str, args)], capture_output=True, text=True, timeout=timeout)
     log = proc.stdout + proc.stderr
     assert proc.returncode == 0, log[-4000:]
     found = {m["name"]: {"frames": (int(m["a"]), int(m["b"])), "tears": int(m["tears"]),
@@ -52,7 +52,7 @@ def bake(blend: Path, out: Path, *args, timeout: float = 240.0) -> dict:
 
 def silhouette(path: Path) -> np.ndarray:
     """What the camera sees of the scene's objects: the alpha of a render with a transparent
-    background (bake_cli --transparent)."""
+    background (tearcloth bake --transparent)."""
     from PIL import Image
 
     with Image.open(path) as im:
@@ -123,11 +123,11 @@ def test_banknote_bakes_and_the_render_shows_the_tear(tmp_path):
 
 
 def test_demo_bakes_the_square_cloth_and_plots_the_hand_forces(tmp_path):
-    """`tearcloth demo` (bake_cli.demo): the example baked end to end, a picture of the torn
+    """`tearcloth demo` (cli.demo): the example baked end to end, a picture of the torn
     cloth, and the force each hand feels: both pull inward (towards each other), rise while the
     cloth stretches and drop when it tears."""
     out = tmp_path / "demo"
-    proc = subprocess.run([sys.executable, "-c", "import sys; from tearcloth.bake_cli import demo; demo(sys.argv[1])",
+    proc = subprocess.run([sys.executable, "-c", "import sys; from tearcloth.cli import demo; demo(sys.argv[1])",
                            str(out)], capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
     for name in ("torn_cloth.png", "forces.png", "forces.csv", "square_cloth.blend"):
@@ -294,7 +294,7 @@ def plain_blend(tmp_path_factory):
 
 
 def run_cli(*args, timeout: float = 120.0):
-    return subprocess.run([sys.executable, "-m", "tearcloth.bake_cli", *map(str, args)], capture_output=True,
+    return subprocess.run([sys.executable, "-m", "tearcloth.cli", "bake", *map(str, args)], capture_output=True,
                           text=True, timeout=timeout)
 
 

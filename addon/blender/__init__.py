@@ -5,8 +5,12 @@ What each file owns:
 * ``props``     settings stored in the .blend (``Object.tearcloth``, ``Scene.tearcloth``)
 * ``convert``   scene units -> SI, meshes -> triangle arrays, world/local spaces (the one boundary)
 * ``modifier``  the "Tear Cloth" modifier (a stock Mesh Sequence Cache) and cache paths
-* ``bake``      validation, per-frame inputs on the main thread, ``BakeRun``, ``bake_object``
-* ``bake_job``  the bake itself, bpy-free, run on a worker thread or inline
+* ``jobs``      the one registry of running jobs (bakes and live sessions, by object name)
+* ``inputs``    validation (object + scene -> ``tearcloth.bake.BakePlan``) and per-frame inputs,
+                on the main thread, for the bake and the live session alike
+* ``bake``      ``BakeRun`` (inline or modal with a worker thread), ``bake_object``, free, stop all;
+                the bake job itself is bpy-free: ``tearcloth.bake``
+* ``headless``  the bpy half of `tearcloth bake`: open a file, bake its objects, save, render
 * ``haptic_session``  the live haptic session: devices, the live display mesh, stopping on load/quit
 * ``live_job``  what the live session hands over off the main thread (display frames, cache writer)
 * ``ops``       operators (``tearcloth.*``)

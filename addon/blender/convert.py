@@ -29,6 +29,7 @@ import numpy as np
 
 from ..materials import Material
 from ..session import CollisionSettings
+from ..spaces import local_to_world_si  # the space formulas are bpy-free: the bake job needs them too
 
 
 # ---------------------------------------------------------------------------------------------
@@ -125,35 +126,6 @@ def tearing_from_settings(settings) -> dict:
 def matrix_array(matrix) -> np.ndarray:
     """A mathutils 4x4 matrix as a float64 numpy array."""
     return np.array([list(row) for row in matrix], dtype=np.float64)
-
-
-def transform_points(matrix: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ matrix[:3, :3].T + matrix[:3, 3]
-
-
-def local_to_world_si(points_local: np.ndarray, matrix_world: np.ndarray, scale: float) -> np.ndarray:
-    """Object-local BU -> world metres."""
-    return transform_points(matrix_world, points_local) * scale
-
-
-def world_si_to_local(points_si: np.ndarray, matrix_world: np.ndarray, scale: float) -> np.ndarray:
-    """World metres -> object-local BU."""
-    return transform_points(np.linalg.inv(matrix_world), points_si / scale)
-
-
-def world_si_vectors_to_local(vectors_si: np.ndarray, matrix_world: np.ndarray, scale: float) -> np.ndarray:
-    """Velocities: world m/s -> object-local BU/s (only the linear part of the inverse acts)."""
-    return (vectors_si / scale) @ np.linalg.inv(matrix_world[:3, :3]).T
-
-
-def handle_target_si(current: np.ndarray, grasp: np.ndarray, scale: float) -> np.ndarray:
-    """A handle's affine target, in metres, for a follow object whose world matrix was ``grasp``
-    when the cloth was grasped and is ``current`` now: target = current @ grasp^-1, the motion of
-    the follow object since the grasp, applied to the grasped vertices. Rotation and scale act on
-    metres and BU alike; only the translation column changes unit."""
-    target = current @ np.linalg.inv(grasp)
-    target[:3, 3] *= scale
-    return target
 
 
 # ---------------------------------------------------------------------------------------------

@@ -4,15 +4,16 @@ simulation runs on its own thread, the viewport shows the tearing mesh as it hap
 What this file owns
 -------------------
 * ``HapticRun``: one live session of one object, from validation to the last restored byte.
-  It builds the scene exactly as a bake does (``bake.build_plan``, ``bake_job.make_session``:
+  It builds the scene exactly as a bake does (``inputs.build_plan``, ``tearcloth.bake.make_session``:
   same material, pins, held handles, colliders, world-space metres), makes one device per hand
   (Falcon, SpaceMouse, keyboard/mouse virtual device, emulated Falcon), couples it
   (``HandCoupling``) and drives a ``haptics.live.LiveSession``.
-* ``discover`` (Falcon serials, SpaceMice, a probe of each hand's device state) and
-  ``save_force_log``.
-* The registry of running sessions (``running``) and the last finished one per object
-  (``finished``: its force log and final device states), read by the panel; ``stop_all`` used
-  on unregister, before a file load and when Blender quits; the save handlers.
+* ``discover``: the devices plugged in (``haptics.discovery``) and each hand's device state for
+  an object's settings, kept in ``discovery`` for the panel; ``save_force_log``.
+* The last finished session per object (``finished``: its force log and final device states),
+  read by the panel; ``stop_all`` used on unregister, before a file load and when Blender quits;
+  the save handlers. Running sessions are registered in ``jobs`` with the bakes; ``running``
+  here is that registry's read-only view of the live sessions.
 
 Threads (notes/haptics.md section 8)
 ------------------------------------
@@ -47,9 +48,9 @@ bake) and back afterwards; the scene's time stands still meanwhile, so animated 
 follow objects hold their Start-frame pose. A recorded session is written at the scene's frame
 rate from the Start frame on: frame f holds the cloth at simulated time (f - start) / fps.
 
-Device hooks for tests and demos: ``falcon_transport_factory`` (serial -> Transport; None: USB),
-``spacemouse_hid_factory`` (HID path -> ``hid.device``-like; None: hidapi), ``find_falcons`` and
-``find_spacemice`` are module attributes that may be replaced.
+Device hooks for tests and demos live in ``tearcloth.haptics.discovery`` (``find_falcons``,
+``find_spacemice``, ``falcon_transport_factory``, ``spacemouse_hid_factory``) and are read from
+there at call time.
 """
 from __future__ import annotations
 
@@ -61,19 +62,21 @@ from dataclasses import dataclass, field
 import bpy
 import numpy as np
 
+from .. import spaces
+from ..bake import delete_state, make_session
 from ..cache import CacheError, CacheWriter
+from ..haptics import discovery as devices
 from ..haptics.device import DeviceState, HapticError, Workspace
 from ..haptics.falcon import FALCON_MAX_FORCE, FalconDevice, read_firmware
-from ..haptics.falcon_transport import list_falcons
 from ..haptics.live import FALCON_TO_SCENE, LiveSession, emulated_falcon
 from ..haptics.servo import HandCoupling
-from ..haptics.spacemouse import SpaceMouseDevice, list_spacemice
+from ..haptics.spacemouse import SpaceMouseDevice
 from ..haptics.virtual import VirtualDevice
-from . import bake, convert, modifier
-from .bake_job import delete_state, make_session
+from . import jobs, modifier
+from .inputs import build_plan, gather_inputs, require_mesh
 from .live_job import LiveFrame, LiveRecorder
 from .props import STOP_BUTTONS
-from .report import BakeError, Reports, log, not_a_mesh
+from .report import BakeError, Reports, log
 
 HANDS = ("left", "right")
 TIMER_INTERVAL = 1.0 / 60.0
@@ -97,115 +100,37 @@ KEYBOARD_HELP = (
 STATE_TEXT = {"absent": "Absent", "needs_firmware": "Needs Firmware", "homing": "Homing", "ready": "Ready",
               "lost": "Lost", "closed": "Closed", "unknown": "Not Checked"}
 
-# Sessions in progress by object name, and the last finished one of each object (force log, states).
-running: dict[str, "HapticRun"] = {}
+# Sessions in progress by object name (read-only), and the last finished one of each object
+# (force log, states).
+running = jobs.live_sessions
 finished: dict[str, "HapticRun"] = {}
 
-# Where devices come from; replaceable by tests and demos (see the module docstring).
-falcon_transport_factory = None   # serial -> Transport (None: pyftdi / D2XX)
-spacemouse_hid_factory = None     # hidapi path -> hid.device-like object (None: hidapi)
-
-
-def find_falcons() -> list:
-    return list_falcons()
-
-
-def find_spacemice() -> list:
-    return list_spacemice()
-
-
-def _quietly(fn) -> list:
-    """Discovery never raises: a missing back end or permission is 'nothing found'."""
-    try:
-        return list(fn())
-    except Exception as exc:  # noqa: BLE001 - the device back ends raise anything
-        log.info("device discovery: %s", exc)
-        return []
-
-
-def hid_path_text(path) -> str:
-    """A hidapi path (bytes) as it is stored in a StringProperty, and back (``hid_path_bytes``)."""
-    return path.decode("utf-8", "surrogateescape") if isinstance(path, bytes) else str(path or "")
-
-
-def hid_path_bytes(text: str) -> bytes | None:
-    return text.encode("utf-8", "surrogateescape") if text else None
-
-
-# ---------------------------------------------------------------------------------------------
-# Discovery
-
-
-@dataclass
-class Discovery:
-    falcons: list = field(default_factory=list)      # serial numbers
-    spacemice: list = field(default_factory=list)    # list_spacemice() dicts
-    states: dict = field(default_factory=dict)       # (object name, hand) -> (state, message)
-    when: float = 0.0
-
-
-discovery: Discovery | None = None
-
-
-def _assign(wanted: dict, found: list) -> dict:
-    """{hand: chosen id or ''} -> {hand: id or None}: a chosen id is kept (plugged in or not), an
-    empty choice takes the first found id no other hand uses."""
-    out = {hand: choice for hand, choice in wanted.items() if choice}
-    remaining = [x for x in sorted(found) if x not in out.values()]
-    for hand, choice in wanted.items():
-        if not choice:
-            out[hand] = remaining.pop(0) if remaining else None
-    return out
+# What the last Discover found, and how its SpaceMouse paths read (both for the panel).
+discovery: devices.Discovery | None = None
+hid_path_text = devices.hid_path_text
 
 
 def _used_hands(settings) -> dict:
     return {hand: getattr(settings, hand) for hand in HANDS if getattr(settings, hand).use}
 
 
-def discover(obj=None) -> Discovery:
+def discover(obj=None) -> devices.Discovery:
     """List the Falcons and SpaceMice plugged in (never raises) and, for ``obj``, probe the
     state of each hand's device: a Falcon is opened and closed again (zero force) to see whether
     it needs firmware or homing; nothing is loaded into it."""
     global discovery
-    found = Discovery(sorted(_quietly(find_falcons)), _quietly(find_spacemice), {}, time.time())
-    if obj is not None and obj.name not in running:
+    found = devices.scan()
+    if obj is not None and obj.name not in jobs.live_sessions:
         settings = obj.tearcloth.haptics
         hands = _used_hands(settings)
-        falcons = _assign({h: s.falcon_serial for h, s in hands.items() if s.device == "FALCON"}, found.falcons)
-        paths = [hid_path_text(m["path"]) for m in found.spacemice]
-        mice = _assign({h: s.spacemouse_path for h, s in hands.items() if s.device == "SPACEMOUSE"}, paths)
+        falcons = devices.assign({h: s.falcon_serial for h, s in hands.items() if s.device == "FALCON"},
+                                 found.falcons)
+        paths = [devices.hid_path_text(m["path"]) for m in found.spacemice]
+        mice = devices.assign({h: s.spacemouse_path for h, s in hands.items() if s.device == "SPACEMOUSE"}, paths)
         for hand, s in hands.items():
-            found.states[(obj.name, hand)] = _probe(hand, s, falcons.get(hand), found, mice.get(hand))
+            found.states[(obj.name, hand)] = devices.probe(hand, s.device, falcons.get(hand), found, mice.get(hand))
     discovery = found
     return found
-
-
-def _probe(hand: str, s, serial, found: Discovery, mouse_path) -> tuple[str, str]:
-    if s.device == "EMULATED":
-        return "ready", "emulated Falcon: a scripted hand pulls the grip (demo, no hardware)"
-    if s.device == "KEYBOARD":
-        return "ready", "keyboard and mouse: drive this hand while the session runs"
-    if s.device == "SPACEMOUSE":
-        if mouse_path is None or mouse_path not in [hid_path_text(m["path"]) for m in found.spacemice]:
-            return "absent", "no 3Dconnexion SpaceMouse found for this hand (on Linux, check the udev rule for hidraw)"
-        return "ready", "SpaceMouse found (input only, no force feedback)"
-    if serial is None:
-        return "absent", ("no Novint Falcon found for this hand (check USB, power and, on Linux, the udev rule "
-                          "for 0403:cb48)")
-    if serial not in found.falcons:
-        return "absent", f"the Falcon {serial!r} chosen for the {hand} hand is not connected; connected: " \
-                         f"{', '.join(found.falcons) or 'none'}"
-    dev = FalconDevice(serial, hand=hand, transport_factory=falcon_transport_factory)
-    try:
-        state = dev.open()
-        return state.value, dev.message
-    except HapticError as exc:
-        return "absent", str(exc)
-    finally:
-        try:
-            dev.close()
-        except HapticError:
-            pass
 
 
 # ---------------------------------------------------------------------------------------------
@@ -249,12 +174,12 @@ class SessionStatus:
 def hand_status(obj, hand: str) -> HandStatus:
     """A hand's state for the panel: the running session's, else the last session's, else what
     Discover found, else 'not checked' (emulated and keyboard hands are always ready)."""
-    run = running.get(obj.name) or finished.get(obj.name)
+    run = jobs.live_sessions.get(obj.name) or finished.get(obj.name)
     if run is not None and hand in run.status.hands:
         return run.status.hands[hand]
     s = getattr(obj.tearcloth.haptics, hand)
     if s.device in ("EMULATED", "KEYBOARD"):
-        state, message = _probe(hand, s, None, Discovery(), None)
+        state, message = devices.probe(hand, s.device, None, devices.Discovery(), None)
         return HandStatus(state, message)
     if discovery is not None and (obj.name, hand) in discovery.states:
         return HandStatus(*discovery.states[(obj.name, hand)])
@@ -315,6 +240,8 @@ class HapticRun:
     ended in ``reports``. ``key``/``mouse_move`` drive keyboard hands.
     """
 
+    kind = jobs.LIVE
+
     def __init__(self, context, obj, reports: Reports | None = None):
         self.reports = reports if reports is not None else Reports()
         self.status = SessionStatus()
@@ -338,12 +265,7 @@ class HapticRun:
         self._servo_mark = 0.0
 
         r = self.reports
-        if obj is None:
-            r.error("no active object: select the mesh to tear")
-            r.raise_if_errors()
-        if obj.type != "MESH":
-            r.error(not_a_mesh(obj))
-            r.raise_if_errors()
+        require_mesh(obj, r)
         self.object_name = obj.name
         scene = context.scene
         self.scene_name = scene.name
@@ -352,10 +274,10 @@ class HapticRun:
             r.error(f"{obj.name}: a linked object cannot be torn live; make it local first")
         if obj.mode != "OBJECT":
             r.error(f"{obj.name}: leave {obj.mode.replace('_', ' ').title()} Mode before starting a haptic session")
-        for other in running.values():
+        for other in jobs.live_sessions.values():
             r.error(f"a haptic session is already running on {other.object_name!r} (devices are shared): "
                     "stop it first (Esc)")
-        if obj.name in bake.running:
+        if obj.name in jobs.bakes:
             r.error(f"{obj.name}: its bake is running; cancel it first (Esc)")
         settings = obj.tearcloth.haptics
         hands = _used_hands(settings)
@@ -380,9 +302,9 @@ class HapticRun:
         try:
             if scene.frame_current != obj.tearcloth.frame_start:
                 scene.frame_set(obj.tearcloth.frame_start)  # the rest state, as for a bake
-            plan, sources = bake.build_plan(context, obj, hands={h: s.vertex_group for h, s in hands.items()},
-                                            with_cache=self.record, reports=r)
-            inputs = bake.gather_inputs(context, sources, plan.frame_start, plan.scale)
+            plan, sources = build_plan(context, obj, hands={h: s.vertex_group for h, s in hands.items()},
+                                       with_cache=self.record, reports=r)
+            inputs = gather_inputs(context, sources, plan.frame_start, plan.scale)
             self.plan = plan
             self.matrix = inputs.object_matrix
             session, _held = make_session(plan, inputs.bodies, 0.0)
@@ -428,12 +350,14 @@ class HapticRun:
         r = self.reports
         found_falcons = found_mice = None
         if any(s.device == "FALCON" for s in hands.values()):
-            found_falcons = _quietly(find_falcons)
+            found_falcons = devices.quietly(devices.find_falcons)
         if any(s.device == "SPACEMOUSE" for s in hands.values()):
-            found_mice = _quietly(find_spacemice)
-        falcons = _assign({h: s.falcon_serial for h, s in hands.items() if s.device == "FALCON"}, found_falcons or [])
-        mouse_paths = [hid_path_text(m["path"]) for m in found_mice or []]
-        mice = _assign({h: s.spacemouse_path for h, s in hands.items() if s.device == "SPACEMOUSE"}, mouse_paths)
+            found_mice = devices.quietly(devices.find_spacemice)
+        falcons = devices.assign({h: s.falcon_serial for h, s in hands.items() if s.device == "FALCON"},
+                                 found_falcons or [])
+        mouse_paths = [devices.hid_path_text(m["path"]) for m in found_mice or []]
+        mice = devices.assign({h: s.spacemouse_path for h, s in hands.items() if s.device == "SPACEMOUSE"},
+                              mouse_paths)
         scale = plan.scale
         centroids = {h: plan.vertices[plan.groups[s.vertex_group] >= 0.5].mean(axis=0) for h, s in hands.items()}
         self._couplings = {}
@@ -451,7 +375,7 @@ class HapticRun:
                             f"{', '.join(found_falcons) or 'none'}")
                     continue
                 dev = FalconDevice(serial, hand=hand, firmware_path=self.firmware_path,
-                                   transport_factory=falcon_transport_factory,
+                                   transport_factory=devices.falcon_transport_factory,
                                    max_force=min(float(s.max_force), FALCON_MAX_FORCE))
             elif s.device == "SPACEMOUSE":
                 path = mice.get(hand)
@@ -459,9 +383,10 @@ class HapticRun:
                     r.error(f"the {hand} hand: no 3Dconnexion SpaceMouse found"
                             + (f" at {path!r}" if path else "") + " (on Linux, check the udev rule for hidraw access)")
                     continue
-                model = next(m for m in found_mice if hid_path_text(m["path"]) == path)
-                hid = spacemouse_hid_factory(hid_path_bytes(path)) if spacemouse_hid_factory is not None else None
-                dev = SpaceMouseDevice(hid_path_bytes(path), vid=model["vid"], pid=model["pid"], hid_device=hid,
+                model = next(m for m in found_mice if devices.hid_path_text(m["path"]) == path)
+                factory = devices.spacemouse_hid_factory
+                hid = factory(devices.hid_path_bytes(path)) if factory is not None else None
+                dev = SpaceMouseDevice(devices.hid_path_bytes(path), vid=model["vid"], pid=model["pid"], hid_device=hid,
                                        hand=hand)
             elif s.device == "KEYBOARD":
                 dev = VirtualDevice(f"keyboard ({hand} hand)", workspace=KEYBOARD_WORKSPACE,
@@ -508,7 +433,7 @@ class HapticRun:
     def start(self, context) -> None:
         """Open the devices and start (or, while a Falcon homes, wait in ``tick``). BakeError,
         with every device closed again and the scene as it was, if it cannot."""
-        running[self.object_name] = self
+        jobs.add(self)
         try:
             for hand in self.hands:
                 dev = self.devices[hand]
@@ -542,7 +467,7 @@ class HapticRun:
             self.recorder.close()
         self.state = "error"
         self.status.phase = "ended"
-        running.pop(self.object_name, None)
+        jobs.remove(self)
         self._restore_frame()
         self.finished = True
 
@@ -605,7 +530,7 @@ class HapticRun:
             obj.modifiers[name].show_viewport = False
 
     def _write(self, mesh, frame: LiveFrame, rebuild: bool) -> None:
-        local = convert.world_si_to_local(frame.positions, self.matrix, self.plan.scale)
+        local = spaces.world_si_to_local(frame.positions, self.matrix, self.plan.scale)
         write_live_mesh(mesh, local, frame.triangles, frame.corner_uv, self.uv_name, self.smooth, rebuild)
         self._tris = frame.triangles
         self._shown = frame
@@ -765,7 +690,7 @@ class HapticRun:
             return self.state
         self.stop(self.stop_reason or "finished")
         self.finished = True
-        running.pop(self.object_name, None)
+        jobs.remove(self)
         finished[self.object_name] = self
         live, r, name = self.live, self.reports, self.object_name
         if live.error is not None:
@@ -910,7 +835,7 @@ def run_for(context, run: HapticRun, seconds: float, until=None, interval: float
 def stop_all(reason: str, restore: bool = True) -> None:
     """Stop every session with zero force. ``restore``: put the objects back now (unregister);
     otherwise touch no Blender data (a file load replaces it, and at exit it is going away)."""
-    for run in list(running.values()):
+    for run in jobs.of_kind(jobs.LIVE):
         log.warning("%s: stopping the haptic session (%s); force set to zero", run.object_name, reason)
         run.stop(reason)
         if not restore:
@@ -919,7 +844,7 @@ def stop_all(reason: str, restore: bool = True) -> None:
             run.finish()
         except Exception as exc:  # noqa: BLE001 - a handler must not fail
             log.error("%s: could not restore after the session: %s", run.object_name, exc)
-        running.pop(run.object_name, None)
+        jobs.remove(run)
 
 
 def _at_exit() -> None:
@@ -930,7 +855,7 @@ atexit.register(_at_exit)
 
 
 def swap_all_for_save(saving: bool) -> None:
-    for run in list(running.values()):
+    for run in jobs.of_kind(jobs.LIVE):
         try:
             run.swap_for_save(saving)
         except Exception as exc:  # noqa: BLE001 - a handler must not fail the save

@@ -10,7 +10,7 @@ thread, where bpy must never be touched, so the recorder only:
   operator's TIMER tick on the main thread picks it up and writes it into the live display mesh;
 * when recording, queues one frame per scene frame (frame ``f`` at simulated time
   ``(f - frame_start) / fps``, the bake's clock) for its own writer thread, which writes them with
-  the same ``CacheWriter`` a bake uses, in the cloth object's local space (``convert``'s rule),
+  the same ``CacheWriter`` a bake uses, in the cloth object's local space (``spaces``' rule),
   so the session plays back through the Tear Cloth modifier like a bake.
 
 The writer is a thread of its own because a USD frame takes milliseconds to write: on the
@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import convert
+from .. import spaces
 
 MAX_QUEUED = 240
 
@@ -114,8 +114,8 @@ class LiveRecorder:
                 self.error = exc
 
     def _write(self, frame_number: int, frame: LiveFrame) -> None:
-        local = convert.world_si_to_local(frame.positions, self.matrix, self.scale)
-        velocity = convert.world_si_vectors_to_local(frame.velocities, self.matrix, self.scale)
+        local = spaces.world_si_to_local(frame.positions, self.matrix, self.scale)
+        velocity = spaces.world_si_vectors_to_local(frame.velocities, self.matrix, self.scale)
         # As in the bake: metres with meters_per_unit = scale, so the file holds local Blender units.
         self.writer.write_frame(frame_number, local * self.scale, frame.triangles,
                                 frame.corner_uv if self.has_uv else None, velocity * self.scale)

@@ -18,8 +18,9 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy.types import Operator
 
+from .. import spaces
 from ..materials import MATERIALS
-from . import bake, convert, haptic_session, modifier
+from . import bake, convert, haptic_session, jobs, modifier
 from .report import BakeError, Reports, not_a_mesh
 
 CLUSTER_ATTRIBUTE = "tearcloth_clusters"
@@ -72,11 +73,11 @@ class TEARCLOTH_OT_disable(Operator):
     def execute(self, context):
         obj = context.object
         reports = Reports()
-        if obj.name in bake.running:
+        if obj.name in jobs.bakes:
             reports.error(f"{obj.name}: its bake is running; cancel it first (Esc)")
             reports.to_operator(self)
             return {"CANCELLED"}
-        if obj.name in haptic_session.running:
+        if obj.name in jobs.live_sessions:
             reports.error(f"{obj.name}: a haptic session is running on it; stop it first (Esc)")
             reports.to_operator(self)
             return {"CANCELLED"}
@@ -240,10 +241,10 @@ class TEARCLOTH_OT_bake_cancel(Operator):
 
     @classmethod
     def poll(cls, context):
-        return context.object is not None and context.object.name in bake.running
+        return context.object is not None and context.object.name in jobs.bakes
 
     def execute(self, context):
-        run = bake.running.get(context.object.name)
+        run = jobs.bakes.get(context.object.name)
         if run is not None:
             # The modal operator notices on its next tick and finishes (attaching the frames).
             run.job.cancel.set()
@@ -422,7 +423,7 @@ class TEARCLOTH_OT_preview_clusters(Operator):
             reports.error(f"{obj.name}: the mesh has no faces to cluster")
             return _finish(self, reports, {"CANCELLED"})
         scale = convert.scale_length(context.scene)
-        positions = convert.local_to_world_si(arrays.vertices, convert.matrix_array(obj.matrix_world), scale)
+        positions = spaces.local_to_world_si(arrays.vertices, convert.matrix_array(obj.matrix_world), scale)
         target = int(obj.tearcloth.cluster_size)
         labels = cluster_mesh(positions, arrays.triangles, target)
         colours = np.full((len(mesh.vertices), 4), 0.2, dtype=np.float32)  # loose vertices: dark grey
@@ -530,7 +531,7 @@ class TEARCLOTH_OT_haptic_session(Operator):
 
     @classmethod
     def poll(cls, context):
-        return modifier.is_enabled(context.object) and context.object.name not in haptic_session.running
+        return modifier.is_enabled(context.object) and context.object.name not in jobs.live_sessions
 
     def _new_run(self, context):
         reports = Reports()
@@ -640,12 +641,12 @@ class TEARCLOTH_OT_haptic_stop(Operator):
 
     @classmethod
     def poll(cls, context):
-        return bool(haptic_session.running)
+        return bool(jobs.live_sessions)
 
     def execute(self, context):
         obj = context.object
-        runs = [haptic_session.running[obj.name]] if obj is not None and obj.name in haptic_session.running \
-            else list(haptic_session.running.values())
+        runs = [jobs.live_sessions[obj.name]] if obj is not None and obj.name in jobs.live_sessions \
+            else list(jobs.live_sessions.values())
         for run in runs:
             run.request_stop("Stop pressed")  # the session's next tick ends it and restores the mesh
         return {"FINISHED"}
@@ -684,7 +685,7 @@ class TEARCLOTH_OT_haptic_assign_device(Operator):
 
     @classmethod
     def poll(cls, context):
-        return modifier.is_enabled(context.object) and context.object.name not in haptic_session.running
+        return modifier.is_enabled(context.object) and context.object.name not in jobs.live_sessions
 
     def execute(self, context):
         hand = getattr(context.object.tearcloth.haptics, self.hand.lower())

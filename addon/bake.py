@@ -1,18 +1,27 @@
-"""The bake itself: a Session stepped frame by frame into a CacheWriter. NO bpy in this file.
+"""The bake job, bpy-free: a ``Session`` stepped frame by frame into a ``CacheWriter``.
 
 What this file owns
 -------------------
-``BakePlan`` (everything a bake needs, gathered from Blender once, as plain arrays and SI
-values), ``FrameInputs`` (what Blender must tell the bake about one frame: the cloth object's
-matrix, the matrices of the objects handles follow, the deformed colliders), ``BakeJob`` (turns
-frames of inputs into cache frames) and ``run_worker`` (the worker-thread loop). Because nothing
-here touches bpy, the same code runs on the modal operator's worker thread and inline in the
-headless ``bake_object``; and undo, file loads or deleted objects in Blender can never pull data
-out from under it: it holds only its own arrays.
+``BakePlan`` (everything a bake needs, gathered from Blender once by ``blender/inputs.py``, as
+plain arrays and SI values), ``FrameInputs`` (what Blender must tell the bake about one frame:
+the cloth object's matrix, the matrices of the objects handles follow, the deformed colliders),
+``BakeJob`` (turns frames of inputs into cache frames), ``make_session`` (the scene a plan
+describes, shared with the live haptic session), the resume state file, ``run_worker`` (the
+worker-thread loop), and progress: ``Progress`` (counters shared with the UI), ``BakeEvent``
+(what a job tells the listener it was given) and ``ProgressLine`` (the one text reporter, used by
+``tearcloth bake``). Because nothing here touches bpy, the same code runs on the modal
+operator's worker thread and inline in the headless bake; and undo, file loads or deleted
+objects in Blender can never pull data out from under it: it holds only its own arrays.
 
 Time: frame ``f`` is at ``(f - frame_start) / fps`` seconds. To go from frame f-1 to f, the
 inputs of frame f are keyframed into the Session first, so its sub-steps interpolate between the
 two frames (smooth handle motion, collider velocities for friction).
+
+Events: ``BakeJob(plan, on_event=fn)`` calls ``fn(BakeEvent)`` on the thread that runs the job:
+``"begin"`` once the simulation is built, ``"step"`` after every simulation step (through the
+Session's step listener; ``event.report`` is its ``StepReport``) and ``"frame"`` after every frame
+is on disk. Listeners read the job (``event.job.session``, ``event.job.progress``); they must not
+step it.
 
 Crash safety and resume: the cache writer makes every finished frame durable on its own. To
 continue a bake the simulation state is needed too, and the USD frames do not hold it all (rest
@@ -26,19 +35,22 @@ the resume frame.
 """
 from __future__ import annotations
 
+import logging
+import math
 import os
 import queue
+import sys
 import threading
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..cache import CacheWriter
-from ..cloth import Cloth, SimulationError
-from ..materials import Material
-from ..session import CollisionSettings, Session
-from . import convert
+from . import spaces
+from .cache import CacheWriter, _remove_quietly
+from .cloth import Cloth, SimulationError
+from .materials import Material
+from .session import CollisionSettings, Session, StepReport
 
 STATE_VERSION = 1
 
@@ -129,15 +141,24 @@ class Progress:
         per_frame = elapsed / (self.frame - self.first_frame)
         return per_frame * (self.frame_end - self.frame)
 
-    def text(self) -> str:
+    def text(self, elapsed: bool = False) -> str:
+        """One line: frames, steps per second, tears, the ETA; ``elapsed`` adds the time so far
+        and always shows the ETA ('?' while unknown), for a log where lines must line up."""
         frame = "-" if self.frame is None else str(self.frame)
+        parts = [f"{self.object_name}: frame {frame}/{self.frame_end}", f"{self.steps_per_second:.0f} steps/s",
+                 f"{self.tears} tear{'s' if self.tears != 1 else ''}"]
         eta = self.eta_seconds
-        eta_text = "" if eta is None else f", ETA {_duration(eta)}"
-        return (f"{self.object_name}: frame {frame}/{self.frame_end}, {self.steps_per_second:.0f} steps/s, "
-                f"{self.tears} tear{'s' if self.tears != 1 else ''}{eta_text}")
+        if elapsed:
+            parts += [duration(time.perf_counter() - self.started), f"ETA {duration(eta)}"]
+        elif eta is not None:
+            parts.append(f"ETA {duration(eta)}")
+        return ", ".join(parts)
 
 
-def _duration(seconds: float) -> str:
+def duration(seconds: float | None) -> str:
+    """Seconds as a person reads them ('42 s', '3 min 07 s', '1 h 05 min'); '?' if unknown."""
+    if seconds is None or not math.isfinite(seconds):
+        return "?"
     seconds = int(round(seconds))
     if seconds < 60:
         return f"{seconds} s"
@@ -150,6 +171,16 @@ def state_path_for(cache_path: str) -> str:
     return os.path.splitext(cache_path)[0] + ".state.npz"
 
 
+@dataclass(frozen=True)
+class BakeEvent:
+    """What a ``BakeJob`` tells its listener (see the module docstring)."""
+
+    kind: str                          # "begin", "step" or "frame"
+    job: "BakeJob"
+    frame: int | None = None           # "begin": the start frame; "frame": the frame written
+    report: StepReport | None = None   # "step": the step's report
+
+
 class BakeJob:
     """Frames of ``FrameInputs`` in, cache frames out.
 
@@ -157,17 +188,19 @@ class BakeJob:
     the simulation starts from (``start_frame``); ``begin(inputs of start_frame)`` builds the
     cloth there; ``advance(inputs of the next frame)`` simulates and writes one frame;
     ``close()`` finishes. Errors are ``CacheError``, ``ValueError`` (bad input, bad state
-    file) and ``SimulationError``.
+    file) and ``SimulationError``. ``on_event(BakeEvent)``: see the module docstring.
     """
 
-    def __init__(self, plan: BakePlan, progress: Progress | None = None):
+    def __init__(self, plan: BakePlan, progress: Progress | None = None, on_event=None):
         self.plan = plan
         self.progress = progress or Progress(plan.object_name, plan.frame_start, plan.frame_end)
+        self.on_event = on_event
         self.cancel = threading.Event()
         self.session: Session | None = None
         self._state: dict | None = None
         self._tears_before = 0
         self._grasp: list = []
+        self._handles: list = []
         self.writer = CacheWriter(
             plan.cache_path, plan.prim_name, plan.fps, "Z", plan.scale,
             object_name=plan.object_name, fingerprint=plan.fingerprint, resume=plan.resume,
@@ -208,9 +241,20 @@ class BakeJob:
         session, self._handles = make_session(plan, inputs.bodies, plan.time_of(self.start_frame), state)
         self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
         self.session = session
+        if self.on_event is not None:
+            session.add_step_listener(self._stepped)
+            self.on_event(BakeEvent("begin", self, self.start_frame))
         if self.writer.last_frame is None or self.writer.last_frame < self.start_frame:
             self._write(inputs, save_state=state is None)
         self.progress.vertices = session.cloth.num_vertices
+
+    @property
+    def handles(self) -> list:
+        """The session's handle ids, one per ``plan.handle_groups`` (after ``begin``)."""
+        return list(self._handles)
+
+    def _stepped(self, session: Session, report: StepReport) -> None:
+        self.on_event(BakeEvent("step", self, report=report))
 
     # -- one frame -----------------------------------------------------------------------------
 
@@ -223,7 +267,7 @@ class BakeJob:
         t = plan.time_of(inputs.frame)
         for h, grasp, current in zip(self._handles, self._grasp, inputs.handle_matrices):
             if grasp is not None and current is not None:
-                session.set_handle_keyframe(h, convert.handle_target_si(current, grasp, plan.scale), t)
+                session.set_handle_keyframe(h, spaces.handle_target_si(current, grasp, plan.scale), t)
         for name, vertices in inputs.bodies.items():
             try:
                 session.set_body_keyframe(name, vertices, t)
@@ -251,10 +295,10 @@ class BakeJob:
         plan, cloth = self.plan, self.session.cloth
         tears = self._tears_before + int(cloth.stats()["tears_started"])
         if save_state:
-            save_state_file(plan.state_path, inputs.frame, plan, cloth, tears)
+            save_state_file(plan.state_path, inputs.frame, plan, cloth, tears, self._has_uv)
         matrix = inputs.object_matrix
-        local = convert.world_si_to_local(cloth.positions, matrix, plan.scale)
-        velocity = convert.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
+        local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
+        velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
         # The writer takes metres with meters_per_unit = scale, so the file holds local BU:
         # exactly what the Mesh Sequence Cache modifier (which ignores metersPerUnit) shows.
         self.writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
@@ -262,6 +306,8 @@ class BakeJob:
         self.progress.frame = inputs.frame
         self.progress.tears = tears
         self.progress.vertices = cloth.num_vertices
+        if self.on_event is not None:
+            self.on_event(BakeEvent("frame", self, inputs.frame))
 
     def close(self, complete: bool | None = None) -> None:
         if complete is None:
@@ -313,10 +359,13 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
 # The state file
 
 
-def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: int) -> None:
+def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: int, has_uv: bool) -> None:
+    """The full simulation state after ``frame``. ``has_uv``: whether the cache holds UVs (the
+    cloth always has a UV array, zeros without a UV map; a resumed bake must write what the
+    cache holds)."""
     names = list(cloth.group_names)
     groups = np.stack([cloth.group(n) for n in names], axis=1) if names else np.zeros((cloth.num_vertices, 0))
-    uv = cloth.corner_uv
+    uv = cloth.corner_uv if has_uv else None
     data = dict(
         version=np.int64(STATE_VERSION),
         frame=np.int64(frame),
@@ -353,13 +402,6 @@ def load_state(path: str) -> dict | None:
     if state["corner_uv"].size == 0:
         state["corner_uv"] = None
     return state
-
-
-def _remove_quietly(path: str) -> None:
-    try:
-        os.remove(path)
-    except FileNotFoundError:
-        pass
 
 
 def delete_state(cache_path: str) -> None:
@@ -403,3 +445,78 @@ def start_worker(job: BakeJob) -> tuple[threading.Thread, "queue.Queue"]:
                               daemon=True)
     thread.start()
     return thread, q
+
+
+# ---------------------------------------------------------------------------------------------
+# Progress as text on a stream (the headless bake's one reporter)
+
+
+class ProgressLine:
+    """One progress line per object: rewritten in place (carriage return) on a terminal,
+    printed every 10 % to a log file or a pipe. ``update(progress, index, count)`` after each
+    frame; ``end()`` closes an open line before anything else is printed."""
+
+    WIDTH = 24
+
+    def __init__(self, stream=None):
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.open = False
+        self._last = 0.0
+        self._last_decile = -1
+        self._length = 0
+
+    def text(self, p: Progress, index: int, count: int) -> str:
+        filled = int(round(p.factor * self.WIDTH))
+        bar = "#" * filled + "-" * (self.WIDTH - filled)
+        return f"[{bar}] {index}/{count} {p.text(elapsed=True)}"
+
+    def update(self, p: Progress, index: int, count: int, final: bool = False) -> None:
+        now = time.perf_counter()
+        if self.tty:
+            if not final and now - self._last < 0.1:
+                return
+            line = self.text(p, index, count)
+            pad = max(0, self._length - len(line))
+            self.stream.write("\r" + line + " " * pad)
+            self._length = len(line)
+            self.open = True
+            if final:
+                self.end()
+        else:
+            decile = int(p.factor * 10)
+            if decile > self._last_decile or (final and decile < 10):
+                self._last_decile = decile
+                self.stream.write(self.text(p, index, count) + "\n")
+        self.stream.flush()
+        self._last = now
+
+    def end(self) -> None:
+        if self.open:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.open = False
+            self._length = 0
+        self._last_decile = -1
+
+    def log_handler(self, prog: str) -> logging.Handler:
+        """A logging handler that prints warnings as ``<prog>: warning: ...`` on their own line,
+        even while a progress line is open."""
+        return _LogBesideProgress(self, prog)
+
+
+class _LogBesideProgress(logging.Handler):
+    """Warnings and notes beside the progress line. Errors are not printed here: they come back
+    as exceptions or results and are printed once, by the caller."""
+
+    def __init__(self, progress: ProgressLine, prog: str):
+        super().__init__(logging.WARNING)
+        self.progress = progress
+        self.prog = prog
+
+    def emit(self, record):
+        if record.levelno >= logging.ERROR:
+            return
+        self.progress.end()
+        self.progress.stream.write(f"{self.prog}: {record.levelname.lower()}: {record.getMessage()}\n")
+        self.progress.stream.flush()

@@ -1,0 +1,328 @@
+"""What a Tear Cloth job reads from Blender: the checks and the gathering that turn an object and
+its scene into a ``BakePlan`` (once, at the start) and into ``FrameInputs`` (every frame), on the
+main thread. The bake (``bake.py``) and the live haptic session (``haptic_session.py``) both start
+here, so a live session tears the same cloth a bake would and both report the same problems.
+
+What this file owns: ``Sources`` (the names of the data read every frame, never bpy pointers),
+``require_mesh`` and ``build_plan`` (validation: every problem goes into a ``Reports``), the cache-location checks,
+and ``gather_inputs`` (move the scene to a frame and copy out what the job needs).
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass, field
+
+import bpy
+import numpy as np
+
+from .. import cache, spaces
+from ..bake import BakePlan, FrameInputs
+from . import convert, modifier
+from .props import COLLIDER_TYPES
+from .report import BakeError, Reports, not_a_mesh, object_kind
+
+
+@dataclass
+class Sources:
+    """Names of the Blender data a bake reads every frame (names, never bpy pointers)."""
+
+    object_name: str
+    follow_names: list = field(default_factory=list)   # per handle: object name or None
+    collider_names: list = field(default_factory=list)
+
+
+# ---------------------------------------------------------------------------------------------
+# Validation: Blender scene -> BakePlan
+
+
+def _collider_objects(obj, settings, reports: Reports) -> list:
+    found = []
+    for i, item in enumerate(settings.colliders):
+        if item.object is None:
+            reports.warning(f"{obj.name}: collider slot {i + 1} is empty (its object was deleted?); skipped")
+        else:
+            found.append(item.object)
+    if settings.collider_collection is not None:
+        found += list(settings.collider_collection.all_objects)
+    colliders, seen = [], set()
+    for other in found:
+        if other.name in seen:
+            continue
+        seen.add(other.name)
+        if other is obj:
+            reports.warning(f"{obj.name}: the cloth is in its own collider list; self collision is a separate "
+                            "setting. Skipped")
+        elif other.type not in COLLIDER_TYPES:
+            reports.warning(f"{obj.name}: collider {other.name!r} is {object_kind(other.type)} without a surface; skipped")
+        else:
+            colliders.append(other)
+    return colliders
+
+
+def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArrays | None:
+    """The cloth's rest mesh: the object's mesh as evaluated by the modifiers ABOVE "Tear Cloth"
+    (like Blender's Cloth modifier). Those below, and Tear Cloth itself, are switched off for the
+    one evaluation and switched back on."""
+    if obj.mode == "EDIT":
+        obj.update_from_editmode()
+    md = modifier.find_modifier(obj)
+    mods = list(obj.modifiers)
+    index = mods.index(md)
+    above = [m for m in mods[:index] if m.show_viewport]
+    try:
+        # Shape keys are evaluated like modifiers: their mix, not the basis, is the rest shape.
+        if not above and obj.data.shape_keys is None:
+            return convert.read_mesh(obj.data, vertex_groups=obj.vertex_groups, group_names=group_names)
+        switched = [m for m in mods[index:] if m.show_viewport]
+        try:
+            for m in switched:
+                m.show_viewport = False
+            depsgraph = context.evaluated_depsgraph_get()
+            return convert.evaluated_mesh_arrays(obj, depsgraph, vertex_groups=obj.vertex_groups,
+                                                 group_names=group_names)
+        finally:
+            for m in switched:
+                m.show_viewport = True
+    except KeyError as exc:
+        reports.error(f"{obj.name}: vertex group {exc.args[0]!r} does not exist")
+        return None
+
+
+def require_mesh(obj, reports: Reports) -> None:
+    """A job needs a mesh object: BakeError (with the reason in ``reports``) otherwise."""
+    if obj is None:
+        reports.error("no active object: select the mesh to tear")
+        reports.raise_if_errors()
+    if obj.type != "MESH":
+        reports.error(not_a_mesh(obj))
+        reports.raise_if_errors()
+
+
+def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
+               reports: Reports | None = None, *, hands: dict | None = None,
+               with_cache: bool = True) -> tuple[BakePlan, Sources]:
+    """Check everything a bake of ``obj`` needs and gather it. Every problem goes into
+    ``reports`` (and the log); BakeError if any is an error. Changes nothing in the scene (when
+    everything else is right it creates a missing cache folder).
+
+    For a live haptic session: ``hands`` maps each hand to the vertex group it grasps (checked
+    like a handle's; the bake handles on the same groups are left to the hands, the others hold
+    still) and the frame range is not checked; ``with_cache=False`` skips the cache location
+    (nothing is recorded)."""
+    reports = reports if reports is not None else Reports()
+    require_mesh(obj, reports)
+    if not modifier.is_enabled(obj):
+        reports.error(f"Tear Cloth is not enabled on {obj.name!r} (Properties > Physics > Tear Cloth), "
+                      f"or its {modifier.MODIFIER_NAME!r} modifier was removed or renamed")
+        reports.raise_if_errors()
+    scene = context.scene
+    settings = obj.tearcloth
+    scale = convert.scale_length(scene)
+    start = settings.frame_start if frame_start is None else int(frame_start)
+    end = settings.frame_end if frame_end is None else int(frame_end)
+    if end <= start and hands is None:
+        reports.error(f"{obj.name}: the bake's end frame ({end}) must come after its start frame ({start})")
+
+    material = collision = None
+    try:
+        material = convert.material_from_settings(settings, scene)
+    except ValueError as exc:
+        reports.error(f"{obj.name}: {exc}")
+    colliders = _collider_objects(obj, settings, reports) if settings.use_collision else []
+    if settings.use_collision and (colliders or settings.use_self_collision):
+        try:
+            collision = convert.collision_from_settings(settings, scene)
+        except ValueError as exc:
+            reports.error(f"{obj.name}: {exc}")
+
+    # vertex groups: every name must exist on the object (renamed or deleted ones are reported)
+    wanted = []
+    hand_groups = dict(hands or {})
+    # In a live session a hand takes over the bake handle on its group; the other handles hold still.
+    handles = [(i, h) for i, h in enumerate(settings.handles) if h.vertex_group not in hand_groups.values()
+               or not h.vertex_group]
+    roles = [("pins", settings.pin_group)] + [(f"handle {i + 1}", h.vertex_group) for i, h in handles]
+    roles += [(f"the {hand} hand", group) for hand, group in hand_groups.items()]
+    roles.append(("weak seams", settings.seam_group))
+    for role, name in roles:
+        if role.startswith("handle") and not name:
+            reports.error(f"{obj.name}: {role} has no vertex group; choose one or remove the handle")
+        elif role.startswith("the ") and not name:
+            reports.error(f"{obj.name}: {role} grasps no vertex group; choose its Handle Group "
+                          "(Physics > Tear Cloth > Haptics)")
+        elif name and name not in obj.vertex_groups:
+            reports.error(f"{obj.name}: vertex group {name!r} ({role}) does not exist (renamed or deleted?)")
+        elif name and name not in wanted:
+            wanted.append(name)
+    follow = []
+    for i, h in handles:
+        follow.append(h.follow.name if h.follow is not None else None)
+        if hands is not None and h.follow is not None:
+            reports.warning(f"{obj.name}: handle {i + 1} follows {h.follow.name!r}, but the scene's time stands "
+                            "still during a live session: the handle holds still")
+
+    reports.raise_if_errors()
+
+    # The cache location last: checking it may create the folder, which only a bake should do.
+    path = None
+    if with_cache:
+        try:
+            path = modifier.cache_path(obj)
+        except BakeError as exc:
+            reports.error(f"{obj.name}: {exc}")
+        if path is not None:
+            _check_cache_location(obj, path, resume, reports)
+    reports.raise_if_errors()
+
+    mesh = _input_mesh(context, obj, reports, wanted)
+    reports.raise_if_errors()
+    if len(mesh.triangles) == 0:
+        reports.error(f"{obj.name}: the mesh has no faces to simulate")
+        reports.raise_if_errors()
+    if mesh.ngons:
+        reports.warning(f"{obj.name}: {mesh.ngons} n-gon{'s' if mesh.ngons != 1 else ''} triangulated for the "
+                        "solver (your mesh is unchanged); triangulate them yourself to choose the diagonals")
+    if mesh.loose:
+        reports.warning(f"{obj.name}: {mesh.loose} loose {'vertices' if mesh.loose != 1 else 'vertex'} (in no face) "
+                        "left out of the simulation")
+
+    pinned = 0
+    if settings.pin_group:
+        pinned = int(np.count_nonzero(mesh.groups[settings.pin_group] >= 0.5))
+        if pinned == 0:
+            reports.warning(f"{obj.name}: pin group {settings.pin_group!r} has no vertex with weight 0.5 or more; "
+                            "nothing is pinned")
+    for i, h in handles:
+        if not np.any(mesh.groups[h.vertex_group] >= 0.5):
+            reports.error(f"{obj.name}: handle {i + 1}: vertex group {h.vertex_group!r} has no vertex with "
+                          "weight 0.5 or more, so it grasps nothing")
+    for hand, group in hand_groups.items():
+        if not np.any(mesh.groups[group] >= 0.5):
+            reports.error(f"{obj.name}: the {hand} hand's vertex group {group!r} has no vertex with weight 0.5 or "
+                          "more, so it grasps nothing")
+    depsgraph = context.evaluated_depsgraph_get()
+    body_triangles = {}
+    for other in colliders:
+        triangles = convert.collider_world_si(other, depsgraph, scale)[1]
+        if len(triangles):
+            body_triangles[other.name] = triangles
+        else:
+            reports.warning(f"{obj.name}: collider {other.name!r} has no faces; skipped")
+    if collision is not None and not body_triangles and not collision.self_collision:
+        collision = None  # nothing left to collide with
+    if not pinned and not handles and not hand_groups and not body_triangles:
+        reports.warning(f"{obj.name}: no pins, handles or colliders: the cloth falls freely under gravity")
+    reports.raise_if_errors()
+
+    matrix = convert.matrix_array(obj.evaluated_get(depsgraph).matrix_world)
+    plan = BakePlan(
+        object_name=obj.name,
+        prim_name=modifier.prim_name_for(obj.name),
+        cache_path=path,
+        fps=convert.fps(scene),
+        frame_start=start,
+        frame_end=end,
+        steps_per_frame=int(settings.steps_per_frame),
+        scale=scale,
+        material=material,
+        solver=convert.solver_from_settings(settings, scene),
+        tearing=convert.tearing_from_settings(settings),
+        collision=collision,
+        vertices=spaces.local_to_world_si(mesh.vertices, matrix, scale),
+        triangles=mesh.triangles,
+        corner_uv=mesh.corner_uv,
+        groups=mesh.groups,
+        fingerprint=cache.mesh_fingerprint(mesh.vertices * scale, mesh.triangles),
+        pin_group=settings.pin_group or None,
+        handle_groups=[h.vertex_group for _, h in handles],
+        seam_group=settings.seam_group or None,
+        seam_factor=float(settings.seam_factor),
+        body_triangles=body_triangles,
+        resume=bool(resume),
+        hand_groups=hand_groups,
+    )
+    sources = Sources(obj.name, follow, list(body_triangles))
+    return plan, sources
+
+
+def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> None:
+    folder = os.path.dirname(path)
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        reports.error(f"{obj.name}: the cache folder {folder} is a file, not a folder")
+        return
+    if not os.path.isdir(folder):
+        try:
+            os.makedirs(folder)
+            reports.info(f"{obj.name}: created the cache folder {folder}")
+        except OSError as exc:
+            reports.error(f"{obj.name}: cannot create the cache folder {folder}: {exc.strerror or exc}")
+            return
+    # A real write, not os.access: that says yes to root on a read-only mount.
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        reports.error(f"{obj.name}: the cache folder {folder} is not writable ({exc.strerror or exc}); "
+                      "choose another folder")
+        return
+    if resume:
+        if not os.path.exists(path):
+            attached = modifier.attached_path(obj)
+            if attached is not None and os.path.exists(attached):
+                reports.error(f"{obj.name}: the object was renamed since its bake (its modifier plays {attached}); "
+                              "a bake cannot be resumed under another name: bake again, or free the old bake")
+            else:
+                reports.error(f"{obj.name}: there is no bake to resume at {path}")
+            return
+        try:
+            info = cache.check_owner(path, obj.name)
+        except cache.CacheError as exc:
+            reports.error(f"{obj.name}: cannot resume: {exc}")
+            return
+        if info["frames"] and info["frames"][-1] >= obj.tearcloth.frame_end and info["complete"]:
+            reports.error(f"{obj.name}: the bake is complete up to frame {info['frames'][-1]}; nothing to resume")
+    elif os.path.lexists(path):
+        try:
+            cache.check_owner(path, obj.name)
+        except cache.CacheOwnerError as exc:
+            reports.error(f"{obj.name}: {exc}. It was left untouched: free it from that object, or choose "
+                          "another cache folder")
+        except cache.CacheError as exc:
+            # A Tear Cloth cache that lost frames is damaged, and a new bake replaces it; anything
+            # else (not USD, not ours) is refused here and left as it is.
+            if "frames missing" not in str(exc):
+                reports.error(f"{obj.name}: {exc}. It was left untouched: move it away or choose another "
+                              "cache folder")
+
+
+# ---------------------------------------------------------------------------------------------
+# Per-frame inputs (main thread)
+
+
+def gather_inputs(context, sources: Sources, frame: int, scale: float) -> FrameInputs:
+    """Move the scene to ``frame`` and copy out what the bake needs of it."""
+    # Always frame_set, even on the current frame: animation is evaluated by a frame change, and
+    # a value set by a script since the last one (a location under a keyframe) is not the frame's.
+    context.scene.frame_set(frame)
+    depsgraph = context.evaluated_depsgraph_get()
+    objects = bpy.data.objects
+    obj = objects.get(sources.object_name)
+    if obj is None:
+        raise BakeError(f"object {sources.object_name!r} was deleted or renamed during the bake")
+    matrices = []
+    for name in sources.follow_names:
+        if name is None:
+            matrices.append(None)
+            continue
+        follow = objects.get(name)
+        if follow is None:
+            raise BakeError(f"{sources.object_name}: the handle's follow object {name!r} was deleted or renamed")
+        matrices.append(convert.matrix_array(follow.evaluated_get(depsgraph).matrix_world))
+    bodies = {}
+    for name in sources.collider_names:
+        other = objects.get(name)
+        if other is None:
+            raise BakeError(f"{sources.object_name}: collider {name!r} was deleted or renamed during the bake")
+        bodies[name] = convert.collider_world_si(other, depsgraph, scale)[0]
+    return FrameInputs(frame, convert.matrix_array(obj.evaluated_get(depsgraph).matrix_world), matrices, bodies)

@@ -1,0 +1,162 @@
+"""The bpy-free bake job (``tearcloth.bake``), the Session's step listeners it is built on, its one
+progress reporter, and the `tearcloth` argparse tree's checks that run before Blender would start.
+No Blender here: a plan is made by hand, as ``blender/inputs.py`` would make it from a scene."""
+import io
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from meshes import sheet
+from tearcloth import cli
+from tearcloth.bake import BakeJob, BakePlan, FrameInputs, Progress, ProgressLine, duration, make_session
+from tearcloth.cloth import Cloth
+from tearcloth.materials import material
+from tearcloth.session import Session
+
+pytest.importorskip("pxr")  # the job writes a USD cache
+
+STEPS = 4
+
+
+def plan_for(tmp_path, frames=(1, 4)) -> BakePlan:
+    """A 10 x 10 cm sheet pinned along one edge and pulled by a handle on the other, in SI."""
+    v, t = sheet(0.1, 0.1, 11, 11)
+    pin = (v[:, 0] < 1e-9).astype(np.float64)
+    pull = (v[:, 0] > 0.1 - 1e-9).astype(np.float64)
+    return BakePlan(
+        object_name="Sheet", prim_name="Sheet", cache_path=str(tmp_path / "Sheet.usda"), fps=24.0,
+        frame_start=frames[0], frame_end=frames[1], steps_per_frame=STEPS, scale=1.0,
+        material=material("cotton"), solver={"gravity": (0.0, 0.0, -9.81)}, tearing={"enabled": True},
+        collision=None, vertices=v, triangles=t, corner_uv=None, groups={"pin": pin, "pull": pull},
+        fingerprint="test", pin_group="pin", handle_groups=["pull"])
+
+
+def inputs(frame: int, plan: BakePlan) -> FrameInputs:
+    """The follow object of the handle moves 1 cm along x per frame."""
+    follow = np.eye(4)
+    follow[0, 3] = 0.01 * (frame - plan.frame_start)
+    return FrameInputs(frame, np.eye(4), [follow], {})
+
+
+def bake(plan: BakePlan, on_event=None) -> BakeJob:
+    job = BakeJob(plan, on_event=on_event)
+    job.begin(inputs(plan.frame_start, plan))
+    while not job.done:
+        assert job.advance(inputs(job.next_frame, plan))
+    job.close()
+    return job
+
+
+def test_events_come_in_order_and_listening_changes_nothing(tmp_path):
+    plan = plan_for(tmp_path / "a")
+    (tmp_path / "a").mkdir()
+    events = []
+    job = bake(plan, lambda e: events.append((e.kind, e.frame, None if e.report is None else e.job.session.time)))
+    quiet = plan_for(tmp_path / "b")
+    (tmp_path / "b").mkdir()
+    silent = bake(quiet)
+    assert np.array_equal(job.session.cloth.positions, silent.session.cloth.positions)  # bit for bit
+    kinds = [k for k, _, _ in events]
+    assert kinds[:2] == ["begin", "frame"] and events[0][1] == events[1][1] == plan.frame_start
+    frames = [f for k, f, _ in events if k == "frame"]
+    assert frames == list(range(plan.frame_start, plan.frame_end + 1))
+    steps = [t for k, _, t in events if k == "step"]
+    assert len(steps) == STEPS * (plan.frame_end - plan.frame_start)
+    # every step event sees the session at the end of that step, and each frame's steps come before it
+    assert np.allclose(steps, plan.dt * np.arange(1, len(steps) + 1))
+    assert kinds[-1] == "frame" and kinds[2:2 + STEPS] == ["step"] * STEPS and kinds[2 + STEPS] == "frame"
+    assert job.progress.steps == len(steps) and job.progress.frame == plan.frame_end
+    assert job.handles == [0]
+
+
+def test_session_step_listeners_run_in_order_and_can_be_removed():
+    v, t = sheet(0.05, 0.05, 6, 6)
+    calls = []
+    first = lambda s, rep: calls.append(("first", s.time))
+    session = Session(Cloth(v, t, material("cotton")), on_step=first)
+    session.add_step_listener(lambda s, rep: calls.append(("second", rep.total_s >= 0.0)))
+    session.step(1e-3)
+    assert calls == [("first", pytest.approx(1e-3)), ("second", True)]
+    session.remove_step_listener(first)
+    session.step(1e-3)
+    assert calls[2:] == [("second", True)]
+    with pytest.raises(ValueError):
+        session.remove_step_listener(first)
+
+
+def test_make_session_holds_handles_still_at_the_grasp(tmp_path):
+    plan = plan_for(tmp_path)
+    session, handles = make_session(plan, {}, 0.0)
+    before = np.array(session.cloth.positions)
+    session.step(plan.dt)
+    pulled = plan.groups["pull"] >= 0.5
+    assert handles == [0] and np.abs(session.cloth.positions[pulled] - before[pulled]).max() < 1e-9
+
+
+def test_resume_continues_where_the_first_run_stopped(tmp_path):
+    """A bake stopped after frame 2 and resumed writes frames 3-4 into the same cache, from the
+    saved state (no UV map: the resumed frames have none either). The resumed handle grasps the
+    cloth where it is, so the result is close to, not bit for bit, the bake run in one go."""
+    (tmp_path / "whole").mkdir()
+    whole = plan_for(tmp_path / "whole", (1, 4))
+    whole.tearing = {"enabled": False}
+    straight = bake(whole)
+    (tmp_path / "parts").mkdir()
+    first = plan_for(tmp_path / "parts", (1, 2))
+    first.tearing = {"enabled": False}
+    bake(first)
+    rest = plan_for(tmp_path / "parts", (1, 4))
+    rest.tearing, rest.resume = {"enabled": False}, True
+    resumed = BakeJob(rest)
+    assert resumed.start_frame == 2 and resumed.next_frame == 3
+    resumed.begin(inputs(2, rest))
+    while not resumed.done:
+        resumed.advance(inputs(resumed.next_frame, rest))
+    resumed.close()
+    assert resumed.writer.frames == [1, 2, 3, 4]
+    gap = np.abs(straight.session.cloth.positions - resumed.session.cloth.positions).max()
+    assert gap < 1e-5, gap  # metres, on a sheet pulled 3 cm
+
+
+def test_progress_line_prints_every_tenth_to_a_pipe():
+    p = Progress("Sheet", 1, 11)
+    out = io.StringIO()
+    line = ProgressLine(out)
+    for frame in range(1, 12):
+        p.frame = frame
+        line.update(p, 1, 2)
+    line.update(p, 1, 2, final=True)
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 11 and lines[0].startswith("[------------------------] 1/2 Sheet: frame 1/11")
+    assert lines[-1].startswith("[########################] 1/2 Sheet: frame 11/11") and "ETA" in lines[-1]
+    assert p.text().startswith("Sheet: frame 11/11, 0 steps/s, 0 tears")
+    assert [duration(s) for s in (None, float("inf"), 42.4, 187, 3900)] == ["?", "?", "42 s", "3 min 07 s",
+                                                                           "1 h 05 min"]
+
+
+def test_one_tree_one_error_line_before_blender(tmp_path, capsys):
+    assert cli.main(["bench", "--steps", "3"]) == 2
+    assert cli.main(["clusters", "--cluster-size", "2"]) == 2
+    assert cli.main(["bake", str(tmp_path / "nowhere.blend")]) == 2
+    assert cli.main(["bake", str(tmp_path), "--fast"]) == 2
+    assert cli.main([]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["tearcloth bench: error: --steps must be at least 10",
+                   "tearcloth clusters: error: --cluster-size must be at least 4",
+                   f"tearcloth bake: error: {tmp_path / 'nowhere.blend'}: no such file",
+                   "tearcloth bake: error: unrecognized arguments: --fast",
+                   "tearcloth: error: the following arguments are required: {bake,demo,bench,clusters}"]
+    # a refused bake never starts Blender
+    code = ("import sys; from tearcloth.cli import main; rc = main(['bake', sys.argv[1], '--frames', '9-1']); "
+            "assert rc == 2 and 'bpy' not in sys.modules, (rc, 'bpy' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_help_lists_every_sub_command(capsys):
+    assert cli.main(["--help"]) == 0
+    out = capsys.readouterr().out
+    for command in ("bake", "demo", "bench", "clusters"):
+        assert f"\n    {command} " in out
