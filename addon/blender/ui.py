@@ -138,11 +138,10 @@ class TEARCLOTH_PT_quality(TearClothPanel, Panel):
         fps = context.scene.render.fps / context.scene.render.fps_base
         col.label(text=f"Time step {1000.0 / fps / settings.steps_per_frame:.3g} ms")
         _rows(layout.column(align=True), settings, "solver.cg")
-        enabled = table.setting("tearing", "enabled").blender_name
         col = layout.column(heading="Tearing")
-        col.prop(settings, enabled, text="")
+        col.prop(settings, "use_tearing", text="")
         sub = col.column(align=True)
-        sub.active = getattr(settings, enabled)
+        sub.active = settings.use_tearing
         _rows(sub, settings, "tearing.scan")
 
 
