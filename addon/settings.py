@@ -291,7 +291,7 @@ SETTINGS: tuple[Setting, ...] = (
        "the paper's scenes collide the cloth with itself", rna="use_self_collision", block="collision.contact"),
     _i("collision", "cluster_size", "1", 100, "Cluster Size",
        "Vertices per cluster: collision detection skips cluster pairs that moved little",
-       "the paper's clusters (about 100 vertices) ; the property's clamps", _B(4, 100000), _B(10, 5000),
+       "the paper's clusters of about 100 vertices; the bounds are the property's clamps", _B(4, 100000), _B(10, 5000),
        block="collision.clusters"),
     _f("collision", "displacement_threshold", "m", 0.0015, "Displacement Threshold",
        "Relative motion of two clusters that triggers a full detection between them",
