@@ -20,6 +20,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from . import _native
+from . import settings as _settings
 from .materials import Material, material as _preset
 
 ClothError = _native.ClothError
@@ -85,7 +86,7 @@ class Cloth:
         rest=None,
         uv=None,
         groups: Mapping[str, Sequence[float]] | None = None,
-        gravity: Sequence[float] = (0.0, 0.0, -9.81),
+        gravity: Sequence[float] = _settings.default("solver", "gravity"),
     ):
         """vertices (n, 3) m; triangles (m, 3) counter-clockwise; rest: None (rest = vertices),
         (n, 3) rest positions or (n, 2) material coordinates in metres; uv: per-corner (m, 3, 2) or
@@ -145,9 +146,12 @@ class Cloth:
         return self._material
 
     def set_solver(self, **settings) -> None:
-        """gravity (m/s^2), cg_tolerance, cg_max_iterations, max_stretch, contact_max_push (m/s)."""
+        """gravity (m/s^2), cg_tolerance, cg_max_iterations, max_stretch, contact_max_push (m/s),
+        contact_correction: the solver rows of settings.py, checked against their hard bounds
+        (InvalidInputError, a ValueError, naming the parameter)."""
         if "gravity" in settings:
             settings["gravity"] = tuple(float(g) for g in settings["gravity"])
+        self._check("solver", settings)
         self._c.set_solver(**settings)
 
     @property
@@ -156,8 +160,21 @@ class Cloth:
 
     def set_tearing(self, enabled: bool = True, **settings) -> None:
         """enabled, scan_period (steps for one sweep of the whole mesh while a tear runs),
-        min_angle_deg (no new triangle gets a smaller angle)."""
+        min_angle_deg (no new triangle gets a smaller angle): the tearing rows of settings.py."""
+        self._check("tearing", settings)
         self._c.set_tearing(enabled=bool(enabled), **settings)
+
+    @staticmethod
+    def _check(group: str, values: dict) -> None:
+        """The table's hard bounds before the core's own checks; only keywords the core takes."""
+        native = _settings.native_defaults(group)
+        unknown = sorted(set(values) - set(native))
+        if unknown:
+            raise TypeError(f"unknown {group} setting(s) {', '.join(unknown)}; known: {', '.join(native)}")
+        try:
+            _settings.validate(group, values, who=group)
+        except ValueError as exc:
+            raise InvalidInputError(str(exc)) from None
 
     @property
     def tearing(self) -> dict:

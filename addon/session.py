@@ -20,41 +20,35 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from . import settings as _settings
 from .cloth import Cloth, TopologyEvents
+
+
+_C = _settings.defaults("collision")
 
 
 @dataclass
 class CollisionSettings:
-    """Collision of the cloth with bodies and itself (SI units)."""
+    """Collision of the cloth with bodies and itself (SI units; meaning and bounds in settings.py)."""
 
-    thickness: float = 0.002            # m: contact distance around surfaces
-    friction: float = 0.3               # Coulomb coefficient
-    # m: relative cluster motion that triggers full detection. Kept below the contact thickness:
-    # a pair whose clusters drift apart by more than the thickness between full detections can
-    # carry vertices into a body unseen (measured: 3-10 mm deep with 5 mm on the walking shirt)
-    displacement_threshold: float = 0.0015
-    cluster_size: int = 100             # vertices per cluster
-    measure: str = "relative"           # 'relative' (the paper), 'absolute' or 'full'
-    self_collision: bool = True
+    thickness: float = _C["thickness"]            # m: contact distance around surfaces
+    friction: float = _C["friction"]              # Coulomb coefficient
+    # m: relative cluster motion that triggers full detection, kept below the contact thickness
+    # (the row's source says why)
+    displacement_threshold: float = _C["displacement_threshold"]
+    cluster_size: int = _C["cluster_size"]        # vertices per cluster
+    measure: str = _C["measure"]                  # 'relative' (the paper), 'absolute' or 'full'
+    self_collision: bool = _C["self_collision"]
 
     def validate(self) -> "CollisionSettings":
-        if not self.thickness > 0:
-            raise ValueError(f"collision thickness must be > 0 m (got {self.thickness})")
-        if not self.displacement_threshold > 0:
-            raise ValueError(f"displacement_threshold must be > 0 m (got {self.displacement_threshold})")
+        _settings.validate("collision", ((f.name, getattr(self, f.name)) for f in fields(self)), who="collision")
         if self.displacement_threshold > self.thickness:
             warnings.warn(f"displacement_threshold {self.displacement_threshold} m is larger than the contact "
                           f"thickness {self.thickness} m: contacts can be missed between full detections")
-        if not 0 <= self.friction < 100:
-            raise ValueError(f"friction must lie in [0, 100) (got {self.friction})")
-        if int(self.cluster_size) < 4:
-            raise ValueError(f"cluster_size must be at least 4 vertices (got {self.cluster_size})")
-        if self.measure not in ("relative", "absolute", "full"):
-            raise ValueError(f"measure must be 'relative', 'absolute' or 'full' (got {self.measure!r})")
         return self
 
 

@@ -126,7 +126,7 @@ def test_settings_survive_save_and_reload(tmp_path):
     values = dict(material_preset="paper", young=3.5e9, poisson=0.25, thickness=1.5e-4, density=700.0,
                   tear_stress=2.5e7, snap_tolerance=0.2, bending=2e-4, damping_mass=0.7, damping_stiffness=3e-5,
                   steps_per_frame=7, cg_tolerance=1e-5, cg_max_iterations=321, use_tearing=False, scan_period=9,
-                  min_angle_deg=12.5, pin_group="pins", seam_group="hand", seam_factor=0.3, use_collision=True,
+                  min_angle_deg=12.5, pin_group="pins", seam_group="hand", seam_factor=1.7, use_collision=True,
                   collision_thickness=0.004, friction=0.6, use_self_collision=False, cluster_size=60,
                   displacement_threshold=0.003, measure="ABSOLUTE", cache_folder="//elsewhere/", frame_start=5,
                   frame_end=77)

@@ -5,8 +5,9 @@ What this file owns
 -------------------
 * Units. Blender stores lengths in Blender units (BU) and shows them multiplied by
   ``unit_settings.scale_length``; one BU is ``scale_length`` metres. Every length-like setting
-  (cloth thickness, collision thickness, displacement_threshold), every position and every
-  gravity vector is multiplied by that factor here and nowhere else. Quantities Blender has no
+  (the rows of ``settings.py`` in metres in the scene: cloth thickness, collision thickness,
+  displacement_threshold), every position and every gravity vector is multiplied by that factor
+  here and nowhere else. Which property feeds which SI field is read off the table's rows. Quantities Blender has no
   unit for (pascals, kg/m^3, N m, 1/s) are stored in SI already and pass through unchanged.
 * Spaces. The simulation runs in WORLD space (metres), because colliders, follow objects and
   gravity live there. The cache is written in the cloth object's LOCAL space at each frame
@@ -23,10 +24,11 @@ What this file owns
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from .. import settings as table
 from ..materials import Material
 from ..session import CollisionSettings
 from ..spaces import local_to_world_si  # the space formulas are bpy-free: the bake job needs them too
@@ -62,61 +64,62 @@ def fps(scene) -> float:
     return float(scene.render.fps) / float(scene.render.fps_base)
 
 
+def _from_blender(row, settings, scene):
+    """A row's value in SI from its Blender property (scene lengths to metres, enums to the
+    table's lower-case values, numbers to Python floats and ints)."""
+    value = getattr(settings, row.blender_name)
+    if row.kind == "enum":
+        return value.lower()
+    if row.kind == "bool":
+        return bool(value)
+    if row.kind == "int":
+        return int(value)
+    if row.kind == "float":
+        return length_to_si(scene, value) if row.is_scene_length else float(value)
+    return value
+
+
+def _to_blender(row, settings, scene, value) -> None:
+    if row.kind == "enum":
+        value = value.upper()
+    elif row.is_scene_length:
+        value = length_from_si(scene, value)
+    setattr(settings, row.blender_name, value)
+
+
 def material_from_settings(settings, scene) -> Material:
     """The object's Tear Cloth material settings as an SI ``Material`` (ValueError if absurd)."""
-    return Material(
-        name=settings.material_preset or "custom",
-        young=settings.young,
-        poisson=settings.poisson,
-        thickness=length_to_si(scene, settings.thickness),
-        density=settings.density,
-        bending=settings.bending,
-        damping_mass=settings.damping_mass,
-        damping_stiffness=settings.damping_stiffness,
-        tear_stress=settings.tear_stress,
-        snap_tolerance=settings.snap_tolerance,
-    ).validate()
+    values = {row.name: _from_blender(row, settings, scene) for row in table.rows("material")}
+    values["name"] = values["name"] or "custom"
+    return Material(**values).validate()
 
 
 def material_to_settings(material: Material, settings, scene) -> None:
     """Write an SI ``Material`` (a preset) into the object's settings, in scene units."""
-    settings.young = material.young
-    settings.poisson = material.poisson
-    settings.thickness = length_from_si(scene, material.thickness)
-    settings.density = material.density
-    settings.bending = material.bending
-    settings.damping_mass = material.damping_mass
-    settings.damping_stiffness = material.damping_stiffness
-    settings.tear_stress = material.tear_stress
-    settings.snap_tolerance = material.snap_tolerance
-    settings.material_preset = material.name
+    for row in table.rows("material"):
+        _to_blender(row, settings, scene, getattr(material, row.name))
 
 
 def collision_from_settings(settings, scene) -> CollisionSettings:
-    return CollisionSettings(
-        thickness=length_to_si(scene, settings.collision_thickness),
-        friction=settings.friction,
-        displacement_threshold=length_to_si(scene, settings.displacement_threshold),
-        cluster_size=int(settings.cluster_size),
-        measure=settings.measure.lower(),
-        self_collision=bool(settings.use_self_collision),
-    ).validate()
+    """The collision rows a ``CollisionSettings`` holds (the on/off switch decides whether one is
+    made at all, in bake.py)."""
+    names = {f.name for f in fields(CollisionSettings)}
+    return CollisionSettings(**{row.name: _from_blender(row, settings, scene) for row in table.rows("collision")
+                                if row.name in names}).validate()
 
 
 def solver_from_settings(settings, scene) -> dict:
-    return {
-        "gravity": gravity_si(scene),
-        "cg_tolerance": float(settings.cg_tolerance),
-        "cg_max_iterations": int(settings.cg_max_iterations),
-    }
+    """Keywords for ``Cloth.set_solver``: the scene's gravity and the solver rows Blender stores."""
+    solver = {"gravity": gravity_si(scene)}
+    solver.update({row.name: _from_blender(row, settings, scene) for row in table.rows("solver")
+                   if row.native is not None and row.blender_name is not None})
+    return solver
 
 
 def tearing_from_settings(settings) -> dict:
-    return {
-        "enabled": bool(settings.use_tearing),
-        "scan_period": int(settings.scan_period),
-        "min_angle_deg": float(settings.min_angle_deg),
-    }
+    """Keywords for ``Cloth.set_tearing`` (enabled, scan_period, min_angle_deg)."""
+    return {row.name: _from_blender(row, settings, None) for row in table.rows("tearing")
+            if row.native is not None}
 
 
 # ---------------------------------------------------------------------------------------------

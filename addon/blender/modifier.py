@@ -28,11 +28,12 @@ import re
 
 import bpy
 
+from .. import settings
 from .report import BakeError
 
 MODIFIER_NAME = "Tear Cloth"
 MODIFIER_TYPE = "MESH_SEQUENCE_CACHE"
-DEFAULT_CACHE_FOLDER = "//tearcloth_cache/"
+DEFAULT_CACHE_FOLDER = settings.default("cache", "cache_folder")
 # What the MSC reads from our USD: positions, faces, UVs and the 'velocity' attribute.
 READ_DATA = {"VERT", "POLY", "UV", "ATTRIBUTES"}
 

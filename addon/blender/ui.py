@@ -2,6 +2,8 @@
 enable button among Blender's physics buttons, the presets menu, the handle and collider lists,
 and bake progress in the status bar.
 
+The panels draw the settings table's blocks (``settings.block``) in table order, inside the
+sections and layout below; what is not a setting (lists, operators, status) is drawn here directly.
 This file owns drawing only: it reads settings and bake progress and never changes data (Blender
 forbids writes while drawing). Bake state comes from ``bake.running`` and the cache root's
 metadata, read at most once per file change; the Haptics panel reads the live session's status
@@ -15,8 +17,15 @@ import bpy
 from bpy.types import Menu, Panel, UIList
 
 from .. import cache
+from .. import settings as table
 from ..materials import MATERIALS
 from . import bake, haptic_session, modifier
+
+
+def _rows(layout, data, block):
+    """The rows of a settings block, in table order (the block names the panel's grouping)."""
+    for row in table.block(block):
+        layout.prop(data, row.blender_name)
 
 
 def _cache_state(obj):
@@ -111,18 +120,8 @@ class TEARCLOTH_PT_material(TearClothPanel, Panel):
         settings = context.object.tearcloth
         layout.active = not _baked(context.object)
         flow = layout.grid_flow(row_major=False, columns=0, even_columns=True, even_rows=False, align=True)
-        col = flow.column()
-        col.prop(settings, "young")
-        col.prop(settings, "poisson")
-        col.prop(settings, "thickness")
-        col.prop(settings, "density")
-        col = flow.column()
-        col.prop(settings, "tear_stress")
-        col.prop(settings, "snap_tolerance")
-        col = flow.column()
-        col.prop(settings, "bending")
-        col.prop(settings, "damping_mass")
-        col.prop(settings, "damping_stiffness")
+        for block in ("material.elastic", "material.tearing", "material.damping"):
+            _rows(flow.column(), settings, block)
 
 
 class TEARCLOTH_PT_quality(TearClothPanel, Panel):
@@ -135,18 +134,15 @@ class TEARCLOTH_PT_quality(TearClothPanel, Panel):
         settings = context.object.tearcloth
         layout.active = not _baked(context.object)
         col = layout.column()
-        col.prop(settings, "steps_per_frame")
+        _rows(col, settings, "solver.steps")
         fps = context.scene.render.fps / context.scene.render.fps_base
         col.label(text=f"Time step {1000.0 / fps / settings.steps_per_frame:.3g} ms")
-        col = layout.column(align=True)
-        col.prop(settings, "cg_tolerance")
-        col.prop(settings, "cg_max_iterations")
+        _rows(layout.column(align=True), settings, "solver.cg")
         col = layout.column(heading="Tearing")
         col.prop(settings, "use_tearing", text="")
         sub = col.column(align=True)
         sub.active = settings.use_tearing
-        sub.prop(settings, "scan_period")
-        sub.prop(settings, "min_angle_deg")
+        _rows(sub, settings, "tearing.scan")
 
 
 class TEARCLOTH_UL_handles(UIList):
@@ -220,13 +216,9 @@ class TEARCLOTH_PT_collision(TearClothPanel, Panel):
         col = layout.column()
         col.use_property_split = True
         col.prop(settings, "collider_collection")
-        col.prop(settings, "collision_thickness")
-        col.prop(settings, "friction")
-        col.prop(settings, "use_self_collision")
+        _rows(col, settings, "collision.contact")
         col.separator()
-        col.prop(settings, "cluster_size")
-        col.prop(settings, "displacement_threshold")
-        col.prop(settings, "measure")
+        _rows(col, settings, "collision.clusters")
         col.operator("tearcloth.preview_clusters", icon="GROUP_VERTEX")
 
 
@@ -319,12 +311,8 @@ def _draw_hand(layout, obj, hand, run):
     else:
         col.prop(settings, "scale")
         col.prop(settings, "offset")
-    sub = col.column(align=True)
-    sub.prop(settings, "k_position")
-    sub.prop(settings, "k_velocity")
-    sub = col.column(align=True)
-    sub.prop(settings, "force_scale")
-    sub.prop(settings, "max_force")
+    _rows(col.column(align=True), settings, "hand.gains")
+    _rows(col.column(align=True), settings, "hand.force")
 
 
 class TEARCLOTH_PT_haptics(TearClothPanel, Panel):
@@ -360,11 +348,7 @@ class TEARCLOTH_PT_haptics(TearClothPanel, Panel):
         col.prop(settings, "time_step")
         col.prop(settings, "record")
         if any(h.device == "EMULATED" for h in used):
-            sub = col.column(align=True)
-            sub.prop(settings, "demo_pull")
-            sub.prop(settings, "demo_hold")
-            sub.prop(settings, "demo_pull_time")
-            sub.prop(settings, "demo_pace")
+            _rows(col.column(align=True), settings, "haptics.demo")
         if any(h.device == "KEYBOARD" for h in used):
             col.prop(settings, "keyboard_step")
             help_col = layout.column(align=True)
