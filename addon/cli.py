@@ -53,6 +53,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from . import settings
+
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 CACHE_SUBFOLDER = "tearcloth_cache"
 
@@ -127,7 +129,8 @@ def parser() -> _Parser:
     c = sub.add_parser("clusters", help="picture of the cluster decomposition (the paper's Fig. 2)")
     c.add_argument("--out", default="clusters.png", help="PNG path (default clusters.png)")
     c.add_argument("--scenario", default="tshirt", choices=("cloth", "banknote", "tshirt"))
-    c.add_argument("--cluster-size", type=int, default=100, help="vertices per cluster (default 100)")
+    size = int(settings.default("collision", "cluster_size"))
+    c.add_argument("--cluster-size", type=int, default=size, help=f"vertices per cluster (default {size})")
     return p
 
 
@@ -423,6 +426,15 @@ def demo(out_dir: str = "tearcloth_demo") -> dict:
 # The entry point
 
 
+def _bench(name: str):
+    """A name of the dev-only bench package; its missing dependencies (scipy) are one line."""
+    try:
+        from . import bench
+    except ImportError as exc:
+        raise UsageError(str(exc).splitlines()[-1], "tearcloth bench") from None
+    return getattr(bench, name)
+
+
 def _run(args) -> int:
     if args.command == "bake":
         return _bake(args)
@@ -431,16 +443,14 @@ def _run(args) -> int:
     elif args.command == "bench":
         if args.steps < 10:
             raise UsageError("--steps must be at least 10", "tearcloth bench")
-        from .bench import run
-
+        run = _bench("run")
         parts = [s.strip() for s in args.parts.split(",") if s.strip()]
         run(args.json, [s.strip() for s in args.scenarios.split(",") if s.strip()], args.steps,
             collision=not args.no_collision, parts=parts, markdown=args.markdown, plots_dir=args.plots)
     elif args.command == "clusters":
         if args.cluster_size < 4:
             raise UsageError("--cluster-size must be at least 4", "tearcloth clusters")
-        from .bench import cluster_picture
-
+        cluster_picture = _bench("cluster_picture")
         print(f"wrote {cluster_picture(args.out, args.scenario, args.cluster_size)}")
     return EXIT_OK
 

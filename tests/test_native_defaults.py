@@ -69,8 +69,9 @@ def test_float_values_appear_in_native_messages():
     factor[3] = -1.0
     with pytest.raises(InvalidInputError, match=r"tear strength factor of vertex 3 must be > 0 and finite \(got -1\)"):
         c.set_tear_strength(factor)
+    # straight to the core: the Python side checks the settings table's bounds first
     with pytest.raises(InvalidInputError, match=r"min_angle_deg must lie in \[0, 30\) \(got 45\)"):
-        c.set_tearing(True, min_angle_deg=45.0)
+        c._c.set_tearing(enabled=True, min_angle_deg=45.0)
     none_i, none_f, none_b = np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool)
     with pytest.raises(ValueError, match=r"track_range must be a finite non-negative number, got -0\.5"):
         _collide.refine(positions=np.zeros((0, 3)), normals=np.zeros((0, 3)), ray_vertex=none_i, ray_slot=none_i,

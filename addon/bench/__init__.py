@@ -13,6 +13,7 @@ One file per part:
   * ``cache``      writing speed of the USD bake cache
   * ``report``     BENCHMARKS.md from one run's results
   * ``machine``    the load average recorded with the results
+  * ``preview``    ``render_clusters``: a PNG of clusters (matplotlib), for ``cluster_picture``
 
 The scenes come from ``tearcloth.examples``, which needs scipy (``pip install 'tearcloth[bench]'``);
 without it, importing this package fails with that instruction.

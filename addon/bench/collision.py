@@ -236,7 +236,7 @@ def format_collision(c: dict) -> str:
 def cluster_picture(path: str, scenario: str = "tshirt", cluster_size: int = 100) -> str:
     """The cluster decomposition of a scenario's cloth, coloured per cluster (the paper's Fig. 2)."""
     from ..collision.clusters import Clustering
-    from ..collision.preview import render_clusters
+    from .preview import render_clusters
 
     mesh = {"cloth": examples.square_cloth, "banknote": examples.banknote, "tshirt": examples.tshirt}[scenario]()
     cl = Clustering(mesh.vertices, mesh.triangles, cluster_size)

@@ -16,6 +16,8 @@ What each file owns:
 * ``ops``       operators (``tearcloth.*``)
 * ``ui``        the Physics panel, lists, menus, the status bar
 * ``report``    messages shown by operators and logged under the "tearcloth" logger
+* ``race``      dev-only (``tearcloth bench``, left out of the extension zip): Blender's own
+                cloth driven through bpy, the other side of the bench's race
 
 ``register()`` and ``unregister()`` can run any number of times in one Blender session.
 """

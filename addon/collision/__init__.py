@@ -10,7 +10,6 @@ detection. What each file owns:
 * ``incremental`` exact line/triangle tests and the walk over triangle adjacency
 * ``detector``    ``CollisionDetector``: the per-step orchestration
 * ``kernels``     the calls into the C kernels (outputs, growing workspaces)
-* ``preview``     PNG of a cluster decomposition (matplotlib, Agg)
 
 Dev-only companions live elsewhere: the timing experiment in ``tearcloth.bench.collision``, the
 numpy specifications of the contact kernels and the brute-force detection in

@@ -59,7 +59,10 @@ from typing import Callable, Dict, Mapping, NamedTuple, Optional, Sequence, Unio
 
 import numpy as np
 
+from .. import settings
 from .device import ConfigError, DeviceState, HapticDevice, HapticError, Workspace
+
+_HAND = settings.defaults("hand")  # the coupling's gains are the Blender hand's: one source
 
 __all__ = [
     "HandCoupling",
@@ -89,11 +92,13 @@ class HandCoupling:
     The device feels stiffness ``force_scale·k_position·scale`` (``felt_stiffness``), which must
     stay below the device's ``max_stiffness``; ``ServoLoop`` refuses couplings that do not."""
 
+    # scale and force_scale default to the identity map (device metres and newtons are scene
+    # metres and newtons); the Blender hand fits its own (settings rows "scale", "force_scale")
     scale: float = 1.0
     offset: Sequence[float] = (0.0, 0.0, 0.0)
     rotation: Optional[Sequence[Sequence[float]]] = None
-    k_position: float = 300.0
-    k_velocity: float = 2.0
+    k_position: float = _HAND["k_position"]
+    k_velocity: float = _HAND["k_velocity"]
     force_scale: float = 1.0
     max_force_rate: float = 1000.0
     use_linearisation: bool = True

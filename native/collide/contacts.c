@@ -1,7 +1,7 @@
 /* contacts.c - from hits to contacts: refining Embree's candidates, merging them with the walked
  * tracks, classifying (inside a closed body / near or through a thin surface), and assembling the
  * contacts over all colliders. The rules are those of narrow.py's module docs; the numpy
- * reference is collision/reference.py, which the tests compare this file against.
+ * reference is tests/collision_reference.py, which the tests compare this file against.
  *
  * Per vertex there are two ray slots (+n, -n). Of the hits of a slot the nearest along the line
  * wins; on a tie the walked track wins over a new hit, because it carries the side memory.

@@ -1,4 +1,6 @@
 """PNG preview of a cluster decomposition (like the paper's Fig. 2 and 3), for docs and checks.
+Dev-only (matplotlib), used by ``tearcloth clusters``; Blender previews clusters with its own
+operator (vertex colours, ``blender/ops.py``).
 
 This file owns ``render_clusters``: vertices coloured by cluster (matplotlib, Agg backend, no
 display needed), optionally with a line between the centres of every close cluster pair.
@@ -52,24 +54,3 @@ def render_clusters(path, positions, triangles, labels, pairs=None, title=None, 
     fig.savefig(path, bbox_inches="tight")
     plt.close(fig)
     return path
-
-
-def main(path="out/clusters.png"):
-    """The stand-in tube cloth's clusters with its close self pairs."""
-    from ..bench.collision import standin_scene  # dev-only: a docs picture, not run in Blender
-    from .clusters import Clustering
-    from .measure import box_pairs, cluster_boxes
-
-    cv, ct, _, _ = standin_scene(moving=False)
-    c = Clustering(cv, ct, 100)
-    lo, hi = cluster_boxes(c, cv, 0.005)
-    i, j = box_pairs(lo, hi, lo, hi, self_pairs=True)
-    return render_clusters(path, cv, ct, c.labels, np.stack([i, j], 1),
-                           title=f"cloth tube: {cv.shape[0]} vertices, {c.n_clusters} clusters, "
-                                 f"{int((i != j).sum())} close pairs")
-
-
-if __name__ == "__main__":
-    import sys
-
-    print(main(*sys.argv[1:]))
