@@ -13,7 +13,6 @@ comes from the test environment (usd-core), where a full Blender would use its b
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import os
 import re
@@ -29,44 +28,35 @@ pytest.importorskip("bpy")
 pytest.importorskip("pxr")
 
 REPO = Path(__file__).resolve().parents[1]
-NETWORK_TROUBLE = re.compile(r"(Could not find a version|No matching distribution|Connection|Max retries|"
-                             r"Temporary failure|Name or service not known|timed out|Network is unreachable)", re.I)
-
-
-def _build_module():
-    spec = importlib.util.spec_from_file_location("build_extension", REPO / "tools" / "build_extension.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")
-def package(tmp_path_factory):
-    """The extension zip, built once for this module."""
-    tool = _build_module()
-    out = tmp_path_factory.mktemp("dist")
-    try:
-        result = tool.build(out_dir=out)
-    except tool.BuildError as exc:
-        if NETWORK_TROUBLE.search(str(exc)):
-            pytest.skip(f"the package index is unreachable: {exc}")
-        raise
-    (zip_path,) = [Path(z) for z in result["zips"]]
-    return zip_path, result["validation"][0]
+def package():
+    """The Linux zip of the per-platform build (tests/extension_build.py builds all four once)."""
+    from extension_build import packages
+
+    built = packages()
+    return built["zips"]["linux-x64"], built["validation"]["linux-x64"]
 
 
 def test_the_package_builds_and_validates(package):
     zip_path, validation = package
     manifest = tomllib.loads((REPO / "addon" / "blender_manifest.toml").read_text())
-    assert zip_path.name == f"tearcloth-{manifest['version']}.zip"
+    assert zip_path.name == f"tearcloth-{manifest['version']}-linux_x64.zip"
     print(f"{zip_path.name}: {zip_path.stat().st_size / 1e6:.1f} MB; {validation}")
     # Blender's own validator whenever PyPI bpy is installed (this test requires it)
     assert validation.startswith("validated by Blender")
     with zipfile.ZipFile(zip_path) as z:
         names = z.namelist()
         packed = tomllib.loads(z.read("blender_manifest.toml").decode())
+    # Blender's --split-platforms appends the zip's platform and its wheels as [build.generated]
+    from extension_build import wheels_for
+
+    linux = wheels_for(manifest, "linux-x64")
+    generated = packed["build"].pop("generated")
+    assert generated == {"platforms": ["linux-x64"], "wheels": linux}
     assert packed == manifest
-    for wheel in manifest["wheels"]:
+    for wheel in linux:
         assert wheel[2:] in names, f"{wheel} missing from the package"
     assert any(n.startswith("wheels/tearcloth-") and n.endswith("-cp311-abi3-linux_x86_64.whl") for n in names)
     assert "__init__.py" in names and "blender/__init__.py" in names
@@ -82,7 +72,9 @@ def test_the_package_builds_and_validates(package):
     with zipfile.ZipFile(zip_path) as z, zipfile.ZipFile(z.open(own)) as wheel:
         in_wheel = [n[len("tearcloth/"):] for n in wheel.namelist() if n.startswith("tearcloth/")]
         sources = {n: z.read(n).decode() for n in names if n.endswith(".py")}
-    dev = _build_module().DEV_ONLY
+    from extension_build import packages
+
+    dev = packages()["tool"].DEV_ONLY
     assert dev and all((REPO / "addon" / d).exists() for d in dev), dev  # the list names real places
     for listing in (names, in_wheel):
         shipped_dev = [n for n in listing if any(n == d or n.startswith(d + "/") for d in dev)]
