@@ -40,9 +40,9 @@ def packages() -> dict:
         atexit.register(shutil.rmtree, out, True)
         try:
             result = tool.build(out_dir=out)
-        except tool.BuildError as exc:
+        except Exception as exc:  # kept, so the next module's tests fail the same way, not rebuild
             _outcome["error"] = exc
-            _outcome["skip"] = bool(NETWORK_TROUBLE.search(str(exc)))
+            _outcome["skip"] = isinstance(exc, tool.BuildError) and bool(NETWORK_TROUBLE.search(str(exc)))
         else:
             zips, checks = {}, {}
             for z, check in zip(result["zips"], result["validation"]):

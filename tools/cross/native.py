@@ -12,7 +12,7 @@ How:
 * Compiler: ``zig cc`` from the ``ziglang`` package on PyPI (clang plus the C libraries and
   linkers of every target: MinGW-w64 with the Universal CRT for Windows, libSystem stubs for
   macOS), run as ``python -m ziglang cc -target <triple>``.
-* What to compile: setup.py itself is read (``run_setup(..., stop_after="init")``), so the
+* What to compile: setup.py itself is read (run with a stand-in ``setuptools.setup``), so the
   sources, include folders, macros and flags are the ones the native build uses on Linux, whatever
   files native/ holds at the time.
 * Python headers: the building interpreter's headers, copied WITHOUT their pyconfig.h (it
@@ -94,17 +94,23 @@ def have_zig() -> bool:
 
 
 def extensions(src: Path = REPO) -> list:
-    """setup.py's Extension objects (names, sources, include dirs, macros, flags), read by running
-    setup.py up to the point where the distribution is configured: nothing is built."""
-    from setuptools._distutils.core import run_setup
+    """setup.py's Extension objects (names, sources, include dirs, macros, flags): setup.py is run
+    with ``setuptools.setup`` replaced by a function that only keeps its arguments, so nothing is
+    built and whatever sources setup.py finds (it globs native/) are the ones compiled here."""
+    import runpy
 
-    old = os.getcwd()
-    os.chdir(src)
+    import setuptools
+
+    captured: dict = {}
+    real = setuptools.setup
+    setuptools.setup = lambda **kwargs: captured.update(kwargs)
     try:
-        dist = run_setup(str(src / "setup.py"), stop_after="init")
+        runpy.run_path(str(src / "setup.py"), run_name="__main__")
     finally:
-        os.chdir(old)
-    return list(dist.ext_modules)
+        setuptools.setup = real
+    if not captured.get("ext_modules"):
+        raise CrossError(f"{src / 'setup.py'} declares no ext_modules")
+    return list(captured["ext_modules"])
 
 
 def limited_api_version(exts) -> str:
