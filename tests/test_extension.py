@@ -123,6 +123,12 @@ state = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_d
 enabled = "bl_ext.user_default.tearcloth" in bpy.context.preferences.addons
 bpy.ops.wm.save_userpref()
 print("RESULT " + json.dumps(dict(install=sorted(state), enabled=enabled, extensions=extensions)), flush=True)
+""" + """
+if bpy.app.version < (4, 3, 0):
+    # the PyPI bpy 4.2 crashes in its exit handlers once any operator class is registered (a
+    # five-line operator shows it; full Blender quits through its window manager instead): the
+    # result is printed, leave without them
+    os._exit(0)
 """
 
 # Session 2: Blender started again. Its start-up puts the extensions' site-packages before the
@@ -130,14 +136,35 @@ print("RESULT " + json.dumps(dict(install=sorted(state), enabled=enabled, extens
 # starts from factory preferences, so the saved ones are read as Blender's start-up would.
 BAKE = ISOLATE + r"""
 blend, folder = sys.argv[1], sys.argv[2]
-bpy.ops.wm.read_userpref()
 module = "bl_ext.user_default.tearcloth"
+if bpy.app.version >= (4, 3, 0):
+    bpy.ops.wm.read_userpref()
+else:
+    # the PyPI bpy 4.2 crashes in read_userpref: the saved preference (the add-on enabled) is
+    # applied as Blender's start-up applies it, by enabling the module
+    import addon_utils
+
+    addon_utils.enable(module, default_set=True, handle_error=None)
 assert module in bpy.context.preferences.addons and module in sys.modules, "not enabled after a restart"
 ext = sys.modules[module]
 work = os.path.join(folder, "scene.blend")
-shutil.copy2(blend, work)
-bpy.ops.wm.open_mainfile(filepath=work)
-cloth = bpy.data.objects["SquareCloth"]
+if bpy.app.version >= (5, 0, 0):
+    shutil.copy2(blend, work)
+    bpy.ops.wm.open_mainfile(filepath=work)
+    cloth = bpy.data.objects["SquareCloth"]
+else:
+    # Blender 5.0 writes a new .blend header that 4.x cannot read: there the sheet is made here,
+    # a square metre facing -Y like the example's, and Tear Cloth enabled on it
+    for name in ("Cube",):
+        if name in bpy.data.objects:
+            bpy.data.objects.remove(bpy.data.objects[name])
+    bpy.ops.mesh.primitive_grid_add(x_subdivisions=24, y_subdivisions=24, size=1.0, location=(0.0, 0.0, 1.0),
+                                    rotation=(1.5707963267948966, 0.0, 0.0))
+    cloth = bpy.context.object
+    cloth.name = "SquareCloth"
+    bpy.ops.wm.save_as_mainfile(filepath=work)
+    with bpy.context.temp_override(object=cloth, active_object=cloth, selected_objects=[cloth]):
+        assert bpy.ops.tearcloth.enable() == {"FINISHED"}
 # a collider close behind the sheet, so the bake runs the collision code (embreex) as well
 bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 0.06, 1.0))
 wall = bpy.context.object
@@ -160,6 +187,8 @@ print("RESULT " + json.dumps(dict(
     wheel_package=tearcloth.__file__, baked=sorted(baked), cache=md.cache_file.filepath if md.cache_file else None,
     collision=module + ".collision.narrow" in sys.modules,
 )), flush=True)
+if bpy.app.version < (4, 3, 0):
+    os._exit(0)  # see the end of INSTALL
 """
 
 
