@@ -1,6 +1,9 @@
-"""The Blender extension package: ``tools/build_extension.py`` builds the zip (our abi3 wheel, the
-embreex wheel, the add-on without build products), Blender's own validator accepts it, and a FRESH
-Blender session installs it exactly the way Blender's "Install from Disk" does and bakes with it.
+"""The Blender extension package: ``tools/build_extension.py`` builds one zip per platform (our abi3
+wheel, the embreex and device wheels, the add-on without build products; tests/extension_build.py
+builds them once per session, test_platforms.py checks all four), Blender's own validator accepts
+the Linux one, and a FRESH Blender session installs it exactly the way Blender's "Install from
+Disk" does and bakes with it; on every bpy the suite runs with (5.0.1 on Python 3.11, 5.3.0 on
+3.13; 4.2 LTS by hand, see the 4.2 branches in the child scripts).
 
 The install is not emulated: the child process runs the operator behind "Install from Disk"
 (``bpy.ops.extensions.package_install_files``, from Blender's bundled Extensions add-on), which
@@ -8,8 +11,9 @@ unpacks the zip into the "User Default" repository of a temporary user folder
 (``BLENDER_USER_RESOURCES``), installs the manifest's wheels into the extensions site-packages and
 enables ``bl_ext.user_default.tearcloth``. Before that the child removes every path from which the
 source tree's ``tearcloth`` could be imported, so what runs is what the zip carries: the add-on
-from the repository folder, the native core and embreex from the installed wheels. Only ``pxr``
-comes from the test environment (usd-core), where a full Blender would use its bundled one.
+from the repository folder, the native core, embreex, the device libraries and the bundled
+libusb from the installed wheels. Only ``pxr`` comes from the test environment (usd-core), where a
+full Blender would use its bundled one.
 """
 from __future__ import annotations
 
@@ -181,9 +185,17 @@ with bpy.context.temp_override(object=cloth, active_object=cloth, selected_objec
 bpy.ops.wm.save_mainfile()
 md = cloth.modifiers["Tear Cloth"]
 import embreex, hid, pyftdi.ftdi, tearcloth, usb.core  # the haptic devices' modules load too
+# the Falcon's libusb where the system has none: the system lookup made to fail, the copy that the
+# libusb-package wheel carries is what pyusb (and so pyftdi) then loads
+import ctypes.util, importlib, usb.backend.libusb1
+_system_lookup = ctypes.util.find_library
+ctypes.util.find_library = lambda name: None if "usb" in name else _system_lookup(name)
+importlib.import_module(module + ".haptics.falcon_transport")._prime_libusb()
+ctypes.util.find_library = _system_lookup
+libusb = usb.backend.libusb1._lib._name if usb.backend.libusb1.get_backend() is not None else None
 print("RESULT " + json.dumps(dict(
     ext_file=ext.__file__, native=sys.modules[module + "._native"].__file__, embreex=embreex.__file__,
-    devices=[hid.__file__, pyftdi.ftdi.__file__, usb.core.__file__],
+    devices=[hid.__file__, pyftdi.ftdi.__file__, usb.core.__file__], libusb=libusb,
     wheel_package=tearcloth.__file__, baked=sorted(baked), cache=md.cache_file.filepath if md.cache_file else None,
     collision=module + ".collision.narrow" in sys.modules,
 )), flush=True)
@@ -221,6 +233,7 @@ def test_a_fresh_blender_installs_the_package_and_bakes_with_it(package, tmp_pat
     assert got["native"].startswith(site) and got["native"].endswith(".abi3.so"), got["native"]
     assert got["embreex"].startswith(site), got["embreex"]
     assert all(path.startswith(site) for path in got["devices"]), got["devices"]
+    assert got["libusb"] and got["libusb"].startswith(site), got["libusb"]
     assert got["wheel_package"].startswith(site)
     assert got["collision"]
     assert got["baked"] == ["FINISHED"] and got["cache"] == "//tearcloth_cache/SquareCloth.usda"

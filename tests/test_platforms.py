@@ -3,9 +3,9 @@ them, checked structurally: the Windows and macOS modules are cross-compiled her
 run here, so what can be proven without running them is proven.
 
 Per zip: Blender's own validator accepted it; it carries exactly its platform's wheels (ours,
-embreex and hidapi for both Python 3.11 and 3.13, libusb-package, pyftdi, pyusb, ftd2xx). Per
-wheel of ours: a proper abi3 wheel (WHEEL tag = file name, RECORD hashes and sizes right). Per
-compiled module (tools/cross/binfmt.py reads the headers): file format and CPU, the exported
+embreex and hidapi for both Python 3.11 and 3.13, libusb-package with importlib_resources, pyftdi,
+pyusb, ftd2xx). Per wheel of ours: a proper abi3 wheel (WHEEL tag = file name, RECORD hashes and
+sizes right). Per compiled module (tools/cross/binfmt.py reads the headers): file format and CPU, the exported
 ``PyInit_<name>``, and imports of nothing but the CPython stable ABI (what the limited API 3.11
 headers declare, the same set the Linux build links) and the system's C runtime.
 """
@@ -105,7 +105,7 @@ def test_each_zip_carries_its_platforms_wheels(built, platform):
         pythons = sorted(w.split("-")[2] for w in wheels if w.startswith(name + "-"))
         assert pythons == ["cp311", "cp313"], (name, wheels)
     # the Falcon's transports and the pure-Python device libraries
-    for name in ("libusb_package", "pyftdi", "pyusb", "ftd2xx"):
+    for name in ("libusb_package", "importlib_resources", "pyftdi", "pyusb", "ftd2xx"):
         assert sum(w.startswith(name + "-") for w in wheels) == 1, (name, wheels)
     tool = built["tool"]
     for w in wheels:

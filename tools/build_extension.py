@@ -46,7 +46,8 @@ only the wheels for its platform (Blender picks them by the wheel file names):
   Python version) are listed for both, and Blender installs the ones for its own Python; our abi3
   wheel and the pure-Python ones serve both.
 * The Falcon's transports: pyusb needs a libusb-1.0 library, which ``libusb-package`` carries for
-  every platform (used when the system has none: haptics/falcon_transport.py); ``ftd2xx``
+  every platform (used when the system has none: haptics/falcon_transport.py; it imports
+  ``importlib_resources``, listed too); ``ftd2xx``
   (pure Python, FTDI's D2XX driver through ctypes) is the Windows transport where Novint's
   installer bound the D2XX driver. Being a pure wheel, Blender puts it in every zip.
 """
