@@ -2,7 +2,7 @@
 
     python tools/build_extension.py                     # build, package, validate
     python tools/build_extension.py --out /tmp/dist --keep-build
-    python tools/build_extension.py --wheels-from DIR   # offline: take the dependency wheels from DIR
+    python tools/build_extension.py --wheels-from DIR   # take the wheels DIR has from there, fetch the rest
 
 The manifest (``addon/blender_manifest.toml``) is the one source of truth: its ``wheels = [...]``
 list names every wheel file the package carries, and this script makes exactly those files,
@@ -35,25 +35,22 @@ is written into the source tree but the final zip):
    cli/blender_ext.py``, the module behind ``blender --command extension``); and only if neither
    exists, a plain zip and the manifest checks of ``check_manifest`` below.
 
-Other platforms (a recipe; only linux-x64 is built and tested so far). The extension is the same
-Python code everywhere; what differs is the native wheel and the embreex wheel:
+Platforms: one zip per platform in the manifest's ``platforms`` (Blender's ``--split-platforms``:
+``tearcloth-<v>-windows_x64.zip``, ``-macos_arm64``, ``-macos_x64``, ``-linux_x64``), each with
+only the wheels for its platform (Blender picks them by the wheel file names):
 
-* Build our wheel ON the target platform (or in CI with cibuildwheel), with CPython 3.11:
-  ``python -m pip wheel . --no-deps`` gives ``tearcloth-<v>-cp311-abi3-macosx_11_0_arm64.whl``
-  (macOS arm64), ``...-macosx_10_9_x86_64.whl`` (macOS x64) or ``...-win_amd64.whl``
-  (Windows x64, MSVC: setup.py already passes /O2 /std:c17).
-* Add the platform to ``platforms`` (``macos-arm64``, ``macos-x64``, ``windows-x64``) and each
-  wheel file name to ``wheels`` (embreex: the ``cp311-cp311-macosx_*_arm64`` /
-  ``macosx_*_x86_64`` / ``win_amd64`` files of the same version; pip download takes the platform
-  tags from the names, e.g. ``--platform macosx_11_0_arm64``).
-* Gather all wheels in one folder and pass it with ``--wheels-from`` (our wheels for other
-  platforms cannot be built here), then package with ``--split-platforms``: Blender's builder
-  writes one ``tearcloth-<v>-<platform>.zip`` per platform with only that platform's wheels.
-* Blender 5.1+ embeds Python 3.13: its package needs the cp313 embreex and hidapi wheels (our
-  abi3 wheel and the pure-Python ones stay); build it as a second package with
-  ``blender_version_min = "5.1.0"``.
-* The Falcon's pyusb needs libusb-1.0 from the system: present on most Linux desktops, ``brew
-  install libusb`` on macOS, on Windows Novint's driver (D2XX, through ``ftd2xx``) instead.
+* Our wheel for the machine this runs on is built by pip (step 1, Linux x86-64 here). The others
+  are cross-compiled by ``tools/cross/native.py`` (``zig cc`` from the ``ziglang`` package; the
+  Python files come from the wheel pip built), unless ``--wheels-from`` holds them (e.g. wheels
+  built natively by the release workflow's cibuildwheel jobs).
+* Blender 4.2-5.0 embed Python 3.11, 5.1+ Python 3.13: the embreex and hidapi wheels (built per
+  Python version) are listed for both, and Blender installs the ones for its own Python; our abi3
+  wheel and the pure-Python ones serve both.
+* The Falcon's transports: pyusb needs a libusb-1.0 library, which ``libusb-package`` carries for
+  every platform (used when the system has none: haptics/falcon_transport.py; it imports
+  ``importlib_resources``, listed too); ``ftd2xx``
+  (pure Python, FTDI's D2XX driver through ctypes) is the Windows transport where Novint's
+  installer bound the D2XX driver. Being a pure wheel, Blender puts it in every zip.
 """
 from __future__ import annotations
 
@@ -74,6 +71,8 @@ REPO = Path(__file__).resolve().parents[1]
 ADDON = REPO / "addon"
 MANIFEST = ADDON / "blender_manifest.toml"
 OWN = "tearcloth"
+# The platform this script builds our wheel for with pip; the others are cross-compiled.
+HOST_PLATFORM = "linux-x64"
 
 # Left out of the package (relative to addon/): build products, example scenes, caches.
 EXCLUDE_DIRS = {"__pycache__", "data", "tests", "tearcloth_cache", "wheels", "build"}
@@ -245,13 +244,63 @@ def build_own_wheel(src: Path, wheels: Path, expected: str, python: str) -> Path
     return wheels / expected
 
 
+def own_wheels(manifest: dict, listed: list[dict]) -> dict[str, dict]:
+    """Our wheels in the manifest, one per platform: {Blender platform: parsed file name}."""
+    own: dict[str, dict] = {}
+    for info in listed:
+        if info["name"] != OWN:
+            continue
+        if info["version"] != manifest["version"] or info["abi"] != "abi3":
+            raise BuildError(f"the manifest's {info['file']} must be an abi3 wheel of version {manifest['version']}")
+        platform = _blender_platform(info["platform"])
+        if platform in own:
+            raise BuildError(f"the manifest lists two {OWN} wheels for {platform}")
+        own[platform] = info
+    platforms = set(manifest.get("platforms", [HOST_PLATFORM]))
+    if set(own) != platforms:
+        raise BuildError(f"the manifest's {OWN} wheels are for {sorted(own)}, its platforms are {sorted(platforms)}")
+    if HOST_PLATFORM not in own:
+        raise BuildError(f"the manifest must list our {HOST_PLATFORM} wheel: the others are made from it")
+    return own
+
+
+def other_own_wheel(info: dict, platform: str, host_wheel: Path, wheels: Path, source: Path | None,
+                    src: Path, build: Path) -> Path:
+    """Our wheel for another platform: taken from ``source`` when it has it, else cross-compiled
+    (tools/cross/native.py) from the sources and the host wheel's Python files."""
+    if source is not None and (source / info["file"]).is_file():
+        shutil.copy2(source / info["file"], wheels / info["file"])
+        return wheels / info["file"]
+    cross = _cross_module()
+    spec = cross.TARGETS.get(platform)
+    if spec is None:
+        raise BuildError(f"no cross build for {platform} (tools/cross/native.py knows {', '.join(cross.TARGETS)})")
+    say(f"cross-compiling {info['file']} (zig cc, target {spec['triple']})")
+    try:
+        made = cross.cross_wheel(platform, host_wheel, wheels, work=build / f"cross-{platform}", src=src)
+    except cross.CrossError as exc:
+        raise BuildError(f"cross build for {platform} failed: {exc}") from exc
+    if made.name != info["file"]:
+        raise BuildError(f"the cross build made {made.name}, the manifest lists {info['file']}")
+    return made
+
+
+def _cross_module():
+    import importlib.util
+
+    name = "tearcloth_cross_native"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, REPO / "tools" / "cross" / "native.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
 def download_wheel(info: dict, wheels: Path, python: str, source: Path | None) -> Path:
     target = wheels / info["file"]
-    if source is not None:
-        found = source / info["file"]
-        if not found.is_file():
-            raise BuildError(f"{info['file']} is not in {source}")
-        shutil.copy2(found, target)
+    if source is not None and (source / info["file"]).is_file():
+        shutil.copy2(source / info["file"], target)
         return target
     # Blender's Python is the target: a cpXY tag names it, a pure wheel (py3-none-any) fits any,
     # and pip then only needs some valid target, Blender 4.2-5.0's (CPython 3.11, linux x64).
@@ -379,11 +428,8 @@ def build(out_dir: Path = REPO / "dist", build_dir: Path | None = None, wheels_f
     if problems:
         raise BuildError(f"{MANIFEST.relative_to(REPO)}: " + "; ".join(problems))
     wheels_listed = [parse_wheel(w) for w in manifest.get("wheels", [])]
-    own = [w for w in wheels_listed if w["name"] == OWN]
-    if len(own) != 1:
-        raise BuildError(f"the manifest must list exactly one {OWN} wheel (the native core), found {len(own)}")
-    if own[0]["version"] != manifest["version"]:
-        raise BuildError(f"the manifest's {OWN} wheel is version {own[0]['version']}, the extension {manifest['version']}")
+    own = own_wheels(manifest, wheels_listed)
+    split = split or len(manifest.get("platforms", [])) > 1
     made_here = build_dir is None
     build_dir = Path(tempfile.mkdtemp(prefix="tearcloth-extension-")) if made_here else Path(build_dir)
     build_dir.mkdir(parents=True, exist_ok=True)
@@ -391,7 +437,11 @@ def build(out_dir: Path = REPO / "dist", build_dir: Path | None = None, wheels_f
         wheels = build_dir / "wheels"
         wheels.mkdir(exist_ok=True)
         src = copy_sources(build_dir)
-        files = [build_own_wheel(src, wheels, own[0]["file"], python)]
+        host = own[HOST_PLATFORM]
+        files = [build_own_wheel(src, wheels, host["file"], python)]
+        for platform, info in sorted(own.items()):
+            if platform != HOST_PLATFORM:
+                files.append(other_own_wheel(info, platform, files[0], wheels, wheels_from, src, build_dir))
         for info in wheels_listed:
             if info["name"] != OWN:
                 files.append(download_wheel(info, wheels, python, wheels_from))
@@ -413,7 +463,8 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=str(REPO / "dist"), help="output folder (default: dist/)")
     p.add_argument("--build-dir", help="build folder (default: a temporary folder, removed afterwards)")
     p.add_argument("--keep-build", action="store_true", help="keep the temporary build folder")
-    p.add_argument("--wheels-from", help="take the dependency wheels from this folder instead of downloading")
+    p.add_argument("--wheels-from", help="take the wheels this folder has (ours for other platforms, dependencies) "
+                                         "from it instead of building or downloading them")
     p.add_argument("--blender", help="Blender executable for packaging and validation (default: blender on PATH)")
     p.add_argument("--split-platforms", action="store_true", help="one zip per platform (Blender's --split-platforms)")
     args = p.parse_args(argv)

@@ -3,13 +3,18 @@
 # Debian machine with Python 3.11 (a virtual environment in .venv, the native extension built by
 # pip, Blender's bpy from PyPI), then run the main job or the tests.
 #   bash tools/run.sh demo    - tear the paper's square cloth, write pictures to out/demo
-#   bash tools/run.sh test    - sanitizer build of the native tests, then the pytest suite
+#   bash tools/run.sh test    - sanitizer build of the native tests, then the pytest suite, on
+#                               Python 3.11 with bpy 5.0.1 (Blender 4.2-5.0) and, when a Python
+#                               3.13 is found, again in .venv313 with bpy 5.3.0 (Blender 5.1+)
 #   bash tools/run.sh bench   - tearcloth bench --json out/bench.json
+# PYTHON picks the first interpreter (default python3), PYTHON313 the second;
+# TEARCLOTH_REQUIRE_313=1 makes a missing Python 3.13 a failure (CI) instead of a notice.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 job=${1:-demo}
 PY=${PYTHON:-python3}
 VENV=${TEARCLOTH_VENV:-.venv}
+VENV313=${TEARCLOTH_VENV313:-.venv313}
 
 apt_install() {
     # only where we may (root with apt): a fresh Debian lacks venv, headers or a compiler
@@ -23,27 +28,70 @@ apt_install() {
     fi
 }
 
+is_313() { [ -n "$1" ] && "$1" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))' >/dev/null 2>&1; }
+
+find_python313() {
+    # the first CPython 3.13 that runs: $PYTHON313, python3.13 on PATH (a pyenv shim too),
+    # pyenv's newest 3.13, any 3.13 under ~/.pyenv or the usual prefixes
+    local candidates=("${PYTHON313:-}" "$(command -v python3.13 || true)")
+    if command -v pyenv >/dev/null 2>&1; then
+        candidates+=("$(pyenv prefix 3.13 2>/dev/null | tail -n 1)/bin/python")
+    fi
+    local found
+    for found in "${PYENV_ROOT:-$HOME/.pyenv}"/versions/3.13*/bin/python /usr/local/bin/python3.13 /usr/bin/python3.13; do
+        candidates+=("$found")
+    done
+    for found in "${candidates[@]}"; do
+        if is_313 "$found"; then echo "$found"; return 0; fi
+    done
+    return 1
+}
+
+setup() {
+    # setup PYTHON VENV: the virtual environment with the package (regular, non-editable install:
+    # tests run against what users get, native module included) and the test extras, whose bpy
+    # pin follows the Python version (pyproject.toml)
+    local py=$1 venv=$2
+    if [ ! -f "$("$py" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')/Python.h" ]; then
+        apt_install python3-dev
+    fi
+    if [ ! -x "$venv/bin/python" ]; then
+        "$py" -m venv "$venv" 2>/dev/null || { rm -rf "$venv"; apt_install python3-venv; "$py" -m venv "$venv"; }
+    fi
+    "$venv/bin/python" -m pip install -q --upgrade pip
+    "$venv/bin/python" -m pip install -q ".[test]"
+    # bpy from PyPI needs a few X/GL client libraries even headless
+    if ! "$venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
+        apt_install libxrender1 libxxf86vm1 libxfixes3 libxi6 libxkbcommon0 libsm6 libgl1 libegl1
+    fi
+}
+
+suite() {
+    # suite VENV: the pytest suite, run from tests/ so the package under test is the installed one
+    local venv=$1
+    echo "== pytest on $("$venv/bin/python" -c 'import sys, bpy; print(f"Python {sys.version.split()[0]}, bpy {bpy.app.version_string}")')" >&2
+    (cd tests && "../$venv/bin/python" -m pytest -q -p no:cacheprovider .)
+}
+
 command -v cc >/dev/null 2>&1 || apt_install gcc libc6-dev
-if [ ! -f "$("$PY" -c 'import sysconfig; print(sysconfig.get_paths()["include"])')/Python.h" ]; then
-    apt_install python3-dev
-fi
-if [ ! -x "$VENV/bin/python" ]; then
-    "$PY" -m venv "$VENV" 2>/dev/null || { rm -rf "$VENV"; apt_install python3-venv; "$PY" -m venv "$VENV"; }
-fi
-"$VENV/bin/python" -m pip install -q --upgrade pip
-# a regular (non-editable) install: tests run against what users get, native module included
-"$VENV/bin/python" -m pip install -q ".[test]"
-# bpy from PyPI needs a few X/GL client libraries even headless
-if ! "$VENV/bin/python" -c "import bpy" >/dev/null 2>&1; then
-    apt_install libxrender1 libxxf86vm1 libxfixes3 libxi6 libxkbcommon0 libsm6 libgl1 libegl1
-fi
+setup "$PY" "$VENV"
 
 case "$job" in
     demo) "$VENV/bin/tearcloth" demo --out out/demo ;;
     test)
         bash native/tests/run_sanitizers.sh
-        # run from tests/ so the package under test is the installed one, not the source folder
-        cd tests && "../$VENV/bin/python" -m pytest -q -p no:cacheprovider .
+        status=0
+        suite "$VENV" || status=$?
+        if is_313 "$VENV/bin/python"; then
+            echo "tools/run.sh: $PY is Python 3.13 already: the suite ran once, on it" >&2
+        elif PY313=$(find_python313); then
+            setup "$PY313" "$VENV313"
+            suite "$VENV313" || status=$?
+        else
+            echo "tools/run.sh: NOT RUN: the Python 3.13 / bpy 5.3.0 half (Blender 5.1+): no Python 3.13 found (set PYTHON313=/path/to/python3.13)" >&2
+            [ -z "${TEARCLOTH_REQUIRE_313:-}" ] || status=1  # CI must test both Blender lines
+        fi
+        exit "$status"
         ;;
     bench) "$VENV/bin/tearcloth" bench --json out/bench.json --markdown BENCHMARKS.md --plots docs/images ;;
     *) echo "usage: bash tools/run.sh [demo|test|bench]" >&2; exit 2 ;;

@@ -38,6 +38,13 @@ DEFAULT_CACHE_FOLDER = settings.default("cache", "cache_folder")
 READ_DATA = {"VERT", "POLY", "UV", "ATTRIBUTES"}
 
 
+def read_data(md) -> set:
+    """READ_DATA as far as this Blender offers it: 4.2 LTS's modifier has no 'ATTRIBUTES' yet
+    (there the cache plays without its velocities, i.e. without motion blur)."""
+    offered = {item.identifier for item in md.bl_rna.properties["read_data"].enum_items}
+    return READ_DATA & offered
+
+
 def find_modifier(obj):
     """The object's "Tear Cloth" modifier, or None."""
     if obj is None or not hasattr(obj, "modifiers"):
@@ -54,7 +61,7 @@ def add_modifier(obj):
     md = find_modifier(obj)
     if md is None:
         md = obj.modifiers.new(MODIFIER_NAME, MODIFIER_TYPE)
-        md.read_data = READ_DATA
+        md.read_data = read_data(md)
     return md
 
 
@@ -135,7 +142,7 @@ def attach_cache(obj, path: str, prim_name: str) -> None:
     cache_file.filepath = stored_path(path)
     md.cache_file = cache_file
     md.object_path = "/" + prim_name
-    md.read_data = READ_DATA
+    md.read_data = read_data(md)
 
 
 def detach_cache(obj) -> None:

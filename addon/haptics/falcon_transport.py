@@ -220,9 +220,25 @@ class PyFtdiTransport:
             pass
 
 
+def _prime_libusb() -> None:
+    """pyusb looks for libusb-1.0 on the system's library path; where there is none (Windows, a
+    Mac without Homebrew's) the copy the ``libusb-package`` wheel carries is loaded instead.
+    pyusb keeps the first library it loads, so pyftdi's own back-end lookup finds it too."""
+    import usb.backend.libusb1 as libusb1
+
+    if libusb1.get_backend() is not None:
+        return
+    try:
+        import libusb_package
+    except ImportError:
+        return  # the open below then names the missing back end
+    libusb1.get_backend(find_library=libusb_package.find_library)
+
+
 def _register_pyftdi_pid() -> None:
     if PyFtdiTransport._registered:
         return
+    _prime_libusb()
     from pyftdi.ftdi import Ftdi
 
     try:

@@ -1,0 +1,70 @@
+"""The extension zips (one per platform), built by tools/build_extension.py at most once per test
+session and shared by test_extension.py (install into a fresh Blender) and test_platforms.py
+(structure of every zip and native binary). A build that fails for want of the package index
+skips those tests with the reason; any other failure fails them."""
+from __future__ import annotations
+
+import atexit
+import importlib.util
+import re
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+NETWORK_TROUBLE = re.compile(r"(Could not find a version|No matching distribution|Connection|Max retries|"
+                             r"Temporary failure|Name or service not known|timed out|Network is unreachable)", re.I)
+ZIP_NAME = re.compile(r"^(?P<id>[^-]+)-(?P<version>[^-]+)-(?P<platform>[a-z]+_[a-z0-9]+)\.zip$")
+
+_outcome: dict = {}
+
+
+def load_tool(name: str = "build_extension", path: str = "tools/build_extension.py"):
+    """A module of tools/ (not a package), loaded once under ``name``."""
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, REPO / path)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # before running it: dataclasses look their module up
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+def packages() -> dict:
+    """{'zips': {blender platform: zip path}, 'validation': {platform: verdict}, 'tool': module}."""
+    if not _outcome:
+        tool = load_tool()
+        out = Path(tempfile.mkdtemp(prefix="tearcloth-test-dist-"))
+        atexit.register(shutil.rmtree, out, True)
+        try:
+            result = tool.build(out_dir=out)
+        except Exception as exc:  # kept, so the next module's tests fail the same way, not rebuild
+            _outcome["error"] = exc
+            _outcome["skip"] = isinstance(exc, tool.BuildError) and bool(NETWORK_TROUBLE.search(str(exc)))
+        else:
+            zips, checks = {}, {}
+            for z, check in zip(result["zips"], result["validation"]):
+                m = ZIP_NAME.match(Path(z).name)
+                assert m, z
+                platform = m["platform"].replace("_", "-")
+                zips[platform], checks[platform] = Path(z), check
+            _outcome.update(zips=zips, validation=checks, tool=tool)
+    if "error" in _outcome:
+        if _outcome["skip"]:
+            pytest.skip(f"the package index is unreachable: {_outcome['error']}")
+        raise _outcome["error"]
+    return _outcome
+
+
+def wheels_for(manifest: dict, platform: str) -> list[str]:
+    """The manifest's wheels that Blender's --split-platforms puts in ``platform``'s zip: those
+    with a platform tag of it, and the pure ones (``any``)."""
+    tool = load_tool()
+    chosen = []
+    for path in manifest["wheels"]:
+        tags = tool.parse_wheel(path)["platform"].split(".")
+        if tags == ["any"] or any(tool._blender_platform(t) == platform for t in tags):
+            chosen.append(path)
+    return chosen
