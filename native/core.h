@@ -150,6 +150,11 @@ struct tc_cloth {
     tc_stats stats;
     bool dirty;              /* element state (rotations, stresses, forces) stale */
     bool topo_dirty;         /* topology changed: masses and bending need refresh */
+
+    /* the solve's force scale and outcome (solver.c) */
+    double carried2;         /* sum over triangle corners of |elastic force|^2 at x (N^2), fem.c */
+    double mass_scale;       /* 1 + dt alpha: A 1 = mass_scale M 1 (fem.c's assembly) */
+    double solve_residual_force, solve_force_scale, solve_residual;  /* last solve: N, N, 1 */
 };
 
 /* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel
@@ -216,7 +221,8 @@ void tc_handle_forces(tc_cloth *c);
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);
-int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double *residual);
+/* 1 when converged, 0 when stopped at the cap; iterations in *iterations (see solver.c) */
+int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations);
 
 /* ---------------- remesh.c ---------------- */
 /* Triangles around u reachable from `start` without crossing a boundary or a pair in `cut`: the

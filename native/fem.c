@@ -66,6 +66,7 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
     double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *S3 = tc_vec_ptr(&c->stress);
     double *pr = tc_vec_ptr(&c->principal), *pd = tc_vec_ptr(&c->pdir);
     double *f = tc_vec_ptr(&c->fel);
+    double carried2 = 0.0;  /* the solver's scale of elastic forces (solver.c) */
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
     for (int32_t t = 0; t < c->nt; t++) {
         const int32_t i0 = T[3 * t], i1 = T[3 * t + 1], i2 = T[3 * t + 2];
@@ -100,6 +101,7 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
             f[3 * i1 + k] += fa;
             f[3 * i2 + k] += fb;
             f[3 * i0 + k] -= fa + fb;
+            carried2 += fa * fa + fb * fb + (fa + fb) * (fa + fb);
         }
         double *S = S3 + 9 * t;
         for (int i = 0; i < 3; i++)
@@ -115,6 +117,7 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
         if (el > 0) { ex /= el; ey /= el; } else { ex = 1.0; ey = 0.0; }
         for (int k = 0; k < 3; k++) pd[3 * t + k] = R[k] * ex + R[3 + k] * ey;
     }
+    c->carried2 = isfinite(carried2) ? carried2 : 0.0;
     return isfinite(worst2) ? sqrt(worst2) : NAN;
 }
 
@@ -146,6 +149,7 @@ TC_HOT void tc_assemble(tc_cloth *c, double dt)
     lame(&c->mat, &lambda, &mu);
     const double h = c->mat.thickness, kb = c->mat.bending;
     const double ks = dt * dt + dt * c->mat.damping_stiffness, ms = 1.0 + dt * c->mat.damping_mass;
+    c->mass_scale = ms;
     const double *m = tc_vec_ptr(&c->mass), *vb = tc_vec_ptr(&c->vbend), *pb = tc_vec_ptr(&c->pbend);
     double *D = tc_vec_ptr(&c->diag), *PB = tc_vec_ptr(&c->pblock);
     const int32_t *pi = tc_vec_ptr(&c->pi);

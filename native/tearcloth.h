@@ -58,7 +58,8 @@ int tc_material_check(const tc_material *m, char *msg, size_t msg_size);
 
 typedef struct tc_solver_settings {
     double gravity[3];        /* m/s^2 */
-    double cg_tolerance;      /* relative residual of the preconditioned CG */
+    double cg_tolerance;      /* residual force at which CG stops, relative to the forces the cloth
+                                 carries (weight, elastic, net force of the step; see tc_stats) */
     int cg_max_iterations;
     double max_stretch;       /* a principal stretch above this counts as an explosion: roll back */
     double contact_max_push;  /* fastest speed (m/s) at which a penetration is resolved, so that
@@ -122,13 +123,22 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps);
 
 typedef struct tc_stats {
     int cg_iterations;        /* summed over the sub-steps of the last step */
-    double cg_residual;       /* relative residual at the end of the last solve */
+    double cg_residual;       /* largest residual force of a solve in the last step, over its force scale */
     double fem_seconds;       /* wall time of the last step without tearing */
     double tear_seconds;      /* wall time of the tearing part of the last step */
     int64_t steps;
     int32_t tears_started;    /* tears started so far */
     int32_t cuts;             /* cut segments so far */
     int32_t contacts;         /* contacts active in the last step */
+    /* The solve stops when its residual force is cg_tolerance of the forces the cloth carries
+     * (weight, carried elastic forces, net force of the step; solver.c). A sub-step whose solve
+     * reaches cg_max_iterations first is rolled back and run as two halves (up to TC_SPLIT_DEPTH
+     * times); one still unconverged then is accepted and counted here, never silently. */
+    double cg_residual_force; /* N: largest residual force of a solve in the last step */
+    double cg_force_scale;    /* N: the force scale it was measured against */
+    int32_t substep_splits;   /* sub-steps of the last step split in two because a solve did not converge */
+    int32_t unconverged_substeps; /* sub-steps of the last step accepted unconverged */
+    int64_t unconverged_steps;    /* steps so far with at least one sub-step accepted unconverged */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 
