@@ -114,7 +114,6 @@ struct tc_cloth {
     tc_vec ptris;            /* int32 x2 triangles on this edge (-1 none) */
     tc_vec pstencil;         /* int32 stencil owned by this edge or -1 */
     tc_vec pbend;            /* double: bending scalar for the pair */
-    tc_vec pblock;           /* double x9: system block A_ij for i = pi, j = pj */
     tc_vec pfree;            /* int32 stack of free pair ids */
     /* hash (min,max) -> pair id, open addressing, power-of-two capacity */
     int32_t *hkeys_i, *hkeys_j, *hvals;
@@ -155,6 +154,20 @@ struct tc_cloth {
     double carried2;         /* sum over triangle corners of |elastic force|^2 at x (N^2), fem.c */
     double mass_scale;       /* 1 + dt alpha: A 1 = mass_scale M 1 (fem.c's assembly) */
     double solve_residual_force, solve_force_scale, solve_residual;  /* last solve: N, N, 1 */
+
+    /* The system matrix by rows, for a product that streams (mesh.c builds the pattern, fem.c's
+     * assembly fills it). Row i: its diagonal block (diag), then its edge blocks A_ij, 3x3 stored
+     * column by column, each column padded to 4 doubles (so a SIMD lane set holds a column and no
+     * load reads past a vertex), then its bending flaps as scalars (a flap's block is a multiple of
+     * I). Each edge pair has a slot in both of its rows (A_ji = A_ij^T: read twice, written once
+     * per triangle, never scattered by the product). */
+    tc_vec rptr, rcol, rblk;  /* int32 nv+1, int32 per slot, double x12 per slot */
+    tc_vec fptr, fcol, fval;  /* int32 nv+1, int32 per flap slot, double per flap slot */
+    tc_vec pslot;             /* int32 x2 per pair: its slot in row pi, then in row pj (edge or flap) */
+    uint64_t pair_version;    /* bumped by every pair acquire / release: the pattern is then stale */
+    uint64_t rows_version;    /* the pair_version the pattern was built for */
+    int32_t rows_nv;          /* and the vertex count */
+    bool rows_built;
 };
 
 /* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel
@@ -185,6 +198,13 @@ void tc_stencil_remove(tc_cloth *c, int32_t edge_pair);
 int tc_reserve_vertices(tc_cloth *c, int32_t n);
 int tc_reserve_triangles(tc_cloth *c, int32_t m);
 int32_t tc_tri_local(const tc_cloth *c, int32_t t, int32_t v);
+int tc_rows_update(tc_cloth *c);  /* the row pattern of the matrix, rebuilt when pairs changed */
+/* A pair is an edge (full block) while a triangle uses it, else a bending flap (multiple of I). */
+static inline bool tc_pair_is_edge(const tc_cloth *c, size_t p)
+{
+    const int32_t *pt = (const int32_t *)tc_vec_ptr(&c->ptris) + 2 * p;
+    return pt[0] >= 0 || pt[1] >= 0;
+}
 /* neighbour of triangle t across its edge k (opposite local vertex k), -1 on a boundary */
 static inline int32_t tc_nbr(const tc_cloth *c, int32_t t, int k)
 {
@@ -203,8 +223,9 @@ int tc_event_changed_triangle(tc_cloth *c, int32_t t);  /* once per step; never 
 /* ---------------- fem.c ---------------- */
 double tc_element_pass(tc_cloth *c, const double *x);  /* returns the largest stretch (NaN if not finite) */
 void tc_bending_force(const tc_cloth *c, const double *x, double *f);
-void tc_assemble(tc_cloth *c, double dt);
-void tc_matvec(const tc_cloth *c, const double *p, double *y);
+int tc_assemble(tc_cloth *c, double dt);  /* TC_ERR_NOMEM if the rows could not grow */
+/* y = A p; returns p . y (the CG's curvature, fused into the product). */
+double tc_matvec(const tc_cloth *c, const double *p, double *y);
 
 /* ---------------- constraints.c ---------------- */
 int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3]);

@@ -18,7 +18,8 @@ void tc_precondition_build(tc_cloth *c)
     const double *D = tc_vec_ptr(&c->diag);
     double *P = tc_vec_ptr(&c->pinv);
     for (int32_t i = 0; i < c->nv; i++) {
-        const double *a = D + 9 * i;
+        const double *d = D + 12 * i;  /* padded columns (core.h); the block is symmetric */
+        const double a[9] = {d[0], d[4], d[8], d[1], d[5], d[9], d[2], d[6], d[10]};
         double *o = P + 9 * i;
         double c00 = a[4] * a[8] - a[5] * a[7], c01 = a[5] * a[6] - a[3] * a[8], c02 = a[3] * a[7] - a[4] * a[6];
         double det = a[0] * c00 + a[1] * c01 + a[2] * c02;
@@ -43,6 +44,31 @@ static void precondition(const tc_cloth *c, const double *r, double *z)
         o[1] = p[3] * x[0] + p[4] * x[1] + p[5] * x[2];
         o[2] = p[6] * x[0] + p[7] * x[1] + p[8] * x[2];
     }
+}
+
+/* v += alpha p, r -= alpha q, z = P r, and r.z, r.r, in one pass over the vertices (the dots with
+ * two accumulators each: one serialises on the add latency). */
+TC_HOT static void update_precondition(const tc_cloth *c, double alpha, const double *restrict p, const double *restrict q,
+                                       double *restrict v, double *restrict r, double *restrict z, double *rz_out,
+                                       double *rr_out)
+{
+    const double *restrict P = tc_vec_ptr(&c->pinv);
+    double rz0 = 0.0, rz1 = 0.0, rr0 = 0.0, rr1 = 0.0;
+    for (int32_t i = 0; i < c->nv; i++) {
+        const size_t o = 3 * (size_t)i;
+        const double *m = P + 9 * (size_t)i;
+        v[o] += alpha * p[o]; v[o + 1] += alpha * p[o + 1]; v[o + 2] += alpha * p[o + 2];
+        const double r0 = r[o] - alpha * q[o], r1 = r[o + 1] - alpha * q[o + 1], r2 = r[o + 2] - alpha * q[o + 2];
+        r[o] = r0; r[o + 1] = r1; r[o + 2] = r2;
+        const double z0 = m[0] * r0 + m[1] * r1 + m[2] * r2;
+        const double z1 = m[3] * r0 + m[4] * r1 + m[5] * r2;
+        const double z2 = m[6] * r0 + m[7] * r1 + m[8] * r2;
+        z[o] = z0; z[o + 1] = z1; z[o + 2] = z2;
+        if (i & 1) { rz1 += r0 * z0 + r1 * z1 + r2 * z2; rr1 += r0 * r0 + r1 * r1 + r2 * r2; }
+        else { rz0 += r0 * z0 + r1 * z1 + r2 * z2; rr0 += r0 * r0 + r1 * r1 + r2 * r2; }
+    }
+    *rz_out = rz0 + rz1;
+    *rr_out = rr0 + rr1;
 }
 
 static double dotn(const double *a, const double *b, size_t n)
@@ -71,18 +97,21 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     memcpy(p, z, n3 * sizeof(double));
     double rz = dotn(r, z, n3), rr = dotn(r, r, n3);
     int it = 0;
+    /* Three passes an iteration: the product with p.Ap fused in, the update of v and r fused with
+     * the preconditioner and both dots, and the new direction. The filter S is a symmetric
+     * projector and p, r stay on its range, so p.(S Ap) = p.Ap and r.(S P r) = r.(P r): the dots
+     * need no filtered copy and are taken before the filter passes (which touch only the
+     * constrained vertices). */
     while (it < c->solver.cg_max_iterations && rr > stop2) {
-        tc_matvec(c, p, q);
+        const double pq = tc_matvec(c, p, q);
         tc_constraint_filter(c, q);
-        double pq = dotn(p, q, n3);
         if (!(pq > 0)) break;  /* A is SPD on the manifold; a non-positive curvature means round-off */
-        double alpha = rz / pq;
-        for (size_t k = 0; k < n3; k++) { v[k] += alpha * p[k]; r[k] -= alpha * q[k]; }
-        precondition(c, r, z);
+        const double alpha = rz / pq;
+        double rz2, rr2;
+        update_precondition(c, alpha, p, q, v, r, z, &rz2, &rr2);
         tc_constraint_filter(c, z);
-        double rz2 = dotn(r, z, n3);
-        rr = dotn(r, r, n3);
-        double beta = rz2 / rz;
+        rr = rr2;
+        const double beta = rz2 / rz;
         for (size_t k = 0; k < n3; k++) p[k] = z[k] + beta * p[k];
         rz = rz2;
         it++;

@@ -60,7 +60,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     for (int32_t i = 0; i < n; i++)
         for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * f[3 * i + q];
 
-    tc_assemble(c, dt);
+    if (tc_assemble(c, dt)) return TC_ERR_NOMEM;
     tc_precondition_build(c);
     /* warm start: the velocity change of the last step (constant acceleration), exact for a
        falling cloth and close for any smooth motion; pcg projects it onto this step's constraints */

@@ -69,6 +69,15 @@ typedef struct tc_solver_settings {
 
 tc_solver_settings tc_solver_default(void);
 
+/* The kernel of the solver's matrix-vector product, process-wide (a property of the CPU):
+ * TC_SIMD_AUTO picks the best the CPU has, or the one the TEARCLOTH_SIMD environment variable names
+ * (scalar, sse2, avx2) if the CPU has it; a level the CPU or the build lacks is refused (-1).
+ * Returns the level chosen. All kernels agree to rounding (1e-12 relative). */
+enum { TC_SIMD_AUTO = -1, TC_SIMD_SCALAR = 0, TC_SIMD_SSE2 = 1, TC_SIMD_AVX2 = 2 };
+int tc_simd_select(int level);
+int tc_simd_level(void);
+const char *tc_simd_name(int level);
+
 typedef struct tc_cloth tc_cloth;
 
 /* Creates a cloth from n vertices (xyz) and m triangles (vertex indices, counter-clockwise).
@@ -141,6 +150,10 @@ typedef struct tc_stats {
     int64_t unconverged_steps;    /* steps so far with at least one sub-step accepted unconverged */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
+/* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
+ * for tests of the kernels and benchmarks of the product. TC_ERR_INPUT when no step has assembled
+ * one for the current mesh (a tear since, or no step yet). */
+int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y);
 
 typedef struct tc_energy {
     double kinetic, elastic, bending, gravity;
