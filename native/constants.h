@@ -86,4 +86,8 @@
  * that the cap is too low for the mesh: the sub-step is accepted and counted in tc_stats. */
 #define TC_SPLIT_DEPTH 3
 
+/* ---- the matrix by rows (mesh.c, fem.c) ---- */
+/* Zeros after the last edge block: the AVX2 product loads a block's last column 4 wide. (doubles) */
+#define TC_ROW_SLACK 4
+
 #endif

@@ -156,12 +156,14 @@ struct tc_cloth {
     double solve_residual_force, solve_force_scale, solve_residual;  /* last solve: N, N, 1 */
 
     /* The system matrix by rows, for a product that streams (mesh.c builds the pattern, fem.c's
-     * assembly fills it). Row i: its diagonal block (diag), then its edge blocks A_ij, 3x3 stored
-     * column by column, each column padded to 4 doubles (so a SIMD lane set holds a column and no
-     * load reads past a vertex), then its bending flaps as scalars (a flap's block is a multiple of
+     * assembly fills it). Row i: its diagonal block (diag: 3x3 column by column, each column
+     * padded to 4 doubles), then its edge blocks A_ij, 3x3 column by column (9 doubles: padding
+     * them would add a quarter to the bytes the product streams; a 4-wide load of a column reads
+     * the next one's first value into a lane the kernels never store, and TC_ROW_SLACK zeros
+     * follow the last block), then its bending flaps as scalars (a flap's block is a multiple of
      * I). Each edge pair has a slot in both of its rows (A_ji = A_ij^T: read twice, written once
      * per triangle, never scattered by the product). */
-    tc_vec rptr, rcol, rblk;  /* int32 nv+1, int32 per slot, double x12 per slot */
+    tc_vec rptr, rcol, rblk;  /* int32 nv+1, int32 per slot, double x9 per slot (+ slack) */
     tc_vec fptr, fcol, fval;  /* int32 nv+1, int32 per flap slot, double per flap slot */
     tc_vec pslot;             /* int32 x2 per pair: its slot in row pi, then in row pj (edge or flap) */
     uint64_t pair_version;    /* bumped by every pair acquire / release: the pattern is then stale */

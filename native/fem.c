@@ -166,9 +166,9 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
         if (pi[p] < 0) continue;
         const double s = ks * kb * pb[p];
         if (tc_pair_is_edge(c, p)) {
-            double *a = RB + 12 * (size_t)slot[2 * p], *b = RB + 12 * (size_t)slot[2 * p + 1];
-            a[0] = s; a[5] = s; a[10] = s;
-            b[0] = s; b[5] = s; b[10] = s;
+            double *a = RB + 9 * (size_t)slot[2 * p], *b = RB + 9 * (size_t)slot[2 * p + 1];
+            a[0] = s; a[4] = s; a[8] = s;
+            b[0] = s; b[4] = s; b[8] = s;
         } else {
             FV[slot[2 * p]] = s; FV[slot[2 * p + 1]] = s;
         }
@@ -219,8 +219,9 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
                         B[3 * i + l] = wm * (dab * P[3 * i + l] + r[b][i] * r[a][l]) + wl * r[a][i] * r[b][l];
                 B[0] += kg; B[4] += kg; B[8] += kg;
                 const int32_t va = T[3 * t + a];
-                /* B is A_{va,vb}, row-major; a row slot holds its block column by column, padded
-                   (core.h): A_{va,vb} at [4k + r] = B[3r + k], A_{vb,va} = B^T at [4k + r] = B[3k + r] */
+                /* B is A_{va,vb}, row-major; a row slot holds its block column by column (core.h):
+                   A_{va,vb} at [3k + r] = B[3r + k], A_{vb,va} = B^T at [3k + r] = B[3k + r]; the
+                   diagonal block's columns are padded to 4 */
                 if (a == b) {
                     double *d = D + 12 * va;  /* symmetric: either order */
                     for (int r = 0; r < 3; r++)
@@ -228,11 +229,11 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
                 } else {
                     const int32_t p = TP[3 * t + (3 - a - b)];
                     const int own = va == pi[p] ? 0 : 1;  /* which of the pair's slots is row va's */
-                    double *sa = RB + 12 * (size_t)slot[2 * p + own], *sb = RB + 12 * (size_t)slot[2 * p + 1 - own];
+                    double *sa = RB + 9 * (size_t)slot[2 * p + own], *sb = RB + 9 * (size_t)slot[2 * p + 1 - own];
                     for (int r = 0; r < 3; r++)
                         for (int k = 0; k < 3; k++) {
-                            sa[4 * k + r] += B[3 * r + k];
-                            sb[4 * k + r] += B[3 * k + r];
+                            sa[3 * k + r] += B[3 * r + k];
+                            sb[3 * k + r] += B[3 * k + r];
                         }
                 }
             }
@@ -246,7 +247,8 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
  * Row by row over the layout of core.h: no scatter, no branch between edges and flaps, one write
  * per row. Each row ends with p_i . y_i summed (the CG's curvature p.Ap, fused so p and y are not
  * read again). Three kernels of the same arithmetic, picked at run time (one abi3 wheel runs on any
- * x86-64): AVX2 + FMA (a padded block column is one 4-lane register: three FMAs per block), SSE2
+ * x86-64): AVX2 + FMA (a block column is one 4-lane load whose fourth lane, the next column's
+ * first value, lands in a lane never stored: three FMAs per block, no padding), SSE2
  * (the x86-64 baseline: two lanes plus one), and portable C, the only one on other CPUs (on arm64
  * the compiler vectorises it with NEON, baseline there). They differ only in rounding (FMA, the
  * order of the flap sums): tests/test_solver_simd.py holds them to 1e-12 relative. */
@@ -264,10 +266,10 @@ static double matvec_scalar(const tc_cloth *c, const double *restrict p, double 
         double y1 = d[1] * x[0] + d[5] * x[1] + d[9] * x[2];
         double y2 = d[2] * x[0] + d[6] * x[1] + d[10] * x[2];
         for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
-            const double *b = RB + 12 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
-            y0 += b[0] * xj[0] + b[4] * xj[1] + b[8] * xj[2];
-            y1 += b[1] * xj[0] + b[5] * xj[1] + b[9] * xj[2];
-            y2 += b[2] * xj[0] + b[6] * xj[1] + b[10] * xj[2];
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
+            y0 += b[0] * xj[0] + b[3] * xj[1] + b[6] * xj[2];
+            y1 += b[1] * xj[0] + b[4] * xj[1] + b[7] * xj[2];
+            y2 += b[2] * xj[0] + b[5] * xj[1] + b[8] * xj[2];
         }
         for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
             const double f = FV[s], *xj = p + 3 * (size_t)fc[s];
@@ -300,12 +302,12 @@ static double matvec_sse2(const tc_cloth *c, const double *restrict p, double *r
         __m128d hi = _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_loadu_pd(d + 2), x0), _mm_mul_pd(_mm_loadu_pd(d + 6), x1)),
                                 _mm_mul_pd(_mm_loadu_pd(d + 10), x2));
         for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
-            const double *b = RB + 12 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
             __m128d a0 = _mm_set1_pd(xj[0]), a1 = _mm_set1_pd(xj[1]), a2 = _mm_set1_pd(xj[2]);
-            lo = _mm_add_pd(lo, _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_loadu_pd(b), a0), _mm_mul_pd(_mm_loadu_pd(b + 4), a1)),
-                                           _mm_mul_pd(_mm_loadu_pd(b + 8), a2)));
-            hi = _mm_add_pd(hi, _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_loadu_pd(b + 2), a0), _mm_mul_pd(_mm_loadu_pd(b + 6), a1)),
-                                           _mm_mul_pd(_mm_loadu_pd(b + 10), a2)));
+            lo = _mm_add_pd(lo, _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_loadu_pd(b), a0), _mm_mul_pd(_mm_loadu_pd(b + 3), a1)),
+                                           _mm_mul_pd(_mm_loadu_pd(b + 6), a2)));
+            hi = _mm_add_pd(hi, _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_load_sd(b + 2), a0), _mm_mul_pd(_mm_load_sd(b + 5), a1)),
+                                           _mm_mul_pd(_mm_load_sd(b + 8), a2)));
         }
         for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
             const double *xj = p + 3 * (size_t)fc[s];
@@ -345,19 +347,19 @@ TC_TARGET_AVX2 static double matvec_avx2(const tc_cloth *c, const double *restri
         int32_t s = rp[i];
         const int32_t e = rp[i + 1];
         for (; s + 1 < e; s += 2) {
-            const double *b = RB + 12 * (size_t)s, *xj = p + 3 * (size_t)rc[s], *xk = p + 3 * (size_t)rc[s + 1];
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s], *xk = p + 3 * (size_t)rc[s + 1];
             acc = _mm256_fmadd_pd(_mm256_loadu_pd(b), _mm256_broadcast_sd(xj), acc);
-            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 12), _mm256_broadcast_sd(xk), acc2);
-            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 4), _mm256_broadcast_sd(xj + 1), acc);
-            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 16), _mm256_broadcast_sd(xk + 1), acc2);
-            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 8), _mm256_broadcast_sd(xj + 2), acc);
-            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 20), _mm256_broadcast_sd(xk + 2), acc2);
+            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 9), _mm256_broadcast_sd(xk), acc2);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 3), _mm256_broadcast_sd(xj + 1), acc);
+            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 12), _mm256_broadcast_sd(xk + 1), acc2);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 6), _mm256_broadcast_sd(xj + 2), acc);
+            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 15), _mm256_broadcast_sd(xk + 2), acc2);
         }
         if (s < e) {
-            const double *b = RB + 12 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
             acc = _mm256_fmadd_pd(_mm256_loadu_pd(b), _mm256_broadcast_sd(xj), acc);
-            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 4), _mm256_broadcast_sd(xj + 1), acc);
-            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 8), _mm256_broadcast_sd(xj + 2), acc);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 3), _mm256_broadcast_sd(xj + 1), acc);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 6), _mm256_broadcast_sd(xj + 2), acc);
         }
         for (s = fp[i]; s < fp[i + 1]; s++)
             acc2 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + s), _mm256_maskload_pd(p + 3 * (size_t)fc[s], m3), acc2);

@@ -169,7 +169,7 @@ int tc_rows_update(tc_cloth *c)
     }
     for (size_t i = 0; i < nv; i++) { rp[i + 1] += rp[i]; fp[i + 1] += fp[i]; }
     const size_t ne = (size_t)rp[nv], nf = (size_t)fp[nv];
-    if (tc_vec_resize(&c->rcol, ne) || tc_vec_resize(&c->rblk, 12 * ne) || tc_vec_resize(&c->fcol, nf) ||
+    if (tc_vec_resize(&c->rcol, ne) || tc_vec_resize(&c->rblk, 9 * ne + TC_ROW_SLACK) || tc_vec_resize(&c->fcol, nf) ||
         tc_vec_resize(&c->fval, nf))
         return TC_ERR_NOMEM;
     int32_t *rcol = tc_vec_ptr(&c->rcol), *fcol = tc_vec_ptr(&c->fcol);
