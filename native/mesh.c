@@ -187,6 +187,8 @@ int tc_rows_update(tc_cloth *c)
     }
     for (size_t i = nv; i > 0; i--) { rp[i] = rp[i - 1]; fp[i] = fp[i - 1]; }
     rp[0] = 0; fp[0] = 0;
+    c->stats.matrix_bytes = (int64_t)(ne * (9 * sizeof(double) + sizeof(int32_t)) + nf * (sizeof(double) + sizeof(int32_t)) +
+                                      nv * (12 * sizeof(double) + 2 * sizeof(int32_t)));
     c->rows_built = true;
     c->rows_version = c->pair_version;
     c->rows_nv = c->nv;

@@ -433,14 +433,14 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
                          "triangles", (int)tc_cloth_num_triangles(self->c), "cg_residual_force", s.cg_residual_force,
                          "cg_force_scale", s.cg_force_scale, "substep_splits", (int)s.substep_splits,
                          "unconverged_substeps", (int)s.unconverged_substeps, "unconverged_steps",
-                         (long long)s.unconverged_steps);
+                         (long long)s.unconverged_steps, "matrix_bytes", (long long)s.matrix_bytes);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the

@@ -148,6 +148,7 @@ typedef struct tc_stats {
     int32_t substep_splits;   /* sub-steps of the last step split in two because a solve did not converge */
     int32_t unconverged_substeps; /* sub-steps of the last step accepted unconverged */
     int64_t unconverged_steps;    /* steps so far with at least one sub-step accepted unconverged */
+    int64_t matrix_bytes;     /* bytes of the system matrix one product reads (rows, blocks, indices) */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
