@@ -253,14 +253,19 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
  * the compiler vectorises it with NEON, baseline there). They differ only in rounding (FMA, the
  * order of the flap sums): tests/test_solver_simd.py holds them to 1e-12 relative. */
 
-static double matvec_scalar(const tc_cloth *c, const double *restrict p, double *restrict y)
+/* The arrays of the rows (core.h), fetched once per product for whichever kernel runs. */
+typedef struct rows_view {
+    const double *D, *RB, *FV;
+    const int32_t *rp, *rc, *fp, *fc;
+    int32_t nv;
+} rows_view;
+
+static double matvec_scalar(const rows_view *m, const double *restrict p, double *restrict y)
 {
-    const double *restrict D = tc_vec_ptr(&c->diag), *restrict RB = tc_vec_ptr(&c->rblk);
-    const double *restrict FV = tc_vec_ptr(&c->fval);
-    const int32_t *restrict rp = tc_vec_ptr(&c->rptr), *restrict rc = tc_vec_ptr(&c->rcol);
-    const int32_t *restrict fp = tc_vec_ptr(&c->fptr), *restrict fc = tc_vec_ptr(&c->fcol);
+    const double *restrict D = m->D, *restrict RB = m->RB, *restrict FV = m->FV;
+    const int32_t *restrict rp = m->rp, *restrict rc = m->rc, *restrict fp = m->fp, *restrict fc = m->fc;
     double dot = 0.0;
-    for (int32_t i = 0; i < c->nv; i++) {
+    for (int32_t i = 0; i < m->nv; i++) {
         const double *d = D + 12 * (size_t)i, *x = p + 3 * (size_t)i;
         double y0 = d[0] * x[0] + d[4] * x[1] + d[8] * x[2];
         double y1 = d[1] * x[0] + d[5] * x[1] + d[9] * x[2];
@@ -286,14 +291,12 @@ static double matvec_scalar(const tc_cloth *c, const double *restrict p, double 
 #define TC_X86_64 1
 #include <immintrin.h>
 
-static double matvec_sse2(const tc_cloth *c, const double *restrict p, double *restrict y)
+static double matvec_sse2(const rows_view *m, const double *restrict p, double *restrict y)
 {
-    const double *restrict D = tc_vec_ptr(&c->diag), *restrict RB = tc_vec_ptr(&c->rblk);
-    const double *restrict FV = tc_vec_ptr(&c->fval);
-    const int32_t *restrict rp = tc_vec_ptr(&c->rptr), *restrict rc = tc_vec_ptr(&c->rcol);
-    const int32_t *restrict fp = tc_vec_ptr(&c->fptr), *restrict fc = tc_vec_ptr(&c->fcol);
+    const double *restrict D = m->D, *restrict RB = m->RB, *restrict FV = m->FV;
+    const int32_t *restrict rp = m->rp, *restrict rc = m->rc, *restrict fp = m->fp, *restrict fc = m->fc;
     double dot = 0.0;
-    for (int32_t i = 0; i < c->nv; i++) {
+    for (int32_t i = 0; i < m->nv; i++) {
         const double *d = D + 12 * (size_t)i, *x = p + 3 * (size_t)i;
         __m128d x0 = _mm_set1_pd(x[0]), x1 = _mm_set1_pd(x[1]), x2 = _mm_set1_pd(x[2]);
         /* lo: rows 0 and 1; hi: row 2 and the zero pad */
@@ -329,15 +332,13 @@ static double matvec_sse2(const tc_cloth *c, const double *restrict p, double *r
 #define TC_TARGET_AVX2 /* MSVC compiles AVX2 intrinsics without a flag */
 #endif
 
-TC_TARGET_AVX2 static double matvec_avx2(const tc_cloth *c, const double *restrict p, double *restrict y)
+TC_TARGET_AVX2 static double matvec_avx2(const rows_view *m, const double *restrict p, double *restrict y)
 {
-    const double *restrict D = tc_vec_ptr(&c->diag), *restrict RB = tc_vec_ptr(&c->rblk);
-    const double *restrict FV = tc_vec_ptr(&c->fval);
-    const int32_t *restrict rp = tc_vec_ptr(&c->rptr), *restrict rc = tc_vec_ptr(&c->rcol);
-    const int32_t *restrict fp = tc_vec_ptr(&c->fptr), *restrict fc = tc_vec_ptr(&c->fcol);
+    const double *restrict D = m->D, *restrict RB = m->RB, *restrict FV = m->FV;
+    const int32_t *restrict rp = m->rp, *restrict rc = m->rc, *restrict fp = m->fp, *restrict fc = m->fc;
     const __m256i m3 = _mm256_set_epi64x(0, -1, -1, -1);  /* the three lanes of a vertex */
     double dot = 0.0;
-    for (int32_t i = 0; i < c->nv; i++) {
+    for (int32_t i = 0; i < m->nv; i++) {
         const double *d = D + 12 * (size_t)i, *x = p + 3 * (size_t)i;
         __m256d acc = _mm256_mul_pd(_mm256_loadu_pd(d), _mm256_broadcast_sd(x));
         acc = _mm256_fmadd_pd(_mm256_loadu_pd(d + 4), _mm256_broadcast_sd(x + 1), acc);
@@ -443,14 +444,16 @@ int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y)
 
 double tc_matvec(const tc_cloth *c, const double *restrict p, double *restrict y)
 {
+    const rows_view m = {tc_vec_ptr(&c->diag), tc_vec_ptr(&c->rblk), tc_vec_ptr(&c->fval), tc_vec_ptr(&c->rptr),
+                         tc_vec_ptr(&c->rcol), tc_vec_ptr(&c->fptr), tc_vec_ptr(&c->fcol), c->nv};
 #ifdef TC_X86_64
     switch (tc_simd_level()) {
-    case TC_SIMD_AVX2: return matvec_avx2(c, p, y);
-    case TC_SIMD_SSE2: return matvec_sse2(c, p, y);
+    case TC_SIMD_AVX2: return matvec_avx2(&m, p, y);
+    case TC_SIMD_SSE2: return matvec_sse2(&m, p, y);
     default: break;
     }
 #endif
-    return matvec_scalar(c, p, y);
+    return matvec_scalar(&m, p, y);
 }
 
 static double tc_elastic_energy(const tc_cloth *c, const double *x)

@@ -208,8 +208,7 @@ static void test_solver(void)
     grid(21, 11, 0.2, 0.1, &V, &T, &n, &m);
     char msg[512];
     tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
-    CHECK(c != NULL, "create: %s", msg);
-    if (!c) return;
+    if (!c) { CHECK(0, "create: %s", msg); return; }
     double *p = malloc(3 * (size_t)n * sizeof *p), *q = malloc(3 * (size_t)n * sizeof *q);
     double *y = malloc(3 * (size_t)n * sizeof *y), *z = malloc(3 * (size_t)n * sizeof *z);
     CHECK(tc_cloth_product(c, p, n, y) == TC_ERR_INPUT, "product before any step is refused");
