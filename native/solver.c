@@ -201,8 +201,9 @@ int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, doubl
     const double stop2 = tol * tol * dt * dt * f2;
     int it = 0, ok = 1;
     double rr = 0.0;
-    if (!(r02 > 0.0)) {
-        /* nothing moves the cloth off du = the prescribed part: that is the exact answer */
+    if (r02 == 0.0) {
+        /* nothing moves the cloth off du = the prescribed part: that is the exact answer (a NaN
+           goes on into the solve instead, and the step's check rolls it back) */
         memset(v, 0, n3 * sizeof(double));
         tc_constraint_project(c, v, fixu);
     } else {
