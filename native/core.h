@@ -20,10 +20,11 @@
  *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
  *   cloth.c       life cycle, setters and getters, zero-copy arrays
  *
- * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The stiffness
- * matrix is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils), not
- * in CSR: a tear adds or removes a handful of pairs without rebuilding any pattern, and the
- * symmetric matrix-vector product over pairs costs the same flops as a full CSR product.
+ * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The topology
+ * is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils): a tear adds
+ * or removes a handful of pairs without touching anything else. The system matrix lives by rows
+ * (see rptr below), the pattern rebuilt from the pairs by one counting sort when they changed, so
+ * the product streams its rows instead of scattering into two rows per pair.
  */
 #ifndef TEARCLOTH_CORE_H
 #define TEARCLOTH_CORE_H

@@ -4,8 +4,8 @@
  * stopped by a residual force small against the forces the cloth carries, with the momentum balance
  * of a free cloth made exact by a correction along the translations.
  *
- * The matrix is never formed beyond fem.c's diagonal and pair blocks: the solver only needs its
- * product (tc_matvec) and the constraint filter (constraints.c).
+ * The solver only needs the matrix's product (fem.c's tc_matvec over the rows of core.h) and its
+ * diagonal blocks, and the constraint filter (constraints.c).
  */
 #include "core.h"
 
