@@ -291,6 +291,14 @@ class Cloth:
         self._c.step(float(dt), int(substeps))
 
     def stats(self) -> dict:
+        """Figures of the last step (and counts so far). The solve: cg_iterations (summed over the
+        sub-steps, rolled-back attempts included), cg_residual (the worst solve's residual force over
+        its force scale, to compare with cg_tolerance), cg_residual_force and cg_force_scale (N),
+        substep_splits (sub-steps rolled back and halved because a solve reached
+        cg_max_iterations), unconverged_substeps (accepted unconverged after TC_SPLIT_DEPTH
+        halvings: the cap is too low for this mesh), unconverged_steps (steps so far with any),
+        matrix_bytes (what one matrix-vector product reads). Also fem_seconds, tear_seconds,
+        steps, tears_started, cuts, contacts, vertices, triangles."""
         return self._c.stats()
 
     def energy(self) -> dict:

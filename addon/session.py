@@ -94,6 +94,9 @@ class StepReport:
     tearing_s: float = 0.0
     contacts: int = 0
     events: TopologyEvents | None = None
+    # sub-steps the core accepted with the linear solve short of cg_tolerance after halving them
+    # TC_SPLIT_DEPTH times (the iteration cap is too low for this mesh); 0 in a converged step
+    unconverged_substeps: int = 0
 
     @property
     def total_s(self) -> float:
@@ -124,6 +127,7 @@ class Session:
         self.last = StepReport()
         self.max_substeps = 16  # an exploding step is retried in up to this many sub-steps
         self.retries = 0        # steps that needed a retry, for reports
+        self.unconverged_steps = 0  # steps with a sub-step accepted unconverged (StepReport says which)
         if self.collision is not None:
             from .collision import CollisionDetector
 
@@ -219,6 +223,10 @@ class Session:
         self._step_adaptive(dt)
         st = self.cloth.stats()
         rep.fem_s, rep.tearing_s = st["fem_seconds"], st["tear_seconds"]
+        # the core already split such sub-steps in halves; flag what is left, never drop it
+        rep.unconverged_substeps = int(st["unconverged_substeps"])
+        if rep.unconverged_substeps:
+            self.unconverged_steps += 1
         ev = self.cloth.events()
         rep.events = ev
         if ev and self.detector is not None:

@@ -47,10 +47,6 @@
 #define TC_CONTACT_SHARE 0.5
 
 /* ---- linear solver (solver.c) ---- */
-/* A cloth at rest has almost no net force: the residual need not go below the tolerance times
- * this fraction of the full right-hand side's norm (else the relative tolerance chases round-off).
- * (1, on the squared preconditioned norm) */
-#define TC_CG_FLOOR 1e-2
 /* A 3x3 diagonal block with |det| below this is singular (cannot happen with positive masses):
  * its preconditioner block is zero instead of a division by zero. (N s/m)^3 */
 #define TC_SINGULAR_DET 1e-300
@@ -82,5 +78,16 @@
 #define TC_STEER_GAIN 0.5
 #define TC_STEER_SOFTENING 1e-3     /* m */
 #define TC_SCRIPTED_MAX_CUTS 100000 /* cuts of one scripted tear: a guard against a path that loops */
+
+/* ---- unconverged solves (step.c) ---- */
+/* A sub-step whose solve stops at cg_max_iterations is rolled back and run as two halves, at most
+ * this many times nested (so down to 1/8 of the sub-step): halving dt quarters the stiffness part
+ * of A against its mass part, which is what slows block-Jacobi CG on stiff slivers. Deeper than
+ * that the cap is too low for the mesh: the sub-step is accepted and counted in tc_stats. */
+#define TC_SPLIT_DEPTH 3
+
+/* ---- the matrix by rows (mesh.c, fem.c) ---- */
+/* Zeros after the last edge block: the AVX2 product loads a block's last column 4 wide. (doubles) */
+#define TC_ROW_SLACK 4
 
 #endif

@@ -20,10 +20,11 @@
  *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
  *   cloth.c       life cycle, setters and getters, zero-copy arrays
  *
- * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The stiffness
- * matrix is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils), not
- * in CSR: a tear adds or removes a handful of pairs without rebuilding any pattern, and the
- * symmetric matrix-vector product over pairs costs the same flops as a full CSR product.
+ * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The topology
+ * is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils): a tear adds
+ * or removes a handful of pairs without touching anything else. The system matrix lives by rows
+ * (see rptr below), the pattern rebuilt from the pairs by one counting sort when they changed, so
+ * the product streams its rows instead of scattering into two rows per pair.
  */
 #ifndef TEARCLOTH_CORE_H
 #define TEARCLOTH_CORE_H
@@ -114,7 +115,6 @@ struct tc_cloth {
     tc_vec ptris;            /* int32 x2 triangles on this edge (-1 none) */
     tc_vec pstencil;         /* int32 stencil owned by this edge or -1 */
     tc_vec pbend;            /* double: bending scalar for the pair */
-    tc_vec pblock;           /* double x9: system block A_ij for i = pi, j = pj */
     tc_vec pfree;            /* int32 stack of free pair ids */
     /* hash (min,max) -> pair id, open addressing, power-of-two capacity */
     int32_t *hkeys_i, *hkeys_j, *hvals;
@@ -150,6 +150,27 @@ struct tc_cloth {
     tc_stats stats;
     bool dirty;              /* element state (rotations, stresses, forces) stale */
     bool topo_dirty;         /* topology changed: masses and bending need refresh */
+
+    /* the solve's force scale and outcome (solver.c) */
+    double carried2;         /* sum over triangle corners of |elastic force|^2 at x (N^2), fem.c */
+    double mass_scale;       /* 1 + dt alpha: A 1 = mass_scale M 1 (fem.c's assembly) */
+    double solve_residual_force, solve_force_scale, solve_residual;  /* last solve: N, N, 1 */
+
+    /* The system matrix by rows, for a product that streams (mesh.c builds the pattern, fem.c's
+     * assembly fills it). Row i: its diagonal block (diag: 3x3 column by column, each column
+     * padded to 4 doubles), then its edge blocks A_ij, 3x3 column by column (9 doubles: padding
+     * them would add a quarter to the bytes the product streams; a 4-wide load of a column reads
+     * the next one's first value into a lane the kernels never store, and TC_ROW_SLACK zeros
+     * follow the last block), then its bending flaps as scalars (a flap's block is a multiple of
+     * I). Each edge pair has a slot in both of its rows (A_ji = A_ij^T: read twice, written once
+     * per triangle, never scattered by the product). */
+    tc_vec rptr, rcol, rblk;  /* int32 nv+1, int32 per slot, double x9 per slot (+ slack) */
+    tc_vec fptr, fcol, fval;  /* int32 nv+1, int32 per flap slot, double per flap slot */
+    tc_vec pslot;             /* int32 x2 per pair: its slot in row pi, then in row pj (edge or flap) */
+    uint64_t pair_version;    /* bumped by every pair acquire / release: the pattern is then stale */
+    uint64_t rows_version;    /* the pair_version the pattern was built for */
+    int32_t rows_nv;          /* and the vertex count */
+    bool rows_built;
 };
 
 /* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel
@@ -180,6 +201,13 @@ void tc_stencil_remove(tc_cloth *c, int32_t edge_pair);
 int tc_reserve_vertices(tc_cloth *c, int32_t n);
 int tc_reserve_triangles(tc_cloth *c, int32_t m);
 int32_t tc_tri_local(const tc_cloth *c, int32_t t, int32_t v);
+int tc_rows_update(tc_cloth *c);  /* the row pattern of the matrix, rebuilt when pairs changed */
+/* A pair is an edge (full block) while a triangle uses it, else a bending flap (multiple of I). */
+static inline bool tc_pair_is_edge(const tc_cloth *c, size_t p)
+{
+    const int32_t *pt = (const int32_t *)tc_vec_ptr(&c->ptris) + 2 * p;
+    return pt[0] >= 0 || pt[1] >= 0;
+}
 /* neighbour of triangle t across its edge k (opposite local vertex k), -1 on a boundary */
 static inline int32_t tc_nbr(const tc_cloth *c, int32_t t, int k)
 {
@@ -198,8 +226,9 @@ int tc_event_changed_triangle(tc_cloth *c, int32_t t);  /* once per step; never 
 /* ---------------- fem.c ---------------- */
 double tc_element_pass(tc_cloth *c, const double *x);  /* returns the largest stretch (NaN if not finite) */
 void tc_bending_force(const tc_cloth *c, const double *x, double *f);
-void tc_assemble(tc_cloth *c, double dt);
-void tc_matvec(const tc_cloth *c, const double *p, double *y);
+int tc_assemble(tc_cloth *c, double dt);  /* TC_ERR_NOMEM if the rows could not grow */
+/* y = A p; returns p . y (the CG's curvature, fused into the product). */
+double tc_matvec(const tc_cloth *c, const double *p, double *y);
 
 /* ---------------- constraints.c ---------------- */
 int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3]);
@@ -216,7 +245,8 @@ void tc_handle_forces(tc_cloth *c);
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);
-int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double *residual);
+/* 1 when converged, 0 when stopped at the cap; iterations in *iterations (see solver.c) */
+int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations);
 
 /* ---------------- remesh.c ---------------- */
 /* Triangles around u reachable from `start` without crossing a boundary or a pair in `cut`: the

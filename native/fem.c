@@ -10,6 +10,7 @@
 #include "core.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 static inline void lame(const tc_material *m, double *lambda, double *mu)
@@ -66,6 +67,7 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
     double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *S3 = tc_vec_ptr(&c->stress);
     double *pr = tc_vec_ptr(&c->principal), *pd = tc_vec_ptr(&c->pdir);
     double *f = tc_vec_ptr(&c->fel);
+    double carried2 = 0.0;  /* the solver's scale of elastic forces (solver.c) */
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
     for (int32_t t = 0; t < c->nt; t++) {
         const int32_t i0 = T[3 * t], i1 = T[3 * t + 1], i2 = T[3 * t + 2];
@@ -100,6 +102,7 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
             f[3 * i1 + k] += fa;
             f[3 * i2 + k] += fb;
             f[3 * i0 + k] -= fa + fb;
+            carried2 += fa * fa + fb * fb + (fa + fb) * (fa + fb);
         }
         double *S = S3 + 9 * t;
         for (int i = 0; i < 3; i++)
@@ -115,6 +118,7 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
         if (el > 0) { ex /= el; ey /= el; } else { ex = 1.0; ey = 0.0; }
         for (int k = 0; k < 3; k++) pd[3 * t + k] = R[k] * ex + R[3 + k] * ey;
     }
+    c->carried2 = isfinite(carried2) ? carried2 : 0.0;
     return isfinite(worst2) ? sqrt(worst2) : NAN;
 }
 
@@ -139,24 +143,35 @@ TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
     }
 }
 
-/* System matrix A = (1 + dt alpha) M + (dt^2 + dt beta) (K + B). */
-TC_HOT void tc_assemble(tc_cloth *c, double dt)
+/* System matrix A = (1 + dt alpha) M + (dt^2 + dt beta) (K + B), into the rows of core.h. */
+TC_HOT int tc_assemble(tc_cloth *c, double dt)
 {
+    if (tc_rows_update(c)) { tc_set_err(c, "out of memory building the rows of the system matrix"); return TC_ERR_NOMEM; }
     double lambda, mu;
     lame(&c->mat, &lambda, &mu);
     const double h = c->mat.thickness, kb = c->mat.bending;
     const double ks = dt * dt + dt * c->mat.damping_stiffness, ms = 1.0 + dt * c->mat.damping_mass;
+    c->mass_scale = ms;
     const double *m = tc_vec_ptr(&c->mass), *vb = tc_vec_ptr(&c->vbend), *pb = tc_vec_ptr(&c->pbend);
-    double *D = tc_vec_ptr(&c->diag), *PB = tc_vec_ptr(&c->pblock);
-    const int32_t *pi = tc_vec_ptr(&c->pi);
+    double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
+    const int32_t *pi = tc_vec_ptr(&c->pi), *slot = tc_vec_ptr(&c->pslot);
+    memset(D, 0, 12 * (size_t)c->nv * sizeof *D);
+    memset(RB, 0, c->rblk.len * sizeof *RB);
     for (int32_t v = 0; v < c->nv; v++) {
-        double *d = D + 9 * v, s = m[v] * ms + ks * kb * vb[v];
-        d[0] = s; d[1] = 0; d[2] = 0; d[3] = 0; d[4] = s; d[5] = 0; d[6] = 0; d[7] = 0; d[8] = s;
+        double *d = D + 12 * v, s = m[v] * ms + ks * kb * vb[v];
+        d[0] = s; d[5] = s; d[10] = s;
     }
     size_t np = c->pi.len;
     for (size_t p = 0; p < np; p++) {
-        double *b = PB + 9 * p, s = pi[p] >= 0 ? ks * kb * pb[p] : 0.0;
-        b[0] = s; b[1] = 0; b[2] = 0; b[3] = 0; b[4] = s; b[5] = 0; b[6] = 0; b[7] = 0; b[8] = s;
+        if (pi[p] < 0) continue;
+        const double s = ks * kb * pb[p];
+        if (tc_pair_is_edge(c, p)) {
+            double *a = RB + 9 * (size_t)slot[2 * p], *b = RB + 9 * (size_t)slot[2 * p + 1];
+            a[0] = s; a[4] = s; a[8] = s;
+            b[0] = s; b[4] = s; b[8] = s;
+        } else {
+            FV[slot[2 * p]] = s; FV[slot[2 * p + 1]] = s;
+        }
     }
     const int32_t *T = tc_vec_ptr(&c->tri), *TP = tc_vec_ptr(&c->tpair);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area), *Rall = tc_vec_ptr(&c->rot);
@@ -204,60 +219,241 @@ TC_HOT void tc_assemble(tc_cloth *c, double dt)
                         B[3 * i + l] = wm * (dab * P[3 * i + l] + r[b][i] * r[a][l]) + wl * r[a][i] * r[b][l];
                 B[0] += kg; B[4] += kg; B[8] += kg;
                 const int32_t va = T[3 * t + a];
+                /* B is A_{va,vb}, row-major; a row slot holds its block column by column (core.h):
+                   A_{va,vb} at [3k + r] = B[3r + k], A_{vb,va} = B^T at [3k + r] = B[3k + r]; the
+                   diagonal block's columns are padded to 4 */
                 if (a == b) {
-                    double *d = D + 9 * va;
-                    for (int q = 0; q < 9; q++) d[q] += B[q];
+                    double *d = D + 12 * va;  /* symmetric: either order */
+                    for (int r = 0; r < 3; r++)
+                        for (int k = 0; k < 3; k++) d[4 * k + r] += B[3 * r + k];
                 } else {
                     const int32_t p = TP[3 * t + (3 - a - b)];
-                    double *blk = PB + 9 * (size_t)p;
-                    if (va == pi[p]) {
-                        for (int q = 0; q < 9; q++) blk[q] += B[q];
-                    } else {
-                        for (int i = 0; i < 3; i++)
-                            for (int l = 0; l < 3; l++) blk[3 * i + l] += B[3 * l + i];
-                    }
+                    const int own = va == pi[p] ? 0 : 1;  /* which of the pair's slots is row va's */
+                    double *sa = RB + 9 * (size_t)slot[2 * p + own], *sb = RB + 9 * (size_t)slot[2 * p + 1 - own];
+                    for (int r = 0; r < 3; r++)
+                        for (int k = 0; k < 3; k++) {
+                            sa[3 * k + r] += B[3 * r + k];
+                            sb[3 * k + r] += B[3 * k + r];
+                        }
                 }
             }
         }
     }
+    return TC_OK;
 }
 
-TC_HOT void tc_matvec(const tc_cloth *c, const double *restrict p, double *restrict y)
+/* ---------------- the matrix-vector product ----------------
+ *
+ * Row by row over the layout of core.h: no scatter, no branch between edges and flaps, one write
+ * per row. Each row ends with p_i . y_i summed (the CG's curvature p.Ap, fused so p and y are not
+ * read again). Three kernels of the same arithmetic, picked at run time (one abi3 wheel runs on any
+ * x86-64): AVX2 + FMA (a block column is one 4-lane load whose fourth lane, the next column's
+ * first value, lands in a lane never stored: three FMAs per block, no padding), SSE2
+ * (the x86-64 baseline: two lanes plus one), and portable C, the only one on other CPUs (on arm64
+ * the compiler vectorises it with NEON, baseline there). They differ only in rounding (FMA, the
+ * order of the flap sums): tests/test_solver_simd.py holds them to 1e-12 relative. */
+
+/* The arrays of the rows (core.h), fetched once per product for whichever kernel runs. */
+typedef struct rows_view {
+    const double *D, *RB, *FV;
+    const int32_t *rp, *rc, *fp, *fc;
+    int32_t nv;
+} rows_view;
+
+static double matvec_scalar(const rows_view *m, const double *restrict p, double *restrict y)
 {
-    const double *restrict D = tc_vec_ptr(&c->diag), *restrict PB = tc_vec_ptr(&c->pblock);
-    const int32_t *restrict pi = tc_vec_ptr(&c->pi), *restrict pj = tc_vec_ptr(&c->pj);
-    const int32_t nv = c->nv;
-    for (int32_t v = 0; v < nv; v++) {
-        const double *d = D + 9 * v, *x = p + 3 * v;
-        double x0 = x[0], x1 = x[1], x2 = x[2];
-        y[3 * v] = d[0] * x0 + d[1] * x1 + d[2] * x2;
-        y[3 * v + 1] = d[3] * x0 + d[4] * x1 + d[5] * x2;
-        y[3 * v + 2] = d[6] * x0 + d[7] * x1 + d[8] * x2;
-    }
-    const int32_t *restrict pt = tc_vec_ptr(&c->ptris);
-    const size_t np = c->pi.len;
-    for (size_t q = 0; q < np; q++) {
-        const int32_t i = pi[q], j = pj[q];
-        if (i < 0) continue;
-        const double *B = PB + 9 * q;
-        if (pt[2 * q] < 0) {
-            /* a bending flap (no triangle edge): its block is a multiple of I - a third of the
-               flops, and half the pairs of a mesh are flaps */
-            const double s = B[0];
-            y[3 * i] += s * p[3 * j]; y[3 * i + 1] += s * p[3 * j + 1]; y[3 * i + 2] += s * p[3 * j + 2];
-            y[3 * j] += s * p[3 * i]; y[3 * j + 1] += s * p[3 * i + 1]; y[3 * j + 2] += s * p[3 * i + 2];
-            continue;
+    const double *restrict D = m->D, *restrict RB = m->RB, *restrict FV = m->FV;
+    const int32_t *restrict rp = m->rp, *restrict rc = m->rc, *restrict fp = m->fp, *restrict fc = m->fc;
+    double dot = 0.0;
+    for (int32_t i = 0; i < m->nv; i++) {
+        const double *d = D + 12 * (size_t)i, *x = p + 3 * (size_t)i;
+        double y0 = d[0] * x[0] + d[4] * x[1] + d[8] * x[2];
+        double y1 = d[1] * x[0] + d[5] * x[1] + d[9] * x[2];
+        double y2 = d[2] * x[0] + d[6] * x[1] + d[10] * x[2];
+        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
+            y0 += b[0] * xj[0] + b[3] * xj[1] + b[6] * xj[2];
+            y1 += b[1] * xj[0] + b[4] * xj[1] + b[7] * xj[2];
+            y2 += b[2] * xj[0] + b[5] * xj[1] + b[8] * xj[2];
         }
-        const double a0 = p[3 * i], a1 = p[3 * i + 1], a2 = p[3 * i + 2];
-        const double b0 = p[3 * j], b1 = p[3 * j + 1], b2 = p[3 * j + 2];
-        const double B0 = B[0], B1 = B[1], B2 = B[2], B3 = B[3], B4 = B[4], B5 = B[5], B6 = B[6], B7 = B[7], B8 = B[8];
-        y[3 * i] += B0 * b0 + B1 * b1 + B2 * b2;
-        y[3 * i + 1] += B3 * b0 + B4 * b1 + B5 * b2;
-        y[3 * i + 2] += B6 * b0 + B7 * b1 + B8 * b2;
-        y[3 * j] += B0 * a0 + B3 * a1 + B6 * a2;
-        y[3 * j + 1] += B1 * a0 + B4 * a1 + B7 * a2;
-        y[3 * j + 2] += B2 * a0 + B5 * a1 + B8 * a2;
+        for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
+            const double f = FV[s], *xj = p + 3 * (size_t)fc[s];
+            y0 += f * xj[0]; y1 += f * xj[1]; y2 += f * xj[2];
+        }
+        double *o = y + 3 * (size_t)i;
+        o[0] = y0; o[1] = y1; o[2] = y2;
+        dot += x[0] * y0 + x[1] * y1 + x[2] * y2;
     }
+    return dot;
+}
+
+#if defined(__x86_64__) || defined(_M_X64)
+#define TC_X86_64 1
+#include <immintrin.h>
+
+static double matvec_sse2(const rows_view *m, const double *restrict p, double *restrict y)
+{
+    const double *restrict D = m->D, *restrict RB = m->RB, *restrict FV = m->FV;
+    const int32_t *restrict rp = m->rp, *restrict rc = m->rc, *restrict fp = m->fp, *restrict fc = m->fc;
+    double dot = 0.0;
+    for (int32_t i = 0; i < m->nv; i++) {
+        const double *d = D + 12 * (size_t)i, *x = p + 3 * (size_t)i;
+        __m128d x0 = _mm_set1_pd(x[0]), x1 = _mm_set1_pd(x[1]), x2 = _mm_set1_pd(x[2]);
+        /* lo: rows 0 and 1; hi: row 2 and the zero pad */
+        __m128d lo = _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_loadu_pd(d), x0), _mm_mul_pd(_mm_loadu_pd(d + 4), x1)),
+                                _mm_mul_pd(_mm_loadu_pd(d + 8), x2));
+        __m128d hi = _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_loadu_pd(d + 2), x0), _mm_mul_pd(_mm_loadu_pd(d + 6), x1)),
+                                _mm_mul_pd(_mm_loadu_pd(d + 10), x2));
+        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
+            __m128d a0 = _mm_set1_pd(xj[0]), a1 = _mm_set1_pd(xj[1]), a2 = _mm_set1_pd(xj[2]);
+            lo = _mm_add_pd(lo, _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_loadu_pd(b), a0), _mm_mul_pd(_mm_loadu_pd(b + 3), a1)),
+                                           _mm_mul_pd(_mm_loadu_pd(b + 6), a2)));
+            hi = _mm_add_pd(hi, _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_load_sd(b + 2), a0), _mm_mul_pd(_mm_load_sd(b + 5), a1)),
+                                           _mm_mul_pd(_mm_load_sd(b + 8), a2)));
+        }
+        for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
+            const double *xj = p + 3 * (size_t)fc[s];
+            __m128d f = _mm_set1_pd(FV[s]);
+            lo = _mm_add_pd(lo, _mm_mul_pd(f, _mm_loadu_pd(xj)));
+            hi = _mm_add_pd(hi, _mm_mul_pd(f, _mm_load_sd(xj + 2)));  /* upper lane 0: no read past xj */
+        }
+        double *o = y + 3 * (size_t)i;
+        _mm_storeu_pd(o, lo);
+        _mm_store_sd(o + 2, hi);
+        dot += x[0] * o[0] + x[1] * o[1] + x[2] * o[2];
+    }
+    return dot;
+}
+
+#if defined(__GNUC__) || defined(__clang__)
+#define TC_TARGET_AVX2 __attribute__((target("avx2,fma")))
+#else
+#define TC_TARGET_AVX2 /* MSVC compiles AVX2 intrinsics without a flag */
+#endif
+
+TC_TARGET_AVX2 static double matvec_avx2(const rows_view *m, const double *restrict p, double *restrict y)
+{
+    const double *restrict D = m->D, *restrict RB = m->RB, *restrict FV = m->FV;
+    const int32_t *restrict rp = m->rp, *restrict rc = m->rc, *restrict fp = m->fp, *restrict fc = m->fc;
+    const __m256i m3 = _mm256_set_epi64x(0, -1, -1, -1);  /* the three lanes of a vertex */
+    double dot = 0.0;
+    for (int32_t i = 0; i < m->nv; i++) {
+        const double *d = D + 12 * (size_t)i, *x = p + 3 * (size_t)i;
+        __m256d acc = _mm256_mul_pd(_mm256_loadu_pd(d), _mm256_broadcast_sd(x));
+        acc = _mm256_fmadd_pd(_mm256_loadu_pd(d + 4), _mm256_broadcast_sd(x + 1), acc);
+        acc = _mm256_fmadd_pd(_mm256_loadu_pd(d + 8), _mm256_broadcast_sd(x + 2), acc);
+        /* a second accumulator halves the chain of dependent FMAs per row */
+        __m256d acc2 = _mm256_setzero_pd();
+        int32_t s = rp[i];
+        const int32_t e = rp[i + 1];
+        for (; s + 1 < e; s += 2) {
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s], *xk = p + 3 * (size_t)rc[s + 1];
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b), _mm256_broadcast_sd(xj), acc);
+            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 9), _mm256_broadcast_sd(xk), acc2);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 3), _mm256_broadcast_sd(xj + 1), acc);
+            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 12), _mm256_broadcast_sd(xk + 1), acc2);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 6), _mm256_broadcast_sd(xj + 2), acc);
+            acc2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 15), _mm256_broadcast_sd(xk + 2), acc2);
+        }
+        if (s < e) {
+            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b), _mm256_broadcast_sd(xj), acc);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 3), _mm256_broadcast_sd(xj + 1), acc);
+            acc = _mm256_fmadd_pd(_mm256_loadu_pd(b + 6), _mm256_broadcast_sd(xj + 2), acc);
+        }
+        for (s = fp[i]; s < fp[i + 1]; s++)
+            acc2 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + s), _mm256_maskload_pd(p + 3 * (size_t)fc[s], m3), acc2);
+        acc = _mm256_add_pd(acc, acc2);
+        double *o = y + 3 * (size_t)i;
+        _mm256_maskstore_pd(o, m3, acc);
+        dot += x[0] * o[0] + x[1] * o[1] + x[2] * o[2];
+    }
+    return dot;
+}
+
+static int cpu_has_avx2_fma(void)
+{
+#if defined(__GNUC__) || defined(__clang__)
+    __builtin_cpu_init();
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#elif defined(_MSC_VER)
+    int r[4];
+    __cpuid(r, 1);
+    const int fma = (r[2] >> 12) & 1, osxsave = (r[2] >> 27) & 1, avx = (r[2] >> 28) & 1;
+    if (!(fma && osxsave && avx) || (_xgetbv(0) & 6) != 6) return 0;  /* the OS saves the YMM state */
+    __cpuidex(r, 7, 0);
+    return (r[1] >> 5) & 1;
+#else
+    return 0;
+#endif
+}
+#endif
+
+/* The kernel in use, process-wide (a property of the CPU; tests switch it between steps). */
+static int simd_active = -2;  /* not chosen yet */
+
+static int simd_available(int level)
+{
+    if (level == TC_SIMD_SCALAR) return 1;
+#ifdef TC_X86_64
+    if (level == TC_SIMD_SSE2) return 1;
+    if (level == TC_SIMD_AVX2) return cpu_has_avx2_fma();
+#endif
+    return 0;
+}
+
+const char *tc_simd_name(int level)
+{
+    return level == TC_SIMD_AVX2 ? "avx2" : level == TC_SIMD_SSE2 ? "sse2" : level == TC_SIMD_SCALAR ? "scalar" : "?";
+}
+
+int tc_simd_select(int level)
+{
+    if (level == TC_SIMD_AUTO) {
+        level = simd_available(TC_SIMD_AVX2) ? TC_SIMD_AVX2 : simd_available(TC_SIMD_SSE2) ? TC_SIMD_SSE2 : TC_SIMD_SCALAR;
+        const char *env = getenv("TEARCLOTH_SIMD");  /* a forced kernel, for tests and comparisons */
+        if (env)
+            for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_AVX2; l++)
+                if (!strcmp(env, tc_simd_name(l)) && simd_available(l)) level = l;
+    } else if (level < TC_SIMD_SCALAR || level > TC_SIMD_AVX2 || !simd_available(level)) {
+        return -1;
+    }
+    simd_active = level;
+    return level;
+}
+
+int tc_simd_level(void)
+{
+    if (simd_active < 0) tc_simd_select(TC_SIMD_AUTO);
+    return simd_active;
+}
+
+int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y)
+{
+    if (n != c->nv) { tc_set_err(c, "product: %d vertices given for a cloth of %d", (int)n, (int)c->nv); return TC_ERR_INPUT; }
+    if (!c->rows_built || c->rows_version != c->pair_version || c->rows_nv != c->nv) {
+        tc_set_err(c, "product: no system matrix for the current mesh yet (step first)");
+        return TC_ERR_INPUT;
+    }
+    for (size_t k = 0; k < 3 * (size_t)n; k++)
+        if (!isfinite(p[k])) { tc_set_err(c, "product: component %zu of the vector is not finite (%g)", k, p[k]); return TC_ERR_INPUT; }
+    tc_matvec(c, p, y);
+    return TC_OK;
+}
+
+double tc_matvec(const tc_cloth *c, const double *restrict p, double *restrict y)
+{
+    const rows_view m = {tc_vec_ptr(&c->diag), tc_vec_ptr(&c->rblk), tc_vec_ptr(&c->fval), tc_vec_ptr(&c->rptr),
+                         tc_vec_ptr(&c->rcol), tc_vec_ptr(&c->fptr), tc_vec_ptr(&c->fcol), c->nv};
+#ifdef TC_X86_64
+    switch (tc_simd_level()) {
+    case TC_SIMD_AVX2: return matvec_avx2(&m, p, y);
+    case TC_SIMD_SSE2: return matvec_sse2(&m, p, y);
+    default: break;
+    }
+#endif
+    return matvec_scalar(&m, p, y);
 }
 
 static double tc_elastic_energy(const tc_cloth *c, const double *x)

@@ -433,11 +433,31 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i}", "cg_iterations", s.cg_iterations, "cg_residual",
-                         s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds", s.tear_seconds, "steps",
-                         (long long)s.steps, "tears_started", (int)s.tears_started, "cuts", (int)s.cuts, "contacts",
-                         (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c), "triangles",
-                         (int)tc_cloth_num_triangles(self->c));
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L}", "cg_iterations",
+                         s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
+                         s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
+                         (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
+                         "triangles", (int)tc_cloth_num_triangles(self->c), "cg_residual_force", s.cg_residual_force,
+                         "cg_force_scale", s.cg_force_scale, "substep_splits", (int)s.substep_splits,
+                         "unconverged_substeps", (int)s.unconverged_substeps, "unconverged_steps",
+                         (long long)s.unconverged_steps, "matrix_bytes", (long long)s.matrix_bytes);
+}
+
+/* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the
+ * tests of the product's kernels (tc_cloth_product). */
+static PyObject *Cloth_product(PyObject *o, PyObject *a)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    Arg A = {0};
+    Py_ssize_t n;
+    if (arg_get(a, "p", 'd', 3, &A, &n)) return NULL;
+    PyObject *out = PyBytes_FromStringAndSize(NULL, 3 * n * (Py_ssize_t)sizeof(double));
+    if (!out) { arg_release(&A); return NULL; }
+    int rc = tc_cloth_product(self->c, A.view.buf, (int32_t)n, (double *)PyBytes_AsString(out));
+    arg_release(&A);
+    if (rc) { Py_DECREF(out); return raise_core(self, rc); }
+    return out;
 }
 
 static PyObject *Cloth_energy(PyObject *o, PyObject *unused)
@@ -532,6 +552,7 @@ static PyMethodDef Cloth_methods[] = {
     {"step", (PyCFunction)(void (*)(void))Cloth_step, METH_VARARGS | METH_KEYWORDS, "Advance by dt seconds (GIL released)."},
     {"stats", Cloth_stats, METH_NOARGS, "Statistics of the last step."},
     {"energy", Cloth_energy, METH_NOARGS, "Kinetic, elastic, bending and gravity energies (J)."},
+    {"_product", Cloth_product, METH_O, "Private: A p (bytes, float64 N x 3) with the last sub-step's system matrix."},
     {"array", Cloth_array, METH_O, "Zero-copy view of an array by id."},
     {"counts", Cloth_counts, METH_NOARGS, "(vertices, triangles, groups)."},
     {"scripted_tear", Cloth_scripted_tear, METH_VARARGS, "Tear from a vertex along a direction for a length (m)."},
@@ -584,7 +605,30 @@ static PyObject *native_defaults(PyObject *mod, PyObject *unused)
                          tearing_dict(&t));
 }
 
+/* The product's kernel (fem.c): simd() names the one in use, simd("scalar" | "sse2" | "avx2")
+ * switches to it (process-wide; for tests and comparisons) and ValueError if the CPU or the build
+ * lacks it. */
+static PyObject *native_simd(PyObject *mod, PyObject *args)
+{
+    const char *name = NULL;
+    if (!PyArg_ParseTuple(args, "|z", &name)) return NULL;
+    if (name) {
+        int level = -1;
+        for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_AVX2; l++)
+            if (!strcmp(name, tc_simd_name(l))) level = l;
+        if (level < 0 || tc_simd_select(level) < 0) {
+            PyErr_Format(PyExc_ValueError, "SIMD kernel '%s' is not available here (scalar, sse2 or avx2, as the CPU allows)",
+                         name);
+            return NULL;
+        }
+    }
+    return PyUnicode_FromString(tc_simd_name(tc_simd_level()));
+}
+
 static PyMethodDef module_methods[] = {
+    {"simd", native_simd, METH_VARARGS,
+     "simd(name=None) -> str: the matrix-vector kernel in use; with a name ('scalar', 'sse2', 'avx2') switches to it "
+     "(private: for tests and benchmarks)."},
     {"defaults", native_defaults, METH_NOARGS,
      "defaults() -> {'material': {...}, 'solver': {...}, 'tearing': {...}}: the C core's default settings, by the "
      "C struct field names (gravity as a 3-tuple)."},

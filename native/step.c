@@ -12,12 +12,17 @@
  * a vertex pushed out never keeps the speed to bounce away.
  *
  * A sub-step whose positions hold non-finite values or a stretch above max_stretch is rolled back
- * to where it started, and the step fails with TC_ERR_UNSTABLE (positions are never NaN).
+ * to where it started, and the step fails with TC_ERR_UNSTABLE (positions are never NaN). One whose
+ * solve stopped at the iteration cap is rolled back and split in halves (span() below); what is
+ * still unconverged after TC_SPLIT_DEPTH splits is accepted and counted in tc_stats.
  */
 #include "core.h"
 
 #include <math.h>
 #include <string.h>
+
+/* substep()'s outcome when its solve stopped at the iteration cap (internal to this file) */
+enum { TC_UNCONVERGED = -1 };
 
 /* Per-vertex force at positions x: elastic (fel, already computed) + bending + gravity. */
 void tc_total_force(tc_cloth *c, const double *x)
@@ -55,14 +60,15 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     for (int32_t i = 0; i < n; i++)
         for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * f[3 * i + q];
 
-    tc_assemble(c, dt);
+    if (tc_assemble(c, dt)) return TC_ERR_NOMEM;
     tc_precondition_build(c);
-    double res = 0.0;
     /* warm start: the velocity change of the last step (constant acceleration), exact for a
        falling cloth and close for any smooth motion; pcg projects it onto this step's constraints */
     const double *dv_prev = tc_vec_ptr(&c->sdv);
     for (size_t k = 0; k < n3; k++) v[k] = v0[k] + dv_prev[k];
-    int it = tc_solve_dv(c, v, v0, b, &res);
+    int it = 0, it2 = 0;
+    int converged = tc_solve_dv(c, v, v0, b, dt, &it);
+    double res = c->solve_residual, resf = c->solve_residual_force, fscale = c->solve_force_scale;
 
     if (nc) {
         /* release contacts whose reaction pulls the cloth onto the surface, then friction */
@@ -70,7 +76,9 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         tc_matvec(c, v, J);
         if (tc_contacts_release(c, J, b)) {
             tc_contact_basis(c, dt);
-            it += tc_solve_dv(c, v, v0, b, &res);
+            converged &= tc_solve_dv(c, v, v0, b, dt, &it2);
+            it += it2;
+            if (c->solve_residual > res) { res = c->solve_residual; resf = c->solve_residual_force; fscale = c->solve_force_scale; }
             tc_matvec(c, v, J);
         }
         c->stats.contacts = tc_contacts_friction(c, v, J, b);
@@ -98,9 +106,45 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         return TC_ERR_UNSTABLE;
     }
     tc_total_force(c, x);
-    c->stats.cg_iterations += it;
-    c->stats.cg_residual = res;
-    return TC_OK;
+    c->stats.cg_iterations += it;  /* the work done, rolled-back attempts included */
+    /* the worse of the sub-step's solves, for span() to report once the sub-step is kept */
+    c->solve_residual = res; c->solve_residual_force = resf; c->solve_force_scale = fscale;
+    return converged ? TC_OK : TC_UNCONVERGED;
+}
+
+static void report_kept(tc_cloth *c)
+{
+    if (c->solve_residual < c->stats.cg_residual) return;
+    c->stats.cg_residual = c->solve_residual;
+    c->stats.cg_residual_force = c->solve_residual_force;
+    c->stats.cg_force_scale = c->solve_force_scale;
+}
+
+/* The sub-step from fraction a0 to a1 of the handles' motion. One whose solve did not converge is
+ * rolled back to where it started and run as two halves, up to TC_SPLIT_DEPTH times nested; at
+ * the deepest level it is accepted and counted (tc_stats.unconverged_substeps). */
+static int span(tc_cloth *c, double dt, double a0, double a1, int depth)
+{
+    int rc = substep(c, dt, a1);
+    if (rc == TC_OK) report_kept(c);
+    if (rc != TC_UNCONVERGED) return rc;
+    if (depth >= TC_SPLIT_DEPTH) {
+        report_kept(c);
+        c->stats.unconverged_substeps++;
+        return TC_OK;
+    }
+    const size_t n3 = 3 * (size_t)c->nv;
+    double *x = tc_vec_ptr(&c->x), *v = tc_vec_ptr(&c->v), *dv = tc_vec_ptr(&c->sdv);
+    memcpy(x, tc_vec_ptr(&c->x0), n3 * sizeof(double));
+    memcpy(v, tc_vec_ptr(&c->v0), n3 * sizeof(double));
+    for (size_t k = 0; k < n3; k++) dv[k] *= 0.5;  /* the warm start of a step half as long */
+    tc_element_pass(c, x);
+    tc_total_force(c, x);
+    c->stats.substep_splits++;
+    const double am = 0.5 * (a0 + a1);
+    rc = span(c, 0.5 * dt, a0, am, depth + 1);
+    if (rc == TC_OK) rc = span(c, 0.5 * dt, am, a1, depth + 1);
+    return rc;
 }
 
 int tc_cloth_step(tc_cloth *c, double dt, int substeps)
@@ -110,9 +154,15 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     double t0 = tc_now();
     tc_events_clear(c);
     c->stats.cg_iterations = 0;
+    c->stats.cg_residual = 0.0;
+    c->stats.cg_residual_force = 0.0;
+    c->stats.cg_force_scale = 0.0;
+    c->stats.substep_splits = 0;
+    c->stats.unconverged_substeps = 0;
     double h = dt / substeps;
     int rc = TC_OK;
-    for (int s = 0; s < substeps && rc == TC_OK; s++) rc = substep(c, h, (double)(s + 1) / substeps);
+    for (int s = 0; s < substeps && rc == TC_OK; s++) rc = span(c, h, (double)s / substeps, (double)(s + 1) / substeps, 0);
+    if (c->stats.unconverged_substeps) c->stats.unconverged_steps++;
     if (rc == TC_OK)
         for (int32_t k = 0; k < c->nh; k++) memcpy(c->handles[k].prev, c->handles[k].target, 12 * sizeof(double));
     tc_handle_forces(c);

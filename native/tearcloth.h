@@ -58,7 +58,8 @@ int tc_material_check(const tc_material *m, char *msg, size_t msg_size);
 
 typedef struct tc_solver_settings {
     double gravity[3];        /* m/s^2 */
-    double cg_tolerance;      /* relative residual of the preconditioned CG */
+    double cg_tolerance;      /* residual force at which CG stops, relative to the forces the cloth
+                                 carries (weight, elastic, net force of the step; see tc_stats) */
     int cg_max_iterations;
     double max_stretch;       /* a principal stretch above this counts as an explosion: roll back */
     double contact_max_push;  /* fastest speed (m/s) at which a penetration is resolved, so that
@@ -67,6 +68,15 @@ typedef struct tc_solver_settings {
 } tc_solver_settings;
 
 tc_solver_settings tc_solver_default(void);
+
+/* The kernel of the solver's matrix-vector product, process-wide (a property of the CPU):
+ * TC_SIMD_AUTO picks the best the CPU has, or the one the TEARCLOTH_SIMD environment variable names
+ * (scalar, sse2, avx2) if the CPU has it; a level the CPU or the build lacks is refused (-1).
+ * Returns the level chosen. All kernels agree to rounding (1e-12 relative). */
+enum { TC_SIMD_AUTO = -1, TC_SIMD_SCALAR = 0, TC_SIMD_SSE2 = 1, TC_SIMD_AVX2 = 2 };
+int tc_simd_select(int level);
+int tc_simd_level(void);
+const char *tc_simd_name(int level);
 
 typedef struct tc_cloth tc_cloth;
 
@@ -122,15 +132,29 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps);
 
 typedef struct tc_stats {
     int cg_iterations;        /* summed over the sub-steps of the last step */
-    double cg_residual;       /* relative residual at the end of the last solve */
+    double cg_residual;       /* largest residual force of a solve in the last step, over its force scale */
     double fem_seconds;       /* wall time of the last step without tearing */
     double tear_seconds;      /* wall time of the tearing part of the last step */
     int64_t steps;
     int32_t tears_started;    /* tears started so far */
     int32_t cuts;             /* cut segments so far */
     int32_t contacts;         /* contacts active in the last step */
+    /* The solve stops when its residual force is cg_tolerance of the forces the cloth carries
+     * (weight, carried elastic forces, net force of the step; solver.c). A sub-step whose solve
+     * reaches cg_max_iterations first is rolled back and run as two halves (up to TC_SPLIT_DEPTH
+     * times); one still unconverged then is accepted and counted here, never silently. */
+    double cg_residual_force; /* N: largest residual force of a solve in the last step */
+    double cg_force_scale;    /* N: the force scale it was measured against */
+    int32_t substep_splits;   /* sub-steps of the last step split in two because a solve did not converge */
+    int32_t unconverged_substeps; /* sub-steps of the last step accepted unconverged */
+    int64_t unconverged_steps;    /* steps so far with at least one sub-step accepted unconverged */
+    int64_t matrix_bytes;     /* bytes of the system matrix one product reads (rows, blocks, indices) */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
+/* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
+ * for tests of the kernels and benchmarks of the product. TC_ERR_INPUT when no step has assembled
+ * one for the current mesh (a tear since, or no step yet). */
+int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y);
 
 typedef struct tc_energy {
     double kinetic, elastic, bending, gravity;

@@ -104,7 +104,9 @@ def test_two_handle_forces_are_opposite_and_match_strip_stiffness():
     Lx, w = 0.2, 0.05
     V, T = sheet(Lx, w, 41, 11, jitter=0.3, seed=5)
     c = make(V, T, damping_mass=30.0)
-    c.set_solver(cg_tolerance=1e-8, cg_max_iterations=2000)
+    # the tolerance is on the residual force against the strip's carried tension (~1 N): 1e-10
+    # leaves 1e-10 N, below the 1e-6 agreement asked of the two ends' lateral forces (~3e-5 N)
+    c.set_solver(cg_tolerance=1e-10, cg_max_iterations=2000)
     hl = c.add_handle(np.flatnonzero(V[:, 0] < 1e-9))
     hr = c.add_handle(np.flatnonzero(V[:, 0] > Lx - 1e-9))
     strain = 0.005

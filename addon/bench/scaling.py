@@ -231,6 +231,7 @@ def _child_point(spec: dict) -> dict:
     else:
         s = session_mod.Session(c, None)
     times, cpu, iters, contacts = [], [], [], []
+    unconverged = 0
     parts = {"collision": [], "fem": [], "tearing": []}
     error = None
     n = int(spec["warmup"]) + int(spec["steps"])
@@ -252,6 +253,7 @@ def _child_point(spec: dict) -> dict:
             cpu.append(c1 - c0)
             iters.append(c.stats()["cg_iterations"])
             contacts.append(rep.contacts)
+            unconverged += rep.unconverged_substeps > 0
             parts["collision"].append(rep.collision_s)
             parts["fem"].append(rep.fem_s)
             parts["tearing"].append(rep.tearing_s)
@@ -259,7 +261,7 @@ def _child_point(spec: dict) -> dict:
     return {"step_s": times, "step_cpu_s": cpu,
             "cg_iterations_median": statistics.median(iters) if iters else None,
             "contacts_median": statistics.median(contacts) if contacts else None, "cuts": int(st.get("cuts", 0)),
-            "triangles_end": int(c.num_triangles), "error": error,
+            "triangles_end": int(c.num_triangles), "error": error, "unconverged_steps": int(unconverged),
             "parts_ms": {k: 1e3 * statistics.median(v) if v else None for k, v in parts.items()},
             "peak_rss_bytes": _peak_rss_bytes()}
 
@@ -354,6 +356,8 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                             "peak_mb": peak / MB, "bytes_per_triangle": peak / tri,
                             "peak_rss_mb": int(res["peak_rss_bytes"]) / MB,
                             "cg_iterations_median": res["cg_iterations_median"],
+                            # timed steps whose solve the core accepted short of cg_tolerance
+                            "unconverged_steps": int(res.get("unconverged_steps", 0)),
                             "contacts_median": res["contacts_median"], "cuts": res["cuts"],
                             "ms_per_cg_iteration": (1e3 * statistics.median(res["step_s"]) / res["cg_iterations_median"]
                                                     if res["step_s"] and res["cg_iterations_median"] else None),
@@ -392,6 +396,11 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
         "exponent_of": base_label,
         "exponents": exponents,
         "exponent_cpu": exponents_cpu.get(base_label, float("nan")),
+        # steps of the exponent's configuration the core accepted unconverged (0: the exponent
+        # is of converged solves only), and of every point
+        "unconverged_steps": sum(p["unconverged_steps"] for p in points
+                                 if config_label(p["mesh"], p["tearing"], p["collision"]) == base_label),
+        "unconverged_steps_all": sum(p["unconverged_steps"] for p in points),
         "exponents_cpu": exponents_cpu,
         "load_average": loadavg(),
         "peak_mb_100k": largest.get(base_label, {}).get("peak_mb", float("nan")),

@@ -30,6 +30,9 @@ PAPER_TABLE1 = {  # ms per step, from the paper (Xeon E5-2620, SOFA)
 }
 
 DT = 1e-3  # haptic-rate simulation step (s)
+# Read bandwidth of the L2 cache measured on the project's 2-core machines (shared notes,
+# performance.md): the roofline of the solver's product is its matrix bytes at this rate.
+L2_READ_BYTES_PER_S = 120e9
 PULL_SPEED = 0.02  # m/s per hand, apart
 
 
@@ -95,6 +98,8 @@ def measure_scenario(name: str, steps: int = 200) -> dict:
     out["fem_ms"] = _median_ms(fem)
     out["tearing_before_ms"] = _median_ms(tear)
     out["cg_iterations_median"] = statistics.median(iters)
+    out["unconverged_steps"] = int(c.stats()["unconverged_steps"])
+    out.update(_product_figures(c))
     total_before = [f + t for f, t in zip(fem, tear)]
     # A running tear: a short scripted cut from the rim leaves a tip; from then on only the tip is
     # examined (plus one 1/scan_period slice of the rest), the "after" column.
@@ -114,6 +119,25 @@ def measure_scenario(name: str, steps: int = 200) -> dict:
     out["total_before_ms"] = _median_ms(total_before)
     out["total_after_ms"] = _median_ms([f + t for f, t in zip(fem2, tear2)])
     return out
+
+
+def _product_figures(c: Cloth, repeats: int = 200) -> dict:
+    """The solver's matrix-vector product on the last step's matrix, timed through the private
+    binding (median of 7 runs of `repeats` products; includes one Python call each, ~1 us),
+    against its roofline: the bytes it streams at the L2 read bandwidth."""
+    p = np.ascontiguousarray(np.random.default_rng(0).normal(size=(c.num_vertices, 3)))
+    runs = []
+    for _ in range(7):
+        t0 = time.perf_counter()
+        for _ in range(repeats):
+            c._c._product(p)
+        runs.append((time.perf_counter() - t0) / repeats)
+    nbytes = int(c.stats()["matrix_bytes"])
+    us = 1e6 * statistics.median(runs)
+    roof = 1e6 * nbytes / L2_READ_BYTES_PER_S
+    from .. import _native
+    return {"product_us": us, "product_roofline_us": roof, "product_vs_roofline": us / roof,
+            "matrix_bytes": nbytes, "simd": _native.simd()}
 
 
 def _rim_vertex(c: Cloth) -> int:
@@ -179,14 +203,16 @@ def _after_cuts(name: str, steps: int) -> dict:
 
 def format_table(results: dict) -> str:
     rows = [f"{'scenario':<9} {'tris':>6} {'FEM ms':>8} {'(paper)':>8} {'tear before':>12} {'(paper)':>8} "
-            f"{'tear after':>11} {'(paper)':>8} {'CG it':>6} {'x after 50 cuts':>15} {'(per CG it)':>11}"]
+            f"{'tear after':>11} {'(paper)':>8} {'CG it':>6} {'x after 50 cuts':>15} {'(per CG it)':>11} "
+            f"{'Ap us':>7} {'(roof)':>7}"]
     for name, r in results["table1"].items():
         p = PAPER_TABLE1[name]
         rows.append(
             f"{name:<9} {r['triangles']:>6} {r['fem_ms']:>8.3f} {p['fem_ms']:>8.1f} {r['tearing_before_ms']:>12.4f} "
             f"{p['tearing_before_ms']:>8.1f} {r['tearing_after_ms']:>11.4f} {p['tearing_after_ms']:>8.1f} "
             f"{r['cg_iterations_median']:>6.0f} {r['step_ratio_after_50_cuts']:>15.3f} "
-            f"{r['step_ratio_per_cg_iteration_after_50_cuts']:>11.3f}"
+            f"{r['step_ratio_per_cg_iteration_after_50_cuts']:>11.3f} "
+            f"{r.get('product_us', float('nan')):>7.1f} {r.get('product_roofline_us', float('nan')):>7.1f}"
         )
     return "\n".join(rows)
 

@@ -10,4 +10,9 @@ core=$(ls *.c | grep -v '^pymodule\.c$')
 cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all \
    -DTC_NO_CLONES -Wall -Wextra -Wno-unused-parameter -I. \
    $core tests/test_core.c -lm -o "$out"
-ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"
+# once per kernel of the solver's matrix-vector product (fem.c picks it from TEARCLOTH_SIMD; one the
+# CPU lacks falls back to the best it has, so every machine runs all it can)
+for kernel in scalar sse2 avx2; do
+    echo "kernel $kernel:"
+    TEARCLOTH_SIMD=$kernel ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"
+done

@@ -2,6 +2,7 @@
  * UndefinedBehaviorSanitizer in CI (see native/tests/run_sanitizers.sh). Each check prints and
  * counts; the exit code is the number of failures. */
 #include "tearcloth.h"
+#include "constants.h"  /* TC_SPLIT_DEPTH: how often a capped solve is split */
 
 #include <math.h>
 #include <stdio.h>
@@ -198,12 +199,64 @@ static void test_defaults_pass_their_checks(void)
     tc_cloth_destroy(c);
 }
 
+/* The solver: a product that is symmetric and the same with every kernel the CPU has (the run
+ * script also runs this whole file once per kernel), after a tear rebuilt the rows; and a solve
+ * stopped at its cap split and counted, never silent. */
+static void test_solver(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(21, 11, 0.2, 0.1, &V, &T, &n, &m);
+    char msg[512];
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    if (!c) { CHECK(0, "create: %s", msg); return; }
+    double *p = malloc(3 * (size_t)n * sizeof *p), *q = malloc(3 * (size_t)n * sizeof *q);
+    double *y = malloc(3 * (size_t)n * sizeof *y), *z = malloc(3 * (size_t)n * sizeof *z);
+    CHECK(tc_cloth_product(c, p, n, y) == TC_ERR_INPUT, "product before any step is refused");
+    int32_t cuts = 0;
+    const double dir[3] = {0, 1, 0};
+    CHECK(tc_cloth_scripted_tear(c, 10 * 11, dir, 0.05, &cuts) == TC_OK && cuts > 0, "tear: %s", tc_cloth_error(c));
+    CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+    const int32_t nv = tc_cloth_num_vertices(c);
+    p = realloc(p, 3 * (size_t)nv * sizeof *p); q = realloc(q, 3 * (size_t)nv * sizeof *q);
+    y = realloc(y, 3 * (size_t)nv * sizeof *y); z = realloc(z, 3 * (size_t)nv * sizeof *z);
+    for (int32_t k = 0; k < 3 * nv; k++) { p[k] = sin(0.37 * k); q[k] = cos(0.11 * k); }
+    const int level = tc_simd_level();
+    double ref = 0.0;
+    for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_AVX2; l++) {
+        if (tc_simd_select(l) < 0) continue;
+        CHECK(tc_cloth_product(c, p, nv, y) == TC_OK && tc_cloth_product(c, q, nv, z) == TC_OK, "product");
+        double qy = 0.0, pz = 0.0;
+        for (int32_t k = 0; k < 3 * nv; k++) { qy += q[k] * y[k]; pz += p[k] * z[k]; }
+        CHECK(fabs(qy - pz) <= 1e-12 * fabs(qy), "%s: product symmetric: %.17g vs %.17g", tc_simd_name(l), qy, pz);
+        if (l == TC_SIMD_SCALAR) ref = qy;
+        CHECK(fabs(qy - ref) <= 1e-12 * fabs(ref), "%s agrees with scalar: %.17g vs %.17g", tc_simd_name(l), qy, ref);
+    }
+    tc_simd_select(level);
+    tc_solver_settings s = tc_cloth_solver(c);
+    s.cg_max_iterations = 2;
+    tc_cloth_set_solver(c, &s);
+    double *vel = malloc(3 * (size_t)nv * sizeof *vel);
+    for (int32_t k = 0; k < 3 * nv; k++) vel[k] = 0.05 * sin(1.7 * k);
+    tc_cloth_set_velocities(c, vel, nv);
+    CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "capped step: %s", tc_cloth_error(c));
+    tc_stats st = tc_cloth_stats(c);
+    /* every half still unconverged splits again: a full binary tree TC_SPLIT_DEPTH deep */
+    CHECK(st.substep_splits == (1 << TC_SPLIT_DEPTH) - 1 && st.unconverged_substeps == 1 << TC_SPLIT_DEPTH &&
+              st.unconverged_steps == 1,
+          "capped solve split %d times, %d sub-steps unconverged, %lld steps", (int)st.substep_splits,
+          (int)st.unconverged_substeps, (long long)st.unconverged_steps);
+    CHECK(st.cg_residual > s.cg_tolerance && st.cg_residual_force > 0, "residual reported: %g", st.cg_residual);
+    free(p); free(q); free(y); free(z); free(vel); free(V); free(T);
+    tc_cloth_destroy(c);
+}
+
 int main(void)
 {
     test_bad_input();
     test_defaults_pass_their_checks();
     test_strip_and_tear();
     test_contacts_and_arrays();
+    test_solver();
     printf("%d passed, %d failed\n", checks - failures, failures);
     return failures != 0;
 }
