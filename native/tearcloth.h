@@ -50,6 +50,9 @@ typedef struct tc_material {
     double damping_stiffness; /* Rayleigh beta (s) */
     double tear_stress;       /* sigma_E (Pa): a tear starts where the largest principal stress passes it */
     double snap_tolerance;    /* fraction of an edge, in [0, 0.5): cut points this close to a vertex snap to it */
+    double tear_radius;       /* l (m): the material length over which the stress that starts, drives and
+                                 arrests a tear is averaged (theory of critical distances, see tear.c) */
+    double crack_speed_ratio; /* fastest a tear runs, as a fraction of the Rayleigh wave speed c_R, in (0, 1] */
 } tc_material;
 
 tc_material tc_material_default(void);  /* the "cotton" preset of addon/materials.py */
@@ -129,6 +132,7 @@ typedef struct tc_stats {
     int32_t tears_started;    /* tears started so far */
     int32_t cuts;             /* cut segments so far */
     int32_t contacts;         /* contacts active in the last step */
+    int32_t tips_retired;     /* tips whose driving stress fell below the threshold, so far */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 
@@ -188,8 +192,10 @@ typedef struct tc_events {
 } tc_events;
 tc_events tc_cloth_events(const tc_cloth *c);
 
-/* Largest principal stress of a vertex (area-weighted average of its triangles' stress tensors
- * projected on its tangent plane) and its direction. */
+/* Largest principal stress of a vertex and its direction: the area-weighted average of the stress
+ * tensors of its own triangles and of every triangle connected to them (through uncut edges) whose
+ * rest centroid lies within tear_radius of the vertex, projected on the vertex tangent plane. This
+ * is the measure tearing compares with tear_stress * strength. */
 int tc_cloth_vertex_stress(tc_cloth *c, int32_t v, double *value, double direction[3]);
 
 #ifdef __cplusplus
