@@ -221,7 +221,7 @@ SETTINGS: tuple[Setting, ...] = (
     _f("material", "crack_speed_ratio", "1", 0.2, "Crack Speed",
        "Fastest a tear runs, as a fraction of the Rayleigh wave speed of the sheet (about 0.9 sqrt(shear "
        "modulus / density)); a tear driven just past its threshold runs slower (Freund's law)",
-       _COTTON, _B(0.0, 1.0, lo_open=True), _B(0.01, 0.9), native="crack_speed_ratio",
+       _COTTON, _B(0.0, 1.0, lo_open=True), _B(0.001, 0.9), native="crack_speed_ratio",
        block="material.tearing", ui=dict(precision=3)),
     _f("material", "bending", "N m", 5.0e-6, "Bending", "Bending stiffness in N m",
        _COTTON, _B(0.0, None), _B(0.0, 1.0), native="bending", block="material.damping",

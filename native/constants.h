@@ -61,9 +61,8 @@
 /* Largest fan (triangles around one vertex) a tear walks; far above any sane valence, and a fan
  * larger than this stops the tear there. (triangles) */
 #define TC_FAN_MAX 256
-/* Candidate tear starts kept per scan, best first: each starts a tear unless it lies within the
- * exclusion of a tip (running or just started), so this many separate regions can start tearing
- * in one step. */
+/* Regions over threshold that may start a tear in one step (the best ones first; the others start
+ * in the next steps). */
 #define TC_TEAR_CANDIDATES 8
 /* Corner fit of a segment direction: a triangle whose corner holds the direction scores >= 0; a
  * direction pointing away from both edges of the corner loses this much, so any corner that holds
@@ -78,10 +77,6 @@
 /* Snapping to the farther end of the opposite edge only when it lies within about 45 degrees of the
  * path (cos 45 deg = 0.707): beyond that, following the edge would turn the tear. (1) */
 #define TC_FAR_END_COS 0.7
-/* A running tip concentrates the stress around itself over about the material radius; a new tear
- * is not started within this many tear radii (rest distance) of a running tip, else it would only
- * branch that tear. A physical distance, so a sliver's long edges cannot make it cover the cloth. (1) */
-#define TC_TIP_EXCLUSION 2.0
 /* A tip never turns back on its own path: a direction is available only when its cosine with the
  * tip's last direction is above this. (1) */
 #define TC_TIP_FORWARD_COS 0.0

@@ -145,8 +145,8 @@ struct tc_cloth {
     int32_t scan_cursor;
     bool tearing_running;
     tc_vec tipadv;           /* double per tip: advance (m of rest length) earned and not yet cut */
-    tc_vec tstamp, vstamp;   /* int32 per triangle / vertex: visit marks of the material-disc walks */
-    tc_vec tqueue;           /* int32: the walk's queue of triangles */
+    tc_vec tstamp, vstamp;   /* int32 per triangle / 3 per vertex: visit marks of the tearing walks */
+    tc_vec tqueue, vqueue;   /* int32: the walks' queues of triangles / vertices (vsa: ratio memo) */
     int32_t stamp;           /* current visit mark (tstamp and vstamp hold older ones) */
     /* events */
     tc_vec ev_newv, ev_par, ev_w, ev_chg, ev_newt;

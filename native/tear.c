@@ -6,8 +6,8 @@
  * against tear_stress * strength(v). Every vertex can start a tear, grasped and pinned ones too (a
  * held vertex splits into two held copies), so no configuration is untearable. Each step every
  * triangle's sigma_1 bounds the discs that hold it (while tips run: a slice of 1/scan_period of
- * them), and the best vertices over their threshold start tears, each unless within a physical
- * distance (TC_TIP_EXCLUSION tear radii, in the rest shape) of a running tip or of another start.
+ * them, so any region starts within scan_period steps), and each region over threshold that holds
+ * no running tip starts a tear at its highest vertex (scan()).
  *
  * Which way: the direction rule of choose_direction(): stress across the cut over strength ahead,
  * among the orthogonal-to-principal direction and the edges at the tip. A tear from an interior
@@ -68,7 +68,7 @@ static int marks_ready(tc_cloth *c)
 {
     size_t nt = (size_t)c->nt, nv = (size_t)c->nv;
     if ((c->tstamp.len < nt && tc_vec_resize(&c->tstamp, nt)) || (c->tqueue.len < nt && tc_vec_resize(&c->tqueue, nt)) ||
-        (c->vstamp.len < nv && tc_vec_resize(&c->vstamp, nv))) {
+        (c->vstamp.len < 3 * nv && tc_vec_resize(&c->vstamp, 3 * nv)) || (c->vqueue.len < nv && tc_vec_resize(&c->vqueue, nv))) {
         tc_set_err(c, "out of memory for the tearing walk (%d triangles)", (int)c->nt);
         return TC_ERR_NOMEM;
     }
@@ -272,9 +272,11 @@ static bool choose_direction(tc_cloth *c, int32_t v, const double *S, const doub
 
 /* ---------------- tips ---------------- */
 
-static int tip_add(tc_cloth *c, int32_t v, const double *dir)
+/* A new tip at v; advance: what it has earned already (negative: the length its start cut, which it
+ * pays back before cutting more, so a start or a restart never lets a tear run faster). */
+static int tip_add(tc_cloth *c, int32_t v, const double *dir, double advance)
 {
-    if (tc_vec_push_i32(&c->tips, v) || tc_vec_push_f64(&c->tipadv, 0.0)) return TC_ERR_NOMEM;
+    if (tc_vec_push_i32(&c->tips, v) || tc_vec_push_f64(&c->tipadv, advance)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->tipdir, 3 * c->tips.len)) return TC_ERR_NOMEM;
     memcpy((double *)tc_vec_ptr(&c->tipdir) + 3 * (c->tips.len - 1), dir, 3 * sizeof(double));
     return TC_OK;
@@ -350,7 +352,7 @@ static int start_tear(tc_cloth *c, int32_t v, const double *dir, const double *b
         c->stats.tears_started++;
         double d[3];
         unit_dir(c, v, w, d);
-        if (!wb && !(dup & 2u)) return tip_add(c, w, d) ? -1 : 1;
+        if (!wb && !(dup & 2u)) return tip_add(c, w, d, one_way ? 0.0 : -rest_length(c, v, w)) ? -1 : 1;
         return 1;
     }
     int32_t p1 = -1, p2 = -1;
@@ -377,8 +379,8 @@ static int start_tear(tc_cloth *c, int32_t v, const double *dir, const double *b
     c->stats.tears_started++;
     double d2[3];
     unit_dir(c, *from2, w2, d2);
-    if (!one_way && !b1 && !(dup & 2u)) if (tip_add(c, w1, d1)) return -1;
-    if (!b2 && !(dup & 4u)) if (tip_add(c, w2, d2)) return -1;
+    if (!one_way && !b1 && !(dup & 2u)) if (tip_add(c, w1, d1, -rest_length(c, v, w1))) return -1;
+    if (!b2 && !(dup & 4u)) if (tip_add(c, w2, d2, one_way ? 0.0 : -rest_length(c, *from2, w2))) return -1;
     return 1;
 }
 
@@ -394,12 +396,58 @@ static void cand_push(candidate *cs, int *n, double r, int32_t v)
     for (; i > 0 && cs[i].ratio > cs[i - 1].ratio; i--) { candidate t = cs[i]; cs[i] = cs[i - 1]; cs[i - 1] = t; }
 }
 
-/* A vertex's disc stress is a mean of its disc's triangle stresses, and no in-plane eigenvalue of a
- * mean exceeds the largest of the triangles' own: a vertex can pass its threshold only if a
- * triangle of its disc has sigma_1 above tear_stress times the smallest strength of the cloth.
- * So the scan reads one number per triangle, and only around those "hot" triangles (every vertex
- * within the radius of a corner of one) evaluates disc stresses. Exact, and cheap while nothing is
- * near tearing. Triangles t0 .. t0 + count - 1 (mod nt) are examined. */
+/* Per-vertex marks of one scan (vstamp holds three per vertex) and the ratio memo (vsa). */
+enum { MARK_NEAR_HOT = 0, MARK_EVALUATED = 1, MARK_FLOODED = 2 };
+
+static double ratio_memo(tc_cloth *c, int32_t v, int32_t emark)
+{
+    int32_t *vs = tc_vec_ptr(&c->vstamp);
+    double *R = tc_vec_ptr(&c->vsa);
+    if (vs[3 * (size_t)v + MARK_EVALUATED] != emark) {
+        double pd[3];
+        R[v] = disc_stress(c, v, pd, NULL, NULL) / threshold(c, v);
+        vs[3 * (size_t)v + MARK_EVALUATED] = emark;
+    }
+    return R[v];
+}
+
+/* The region over threshold around v: every vertex connected to v through vertices whose ratio is
+ * above 1 (v itself whatever its ratio). Marks it; returns its best vertex and ratio. */
+static int32_t flood(tc_cloth *c, int32_t v, int32_t emark, int32_t fmark, double *best_r)
+{
+    int32_t *vs = tc_vec_ptr(&c->vstamp), *q = tc_vec_ptr(&c->vqueue);
+    int32_t n = 0, best = v;
+    *best_r = ratio_memo(c, v, emark);
+    vs[3 * (size_t)v + MARK_FLOODED] = fmark;
+    q[n++] = v;
+    for (int32_t head = 0; head < n; head++) {
+        int32_t u = q[head], fan[TC_FAN_MAX];
+        bool closed;
+        int nf = tc_fan_walk(c, u, ((int32_t *)tc_vec_ptr(&c->vtri))[u], NULL, 0, fan, TC_FAN_MAX, &closed);
+        for (int i = 0; i < nf; i++)
+            for (int k = 0; k < 3; k++) {
+                int32_t w = ((const int32_t *)tc_vec_ptr(&c->tri))[3 * (size_t)fan[i] + k];
+                if (vs[3 * (size_t)w + MARK_FLOODED] == fmark) continue;
+                double r = ratio_memo(c, w, emark);
+                if (!(r > 1.0)) continue;
+                vs[3 * (size_t)w + MARK_FLOODED] = fmark;
+                q[n++] = w;
+                if (r > *best_r) { *best_r = r; best = w; }
+            }
+    }
+    return best;
+}
+
+/* WHERE. A vertex's disc stress is a mean of its disc's triangle stresses, and no in-plane
+ * eigenvalue of a mean exceeds the largest of the triangles' own: a vertex can pass its threshold
+ * only if a triangle of its disc has sigma_1 above tear_stress times the smallest strength of the
+ * cloth. So the scan reads one number per triangle (triangles t0 .. t0 + count - 1, mod nt), and
+ * evaluates disc stresses only around those "hot" triangles (every vertex within the radius of a
+ * corner of one): exact, and cheap while nothing is near tearing. The vertices over threshold form
+ * regions (connected through vertices over threshold); a region holding a running tip is being
+ * torn by it (this is the exclusion near a tip: the tip's own stress concentration, however far it
+ * reaches, never starts a branch). Every other region starts one tear, at its highest vertex: the
+ * best TC_TEAR_CANDIDATES regions per step, returned best first. */
 static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
 {
     const double *pr = tc_vec_ptr(&c->principal), *st = tc_vec_ptr(&c->strength);
@@ -423,30 +471,30 @@ static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
         for (int32_t i = 0; i < m; i++)
             for (int j = 0; j < 3; j++) {
                 int32_t u = T[3 * Q[i] + j];
-                if (Q[i] == t || dist2(X + 3 * u, P) <= r2) vs[u] = vmark;
+                if (Q[i] == t || dist2(X + 3 * u, P) <= r2) vs[3 * (size_t)u + MARK_NEAR_HOT] = vmark;
             }
     }
     if (!vmark) return 0;
+    int32_t emark = new_mark(c), fmark = new_mark(c);
+    bool tips_flooded = false;
     int n = 0;
     for (int32_t v = 0; v < c->nv; v++) {
-        if (vs[v] != vmark) continue;
-        double pd[3];
-        double r = disc_stress(c, v, pd, NULL, NULL) / threshold(c, v);
-        if (r > 1.0) cand_push(cs, &n, r, v);
+        if (vs[3 * (size_t)v + MARK_NEAR_HOT] != vmark || vs[3 * (size_t)v + MARK_FLOODED] == fmark) continue;
+        if (!(ratio_memo(c, v, emark) > 1.0)) continue;
+        if (!tips_flooded) {  /* the regions of the running tips first: they start nothing */
+            double r;
+            for (size_t i = 0; i < c->tips.len; i++) {
+                int32_t tp = ((const int32_t *)tc_vec_ptr(&c->tips))[i];
+                if (vs[3 * (size_t)tp + MARK_FLOODED] != fmark) flood(c, tp, emark, fmark, &r);
+            }
+            tips_flooded = true;
+            if (vs[3 * (size_t)v + MARK_FLOODED] == fmark) continue;
+        }
+        double r;
+        int32_t best = flood(c, v, emark, fmark, &r);
+        cand_push(cs, &n, r, best);
     }
     return n;
-}
-
-static bool near_a_tip(const tc_cloth *c, int32_t v, const int32_t *extra, int nextra)
-{
-    const int32_t *tp = tc_vec_ptr(&c->tips);
-    const double *X = tc_vec_ptr(&c->rest);
-    const double r = TC_TIP_EXCLUSION * c->mat.tear_radius, r2 = r * r;
-    for (size_t i = 0; i < c->tips.len; i++)
-        if (tp[i] == v || dist2(X + 3 * tp[i], X + 3 * v) < r2) return true;
-    for (int i = 0; i < nextra; i++)
-        if (extra[i] == v || dist2(X + 3 * extra[i], X + 3 * v) < r2) return true;
-    return false;
 }
 
 /* ---------------- how fast: the tips ---------------- */
@@ -521,17 +569,13 @@ static int advance_tips(tc_cloth *c, double dt)
     return TC_OK;
 }
 
-/* Starts a tear at each candidate (best first) that is not within the exclusion of a running tip
- * or of a tear started before it in this step. The new tips started during this step: they earn
+/* Starts a tear at each candidate (the best vertex of a region over threshold). The new tips started during this step: they earn
  * its advance at the speed of the stress that started them (so the tear after a given time does
  * not depend on the step), spent with this step's stresses. */
 static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
 {
-    int32_t started[TC_TEAR_CANDIDATES];
-    int ns = 0;
     for (int i = 0; i < n; i++) {
         int32_t v = cs[i].v;
-        if (near_a_tip(c, v, started, ns)) continue;
         double pd[3], nrm[3], S[9], d1[3], d2[3];
         if (!(disc_stress(c, v, pd, nrm, S) > 0)) continue;
         if (!choose_direction(c, v, S, nrm, pd, NULL, d1)) continue;
@@ -541,7 +585,6 @@ static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
         int rc = start_tear(c, v, d1, has2 ? d2 : back, false);
         if (rc < 0) return TC_ERR_NOMEM;
         if (rc == 0) continue;
-        started[ns++] = v;
         if (marks_ready(c)) return TC_ERR_NOMEM;
         /* at most two new tips, appended; running one may move the other into its slot */
         int32_t fresh[2];
