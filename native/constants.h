@@ -64,6 +64,8 @@
 /* Regions over threshold that may start a tear in one step (the best ones first; the others start
  * in the next steps). */
 #define TC_TEAR_CANDIDATES 8
+/* Vertices of one region tried, best first, when the remesh cannot cut at the better ones. */
+#define TC_REGION_TRIES 4
 /* Corner fit of a segment direction: a triangle whose corner holds the direction scores >= 0; a
  * direction pointing away from both edges of the corner loses this much, so any corner that holds
  * it wins; a best score below the limit means no corner holds the direction. (1: sine of angle) */
@@ -77,6 +79,9 @@
 /* Snapping to the farther end of the opposite edge only when it lies within about 45 degrees of the
  * path (cos 45 deg = 0.707): beyond that, following the edge would turn the tear. (1) */
 #define TC_FAR_END_COS 0.7
+/* Directions a tip or a start tries, best first by the direction rule, when the remesh refuses the
+ * better ones (a split below the minimum angle and no edge to snap to). */
+#define TC_TEAR_DIRECTIONS 8
 /* A tip never turns back on its own path: a direction is available only when its cosine with the
  * tip's last direction is above this. (1) */
 #define TC_TIP_FORWARD_COS 0.0

@@ -434,11 +434,12 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:i}", "cg_iterations", s.cg_iterations, "cg_residual",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:i,s:i}", "cg_iterations", s.cg_iterations, "cg_residual",
                          s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds", s.tear_seconds, "steps",
                          (long long)s.steps, "tears_started", (int)s.tears_started, "cuts", (int)s.cuts, "contacts",
                          (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c), "triangles",
-                         (int)tc_cloth_num_triangles(self->c), "tips_retired", (int)s.tips_retired);
+                         (int)tc_cloth_num_triangles(self->c), "tips_retired", (int)s.tips_retired,
+                         "grips_released", (int)s.grips_released);
 }
 
 static PyObject *Cloth_energy(PyObject *o, PyObject *unused)

@@ -9,7 +9,7 @@
  * them, so any region starts within scan_period steps), and each region over threshold that holds
  * no running tip starts a tear at its highest vertex (scan()).
  *
- * Which way: the direction rule of choose_direction(): stress across the cut over strength ahead,
+ * Which way: the direction rule of rank_directions(): stress across the cut over strength ahead,
  * among the orthogonal-to-principal direction and the edges at the tip. A tear from an interior
  * vertex cuts two segments (both ways) before separating; a tip whose target lies on a boundary
  * (the rim, or another tear) ends there.
@@ -228,16 +228,19 @@ static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const 
  * is largest there: sigma_1); a weak line (a seam) wins when its strength falls more than the
  * stress across it does, e.g. a seam of factor 0.5 at 40 degrees to the orthogonal direction
  * (cos^2 40 = 0.59 > 0.5). Only directions whose cosine with `fwd` exceeds TC_TIP_FORWARD_COS
- * count (fwd NULL: all). Returns false when none is available. */
-static bool choose_direction(tc_cloth *c, int32_t v, const double *S, const double *n, const double *pd,
-                             const double *fwd, double *out)
+ * count (fwd NULL: all). Fills `out` (3 per direction) with the best TC_TEAR_DIRECTIONS, best
+ * first, so a caller whose best direction cannot be cut (the remesh refuses it) takes the next;
+ * returns their count. */
+static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double *n, const double *pd,
+                           const double *fwd, double *out)
 {
     int32_t fan[TC_FAN_MAX];
     bool closed;
     int nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
-    if (nf <= 0) return false;
+    if (nf <= 0) return 0;
     const double *x = tc_vec_ptr(&c->x), *st = tc_vec_ptr(&c->strength);
-    double best = -1.0;
+    double scores[TC_TEAR_DIRECTIONS];
+    int count = 0;
     double orth[3];
     cross3(n, pd, orth);
     for (int i = -2; i < 2 * nf; i++) {
@@ -265,9 +268,13 @@ static bool choose_direction(tc_cloth *c, int32_t v, const double *S, const doub
         cross3(d, n, m);
         for (int r = 0; r < 3; r++) Sm[r] = S[3 * r] * m[0] + S[3 * r + 1] * m[1] + S[3 * r + 2] * m[2];
         double score = dot3(m, Sm) / s_ahead;
-        if (score > best) { best = score; memcpy(out, d, 3 * sizeof(double)); }
+        if (count == TC_TEAR_DIRECTIONS && !(score > scores[count - 1])) continue;
+        int j = count < TC_TEAR_DIRECTIONS ? count++ : count - 1;  /* insertion, best first */
+        for (; j > 0 && scores[j - 1] < score; j--) { scores[j] = scores[j - 1]; memcpy(out + 3 * j, out + 3 * (j - 1), 3 * sizeof(double)); }
+        scores[j] = score;
+        memcpy(out + 3 * j, d, 3 * sizeof(double));
     }
-    return best > -1.0;
+    return count;
 }
 
 /* ---------------- tips ---------------- */
@@ -310,13 +317,13 @@ static double rest_length(const tc_cloth *c, int32_t a, int32_t b)
 }
 
 /* Cuts one segment from tip ti; updates or ends the tip. Returns the segment's rest length, 0 when
- * nothing could be cut (the tip then ends). */
+ * nothing could be cut along dir (the tip is then unchanged). */
 static double advance_tip(tc_cloth *c, size_t ti, const double *dir)
 {
     int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[ti];
     int32_t pair = -1;
     int32_t w = tc_prepare_segment(c, v, dir, NULL, 0, &pair);
-    if (w < 0 || pair < 0) { tip_remove(c, ti); return 0.0; }
+    if (w < 0 || pair < 0) return 0.0;
     bool w_boundary = tc_is_boundary_vertex(c, w);
     double len = rest_length(c, v, w);
     int32_t verts[2] = {v, w};
@@ -386,13 +393,15 @@ static int start_tear(tc_cloth *c, int32_t v, const double *dir, const double *b
 
 /* ---------------- where: the scan for new tears ---------------- */
 
-typedef struct { double ratio; int32_t v; } candidate;
+/* A vertex that may start a tear; region: which region over threshold it belongs to. */
+typedef struct { double ratio; int32_t v, region; } candidate;
+enum { TC_CANDIDATES_KEPT = TC_TEAR_CANDIDATES * TC_REGION_TRIES };
 
-static void cand_push(candidate *cs, int *n, double r, int32_t v)
+static void cand_push(candidate *cs, int *n, double r, int32_t v, int32_t region)
 {
-    if (*n == TC_TEAR_CANDIDATES && cs[TC_TEAR_CANDIDATES - 1].ratio >= r) return;
-    int i = *n < TC_TEAR_CANDIDATES ? (*n)++ : TC_TEAR_CANDIDATES - 1;
-    cs[i].ratio = r; cs[i].v = v;
+    if (*n == TC_CANDIDATES_KEPT && cs[TC_CANDIDATES_KEPT - 1].ratio >= r) return;
+    int i = *n < TC_CANDIDATES_KEPT ? (*n)++ : TC_CANDIDATES_KEPT - 1;
+    cs[i].ratio = r; cs[i].v = v; cs[i].region = region;
     for (; i > 0 && cs[i].ratio > cs[i - 1].ratio; i--) { candidate t = cs[i]; cs[i] = cs[i - 1]; cs[i - 1] = t; }
 }
 
@@ -412,12 +421,12 @@ static double ratio_memo(tc_cloth *c, int32_t v, int32_t emark)
 }
 
 /* The region over threshold around v: every vertex connected to v through vertices whose ratio is
- * above 1 (v itself whatever its ratio). Marks it; returns its best vertex and ratio. */
-static int32_t flood(tc_cloth *c, int32_t v, int32_t emark, int32_t fmark, double *best_r)
+ * above 1 (v itself whatever its ratio). Marks it and leaves it in vqueue; returns its size. */
+static int32_t flood(tc_cloth *c, int32_t v, int32_t emark, int32_t fmark)
 {
     int32_t *vs = tc_vec_ptr(&c->vstamp), *q = tc_vec_ptr(&c->vqueue);
-    int32_t n = 0, best = v;
-    *best_r = ratio_memo(c, v, emark);
+    int32_t n = 0;
+    ratio_memo(c, v, emark);
     vs[3 * (size_t)v + MARK_FLOODED] = fmark;
     q[n++] = v;
     for (int32_t head = 0; head < n; head++) {
@@ -432,10 +441,9 @@ static int32_t flood(tc_cloth *c, int32_t v, int32_t emark, int32_t fmark, doubl
                 if (!(r > 1.0)) continue;
                 vs[3 * (size_t)w + MARK_FLOODED] = fmark;
                 q[n++] = w;
-                if (r > *best_r) { *best_r = r; best = w; }
             }
     }
-    return best;
+    return n;
 }
 
 /* WHERE. A vertex's disc stress is a mean of its disc's triangle stresses, and no in-plane
@@ -482,17 +490,28 @@ static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
         if (vs[3 * (size_t)v + MARK_NEAR_HOT] != vmark || vs[3 * (size_t)v + MARK_FLOODED] == fmark) continue;
         if (!(ratio_memo(c, v, emark) > 1.0)) continue;
         if (!tips_flooded) {  /* the regions of the running tips first: they start nothing */
-            double r;
             for (size_t i = 0; i < c->tips.len; i++) {
                 int32_t tp = ((const int32_t *)tc_vec_ptr(&c->tips))[i];
-                if (vs[3 * (size_t)tp + MARK_FLOODED] != fmark) flood(c, tp, emark, fmark, &r);
+                if (vs[3 * (size_t)tp + MARK_FLOODED] != fmark) flood(c, tp, emark, fmark);
             }
             tips_flooded = true;
             if (vs[3 * (size_t)v + MARK_FLOODED] == fmark) continue;
         }
-        double r;
-        int32_t best = flood(c, v, emark, fmark, &r);
-        cand_push(cs, &n, r, best);
+        /* the region's best few vertices: when the remesh refuses every direction at the best
+           one (a held corner, a crack face), the next one starts the region's tear */
+        int32_t m = flood(c, v, emark, fmark), best[TC_REGION_TRIES];
+        const int32_t *q = tc_vec_ptr(&c->vqueue);
+        const double *R = tc_vec_ptr(&c->vsa);
+        int nb = 0;
+        for (int32_t i = 0; i < m; i++) {
+            int32_t u = q[i];
+            if (!(R[u] > 1.0)) continue;
+            if (nb == TC_REGION_TRIES && !(R[u] > R[best[nb - 1]])) continue;
+            int j = nb < TC_REGION_TRIES ? nb++ : nb - 1;
+            for (; j > 0 && R[best[j - 1]] < R[u]; j--) best[j] = best[j - 1];
+            best[j] = u;
+        }
+        for (int j = 0; j < nb; j++) cand_push(cs, &n, R[best[j]], best[j], v);
     }
     return n;
 }
@@ -540,11 +559,13 @@ static int run_tip(tc_cloth *c, size_t i, double earned, bool checked, double *S
             if (*adv > earned) *adv = earned;
             break;
         }
-        double dir[3];
+        double dirs[3 * TC_TEAR_DIRECTIONS];
         const double *prev = (const double *)tc_vec_ptr(&c->tipdir) + 3 * i;
-        if (!choose_direction(c, v, S, n, pd, prev, dir)) { tip_remove(c, i); return 0; }
+        int nd = rank_directions(c, v, S, n, pd, prev, dirs);
         size_t before = c->tips.len;
-        double len = advance_tip(c, i, dir);
+        double len = 0.0;
+        for (int k = 0; k < nd && len == 0.0; k++) len = advance_tip(c, i, dirs + 3 * k);
+        if (len == 0.0) { tip_remove(c, i); return 0; }  /* no way forward: the tip ends */
         if (c->tips.len < before) return 0;
         if (marks_ready(c)) return -1;
         adv = (double *)tc_vec_ptr(&c->tipadv) + i;
@@ -569,22 +590,64 @@ static int advance_tips(tc_cloth *c, double dt)
     return TC_OK;
 }
 
+/* A held vertex over its threshold whose fan is a single triangle has nothing left to separate (a
+ * clamp's corner, the last element joining two hands): the cloth slips out of the grip there, as a
+ * thread pulls out of fingers, so no held configuration stays overstressed. Counted in
+ * tc_stats.grips_released. */
+static void let_go(tc_cloth *c, int32_t v)
+{
+    int8_t *pin = tc_vec_ptr(&c->vpin);
+    int32_t *vh = tc_vec_ptr(&c->vhandle);
+    if (!pin[v] && vh[v] < 0) return;
+    int32_t fan[TC_FAN_MAX];
+    bool closed;
+    if (tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed) != 1) return;
+    if (vh[v] >= 0) {
+        tc_handle *H = &c->handles[vh[v]];
+        for (int32_t i = 0; i < H->count; i++)
+            if (H->verts[i] == v) {
+                H->count--;
+                H->verts[i] = H->verts[H->count];
+                memcpy(H->grasp + 3 * i, H->grasp + 3 * H->count, 3 * sizeof(double));
+                break;
+            }
+        vh[v] = -1;
+    }
+    pin[v] = 0;
+    c->stats.grips_released++;
+}
+
 /* Starts a tear at each candidate (the best vertex of a region over threshold). The new tips started during this step: they earn
  * its advance at the speed of the stress that started them (so the tear after a given time does
  * not depend on the step), spent with this step's stresses. */
 static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
 {
+    int32_t done[TC_CANDIDATES_KEPT];
+    int ndone = 0;
     for (int i = 0; i < n; i++) {
         int32_t v = cs[i].v;
-        double pd[3], nrm[3], S[9], d1[3], d2[3];
+        bool region_done = false;
+        for (int k = 0; k < ndone; k++) region_done |= done[k] == cs[i].region;
+        if (region_done || ndone == TC_TEAR_CANDIDATES) continue;
+        double pd[3], nrm[3], S[9], dirs[3 * TC_TEAR_DIRECTIONS];
         if (!(disc_stress(c, v, pd, nrm, S) > 0)) continue;
-        if (!choose_direction(c, v, S, nrm, pd, NULL, d1)) continue;
-        double back[3] = {-d1[0], -d1[1], -d1[2]};
-        bool has2 = choose_direction(c, v, S, nrm, pd, back, d2);
+        int nd = rank_directions(c, v, S, nrm, pd, NULL, dirs);
         size_t before = c->tips.len;
-        int rc = start_tear(c, v, d1, has2 ? d2 : back, false);
+        int rc = 0;
+        for (int k = 0; k < nd && rc == 0; k++) {
+            /* the other way: the best direction pointing away from this one */
+            const double *d1 = dirs + 3 * k;
+            double back[3] = {-d1[0], -d1[1], -d1[2]};
+            for (int j = 0; j < nd; j++)
+                if (dot3(dirs + 3 * j, d1) < 0) { memcpy(back, dirs + 3 * j, sizeof back); break; }
+            rc = start_tear(c, v, d1, back, false);
+        }
         if (rc < 0) return TC_ERR_NOMEM;
-        if (rc == 0) continue;
+        if (rc == 0) {
+            let_go(c, v);
+            continue;
+        }
+        done[ndone++] = cs[i].region;
         if (marks_ready(c)) return TC_ERR_NOMEM;
         /* at most two new tips, appended; running one may move the other into its slot */
         int32_t fresh[2];
@@ -614,7 +677,7 @@ int tc_tear_step(tc_cloth *c, double dt)
     if (c->tips.len) count = (c->nt + c->tear.scan_period - 1) / c->tear.scan_period;
     int32_t t0 = c->scan_cursor % c->nt;
     c->scan_cursor = (int32_t)((t0 + (int64_t)count) % c->nt);
-    candidate cs[TC_TEAR_CANDIDATES];
+    candidate cs[TC_CANDIDATES_KEPT];
     if (marks_ready(c)) return TC_ERR_NOMEM;
     int n = scan(c, t0, count, cs);
     return n ? start_tears(c, cs, n, dt) : TC_OK;

@@ -133,6 +133,7 @@ typedef struct tc_stats {
     int32_t cuts;             /* cut segments so far */
     int32_t contacts;         /* contacts active in the last step */
     int32_t tips_retired;     /* tips whose driving stress fell below the threshold, so far */
+    int32_t grips_released;   /* held vertices let go: over threshold with one triangle left (tear.c) */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 
