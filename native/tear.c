@@ -228,7 +228,9 @@ static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const 
  * is largest there: sigma_1); a weak line (a seam) wins when its strength falls more than the
  * stress across it does, e.g. a seam of factor 0.5 at 40 degrees to the orthogonal direction
  * (cos^2 40 = 0.59 > 0.5). Only directions whose cosine with `fwd` exceeds TC_TIP_FORWARD_COS
- * count (fwd NULL: all). Fills `out` (3 per direction) with the best TC_TEAR_DIRECTIONS, best
+ * count (fwd NULL: all), and only those the stress can open (opening stress above tear_stress
+ * times the segment's strength, the mean of its ends'): a cut that would not open, such as one
+ * along the pull from the face of a crack, is no way forward. Fills `out` (3 per direction) with the best TC_TEAR_DIRECTIONS, best
  * first, so a caller whose best direction cannot be cut (the remesh refuses it) takes the next;
  * returns their count. */
 static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double *n, const double *pd,
@@ -268,6 +270,9 @@ static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double
         cross3(d, n, m);
         for (int r = 0; r < 3; r++) Sm[r] = S[3 * r] * m[0] + S[3 * r + 1] * m[1] + S[3 * r + 2] * m[2];
         double score = dot3(m, Sm) / s_ahead;
+        /* available only if the stress opens it: the opening stress over the segment's strength
+           (the mean of its two ends') passes the tear stress */
+        if (!(dot3(m, Sm) > c->mat.tear_stress * 0.5 * (st[v] + s_ahead))) continue;
         if (count == TC_TEAR_DIRECTIONS && !(score > scores[count - 1])) continue;
         int j = count < TC_TEAR_DIRECTIONS ? count++ : count - 1;  /* insertion, best first */
         for (; j > 0 && scores[j - 1] < score; j--) { scores[j] = scores[j - 1]; memcpy(out + 3 * j, out + 3 * (j - 1), 3 * sizeof(double)); }
