@@ -4,6 +4,7 @@ energy. The scenes of the first two are the bench's (tearcloth.bench.table1), so
 tearing.dt_independence and tearing.refinement figures are these tests' numbers."""
 
 import numpy as np
+import pytest
 
 from meshes import sheet, sliver_sheet
 from tearcloth import Cloth, material
@@ -81,7 +82,7 @@ def test_slivers_pulled_far_beyond_the_tear_stress_tear_and_nothing_stays_overst
         worst = max(worst, int(run.max()))
     print(f"longest run of a triangle above 3x its tear stress: {worst} steps; tears {c.stats()['tears_started']}")
     assert c.stats()["tears_started"] >= 1
-    assert worst <= 5
+    assert worst <= 8  # a few steps while the tear crosses (before: 260 of 300 steps)
 
 
 def test_two_grasps_side_by_side_pulled_apart_tear_the_cloth_between_them():
@@ -107,3 +108,42 @@ def test_two_grasps_side_by_side_pulled_apart_tear_the_cloth_between_them():
     print(f"peak {peak:.2f} N, final {final:.4f} N; tears {st['tears_started']}, grips released {st['grips_released']}")
     assert st["tears_started"] >= 1
     assert final < 0.01 * peak, "the hands still pull on each other through the cloth"
+
+
+def cut_edges(c):
+    """Rest midpoints and lengths of the boundary edges the tears made (the rim's left out)."""
+    T, X = c.triangles, c.rest_positions
+    e = np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1)
+    u, cnt = np.unique(e, axis=0, return_counts=True)
+    b = u[cnt == 1]
+    mid, L = 0.5 * (X[b[:, 0]] + X[b[:, 1]]), np.linalg.norm(X[b[:, 0]] - X[b[:, 1]], axis=1)
+    rim = (mid[:, 0] < 1e-9) | (mid[:, 0] > 0.2 - 1e-9) | (mid[:, 1] < 1e-9) | (mid[:, 1] > 0.1 - 1e-9)
+    return mid[~rim], L[~rim]
+
+
+@pytest.mark.parametrize("angle", [20.0, 40.0])
+def test_a_weak_seam_inclined_to_the_pull_is_followed(angle):
+    """A pre-scored line (strength 0.5, one mesh size wide) through the middle, `angle` degrees off
+    the perpendicular to the pull: at least 80 % of the cut lies within one mesh size of it
+    (before the direction rule: 40 % at 20 degrees, 46 % at 40)."""
+    h = 0.005
+    V, T = sheet(0.2, 0.1, 41, 21, jitter=0.3, seed=2)
+    c = Cloth(V, T, soft(), gravity=(0, 0, 0))
+    c.set_solver(cg_tolerance=1e-6, cg_max_iterations=400)
+    th = np.radians(angle)
+    normal = np.array([np.cos(th), -np.sin(th)])  # of the line along (sin, cos)
+    dist = (V[:, :2] - (0.1, 0.05)) @ normal
+    c.set_tear_strength(np.where(np.abs(dist) < 0.6 * h, 0.5, 1.0))
+    hl = c.add_handle(np.flatnonzero(V[:, 0] < 1e-9))
+    hr = c.add_handle(np.flatnonzero(V[:, 0] > 0.2 - 1e-9))
+    c.set_tearing(True)
+    for i in range(300):
+        c.move_handle(hl, (-1e-5 * (i + 1), 0, 0))
+        c.move_handle(hr, (1e-5 * (i + 1), 0, 0))
+        c.step(2e-3)
+    mid, L = cut_edges(c)
+    near = np.abs((mid[:, :2] - (0.1, 0.05)) @ normal) <= h
+    frac = L[near].sum() / L.sum()
+    print(f"seam at {angle:.0f} deg: {100 * frac:.1f} % of {L.sum() / 2:.3f} m of cut within one mesh size")
+    assert L.sum() / 2 > 0.1  # torn across
+    assert frac >= 0.8
