@@ -139,7 +139,7 @@ struct tc_cloth {
     tc_vec snorm, scount;    /* per vertex: contact normal basis (3 x 3) and its size */
 
     /* tearing state */
-    tc_vec vs9, vsn, vsa;    /* tearing scratch: per-vertex stress sum (9), normal (3), area (1) */
+    tc_vec vsa;              /* tearing scratch: per-vertex ratio of disc stress to threshold (a memo) */
     tc_vec tips;             /* int32 vertex ids of running tear tips */
     tc_vec tipdir;           /* double x3 preferred direction of each tip */
     int32_t scan_cursor;

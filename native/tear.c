@@ -333,7 +333,7 @@ static double advance_tip(tc_cloth *c, size_t ti, const double *dir)
     double len = rest_length(c, v, w);
     int32_t verts[2] = {v, w};
     unsigned dup;
-    if (tc_separate(c, &pair, 1, verts, 2, &dup)) { tip_remove(c, ti); return 0.0; }
+    if (tc_separate(c, &pair, 1, verts, 2, &dup)) return 0.0;
     c->stats.cuts++;
     double d[3];
     unit_dir(c, v, w, d);
@@ -569,10 +569,12 @@ static int run_tip(tc_cloth *c, size_t i, double earned, bool checked, double *S
         int nd = rank_directions(c, v, S, n, pd, prev, dirs);
         size_t before = c->tips.len;
         double len = 0.0;
-        for (int k = 0; k < nd && len == 0.0; k++) len = advance_tip(c, i, dirs + 3 * k);
+        for (int k = 0; k < nd && len == 0.0; k++) {
+            len = advance_tip(c, i, dirs + 3 * k);
+            if (marks_ready(c)) return -1;  /* a refused segment may still have split an edge */
+        }
         if (len == 0.0) { tip_remove(c, i); return 0; }  /* no way forward: the tip ends */
         if (c->tips.len < before) return 0;
-        if (marks_ready(c)) return -1;
         adv = (double *)tc_vec_ptr(&c->tipadv) + i;
         *adv -= len;
     }
@@ -646,6 +648,8 @@ static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
             for (int j = 0; j < nd; j++)
                 if (dot3(dirs + 3 * j, d1) < 0) { memcpy(back, dirs + 3 * j, sizeof back); break; }
             rc = start_tear(c, v, d1, back, false);
+            /* even a start that gave up may have split an edge: the marks follow the mesh */
+            if (rc >= 0 && marks_ready(c)) return TC_ERR_NOMEM;
         }
         if (rc < 0) return TC_ERR_NOMEM;
         if (rc == 0) {
@@ -653,7 +657,6 @@ static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
             continue;
         }
         done[ndone++] = cs[i].region;
-        if (marks_ready(c)) return TC_ERR_NOMEM;
         /* at most two new tips, appended; running one may move the other into its slot */
         int32_t fresh[2];
         int nfresh = 0;

@@ -165,7 +165,7 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
 typedef struct tc_tear_settings {
     int enabled;
     int scan_period;          /* once a tear runs, the rest of the mesh is scanned in slices so that
-                                 every vertex is examined once every scan_period steps */
+                                 every triangle is examined once every scan_period steps */
     double min_angle_deg;     /* no new triangle gets an angle below this; cuts snap or stop instead */
 } tc_tear_settings;
 tc_tear_settings tc_tear_default(void);
