@@ -43,12 +43,8 @@ def sliver_sheet(width=0.2, height=0.1, nx=41, ny=11, gap=4e-5, every=3, seed=0)
     ys = np.linspace(0, height, ny)
     xs = np.sort(np.concatenate([xs, xs[1:-1:every] + gap]))
     ys = np.sort(np.concatenate([ys, ys[1:-1:every] + gap]))
+    from tearcloth.bench.table1 import lattice_triangles
+
     X, Y = np.meshgrid(xs, ys, indexing="ij")
     V = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1)
-    n, m = len(xs), len(ys)
-    T = []
-    for i in range(n - 1):
-        for j in range(m - 1):
-            a, b, c, d = i * m + j, (i + 1) * m + j, (i + 1) * m + j + 1, i * m + j + 1
-            T += [[a, b, c], [a, c, d]] if rng.random() < 0.5 else [[a, b, d], [b, c, d]]
-    return V, np.array(T, dtype=np.int32)
+    return V, lattice_triangles(len(xs), len(ys), rng)
