@@ -7,7 +7,8 @@
  * held vertex splits into two held copies), so no configuration is untearable. Each step every
  * triangle's sigma_1 bounds the discs that hold it (while tips run: a slice of 1/scan_period of
  * them, so any region starts within scan_period steps), and each region over threshold that holds
- * no running tip starts a tear at its highest vertex (scan()).
+ * no running tip starts a tear at its highest vertex (scan()); a held vertex over threshold with
+ * a single triangle left slips out of its grip instead (let_go()).
  *
  * Which way: the direction rule of rank_directions(): stress across the cut over strength ahead,
  * among the orthogonal-to-principal direction and the edges at the tip. A tear from an interior
