@@ -326,6 +326,8 @@ class Cloth:
         return self._c.scripted_tear(int(vertex), d, float(length))
 
     def vertex_stress(self, vertex: int) -> tuple[float, np.ndarray]:
-        """Largest principal stress at a vertex (Pa) and its unit direction."""
+        """Largest principal stress at a vertex (Pa) and its unit direction: the mean stress over the
+        material disc of radius tear_radius around it, the measure tearing holds against
+        tear_stress x tear strength."""
         value, d = self._c.vertex_stress(int(vertex))
         return value, np.array(d)

@@ -21,6 +21,19 @@ Sources of the presets (values rounded; fabrics vary by weave and direction, the
   paper (tensile index ~40-70 N m/g); bending stiffness follows the plate formula E h^3/12(1-nu^2).
   Tearing from a notch starts well below the tensile strength, hence the lower tear stress.
 - Banknote paper (cotton/linen rag): higher strength than wood-pulp paper (tensile index ~100 N m/g).
+- Tear radius (the material length l of the tear criterion, tear.c): the theory of critical
+  distances (D. Taylor, The Theory of Critical Distances, Elsevier 2007) averages the stress over
+  l ~ K_c^2 / (pi sigma^2) = E G_c / (pi sigma^2). Fabrics: G_c from trouser tear forces
+  (ISO 13937-2; ~10 N cotton shirting, ~40 N denim, ~3 N silk habotai) as G_c = 2 F / h gives
+  5e4-1e5 J/m^2, so l = 6-12 mm with the presets' E and tear stress: 10 mm for cotton and denim,
+  5 mm for silk. Paper: the fracture process zone of machine-made paper spans a few millimetres
+  (K. Niskanen (ed.), Paper Physics, 2nd ed. 2008, ch. on fracture), so 5 mm for both papers (the
+  formula, with the low notched tear stress of the presets, would give centimetres).
+- Crack speed (fastest tear, as a fraction of the Rayleigh wave speed c_R): brittle cracks stop
+  accelerating at 0.4-0.6 c_R, where they start to branch (J. Fineberg, M. Marder, Instability in
+  dynamic fracture, Physics Reports 313, 1999): 0.5 for paper and banknote. Fabrics dissipate most
+  of the released energy in yarn pull-out and friction (tear energies 1e4-1e5 J/m^2); 0.2 is our
+  estimate, not a measurement (a cotton tear then tops out at ~40 m/s).
 - Damping: the mass-proportional term stands in for air drag, which dominates how a light sheet
   moves: with linear drag a sheet falls at a terminal speed of g / damping_mass, and flat cloth or
   paper falls at 1-4 m/s, hence 3 /s. The stiffness-proportional term is the fibres' internal
@@ -49,6 +62,8 @@ class Material:
     damping_stiffness: float = _D["damping_stiffness"]  # s (Rayleigh beta)
     tear_stress: float = _D["tear_stress"]              # Pa (sigma_E)
     snap_tolerance: float = _D["snap_tolerance"]        # fraction of an edge
+    tear_radius: float = _D["tear_radius"]              # m (material length of the tear criterion)
+    crack_speed_ratio: float = _D["crack_speed_ratio"]  # 1 (fastest tear / Rayleigh wave speed)
 
     def validate(self) -> "Material":
         """Raise ValueError naming the first value outside its hard bounds (with its unit and the
@@ -81,18 +96,22 @@ MATERIALS: dict[str, Material] = {
     "denim": Material(
         name="denim", young=8.0e7, poisson=0.3, thickness=8.0e-4, density=500.0, bending=4.0e-5,
         damping_mass=3.0, damping_stiffness=2.0e-5, tear_stress=1.5e7, snap_tolerance=0.3,
+        tear_radius=0.01, crack_speed_ratio=0.2,
     ),
     "silk": Material(
         name="silk", young=3.0e7, poisson=0.3, thickness=1.0e-4, density=400.0, bending=2.0e-6,
         damping_mass=3.0, damping_stiffness=2.0e-5, tear_stress=1.0e7, snap_tolerance=0.3,
+        tear_radius=0.005, crack_speed_ratio=0.2,
     ),
     "paper": Material(
         name="paper", young=4.0e9, poisson=0.3, thickness=1.0e-4, density=800.0, bending=3.6e-4,
         damping_mass=3.0, damping_stiffness=1.0e-5, tear_stress=2.0e7, snap_tolerance=0.3,
+        tear_radius=0.005, crack_speed_ratio=0.5,
     ),
     "banknote": Material(
         name="banknote", young=3.0e9, poisson=0.3, thickness=1.1e-4, density=820.0, bending=3.6e-4,
         damping_mass=3.0, damping_stiffness=1.0e-5, tear_stress=3.0e7, snap_tolerance=0.3,
+        tear_radius=0.005, crack_speed_ratio=0.5,
     ),
 }
 

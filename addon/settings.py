@@ -213,6 +213,16 @@ SETTINGS: tuple[Setting, ...] = (
        "so tears make few and well-shaped new triangles",
        _COTTON, _B(0.0, 0.5, hi_open=True), _B(0.0, 0.49), native="snap_tolerance", block="material.tearing",
        ui=dict(precision=2)),
+    _f("material", "tear_radius", "m", 0.01, "Tear Radius",
+       "Material length over which the stress that starts, drives and stops a tear is averaged, so the "
+       "tear does not depend on the mesh once its edges are shorter than this (0: one vertex ring)",
+       _COTTON + " (the theory of critical distances: about E G_c / (pi sigma_E^2))", _B(0.0, 1.0),
+       _B(0.0, 0.1), native="tear_radius", block="material.tearing", ui=dict(precision=4)),
+    _f("material", "crack_speed_ratio", "1", 0.2, "Crack Speed",
+       "Fastest a tear runs, as a fraction of the Rayleigh wave speed of the sheet (about 0.9 sqrt(shear "
+       "modulus / density)); a tear driven just past its threshold runs slower (Freund's law)",
+       _COTTON, _B(0.0, 1.0, lo_open=True), _B(0.001, 0.9), native="crack_speed_ratio",
+       block="material.tearing", ui=dict(precision=3)),
     _f("material", "bending", "N m", 5.0e-6, "Bending", "Bending stiffness in N m",
        _COTTON, _B(0.0, None), _B(0.0, 1.0), native="bending", block="material.damping",
        ui=dict(precision=6, step=0.001)),

@@ -22,9 +22,10 @@
     X(cvert, int32_t) X(cactive, int8_t) X(scount, int8_t) X(cnormal, double) X(cdepth, double) X(cvel, double) X(cfric, double)            \
     X(diag, double) X(pinv, double) X(sb, double) X(sr, double) X(sz, double) X(sp, double)            \
     X(sq, double) X(sdv, double) X(sb2, double) X(sfix2, double) X(sfix, double) X(snorm, double) X(x0, double) X(v0, double) X(fel, double)          \
-    X(vs9, double) X(vsn, double) X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
+    X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
     X(ev_chg, int32_t) X(ev_newt, int32_t) X(rptr, int32_t) X(rcol, int32_t) X(rblk, double) X(fptr, int32_t)  \
-    X(fcol, int32_t) X(fval, double) X(pslot, int32_t)
+    X(fcol, int32_t) X(fval, double) X(pslot, int32_t) X(tipadv, double) X(tstamp, int32_t) X(vstamp, int32_t)     \
+    X(tqueue, int32_t) X(vqueue, int32_t)
 
 void tc_cloth_destroy(tc_cloth *c)
 {

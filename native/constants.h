@@ -57,22 +57,30 @@
 /* Largest fan (triangles around one vertex) a tear walks; far above any sane valence, and a fan
  * larger than this stops the tear there. (triangles) */
 #define TC_FAN_MAX 256
-/* Candidate tear starts kept per full scan, best first: the next ones are tried when no segment
- * can be cut from the best (its direction runs along the rim). */
-#define TC_TEAR_CANDIDATES 4
+/* Regions over threshold that may start a tear in one step (the best ones first; the others start
+ * in the next steps). */
+#define TC_TEAR_CANDIDATES 8
+/* Vertices of one region tried, best first, when the remesh cannot cut at the better ones. */
+#define TC_REGION_TRIES 4
 /* Corner fit of a segment direction: a triangle whose corner holds the direction scores >= 0; a
  * direction pointing away from both edges of the corner loses this much, so any corner that holds
  * it wins; a best score below the limit means no corner holds the direction. (1: sine of angle) */
 #define TC_CORNER_BACKWARDS_PENALTY 2.0
 #define TC_CORNER_MIN_SCORE (-0.05)
+/* A direction lies inside a corner of a tip's fan when its sine with each side, over the corner,
+ * exceeds this (about 1 degree): one along a boundary side (the rim) is outside. (1) */
+#define TC_CORNER_INSIDE 0.02
 /* Parallel path and edge: no meeting point, split the edge in the middle. (1) */
 #define TC_PARALLEL_SPLIT 0.5
 /* Snapping to the farther end of the opposite edge only when it lies within about 45 degrees of the
  * path (cos 45 deg = 0.707): beyond that, following the edge would turn the tear. (1) */
 #define TC_FAR_END_COS 0.7
-/* A running tip concentrates the stress around itself; the slice scan leaves alone a disc of
- * radius 4 mean edge lengths around every tip (so this is 4^2), else it would only branch the tear. */
-#define TC_NEAR_TIP_RADIUS2 16.0
+/* Directions a tip or a start tries, best first by the direction rule, when the remesh refuses the
+ * better ones (a split below the minimum angle and no edge to snap to). */
+#define TC_TEAR_DIRECTIONS 8
+/* A tip never turns back on its own path: a direction is available only when its cosine with the
+ * tip's last direction is above this. (1) */
+#define TC_TIP_FORWARD_COS 0.0
 /* Scripted tears steer back to their line: the lateral offset is corrected by this gain over the
  * distance already travelled (plus a softening length), so snapping errors do not accumulate. */
 #define TC_STEER_GAIN 0.5

@@ -139,11 +139,15 @@ struct tc_cloth {
     tc_vec snorm, scount;    /* per vertex: contact normal basis (3 x 3) and its size */
 
     /* tearing state */
-    tc_vec vs9, vsn, vsa;    /* tearing scratch: per-vertex stress sum (9), normal (3), area (1) */
+    tc_vec vsa;              /* tearing scratch: per-vertex ratio of disc stress to threshold (a memo) */
     tc_vec tips;             /* int32 vertex ids of running tear tips */
     tc_vec tipdir;           /* double x3 preferred direction of each tip */
     int32_t scan_cursor;
     bool tearing_running;
+    tc_vec tipadv;           /* double per tip: advance (m of rest length) earned and not yet cut */
+    tc_vec tstamp, vstamp;   /* int32 per triangle / 3 per vertex: visit marks of the tearing walks */
+    tc_vec tqueue, vqueue;   /* int32: the walks' queues of triangles / vertices (vsa: ratio memo) */
+    int32_t stamp;           /* current visit mark (tstamp and vstamp hold older ones) */
     /* events */
     tc_vec ev_newv, ev_par, ev_w, ev_chg, ev_newt;
 
@@ -261,7 +265,7 @@ int32_t tc_prepare_segment(tc_cloth *c, int32_t v, const double *dir, const int3
 int tc_separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *verts, int nverts, unsigned *dup_mask);
 
 /* ---------------- tear.c ---------------- */
-int tc_tear_step(tc_cloth *c);
+int tc_tear_step(tc_cloth *c, double dt);  /* dt: the step just taken (s), for the tips' advance */
 
 /* ---------------- step.c ---------------- */
 void tc_total_force(tc_cloth *c, const double *x);

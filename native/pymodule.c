@@ -199,9 +199,10 @@ static PyObject *Cloth_set_material(PyObject *o, PyObject *args, PyObject *kw)
     if (!ready(self)) return NULL;
     tc_material m = tc_cloth_material(self->c);
     static char *kwl[] = {"young", "poisson", "thickness", "density", "bending", "damping_mass",
-                          "damping_stiffness", "tear_stress", "snap_tolerance", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$ddddddddd", kwl, &m.young, &m.poisson, &m.thickness, &m.density,
-                                     &m.bending, &m.damping_mass, &m.damping_stiffness, &m.tear_stress, &m.snap_tolerance))
+                          "damping_stiffness", "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$ddddddddddd", kwl, &m.young, &m.poisson, &m.thickness, &m.density,
+                                     &m.bending, &m.damping_mass, &m.damping_stiffness, &m.tear_stress, &m.snap_tolerance,
+                                     &m.tear_radius, &m.crack_speed_ratio))
         return NULL;
     int rc = tc_cloth_set_material(self->c, &m);
     if (rc) return raise_core(self, rc);
@@ -433,14 +434,15 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
                          "triangles", (int)tc_cloth_num_triangles(self->c), "cg_residual_force", s.cg_residual_force,
                          "cg_force_scale", s.cg_force_scale, "substep_splits", (int)s.substep_splits,
                          "unconverged_substeps", (int)s.unconverged_substeps, "unconverged_steps",
-                         (long long)s.unconverged_steps, "matrix_bytes", (long long)s.matrix_bytes);
+                         (long long)s.unconverged_steps, "matrix_bytes", (long long)s.matrix_bytes, "tips_retired",
+                         (int)s.tips_retired, "grips_released", (int)s.grips_released);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the
@@ -576,10 +578,11 @@ static PyType_Spec Cloth_spec = {"tearcloth._native.Cloth", sizeof(ClothObject),
  * Python side's presets: {"material": {...}, "solver": {...}, "tearing": {...}}. */
 static PyObject *material_dict(const tc_material *m)
 {
-    return Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d}", "young", m->young, "poisson", m->poisson,
+    return Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d}", "young", m->young, "poisson", m->poisson,
                          "thickness", m->thickness, "density", m->density, "bending", m->bending, "damping_mass",
                          m->damping_mass, "damping_stiffness", m->damping_stiffness, "tear_stress", m->tear_stress,
-                         "snap_tolerance", m->snap_tolerance);
+                         "snap_tolerance", m->snap_tolerance, "tear_radius", m->tear_radius, "crack_speed_ratio",
+                         m->crack_speed_ratio);
 }
 
 static PyObject *solver_dict(const tc_solver_settings *s)

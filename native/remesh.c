@@ -220,9 +220,15 @@ static int32_t split_edge(tc_cloth *c, int32_t a, int32_t b, double s)
         double *UV2 = (double *)tc_vec_ptr(&c->uv) + 6 * (size_t)t2;
         T2[0] = o; T2[1] = p; T2[2] = e1;
         UV2[0] = uo[0]; UV2[1] = uo[1]; UV2[2] = up[0]; UV2[3] = up[1]; UV2[4] = u1[0]; UV2[5] = u1[1];
-        /* the new element inherits the rotation so the first force evaluation starts from it */
+        /* the new element inherits the rotation so the first force evaluation starts from it, and
+           the stress so tearing later in this step (before the next element pass) reads its
+           parent's instead of zero */
         double *R = tc_vec_ptr(&c->rot);
         memcpy(R + 6 * (size_t)t2, R + 6 * (size_t)t, 6 * sizeof(double));
+        double *S9 = tc_vec_ptr(&c->stress), *P2 = tc_vec_ptr(&c->principal), *PD = tc_vec_ptr(&c->pdir);
+        memcpy(S9 + 9 * (size_t)t2, S9 + 9 * (size_t)t, 9 * sizeof(double));
+        memcpy(P2 + 2 * (size_t)t2, P2 + 2 * (size_t)t, 2 * sizeof(double));
+        memcpy(PD + 3 * (size_t)t2, PD + 3 * (size_t)t, 3 * sizeof(double));
         char msg[8];
         if (tc_tri_rest(c, t, msg, sizeof msg) || tc_tri_rest(c, t2, msg, sizeof msg)) {
             tc_set_err(c, "internal: a split produced a degenerate triangle");

@@ -17,7 +17,7 @@ tc_material tc_material_default(void)
     tc_material m = {
         .young = 5.0e7, .poisson = 0.3, .thickness = 4.0e-4, .density = 375.0,
         .bending = 5.0e-6, .damping_mass = 3.0, .damping_stiffness = 2.0e-5,
-        .tear_stress = 8.0e6, .snap_tolerance = 0.3,
+        .tear_stress = 8.0e6, .snap_tolerance = 0.3, .tear_radius = 0.01, .crack_speed_ratio = 0.2,
     };
     return m;
 }
@@ -49,6 +49,9 @@ int tc_material_check(const tc_material *m, char *msg, size_t msz)
     if (!(isfinite(m->damping_stiffness) && m->damping_stiffness >= 0)) BAD("damping_stiffness must be >= 0 s (got %g)", m->damping_stiffness);
     if (!(m->tear_stress > 0)) BAD("tear_stress must be > 0 Pa (got %g)", m->tear_stress);
     if (!(m->snap_tolerance >= 0 && m->snap_tolerance < 0.5)) BAD("snap_tolerance must lie in [0, 0.5) (got %g)", m->snap_tolerance);
+    if (!(m->tear_radius >= 0 && m->tear_radius <= 1.0)) BAD("tear_radius must lie in [0, 1] m (got %g)", m->tear_radius);
+    if (!(m->crack_speed_ratio > 0 && m->crack_speed_ratio <= 1.0))
+        BAD("crack_speed_ratio (fastest tear / Rayleigh wave speed) must lie in (0, 1] (got %g)", m->crack_speed_ratio);
     if (m->young > 1e13) BAD("young = %g Pa is beyond any sheet material (diamond is ~1e12)", m->young);
     if (m->density > 1e5) BAD("density = %g kg/m^3 is beyond any material", m->density);
     if (m->thickness > 1.0) BAD("thickness = %g m is not a thin sheet", m->thickness);

@@ -170,7 +170,7 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     c->stats.fem_seconds = t1 - t0;
     c->stats.tear_seconds = 0.0;
     if (rc == TC_OK && c->tear.enabled) {
-        rc = tc_tear_step(c);
+        rc = tc_tear_step(c, dt);
         c->stats.tear_seconds = tc_now() - t1;
     }
     c->stats.steps++;

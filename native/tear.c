@@ -1,16 +1,22 @@
 /* tear.c - stress-driven tearing (Le Gouis et al. 2017, section V): where a tear starts, which way
- * it runs, and its tips; the remesh each cut makes is remesh.c's.
+ * it runs, how fast, and its tips; the remesh each cut makes is remesh.c's.
  *
- * Where: per vertex, the area-weighted average of its triangles' stress tensors, projected on the
- * vertex tangent plane; its largest eigenvalue against tear_stress * strength(v). Until a tear
- * runs, every vertex is examined each step (the highest over the threshold starts the tear); while
- * tears run, only their tips are, plus one slice of 1/scan_period of the other vertices per step,
- * so a second tear elsewhere still starts within scan_period steps at a flat, small cost.
+ * Where: the stress of a vertex is the mean stress tensor over its material disc (the triangles
+ * within tear_radius of it, connected through uncut edges), its largest in-plane eigenvalue held
+ * against tear_stress * strength(v). Every vertex can start a tear, grasped and pinned ones too (a
+ * held vertex splits into two held copies), so no configuration is untearable. Each step every
+ * triangle's sigma_1 bounds the discs that hold it (while tips run: a slice of 1/scan_period of
+ * them, so any region starts within scan_period steps), and each region over threshold that holds
+ * no running tip starts a tear at its highest vertex (scan()); a held vertex over threshold with
+ * a single triangle left slips out of its grip instead (let_go()).
  *
- * Which way: orthogonal to the principal direction, in the tangent plane at the tip. A tear from an
- * interior vertex cuts two segments (both ways) before separating, since one slit with two
- * interior ends has no indexed-mesh representation. A tip whose target lies on a boundary (the
- * rim, or another tear) ends there.
+ * Which way: the direction rule of rank_directions(): stress across the cut over strength ahead,
+ * among the orthogonal-to-principal direction and the edges at the tip. A tear from an interior
+ * vertex cuts two segments (both ways) before separating; a tip whose target lies on a boundary
+ * (the rim, or another tear) ends there.
+ *
+ * How fast: advance_tips(), a crack speed from the driving stress (Freund), capped at a fraction of
+ * the Rayleigh wave speed, integrated in time; tips whose stress fell to the threshold retire.
  */
 #include "core.h"
 
@@ -56,28 +62,111 @@ static void tri_normal(const tc_cloth *c, int32_t t, double *n)
     cross3(e1, e2, n);
 }
 
-/* Stress of one vertex by walking its fan (used for tips and scan slices). */
-static double vertex_stress(tc_cloth *c, int32_t v, double *dir, double *normal)
+/* ---------------- the material disc ---------------- */
+
+/* Visit marks and the walk's queue, sized to the current mesh (tearing grows it). */
+static int marks_ready(tc_cloth *c)
+{
+    size_t nt = (size_t)c->nt, nv = (size_t)c->nv;
+    if ((c->tstamp.len < nt && tc_vec_resize(&c->tstamp, nt)) || (c->tqueue.len < nt && tc_vec_resize(&c->tqueue, nt)) ||
+        (c->vstamp.len < 3 * nv && tc_vec_resize(&c->vstamp, 3 * nv)) || (c->vqueue.len < nv && tc_vec_resize(&c->vqueue, nv))) {
+        tc_set_err(c, "out of memory for the tearing walk (%d triangles)", (int)c->nt);
+        return TC_ERR_NOMEM;
+    }
+    return TC_OK;
+}
+
+static int32_t new_mark(tc_cloth *c)
+{
+    if (c->stamp == INT32_MAX) {  /* after 2^31 walks: forget every old mark */
+        memset(tc_vec_ptr(&c->tstamp), 0, c->tstamp.len * sizeof(int32_t));
+        memset(tc_vec_ptr(&c->vstamp), 0, c->vstamp.len * sizeof(int32_t));
+        c->stamp = 0;
+    }
+    return ++c->stamp;
+}
+
+static double dist2(const double *a, const double *b)
+{
+    double e[3];
+    sub3(a, b, e);
+    return dot3(e, e);
+}
+
+/* Does triangle t belong to the disc of radius r around the rest point P? BY_CENTROID: its rest
+ * centroid lies inside (the stress average of a vertex); otherwise any of its corners does (the
+ * search for vertices whose disc may hold a given triangle). */
+enum { BY_CENTROID = 0, BY_CORNER = 1 };
+static bool in_disc(const tc_cloth *c, int32_t t, const double *P, double r2, int rule)
+{
+    const int32_t *T = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)t;
+    const double *X = tc_vec_ptr(&c->rest);
+    if (rule == BY_CORNER) {
+        for (int k = 0; k < 3; k++)
+            if (dist2(X + 3 * T[k], P) <= r2) return true;
+        return false;
+    }
+    double g[3];
+    for (int q = 0; q < 3; q++) g[q] = (X[3 * T[0] + q] + X[3 * T[1] + q] + X[3 * T[2] + q]) / 3.0;
+    return dist2(g, P) <= r2;
+}
+
+/* Walks the disc: from the seeds (always inside) through uncut edges to every triangle in_disc.
+ * Leaves the triangles in the queue; returns their count. A cut is a boundary, so the disc of a
+ * vertex beside a tear never reaches across it: the stress of the other flank is not its own. */
+static int32_t disc_walk(tc_cloth *c, const double *P, double r, const int32_t *seeds, int nseeds, int rule)
+{
+    int32_t mark = new_mark(c), *ts = tc_vec_ptr(&c->tstamp), *q = tc_vec_ptr(&c->tqueue);
+    int32_t n = 0;
+    for (int i = 0; i < nseeds; i++)
+        if (ts[seeds[i]] != mark) { ts[seeds[i]] = mark; q[n++] = seeds[i]; }
+    const double r2 = r * r;
+    for (int32_t head = 0; head < n; head++) {
+        int32_t t = q[head];
+        for (int k = 0; k < 3; k++) {
+            int32_t nb = tc_nbr(c, t, k);
+            if (nb < 0 || ts[nb] == mark) continue;
+            ts[nb] = mark;
+            if (in_disc(c, nb, P, r2, rule)) q[n++] = nb;
+        }
+    }
+    return n;
+}
+
+/* The stress of vertex v over its material disc: area-weighted mean tensor S (9), the vertex
+ * normal n (from its own fan, the local tangent plane), and the largest in-plane principal value
+ * and direction. Why an average over a material radius rather than one vertex ring: a ring's
+ * average depends on the mesh (the ring shrinks as the mesh is refined, and the stress at a notch
+ * grows without bound), the disc's does not once the mesh resolves it, so tears start and arrest
+ * at the same load and place on any mesh; with a radius below the ring it is the ring. */
+static double disc_stress(tc_cloth *c, int32_t v, double *dir, double *normal, double *Sout)
 {
     int32_t fan[TC_FAN_MAX];
     bool closed;
     int nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
     if (nf <= 0) return 0.0;
-    const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
-    double S[9] = {0}, n[3] = {0}, wsum = 0.0;
+    double n[3] = {0};
     for (int i = 0; i < nf; i++) {
-        int32_t t = fan[i];
-        double w = A[t], tn[3];
-        for (int q = 0; q < 9; q++) S[q] += w * S3[9 * t + q];
-        tri_normal(c, t, tn);
+        double tn[3];
+        tri_normal(c, fan[i], tn);
         n[0] += tn[0]; n[1] += tn[1]; n[2] += tn[2];
-        wsum += w;
     }
     double ln = sqrt(dot3(n, n));
-    if (!(ln > 0) || !(wsum > 0)) return 0.0;
+    if (!(ln > 0)) return 0.0;
     for (int q = 0; q < 3; q++) n[q] /= ln;
+    int32_t m = disc_walk(c, (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)v, c->mat.tear_radius, fan, nf, BY_CENTROID);
+    const int32_t *Q = tc_vec_ptr(&c->tqueue);
+    const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
+    double S[9] = {0}, wsum = 0.0;
+    for (int32_t i = 0; i < m; i++) {
+        const double w = A[Q[i]], *st = S3 + 9 * (size_t)Q[i];
+        for (int q = 0; q < 9; q++) S[q] += w * st[q];
+        wsum += w;
+    }
+    if (!(wsum > 0)) return 0.0;
     for (int q = 0; q < 9; q++) S[q] /= wsum;
     if (normal) memcpy(normal, n, sizeof n);
+    if (Sout) memcpy(Sout, S, sizeof S);
     return principal_in_plane(S, n, dir);
 }
 
@@ -85,15 +174,122 @@ int tc_cloth_vertex_stress(tc_cloth *c, int32_t v, double *value, double directi
 {
     if (v < 0 || v >= c->nv) { tc_set_err(c, "vertex %d is outside [0, %d)", (int)v, (int)c->nv); return TC_ERR_INPUT; }
     if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); }
-    *value = vertex_stress(c, v, direction, NULL);
+    if (marks_ready(c)) return TC_ERR_NOMEM;
+    *value = disc_stress(c, v, direction, NULL, NULL);
     return TC_OK;
 }
 
-/* ---------------- tears ---------------- */
-
-static int tip_add(tc_cloth *c, int32_t v, const double *dir)
+static double threshold(const tc_cloth *c, int32_t v)
 {
-    if (tc_vec_push_i32(&c->tips, v)) return TC_ERR_NOMEM;
+    return c->mat.tear_stress * ((const double *)tc_vec_ptr(&c->strength))[v];
+}
+
+/* ---------------- which way ---------------- */
+
+/* Strength where direction d (tangent, unit) leads from v: interpolated along the opposite edge of
+ * the corner of v's fan that holds d, where d meets it. False when no corner holds d (it points
+ * out of the cloth). */
+static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const int32_t *fan, int nf, double *out)
+{
+    const double *x = tc_vec_ptr(&c->x), *st = tc_vec_ptr(&c->strength);
+    for (int i = 0; i < nf; i++) {
+        const int32_t *T = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)fan[i];
+        int l = tc_tri_local(c, fan[i], v);
+        int32_t a = T[(l + 1) % 3], b = T[(l + 2) % 3];
+        double ea[3], eb[3], n[3], ca[3], cb[3];
+        sub3(x + 3 * a, x + 3 * v, ea);
+        sub3(x + 3 * b, x + 3 * v, eb);
+        cross3(ea, eb, n);
+        cross3(ea, d, ca);
+        cross3(d, eb, cb);
+        double sa = dot3(ca, n), sb = dot3(cb, n);
+        /* strictly inside: a direction along a boundary edge (the rim) cuts nothing */
+        double ln = sqrt(dot3(n, n)), la = TC_CORNER_INSIDE * ln * sqrt(dot3(ea, ea)), lb = TC_CORNER_INSIDE * ln * sqrt(dot3(eb, eb));
+        if (!(sa > la && sb > lb)) {
+            int32_t pa = tc_pair_find(c, v, a), pb = tc_pair_find(c, v, b);
+            const int32_t *PT = tc_vec_ptr(&c->ptris);
+            bool rim_a = PT[2 * pa] < 0 || PT[2 * pa + 1] < 0, rim_b = PT[2 * pb] < 0 || PT[2 * pb + 1] < 0;
+            /* on an inner edge of the fan the direction still lies inside the cloth */
+            if (sa < -la || sb < -lb || (sa <= la && rim_a) || (sb <= lb && rim_b)) continue;
+        }
+        /* d = alpha ea + beta eb in the corner; it meets ab at s = beta / (alpha + beta) */
+        double s = sa / (sa + sb + TC_TINY);
+        *out = (1.0 - s) * st[a] + s * st[b];
+        return true;
+    }
+    return false;
+}
+
+/* THE DIRECTION RULE. Among the directions available at v - the one orthogonal to the principal
+ * stress (either sense) and every uncut edge from v - a tear takes the one that maximises
+ *     (m^T S m) / strength ahead,
+ * the stress that would open the cut (m: the in-plane normal of the direction) over the strength
+ * where the direction leads (the far end of the edge, or along the opposite edge where the
+ * orthogonal direction meets it). With uniform strength that is the orthogonal direction (m^T S m
+ * is largest there: sigma_1); a weak line (a seam) wins when its strength falls more than the
+ * stress across it does, e.g. a seam of factor 0.5 at 40 degrees to the orthogonal direction
+ * (cos^2 40 = 0.59 > 0.5). Only directions whose cosine with `fwd` exceeds TC_TIP_FORWARD_COS
+ * count (fwd NULL: all), and only those the stress can open (opening stress above tear_stress
+ * times the segment's strength, the mean of its ends'): a cut that would not open, such as one
+ * along the pull from the face of a crack, is no way forward. Fills `out` (3 per direction) with the best TC_TEAR_DIRECTIONS, best
+ * first, so a caller whose best direction cannot be cut (the remesh refuses it) takes the next;
+ * returns their count. */
+static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double *n, const double *pd,
+                           const double *fwd, double *out)
+{
+    int32_t fan[TC_FAN_MAX];
+    bool closed;
+    int nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
+    if (nf <= 0) return 0;
+    const double *x = tc_vec_ptr(&c->x), *st = tc_vec_ptr(&c->strength);
+    double scores[TC_TEAR_DIRECTIONS];
+    int count = 0;
+    double orth[3];
+    cross3(n, pd, orth);
+    for (int i = -2; i < 2 * nf; i++) {
+        double d[3], s_ahead;
+        if (i < 0) {  /* the orthogonal direction, both senses */
+            double sg = i == -2 ? 1.0 : -1.0;
+            for (int k = 0; k < 3; k++) d[k] = sg * orth[k];
+            if (!strength_ahead(c, v, d, fan, nf, &s_ahead)) continue;
+        } else {  /* the two edges of each fan triangle at v (closed fans list each edge twice) */
+            const int32_t *T = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)fan[i / 2];
+            int32_t w = T[(tc_tri_local(c, fan[i / 2], v) + 1 + i % 2) % 3];
+            int32_t p = tc_pair_find(c, v, w);
+            const int32_t *pt = (const int32_t *)tc_vec_ptr(&c->ptris) + 2 * (size_t)p;
+            if (pt[0] < 0 || pt[1] < 0) continue;  /* a boundary: nothing left to cut */
+            sub3(x + 3 * w, x + 3 * v, d);
+            double dn = dot3(d, n);
+            for (int k = 0; k < 3; k++) d[k] -= dn * n[k];
+            double l = sqrt(dot3(d, d));
+            if (!(l > 0)) continue;
+            for (int k = 0; k < 3; k++) d[k] /= l;
+            s_ahead = st[w];
+        }
+        if (fwd && dot3(d, fwd) <= TC_TIP_FORWARD_COS * sqrt(dot3(fwd, fwd))) continue;
+        double m[3], Sm[3];
+        cross3(d, n, m);
+        for (int r = 0; r < 3; r++) Sm[r] = S[3 * r] * m[0] + S[3 * r + 1] * m[1] + S[3 * r + 2] * m[2];
+        double score = dot3(m, Sm) / s_ahead;
+        /* available only if the stress opens it: the opening stress over the segment's strength
+           (the mean of its two ends') passes the tear stress */
+        if (!(dot3(m, Sm) > c->mat.tear_stress * 0.5 * (st[v] + s_ahead))) continue;
+        if (count == TC_TEAR_DIRECTIONS && !(score > scores[count - 1])) continue;
+        int j = count < TC_TEAR_DIRECTIONS ? count++ : count - 1;  /* insertion, best first */
+        for (; j > 0 && scores[j - 1] < score; j--) { scores[j] = scores[j - 1]; memcpy(out + 3 * j, out + 3 * (j - 1), 3 * sizeof(double)); }
+        scores[j] = score;
+        memcpy(out + 3 * j, d, 3 * sizeof(double));
+    }
+    return count;
+}
+
+/* ---------------- tips ---------------- */
+
+/* A new tip at v; advance: what it has earned already (negative: the length its start cut, which it
+ * pays back before cutting more, so a start or a restart never lets a tear run faster). */
+static int tip_add(tc_cloth *c, int32_t v, const double *dir, double advance)
+{
+    if (tc_vec_push_i32(&c->tips, v) || tc_vec_push_f64(&c->tipadv, advance)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->tipdir, 3 * c->tips.len)) return TC_ERR_NOMEM;
     memcpy((double *)tc_vec_ptr(&c->tipdir) + 3 * (c->tips.len - 1), dir, 3 * sizeof(double));
     return TC_OK;
@@ -102,11 +298,13 @@ static int tip_add(tc_cloth *c, int32_t v, const double *dir)
 static void tip_remove(tc_cloth *c, size_t i)
 {
     int32_t *tp = tc_vec_ptr(&c->tips);
-    double *td = tc_vec_ptr(&c->tipdir);
+    double *td = tc_vec_ptr(&c->tipdir), *ta = tc_vec_ptr(&c->tipadv);
     size_t last = c->tips.len - 1;
     tp[i] = tp[last];
+    ta[i] = ta[last];
     memcpy(td + 3 * i, td + 3 * last, 3 * sizeof(double));
     c->tips.len--;
+    c->tipadv.len = c->tips.len;
     c->tipdir.len = 3 * c->tips.len;
 }
 
@@ -118,17 +316,25 @@ static void unit_dir(const tc_cloth *c, int32_t a, int32_t b, double *d)
     if (l > 0) { d[0] /= l; d[1] /= l; d[2] /= l; }
 }
 
-/* Cuts one segment from an existing tip; updates or ends the tip. Returns 1 if a cut was made. */
-static int advance_tip(tc_cloth *c, size_t ti, const double *dir)
+static double rest_length(const tc_cloth *c, int32_t a, int32_t b)
+{
+    const double *X = tc_vec_ptr(&c->rest);
+    return sqrt(dist2(X + 3 * a, X + 3 * b));
+}
+
+/* Cuts one segment from tip ti; updates or ends the tip. Returns the segment's rest length, 0 when
+ * nothing could be cut along dir (the tip is then unchanged). */
+static double advance_tip(tc_cloth *c, size_t ti, const double *dir)
 {
     int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[ti];
     int32_t pair = -1;
     int32_t w = tc_prepare_segment(c, v, dir, NULL, 0, &pair);
-    if (w < 0 || pair < 0) { tip_remove(c, ti); return 0; }
+    if (w < 0 || pair < 0) return 0.0;
     bool w_boundary = tc_is_boundary_vertex(c, w);
+    double len = rest_length(c, v, w);
     int32_t verts[2] = {v, w};
     unsigned dup;
-    if (tc_separate(c, &pair, 1, verts, 2, &dup)) { tip_remove(c, ti); return 0; }
+    if (tc_separate(c, &pair, 1, verts, 2, &dup)) return 0.0;
     c->stats.cuts++;
     double d[3];
     unit_dir(c, v, w, d);
@@ -137,17 +343,19 @@ static int advance_tip(tc_cloth *c, size_t ti, const double *dir)
         ((int32_t *)tc_vec_ptr(&c->tips))[ti] = w;
         memcpy((double *)tc_vec_ptr(&c->tipdir) + 3 * ti, d, sizeof d);
     }
-    return 1;
+    return len > 0 ? len : TC_TINY;
 }
 
-/* Starts a tear at v along +-dir (both ways from an interior vertex, inward from a boundary one). */
-static int start_tear(tc_cloth *c, int32_t v, const double *dir, bool one_way)
+/* Starts a tear at v: inward along dir from a boundary vertex (back: the sense tried when dir
+ * leads nowhere, or NULL), or from an interior vertex along dir and back (two segments, since one
+ * slit with two interior ends has no indexed-mesh representation). one_way: scripted, the second
+ * segment continues forward from the first. Returns 1 when it cut, 0 when it could not, -1 on
+ * allocation failure. */
+static int start_tear(tc_cloth *c, int32_t v, const double *dir, const double *back, bool one_way)
 {
-    double back[3] = {-dir[0], -dir[1], -dir[2]};
     if (tc_is_boundary_vertex(c, v)) {
         int32_t pair = -1, w = tc_prepare_segment(c, v, dir, NULL, 0, &pair);
-        const double *used = dir;
-        if ((w < 0 || pair < 0) && !one_way) { w = tc_prepare_segment(c, v, back, NULL, 0, &pair); used = back; }
+        if ((w < 0 || pair < 0) && back && !one_way) w = tc_prepare_segment(c, v, back, NULL, 0, &pair);
         if (w < 0 || pair < 0) return 0;
         bool wb = tc_is_boundary_vertex(c, w);
         int32_t verts[2] = {v, w};
@@ -157,8 +365,7 @@ static int start_tear(tc_cloth *c, int32_t v, const double *dir, bool one_way)
         c->stats.tears_started++;
         double d[3];
         unit_dir(c, v, w, d);
-        (void)used;
-        if (!wb && !(dup & 2u)) return tip_add(c, w, d) ? -1 : 1;
+        if (!wb && !(dup & 2u)) return tip_add(c, w, d, one_way ? 0.0 : -rest_length(c, v, w)) ? -1 : 1;
         return 1;
     }
     int32_t p1 = -1, p2 = -1;
@@ -172,7 +379,8 @@ static int start_tear(tc_cloth *c, int32_t v, const double *dir, bool one_way)
         w2 = tc_prepare_segment(c, w1, d1, &p1, 1, &p2);
         from2 = &w1;
     } else {
-        w2 = tc_prepare_segment(c, v, back, &p1, 1, &p2);
+        double opp[3] = {-dir[0], -dir[1], -dir[2]};
+        w2 = tc_prepare_segment(c, v, back ? back : opp, &p1, 1, &p2);
     }
     if (w2 < 0 || p2 < 0 || p2 == p1) return 0;
     bool b1 = tc_is_boundary_vertex(c, w1), b2 = tc_is_boundary_vertex(c, w2);
@@ -184,154 +392,304 @@ static int start_tear(tc_cloth *c, int32_t v, const double *dir, bool one_way)
     c->stats.tears_started++;
     double d2[3];
     unit_dir(c, *from2, w2, d2);
-    if (!one_way && !b1 && !(dup & 2u)) if (tip_add(c, w1, d1)) return -1;
-    if (!b2 && !(dup & 4u)) if (tip_add(c, w2, d2)) return -1;
+    if (!one_way && !b1 && !(dup & 2u)) if (tip_add(c, w1, d1, -rest_length(c, v, w1))) return -1;
+    if (!b2 && !(dup & 4u)) if (tip_add(c, w2, d2, one_way ? 0.0 : -rest_length(c, *from2, w2))) return -1;
     return 1;
 }
 
-static double ratio_of(const tc_cloth *c, int32_t v, double sigma)
-{
-    return sigma / (c->mat.tear_stress * ((const double *)tc_vec_ptr(&c->strength))[v]);
-}
+/* ---------------- where: the scan for new tears ---------------- */
 
-/* Grasped and pinned vertices never start a tear: their stress is the clamp's, not the cloth's. */
-static bool held(const tc_cloth *c, int32_t v)
-{
-    return ((const int8_t *)tc_vec_ptr(&c->vpin))[v] || ((const int32_t *)tc_vec_ptr(&c->vhandle))[v] >= 0;
-}
+/* A vertex that may start a tear; region: which region over threshold it belongs to. */
+typedef struct { double ratio; int32_t v, region; } candidate;
+enum { TC_CANDIDATES_KEPT = TC_TEAR_CANDIDATES * TC_REGION_TRIES };
 
-typedef struct { double ratio; int32_t v; double dir[3]; } candidate;
-
-static void cand_push(candidate *cs, int *n, double r, int32_t v, const double *dir)
+static void cand_push(candidate *cs, int *n, double r, int32_t v, int32_t region)
 {
-    int i = *n < TC_TEAR_CANDIDATES ? (*n)++ : TC_TEAR_CANDIDATES - 1;
-    if (i == TC_TEAR_CANDIDATES - 1 && *n == TC_TEAR_CANDIDATES && cs[i].ratio >= r && cs[i].v >= 0) return;
-    cs[i].ratio = r; cs[i].v = v; memcpy(cs[i].dir, dir, sizeof cs[i].dir);
+    if (*n == TC_CANDIDATES_KEPT && cs[TC_CANDIDATES_KEPT - 1].ratio >= r) return;
+    int i = *n < TC_CANDIDATES_KEPT ? (*n)++ : TC_CANDIDATES_KEPT - 1;
+    cs[i].ratio = r; cs[i].v = v; cs[i].region = region;
     for (; i > 0 && cs[i].ratio > cs[i - 1].ratio; i--) { candidate t = cs[i]; cs[i] = cs[i - 1]; cs[i - 1] = t; }
 }
 
-/* Full scan: per-vertex stress accumulated over triangles in one pass; the few highest vertices over
- * their threshold, best first. */
-static int scan_all(tc_cloth *c, candidate *cs)
+/* Per-vertex marks of one scan (vstamp holds three per vertex) and the ratio memo (vsa). */
+enum { MARK_NEAR_HOT = 0, MARK_EVALUATED = 1, MARK_FLOODED = 2 };
+
+static double ratio_memo(tc_cloth *c, int32_t v, int32_t emark)
 {
-    double *S = tc_vec_ptr(&c->vs9), *N = tc_vec_ptr(&c->vsn), *W = tc_vec_ptr(&c->vsa);
-    memset(S, 0, 9 * (size_t)c->nv * sizeof(double));
-    memset(N, 0, 3 * (size_t)c->nv * sizeof(double));
-    memset(W, 0, (size_t)c->nv * sizeof(double));
-    const int32_t *T = tc_vec_ptr(&c->tri);
-    const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
-    for (int32_t t = 0; t < c->nt; t++) {
-        double tn[3];
-        tri_normal(c, t, tn);
-        const double w = A[t], *st = S3 + 9 * t;
-        for (int k = 0; k < 3; k++) {
-            int32_t v = T[3 * t + k];
-            double *s = S + 9 * v;
-            for (int q = 0; q < 9; q++) s[q] += w * st[q];
-            N[3 * v] += tn[0]; N[3 * v + 1] += tn[1]; N[3 * v + 2] += tn[2];
-            W[v] += w;
-        }
+    int32_t *vs = tc_vec_ptr(&c->vstamp);
+    double *R = tc_vec_ptr(&c->vsa);
+    if (vs[3 * (size_t)v + MARK_EVALUATED] != emark) {
+        double pd[3];
+        R[v] = disc_stress(c, v, pd, NULL, NULL) / threshold(c, v);
+        vs[3 * (size_t)v + MARK_EVALUATED] = emark;
     }
-    int n = 0;
-    const double *strength = tc_vec_ptr(&c->strength);
-    const double thr = c->mat.tear_stress;
-    for (int32_t v = 0; v < c->nv; v++) {
-        if (!(W[v] > 0) || held(c, v)) continue;
-        const double *s = S + 9 * v;
-        double floor_r = n == TC_TEAR_CANDIDATES ? cs[TC_TEAR_CANDIDATES - 1].ratio : 1.0;
-        /* cheap bound first: no eigenvalue of a projection exceeds the Frobenius norm */
-        double fro = 0, lim = thr * strength[v] * floor_r * W[v];
-        for (int q = 0; q < 9; q++) fro += s[q] * s[q];
-        if (fro <= lim * lim) continue;
-        double nn[3] = {N[3 * v], N[3 * v + 1], N[3 * v + 2]}, ln = sqrt(dot3(nn, nn));
-        if (!(ln > 0)) continue;
-        nn[0] /= ln; nn[1] /= ln; nn[2] /= ln;
-        double Sv[9], pd[3], td[3];
-        for (int q = 0; q < 9; q++) Sv[q] = s[q] / W[v];
-        double r = principal_in_plane(Sv, nn, pd) / (thr * strength[v]);
-        if (r > floor_r) {
-            cross3(nn, pd, td);  /* the tear runs orthogonal to the principal direction */
-            cand_push(cs, &n, r, v, td);
-        }
+    return R[v];
+}
+
+/* The region over threshold around v: every vertex connected to v through vertices whose ratio is
+ * above 1 (v itself whatever its ratio). Marks it and leaves it in vqueue; returns its size. */
+static int32_t flood(tc_cloth *c, int32_t v, int32_t emark, int32_t fmark)
+{
+    int32_t *vs = tc_vec_ptr(&c->vstamp), *q = tc_vec_ptr(&c->vqueue);
+    int32_t n = 0;
+    ratio_memo(c, v, emark);
+    vs[3 * (size_t)v + MARK_FLOODED] = fmark;
+    q[n++] = v;
+    for (int32_t head = 0; head < n; head++) {
+        int32_t u = q[head], fan[TC_FAN_MAX];
+        bool closed;
+        int nf = tc_fan_walk(c, u, ((int32_t *)tc_vec_ptr(&c->vtri))[u], NULL, 0, fan, TC_FAN_MAX, &closed);
+        for (int i = 0; i < nf; i++)
+            for (int k = 0; k < 3; k++) {
+                int32_t w = ((const int32_t *)tc_vec_ptr(&c->tri))[3 * (size_t)fan[i] + k];
+                if (vs[3 * (size_t)w + MARK_FLOODED] == fmark) continue;
+                double r = ratio_memo(c, w, emark);
+                if (!(r > 1.0)) continue;
+                vs[3 * (size_t)w + MARK_FLOODED] = fmark;
+                q[n++] = w;
+            }
     }
     return n;
 }
 
-static bool is_tip(const tc_cloth *c, int32_t v)
+/* WHERE. A vertex's disc stress is a mean of its disc's triangle stresses, and no in-plane
+ * eigenvalue of a mean exceeds the largest of the triangles' own: a vertex can pass its threshold
+ * only if a triangle of its disc has sigma_1 above tear_stress times the smallest strength of the
+ * cloth. So the scan reads one number per triangle (triangles t0 .. t0 + count - 1, mod nt), and
+ * evaluates disc stresses only around those "hot" triangles (every vertex within the radius of a
+ * corner of one): exact, and cheap while nothing is near tearing. The vertices over threshold form
+ * regions (connected through vertices over threshold); a region holding a running tip is being
+ * torn by it (this is the exclusion near a tip: the tip's own stress concentration, however far it
+ * reaches, never starts a branch). Every other region starts one tear, at its highest vertex: the
+ * best TC_TEAR_CANDIDATES regions per step, returned best first. */
+static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
 {
-    const int32_t *tp = tc_vec_ptr(&c->tips);
-    for (size_t i = 0; i < c->tips.len; i++)
-        if (tp[i] == v) return true;
-    return false;
-}
-
-/* Around a running tip the stress is concentrated by the tip itself; a second tear there would only
- * branch the first one, so the slice scan leaves a disc of a few local edge lengths alone. */
-static bool near_tip(const tc_cloth *c, int32_t v)
-{
-    const int32_t *tp = tc_vec_ptr(&c->tips);
-    const double *x = tc_vec_ptr(&c->x);
-    int32_t t = ((const int32_t *)tc_vec_ptr(&c->vtri))[v];
-    const int32_t *T = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)t;
-    double e[3], len = 0.0;
-    for (int k = 0; k < 3; k++) {
-        sub3(x + 3 * T[(k + 1) % 3], x + 3 * T[k], e);
-        len += sqrt(dot3(e, e)) / 3.0;
+    const double *pr = tc_vec_ptr(&c->principal), *st = tc_vec_ptr(&c->strength);
+    double smin = INFINITY;
+    for (int32_t v = 0; v < c->nv; v++) smin = st[v] < smin ? st[v] : smin;
+    const double hot = c->mat.tear_stress * smin;
+    int32_t vmark = 0, *vs = tc_vec_ptr(&c->vstamp);
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    const double *X = tc_vec_ptr(&c->rest);
+    for (int32_t k = 0; k < count; k++) {
+        int32_t t = (t0 + k) % c->nt;
+        if (!(pr[2 * (size_t)t] > hot)) continue;
+        if (!vmark) vmark = new_mark(c);
+        double P[3];
+        for (int q = 0; q < 3; q++) P[q] = (X[3 * T[3 * t] + q] + X[3 * T[3 * t + 1] + q] + X[3 * T[3 * t + 2] + q]) / 3.0;
+        /* the corners of t are in their own discs (their fans); any other vertex whose rest
+           position is within the radius of t's centroid may hold t in its disc */
+        int32_t m = disc_walk(c, P, c->mat.tear_radius, &t, 1, BY_CORNER);
+        const int32_t *Q = tc_vec_ptr(&c->tqueue);
+        double r2 = c->mat.tear_radius * c->mat.tear_radius;
+        for (int32_t i = 0; i < m; i++)
+            for (int j = 0; j < 3; j++) {
+                int32_t u = T[3 * Q[i] + j];
+                if (Q[i] == t || dist2(X + 3 * u, P) <= r2) vs[3 * (size_t)u + MARK_NEAR_HOT] = vmark;
+            }
     }
-    double r2 = TC_NEAR_TIP_RADIUS2 * len * len;
-    for (size_t i = 0; i < c->tips.len; i++) {
-        sub3(x + 3 * tp[i], x + 3 * v, e);
-        if (dot3(e, e) < r2) return true;
-    }
-    return false;
-}
-
-int tc_tear_step(tc_cloth *c)
-{
-    if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); }
-    double dir[3];
-    if (c->tips.len == 0) {
-        candidate cs[TC_TEAR_CANDIDATES];
-        int n = scan_all(c, cs);
-        /* several vertices may pass in one step: the highest starts the tear; the next ones are
-           tried only if no segment can be cut from it (e.g. its direction runs along the rim) */
-        for (int i = 0; i < n; i++) {
-            int rc = start_tear(c, cs[i].v, cs[i].dir, false);
-            if (rc < 0) return TC_ERR_NOMEM;
-            if (rc > 0) break;
+    if (!vmark) return 0;
+    int32_t emark = new_mark(c), fmark = new_mark(c);
+    bool tips_flooded = false;
+    int n = 0;
+    for (int32_t v = 0; v < c->nv; v++) {
+        if (vs[3 * (size_t)v + MARK_NEAR_HOT] != vmark || vs[3 * (size_t)v + MARK_FLOODED] == fmark) continue;
+        if (!(ratio_memo(c, v, emark) > 1.0)) continue;
+        if (!tips_flooded) {  /* the regions of the running tips first: they start nothing */
+            for (size_t i = 0; i < c->tips.len; i++) {
+                int32_t tp = ((const int32_t *)tc_vec_ptr(&c->tips))[i];
+                if (vs[3 * (size_t)tp + MARK_FLOODED] != fmark) flood(c, tp, emark, fmark);
+            }
+            tips_flooded = true;
+            if (vs[3 * (size_t)v + MARK_FLOODED] == fmark) continue;
         }
-        return TC_OK;
+        /* the region's best few vertices: when the remesh refuses every direction at the best
+           one (a held corner, a crack face), the next one starts the region's tear */
+        int32_t m = flood(c, v, emark, fmark), best[TC_REGION_TRIES];
+        const int32_t *q = tc_vec_ptr(&c->vqueue);
+        const double *R = tc_vec_ptr(&c->vsa);
+        int nb = 0;
+        for (int32_t i = 0; i < m; i++) {
+            int32_t u = q[i];
+            if (!(R[u] > 1.0)) continue;
+            if (nb == TC_REGION_TRIES && !(R[u] > R[best[nb - 1]])) continue;
+            int j = nb < TC_REGION_TRIES ? nb++ : nb - 1;
+            for (; j > 0 && R[best[j - 1]] < R[u]; j--) best[j] = best[j - 1];
+            best[j] = u;
+        }
+        for (int j = 0; j < nb; j++) cand_push(cs, &n, R[best[j]], best[j], v);
     }
-    /* tips first: each examines its own stress only */
+    return n;
+}
+
+/* ---------------- how fast: the tips ---------------- */
+
+/* Rayleigh wave speed of the sheet, c_R = c_s (0.862 + 1.14 nu) / (1 + nu) (Viktorov's fit), with
+ * the shear wave speed c_s = sqrt(mu / rho) of a membrane: about 0.93 c_s at nu = 0.3. */
+static double rayleigh_speed(const tc_material *m)
+{
+    double mu = m->young / (2.0 * (1.0 + m->poisson));
+    return sqrt(mu / m->density) * (0.862 + 1.14 * m->poisson) / (1.0 + m->poisson);
+}
+
+/* PROPAGATION. Stress-based, over the material disc: a tip advances while the disc stress at the
+ * tip exceeds its threshold (ratio r > 1) and retires when it falls to it. Why stress and not an
+ * energy release rate G against G_c: the same measure then starts, drives and arrests a tear (a
+ * tear can start where there is no crack, and G is not defined there), and it costs one disc
+ * average per tip instead of a J-integral contour on the deformed mesh; averaging the stress over
+ * a critical distance is the theory of critical distances (Taylor, 2007), which is equivalent to
+ * G = G_c for a sharp crack when the radius is ~ E G_c / (pi sigma_E^2) (see materials.py).
+ * Speed: Freund's equation of motion of a crack, v = c_R (1 - G_c / G), with G / G_c = r^2 (G grows
+ * as the square of the stress) and c_R capped to the material's fastest crack speed (brittle cracks
+ * branch before reaching c_R): v = crack_speed_ratio c_R (1 - 1 / r^2). The advance v dt is earned
+ * every step and spent in whole segments (their rest length), the rest carried over, so the tear
+ * after a given time is the same at any time step. Segments after the first in one step use this
+ * step's stresses, which do not yet feel the cut: a tip stops early (keeping what it earned) where
+ * they fall below the threshold, and only a fresh stress (the next step's) retires it. */
+static double crack_speed(const tc_cloth *c, double r)
+{
+    return c->mat.crack_speed_ratio * rayleigh_speed(&c->mat) * (1.0 - 1.0 / (r * r));
+}
+
+/* Tip i earns `earned` metres and cuts while what it has earned is positive and its disc stress is
+ * over the threshold (checked: already known for this step's stress). S, n, pd: the disc stress at
+ * the tip. Returns 1 if slot i still holds this tip afterwards, 0 if the tip ended (slot i
+ * then holds another one), -1 on allocation failure. */
+static int run_tip(tc_cloth *c, size_t i, double earned, bool checked, double *S, double *n, double *pd)
+{
+    double *adv = (double *)tc_vec_ptr(&c->tipadv) + i;
+    *adv += earned;
+    for (int first = 1; *adv > 0; first = 0) {
+        int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[i];
+        if ((!first || !checked) && !(disc_stress(c, v, pd, n, S) / threshold(c, v) > 1.0)) {
+            if (*adv > earned) *adv = earned;
+            break;
+        }
+        double dirs[3 * TC_TEAR_DIRECTIONS];
+        const double *prev = (const double *)tc_vec_ptr(&c->tipdir) + 3 * i;
+        int nd = rank_directions(c, v, S, n, pd, prev, dirs);
+        size_t before = c->tips.len;
+        double len = 0.0;
+        for (int k = 0; k < nd && len == 0.0; k++) {
+            len = advance_tip(c, i, dirs + 3 * k);
+            if (marks_ready(c)) return -1;  /* a refused segment may still have split an edge */
+        }
+        if (len == 0.0) { tip_remove(c, i); return 0; }  /* no way forward: the tip ends */
+        if (c->tips.len < before) return 0;
+        adv = (double *)tc_vec_ptr(&c->tipadv) + i;
+        *adv -= len;
+    }
+    return 1;
+}
+
+/* The tips that ran before this step: retire those whose (fresh) disc stress fell to the
+ * threshold, advance the others. */
+static int advance_tips(tc_cloth *c, double dt)
+{
     for (size_t i = 0; i < c->tips.len;) {
         int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[i];
-        double n[3], pd[3];
-        double sig = vertex_stress(c, v, pd, n);
-        if (ratio_of(c, v, sig) > 1.0) {
-            cross3(n, pd, dir);
-            const double *prev = (const double *)tc_vec_ptr(&c->tipdir) + 3 * i;
-            if (dot3(dir, prev) < 0) { dir[0] = -dir[0]; dir[1] = -dir[1]; dir[2] = -dir[2]; }
-            size_t before = c->tips.len;
-            advance_tip(c, i, dir);
-            if (c->tips.len < before) continue;  /* tip ended; slot i now holds another tip */
-        }
-        i++;
+        double pd[3], n[3], S[9];
+        double r = disc_stress(c, v, pd, n, S) / threshold(c, v);
+        if (!(r > 1.0)) { tip_remove(c, i); c->stats.tips_retired++; continue; }
+        int rc = run_tip(c, i, crack_speed(c, r) * dt, true, S, n, pd);
+        if (rc < 0) return TC_ERR_NOMEM;
+        if (rc > 0) i++;
     }
-    /* one slice of the rest of the mesh, so a second tear can start elsewhere */
-    int32_t slice = (c->nv + c->tear.scan_period - 1) / c->tear.scan_period;
-    int32_t best = -1;
-    double best_r = 1.0, best_d[3] = {0};
-    for (int32_t k = 0; k < slice; k++) {
-        int32_t v = (c->scan_cursor + k) % c->nv;
-        if (is_tip(c, v) || held(c, v) || near_tip(c, v)) continue;
-        double n[3], pd[3];
-        double sig = vertex_stress(c, v, pd, n);
-        double r = ratio_of(c, v, sig);
-        if (r > best_r) { best_r = r; best = v; cross3(n, pd, best_d); }
-    }
-    c->scan_cursor = (c->scan_cursor + slice) % (c->nv ? c->nv : 1);
-    if (best >= 0 && start_tear(c, best, best_d, false) < 0) return TC_ERR_NOMEM;
     return TC_OK;
+}
+
+/* A held vertex over its threshold whose fan is a single triangle has nothing left to separate (a
+ * clamp's corner, the last element joining two hands): the cloth slips out of the grip there, as a
+ * thread pulls out of fingers, so no held configuration stays overstressed. Counted in
+ * tc_stats.grips_released. */
+static void let_go(tc_cloth *c, int32_t v)
+{
+    int8_t *pin = tc_vec_ptr(&c->vpin);
+    int32_t *vh = tc_vec_ptr(&c->vhandle);
+    if (!pin[v] && vh[v] < 0) return;
+    int32_t fan[TC_FAN_MAX];
+    bool closed;
+    if (tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed) != 1) return;
+    if (vh[v] >= 0) {
+        tc_handle *H = &c->handles[vh[v]];
+        for (int32_t i = 0; i < H->count; i++)
+            if (H->verts[i] == v) {
+                H->count--;
+                H->verts[i] = H->verts[H->count];
+                memcpy(H->grasp + 3 * i, H->grasp + 3 * H->count, 3 * sizeof(double));
+                break;
+            }
+        vh[v] = -1;
+    }
+    pin[v] = 0;
+    c->stats.grips_released++;
+}
+
+/* Starts a tear at each candidate (the best vertex of a region over threshold). The new tips started during this step: they earn
+ * its advance at the speed of the stress that started them (so the tear after a given time does
+ * not depend on the step), spent with this step's stresses. */
+static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
+{
+    int32_t done[TC_CANDIDATES_KEPT];
+    int ndone = 0;
+    for (int i = 0; i < n; i++) {
+        int32_t v = cs[i].v;
+        bool region_done = false;
+        for (int k = 0; k < ndone; k++) region_done |= done[k] == cs[i].region;
+        if (region_done || ndone == TC_TEAR_CANDIDATES) continue;
+        double pd[3], nrm[3], S[9], dirs[3 * TC_TEAR_DIRECTIONS];
+        if (!(disc_stress(c, v, pd, nrm, S) > 0)) continue;
+        int nd = rank_directions(c, v, S, nrm, pd, NULL, dirs);
+        size_t before = c->tips.len;
+        int rc = 0;
+        for (int k = 0; k < nd && rc == 0; k++) {
+            /* the other way: the best direction pointing away from this one */
+            const double *d1 = dirs + 3 * k;
+            double back[3] = {-d1[0], -d1[1], -d1[2]};
+            for (int j = 0; j < nd; j++)
+                if (dot3(dirs + 3 * j, d1) < 0) { memcpy(back, dirs + 3 * j, sizeof back); break; }
+            rc = start_tear(c, v, d1, back, false);
+            /* even a start that gave up may have split an edge: the marks follow the mesh */
+            if (rc >= 0 && marks_ready(c)) return TC_ERR_NOMEM;
+        }
+        if (rc < 0) return TC_ERR_NOMEM;
+        if (rc == 0) {
+            let_go(c, v);
+            continue;
+        }
+        done[ndone++] = cs[i].region;
+        /* at most two new tips, appended; running one may move the other into its slot */
+        int32_t fresh[2];
+        int nfresh = 0;
+        for (size_t k = before; k < c->tips.len; k++) fresh[nfresh++] = ((int32_t *)tc_vec_ptr(&c->tips))[k];
+        for (int k = 0; k < nfresh; k++) {
+            size_t ti = before;
+            while (ti < c->tips.len && ((int32_t *)tc_vec_ptr(&c->tips))[ti] != fresh[k]) ti++;
+            if (ti == c->tips.len) continue;
+            if (!(disc_stress(c, fresh[k], pd, nrm, S) > 0)) continue;
+            if (run_tip(c, ti, crack_speed(c, cs[i].ratio) * dt, false, S, nrm, pd) < 0) return TC_ERR_NOMEM;
+        }
+    }
+    return TC_OK;
+}
+
+int tc_tear_step(tc_cloth *c, double dt)
+{
+    if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); }
+    if (c->nt == 0) return TC_OK;
+    if (marks_ready(c)) return TC_ERR_NOMEM;
+    /* how far: the tips that ran before this step */
+    if (advance_tips(c, dt)) return TC_ERR_NOMEM;
+    /* where: every triangle while no tear runs; with tips, one slice of 1/scan_period per step, so
+       a region elsewhere starts its own tear within scan_period steps at a flat cost */
+    int32_t count = c->nt;
+    if (c->tips.len) count = (c->nt + c->tear.scan_period - 1) / c->tear.scan_period;
+    int32_t t0 = c->scan_cursor % c->nt;
+    c->scan_cursor = (int32_t)((t0 + (int64_t)count) % c->nt);
+    candidate cs[TC_CANDIDATES_KEPT];
+    if (marks_ready(c)) return TC_ERR_NOMEM;
+    int n = scan(c, t0, count, cs);
+    return n ? start_tears(c, cs, n, dt) : TC_OK;
 }
 
 int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3], double length, int32_t *cuts)
@@ -347,7 +705,7 @@ int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3]
     double origin[3] = {x[3 * start], x[3 * start + 1], x[3 * start + 2]};
     int32_t before = c->stats.cuts;
     size_t ntips = c->tips.len;
-    int rc = start_tear(c, start, d, true);
+    int rc = start_tear(c, start, d, NULL, true);
     if (rc < 0) return TC_ERR_NOMEM;
     if (rc == 0) { tc_set_err(c, "cannot tear from vertex %d along (%g, %g, %g): no triangle there to cut", (int)start, d[0], d[1], d[2]); return TC_ERR_INPUT; }
     /* follow the tip this tear created until the length is covered */

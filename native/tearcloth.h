@@ -50,6 +50,9 @@ typedef struct tc_material {
     double damping_stiffness; /* Rayleigh beta (s) */
     double tear_stress;       /* sigma_E (Pa): a tear starts where the largest principal stress passes it */
     double snap_tolerance;    /* fraction of an edge, in [0, 0.5): cut points this close to a vertex snap to it */
+    double tear_radius;       /* l (m): the material length over which the stress that starts, drives and
+                                 arrests a tear is averaged (theory of critical distances, see tear.c) */
+    double crack_speed_ratio; /* fastest a tear runs, as a fraction of the Rayleigh wave speed c_R, in (0, 1] */
 } tc_material;
 
 tc_material tc_material_default(void);  /* the "cotton" preset of addon/materials.py */
@@ -149,6 +152,8 @@ typedef struct tc_stats {
     int32_t unconverged_substeps; /* sub-steps of the last step accepted unconverged */
     int64_t unconverged_steps;    /* steps so far with at least one sub-step accepted unconverged */
     int64_t matrix_bytes;     /* bytes of the system matrix one product reads (rows, blocks, indices) */
+    int32_t tips_retired;     /* tips whose driving stress fell below the threshold, so far */
+    int32_t grips_released;   /* held vertices let go: over threshold with one triangle left (tear.c) */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
@@ -184,7 +189,7 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
 typedef struct tc_tear_settings {
     int enabled;
     int scan_period;          /* once a tear runs, the rest of the mesh is scanned in slices so that
-                                 every vertex is examined once every scan_period steps */
+                                 every triangle is examined once every scan_period steps */
     double min_angle_deg;     /* no new triangle gets an angle below this; cuts snap or stop instead */
 } tc_tear_settings;
 tc_tear_settings tc_tear_default(void);
@@ -212,8 +217,10 @@ typedef struct tc_events {
 } tc_events;
 tc_events tc_cloth_events(const tc_cloth *c);
 
-/* Largest principal stress of a vertex (area-weighted average of its triangles' stress tensors
- * projected on its tangent plane) and its direction. */
+/* Largest principal stress of a vertex and its direction: the area-weighted average of the stress
+ * tensors of its own triangles and of every triangle connected to them (through uncut edges) whose
+ * rest centroid lies within tear_radius of the vertex, projected on the vertex tangent plane. This
+ * is the measure tearing compares with tear_stress * strength. */
 int tc_cloth_vertex_stress(tc_cloth *c, int32_t v, double *value, double direction[3]);
 
 #ifdef __cplusplus

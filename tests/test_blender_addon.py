@@ -114,7 +114,7 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
     drawn = got["drawn"]
     assert "progress" not in drawn["TEARCLOTH_PT_main"]  # nothing is baking
     assert "operator" in drawn["TEARCLOTH_PT_haptics"]  # Start Haptic Session, Discover, ...
-    assert drawn["TEARCLOTH_PT_material"].count("prop") == 9
+    assert drawn["TEARCLOTH_PT_material"].count("prop") == 11  # nine + tear radius, crack speed
     assert "template_list" in drawn["TEARCLOTH_PT_pins"] and "template_list" in drawn["TEARCLOTH_PT_collision"]
     assert drawn["menu+button"].count("operator") == 5 + 1  # five presets, the disable button
     assert drawn["running"] == ["progress", "operator"]  # the bar and Cancel

@@ -334,6 +334,7 @@ def test_scene_units_convert_at_the_boundary(tmp_path):
             os.makedirs(sub)
             obj = build_scene(sub, frame_end=8, scale_length=scale, save=False)
             obj.tearcloth.thickness = 4e-4 / scale  # metres -> Blender units
+            obj.tearcloth.tear_radius = 0.01 / scale
             obj.tearcloth.cache_folder = os.path.join(sub, "cache")
             r = bake_object(bpy.context, obj)
             out[label] = dict(state=r.state, last=cache.read_frame(r.cache_path, 8)[0].tolist(),

@@ -121,14 +121,14 @@ def test_dataclass_defaults_are_the_table():
 
 # The five presets, written out: bit-identical bakes need bit-identical values.
 PRESETS = {
-    "cotton": (5.0e7, 0.3, 4.0e-4, 375.0, 5.0e-6, 3.0, 2.0e-5, 8.0e6, 0.3),
-    "denim": (8.0e7, 0.3, 8.0e-4, 500.0, 4.0e-5, 3.0, 2.0e-5, 1.5e7, 0.3),
-    "silk": (3.0e7, 0.3, 1.0e-4, 400.0, 2.0e-6, 3.0, 2.0e-5, 1.0e7, 0.3),
-    "paper": (4.0e9, 0.3, 1.0e-4, 800.0, 3.6e-4, 3.0, 1.0e-5, 2.0e7, 0.3),
-    "banknote": (3.0e9, 0.3, 1.1e-4, 820.0, 3.6e-4, 3.0, 1.0e-5, 3.0e7, 0.3),
+    "cotton": (5.0e7, 0.3, 4.0e-4, 375.0, 5.0e-6, 3.0, 2.0e-5, 8.0e6, 0.3, 0.01, 0.2),
+    "denim": (8.0e7, 0.3, 8.0e-4, 500.0, 4.0e-5, 3.0, 2.0e-5, 1.5e7, 0.3, 0.01, 0.2),
+    "silk": (3.0e7, 0.3, 1.0e-4, 400.0, 2.0e-6, 3.0, 2.0e-5, 1.0e7, 0.3, 0.005, 0.2),
+    "paper": (4.0e9, 0.3, 1.0e-4, 800.0, 3.6e-4, 3.0, 1.0e-5, 2.0e7, 0.3, 0.005, 0.5),
+    "banknote": (3.0e9, 0.3, 1.1e-4, 820.0, 3.6e-4, 3.0, 1.0e-5, 3.0e7, 0.3, 0.005, 0.5),
 }
 FIELDS = ("young", "poisson", "thickness", "density", "bending", "damping_mass", "damping_stiffness",
-          "tear_stress", "snap_tolerance")
+          "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio")
 
 
 def test_presets_keep_their_values_and_validate_within_the_soft_bounds():

@@ -150,19 +150,20 @@ def test_below_threshold_nothing_tears_and_just_above_it_starts_at_the_peak():
     c.move_handle(hr, (0.002, 0, 0))
     relax(c, 150)
     c.set_tearing(True)
-    vals = max_vertex_stress(c)
-    hv = np.zeros(len(vals), bool)
-    hv[np.flatnonzero(V[:, 0] < 1e-9)] = True
-    hv[np.flatnonzero(V[:, 0] > 0.2 - 1e-9)] = True
-    vals[hv] = -np.inf  # grasped vertices never start a tear
-    peak = int(np.argmax(vals))
-    c.set_material(tear_stress=vals[peak] * 1.02)
+    vals = max_vertex_stress(c)  # grasped vertices too: a tear may start at the fingers
+    c.set_material(tear_stress=vals.max() * 1.02)
     relax(c, 20)
-    assert c.stats()["tears_started"] == 0 and c.num_vertices == len(V)
+    assert c.stats()["tears_started"] == 0 and c.num_vertices == len(V) and c.stats()["grips_released"] == 0
+    # a corner with a single triangle has nothing to separate: it cannot start a tear (over its
+    # threshold it slips out of the grip instead)
+    vals[np.bincount(T.ravel(), minlength=len(V)) < 2] = -np.inf
+    peak = int(np.argmax(vals))
     c.set_material(tear_stress=vals[peak] * 0.995)
     c.step(2e-3)
     ev = c.events()
-    assert c.stats()["tears_started"] == 1
+    # every separate region over its threshold starts in the same step (here the symmetric
+    # corners of the clamp); the peak is one of them
+    assert c.stats()["tears_started"] >= 1
     duplicated = set(ev.parents[ev.parents[:, 1] < 0, 0].tolist())
     assert peak in duplicated, f"tear started at {sorted(duplicated)}, peak stress at {peak}"
 
@@ -183,7 +184,9 @@ def test_pure_shear_tears_at_45_degrees():
     strength[centre] = 0.9  # a tiny flaw so the tear starts in the middle, as a real one would
     c.set_tear_strength(strength)
     sigma1 = 2 * E / (2 * 1.3) * g  # principal stress of pure shear: 2 mu g
-    c.set_material(tear_stress=sigma1 * 0.95)
+    # the sheet just below its threshold, the flaw above it: one tear, from the flaw (with the whole
+    # sheet above it, every region far enough from the first tear starts its own)
+    c.set_material(tear_stress=sigma1 * 1.03)
     c.set_tearing(True)
     n0 = c.num_vertices
     for _ in range(40):

@@ -20,7 +20,7 @@ from .race import race_blender_cloth
 from .report import benchmarks_markdown
 from .scaling import format_scaling, plot_scaling, scaling
 from .servo import measure_live_servo
-from .table1 import DT, format_table, measure_scenario
+from .table1 import DT, format_table, measure_scenario, tearing_convergence
 
 __all__ = ["PARTS", "run"]
 
@@ -45,6 +45,7 @@ def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"),
         results["table1"][name] = measure_scenario(name, steps)
     if scenarios:
         out(format_table(results))
+        results["tearing"] = tearing_convergence(out)
     if collision and "collision" in parts:
         out("... collision (T-shirt on the mannequin)")
         results["collision"] = collision_figures()
