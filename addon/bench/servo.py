@@ -23,6 +23,7 @@ from ..haptics.falcon import FALCON_MAX_FORCE
 from ..haptics.falcon_emulator import FalconEmulator
 from ..haptics.live import LiveSession, emulated_falcon, falcon_coupling
 from ..haptics.servo import HandCoupling, ServoLoop
+from ..haptics.servo_process import DeviceSpec
 from ..materials import material
 from ..session import CollisionSettings, Session
 
@@ -95,6 +96,7 @@ def emulated_session(
     k_position: float = 2000.0,
     k_velocity: float = 20.0,
     max_force_rate: float = 1000.0,
+    servo: str = "thread",
     **live_kwargs,
 ) -> Tuple[LiveSession, Dict[str, FalconEmulator]]:
     """One of the paper's scenes ("cloth" = the square, "banknote", "tshirt") grasped by two
@@ -110,9 +112,16 @@ def emulated_session(
     damping 4 N·s/m, inside the Falcon's 3000 N/m and 20 N·s/m.
 
     The T-shirt is pinned along its ``shoulders`` group: without collision nothing else would
-    hold it up; with ``collision=True`` it also collides with the mannequin (slower)."""
+    hold it up; with ``collision=True`` it also collides with the mannequin (slower).
+
+    ``servo``: "thread" (the devices and their servo threads in this process; the emulators
+    returned are the objects themselves) or "process" (``DeviceSpec``s: the emulated Falcons and
+    the servo live in a servo process of their own; the emulators returned are
+    ``RemoteEmulator``s that reach them there)."""
     if scenario not in _SCENARIO_GROUPS:
         raise ConfigError(f"unknown scenario {scenario!r}; scenarios: {', '.join(_SCENARIO_GROUPS)}")
+    if servo not in ("thread", "process"):
+        raise ConfigError(f"servo must be 'thread' or 'process', got {servo!r}")
     if pace not in ("wall", "simulation"):
         raise ConfigError(f"pace must be 'wall' or 'simulation', got {pace!r}")
     body = None
@@ -139,23 +148,19 @@ def emulated_session(
     emulators = {}
     for i, (hand, group) in enumerate(_SCENARIO_GROUPS[scenario].items()):
         side = float(np.sign(mesh.vertices[mesh.groups[group] >= 0.5, 0].mean())) or (1.0 if hand == "right" else -1.0)
-        dev, emu = emulated_falcon(
-            f"EMU-{hand.upper()}-{i}",
-            hand,
-            (side, 0.0, 0.0),
-            distance=pull_distance,
-            hold_s=hold_s,
-            pull_s=pull_s,
-            stiffness=hand_stiffness,
-            damping=hand_damping,
-            clock=clock,
-            substeps=emulator_substeps,
-            max_force=max_force,
-        )
+        args = dict(serial=f"EMU-{hand.upper()}-{i}", hand=hand, direction=(side, 0.0, 0.0), distance=pull_distance, hold_s=hold_s,
+                    pull_s=pull_s, stiffness=hand_stiffness, damping=hand_damping, substeps=emulator_substeps, max_force=max_force)
+        if servo == "process":
+            # the simulated time reaches the servo process through the shared header
+            dev = DeviceSpec("tearcloth.haptics.live:emulated_falcon", args, sim_clock_arg="clock" if pace == "simulation" else None)
+        else:
+            dev, emulators[hand] = emulated_falcon(clock=clock, **args)
         coupling = falcon_coupling(scene_radius, k_position=k_position, k_velocity=k_velocity, force_scale=force_scale, max_force_rate=max_force_rate)
         hands[hand] = (group, dev, coupling)
-        emulators[hand] = emu
-    return LiveSession(session, hands, **live_kwargs), emulators
+    live = LiveSession(session, hands, **live_kwargs)
+    if servo == "process":
+        emulators = {hand: live.servo_process.emulator(hand) for hand in hands}
+    return live, emulators
 
 
 def measure_live_servo(
