@@ -2,7 +2,8 @@
 while one of the paper's scenes is simulated flat out on the calling thread.
 
 This file owns ``measure_servo`` (run a ``ServoLoop`` over given devices for a while, return its
-timing), ``emulated_session`` (the square cloth, the banknote or the T-shirt from
+timing), ``measure_loaded_servo`` (what the bench reports as ``servo.loaded.*``: the servo while
+the machine is as busy as an artist's Blender makes it), ``emulated_session`` (the square cloth, the banknote or the T-shirt from
 ``tearcloth.examples`` grasped by two emulated Falcons whose scripted hands pull apart: a
 ``LiveSession`` ready to run) and ``measure_live_servo`` (what the bench reports as
 ``servo.*``). The emulator and its scripted hands are a user feature and stay in
@@ -11,6 +12,8 @@ extension zip). SI units; times reported in ms and Hz.
 """
 from __future__ import annotations
 
+import subprocess
+import sys
 import time
 from typing import Callable, Dict, Mapping, Optional, Tuple
 
@@ -189,4 +192,58 @@ def measure_live_servo(
         live.stop()
     out = live.stats()
     out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s))
+    return out
+
+
+# A pure-Python CPU hog for the other core (its own interpreter: it competes for the CPU, not
+# for our GIL).
+_HOG = "while True:\n    pass\n"
+
+
+def measure_loaded_servo(
+    duration_s: float = 10.0,
+    scenario: str = "tshirt",
+    *,
+    servo: str = "process",
+    collision: bool = True,
+    gil_loop: bool = True,
+    cpu_hog: bool = True,
+    **session_kwargs,
+) -> dict:
+    """Servo timing under the load of an artist's Blender, without real-time priority: two
+    emulated Falcons, the ``scenario`` (T-shirt) simulating with collision on its own thread
+    (``LiveSession.start``), the calling thread busy with a GIL-heavy pure-Python loop (standing
+    in for Blender's UI: panels, timers, handlers) and a CPU hog process on the other core.
+
+    ``servo``: "process" (the servo process of ``haptics.servo_process``) or "thread" (the
+    in-process servo threads, for the before/after comparison). Returns ``live.stats()`` (``rate_hz``,
+    ``p50_ms``, ``p99_ms``, ``max_ms``: worst hand; ``privileges``: what the unprivileged servo
+    got), plus ``gil_loop_iterations`` and the set-up."""
+    session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
+    session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
+    session_kwargs.setdefault("servo_priority", None)  # no SCHED_FIFO: what an artist's Blender gets
+    live, _emus = emulated_session(scenario, collision=collision, servo=servo, **session_kwargs)
+    hog = subprocess.Popen([sys.executable, "-c", _HOG]) if cpu_hog else None
+    loops = 0
+    try:
+        live.start()
+        end = time.perf_counter() + duration_s
+        while time.perf_counter() < end and not live.ended:
+            if gil_loop:
+                x = 0
+                for i in range(20000):  # ~1 ms of bytecode between two checks of the clock
+                    x += i * i
+                loops += 1
+            else:
+                time.sleep(0.01)
+    finally:
+        live.stop()
+        if hog is not None:
+            hog.kill()
+            hog.wait()
+    out = live.stats()
+    if "max_ms" not in out and out.get("per_hand"):
+        out["max_ms"] = max(v["max_ms"] for v in out["per_hand"].values())
+    out.update(scenario=scenario, servo=servo, collision=bool(collision), gil_loop=bool(gil_loop), cpu_hog=bool(cpu_hog),
+               gil_loop_iterations=loops, duration_s=float(duration_s), error=None if live.error is None else repr(live.error))
     return out

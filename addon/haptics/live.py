@@ -110,7 +110,7 @@ from .falcon import FALCON_MAX_FORCE, FalconDevice
 from .falcon_emulator import FalconEmulator, spring_hand
 from .falcon_kinematics import WORKSPACE_CENTRE, WORKSPACE_RADIUS
 from .forcelog import ForceLog
-from .servo import HandCoupling, ServoLoop
+from .servo import HandCoupling, ServoLoop, _lower_switch_interval, _restore_switch_interval
 from .servo_process import DeviceSpec, ServoProcess, open_ready
 
 __all__ = [
@@ -276,7 +276,7 @@ class LiveSession:
                 raise ConfigError("give every hand a DeviceSpec (servo process) or every hand a device (in-process servo), not a mix")
             kw = self.servo_kwargs
             self.servo_process = ServoProcess(specs, period_s=self.servo_period_s, stall_timeout_s=max(self.stall_timeout_s, 2.0 * self.servo_period_s),
-                                              spin_s=float(servo_kwargs.get("spin_s", 0.0)) if servo_kwargs else 0.0,
+                                              spin_s=float((servo_kwargs or {}).get("spin_s", 0.0)), slice_s=kw.get("slice_s", 0.0001),
                                               priority=kw.get("priority"), cpus=kw.get("cpus"),
                                               switch_interval_s=kw.get("switch_interval_s", 0.0005))
             hands = {n: (v[0], self.servo_process.device(n), v[2]) for n, v in hands.items()}
@@ -299,6 +299,7 @@ class LiveSession:
         self.shutdown_errors: List[BaseException] = []
         self.lost_hands: List[str] = []
         self._opened = False
+        self._switch_lowered = False
         self._lock = threading.RLock()
         self._stop_event = threading.Event()
         self._thread: Optional[threading.Thread] = None
@@ -448,6 +449,11 @@ class LiveSession:
         """The servo-process arrangement of ``open``: the devices open (and home) there, bind on
         the position they report, warm up, then the servo threads start in that process."""
         proc = self.servo_process
+        # The servo no longer shares our GIL, but the simulation thread still does, with whatever
+        # pure Python runs here (Blender's UI): at the default 5 ms switch interval each GIL
+        # hand-back after a native step costs it up to 5 ms (measured: 8 steps/s instead of 33
+        # on the T-shirt beside a GIL-heavy loop). Restored when the session ends.
+        self._switch_lowered = _lower_switch_interval(0.0005)
         try:
             proc.open(self.homing_timeout_s)
             for hs in self._hands.values():
@@ -459,6 +465,9 @@ class LiveSession:
             proc.stop()
             proc.close()
             self.servo = None
+            if self._switch_lowered:
+                _restore_switch_interval()
+                self._switch_lowered = False
             raise
 
     def _bind_device(self, hs: _Hand) -> None:
@@ -732,6 +741,9 @@ class LiveSession:
             self.servo_process.stop()
             self.servo_process.drain(self.force_log)  # the last ticks' forces
             self.servo_process.close()
+            if self._switch_lowered:
+                _restore_switch_interval()
+                self._switch_lowered = False
         if self._opened or self.servo is not None:
             for hs in self._hands.values():
                 try:

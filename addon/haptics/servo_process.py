@@ -51,6 +51,11 @@ Without privileges (reported by ``stats()['privileges']``):
 - ``clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME)`` through ctypes (which releases the GIL) to
   the tick's absolute deadline, so a late wake-up does not shift the following ticks; then an
   optional short spin (``spin_s``);
+- a short scheduler slice (``sched_setattr`` with SCHED_OTHER and ``sched_runtime`` =
+  ``slice_s``, 100 µs by default): since Linux 6.12 (EEVDF) any task may ask for a slice shorter
+  than the default ~3 ms, which gives it an earlier virtual deadline, so a servo thread that
+  wakes preempts a CPU hog instead of waiting out the hog's slice; older kernels refuse or ignore
+  it (reported);
 - hands phase-shifted by period / n: two servo threads never want the process's GIL at once;
 - the cyclic garbage collector is frozen and disabled after set-up (the tick creates no
   cycles; reference counting frees everything), so no collection pause lands in a tick;
@@ -303,6 +308,36 @@ def _libc():
         return None
 
 
+class _SchedAttr(ctypes.Structure):
+    _fields_ = [("size", ctypes.c_uint32), ("sched_policy", ctypes.c_uint32), ("sched_flags", ctypes.c_uint64),
+                ("sched_nice", ctypes.c_int32), ("sched_priority", ctypes.c_uint32), ("sched_runtime", ctypes.c_uint64),
+                ("sched_deadline", ctypes.c_uint64), ("sched_period", ctypes.c_uint64), ("sched_util_min", ctypes.c_uint32),
+                ("sched_util_max", ctypes.c_uint32)]
+
+
+_SYS_SCHED_SETATTR = {"x86_64": 314, "aarch64": 274}.get(os.uname().machine if hasattr(os, "uname") else "")
+_SYS_SCHED_GETATTR = {"x86_64": 315, "aarch64": 275}.get(os.uname().machine if hasattr(os, "uname") else "")
+
+
+def _set_short_slice(lib, slice_s: Optional[float]) -> Optional[int]:
+    """Ask the scheduler for a ``slice_s`` slice for the calling thread (SCHED_OTHER, nice
+    unchanged); returns the slice now in force (ns, 0 = the kernel's default) or None when the
+    call is not available here."""
+    if lib is None or not slice_s or _SYS_SCHED_SETATTR is None:
+        return None
+    try:
+        a = _SchedAttr(size=ctypes.sizeof(_SchedAttr), sched_policy=0, sched_nice=os.getpriority(os.PRIO_PROCESS, 0),
+                       sched_runtime=int(slice_s * 1e9))
+        if lib.syscall(_SYS_SCHED_SETATTR, 0, ctypes.byref(a), 0) != 0:
+            return None
+        b = _SchedAttr()
+        if lib.syscall(_SYS_SCHED_GETATTR, 0, ctypes.byref(b), ctypes.sizeof(_SchedAttr), 0) != 0:
+            return None
+        return int(b.sched_runtime)
+    except (AttributeError, OSError):
+        return None
+
+
 def _set_timer_slack(lib) -> Optional[int]:
     """1 ns timer slack for the calling thread; returns the slack now in force (ns), None if not Linux."""
     if lib is None:
@@ -359,12 +394,14 @@ class _ProcessServo(ServoLoop):
     """``ServoLoop`` inside the servo process: mailboxes and proxies in shared memory, the stall
     timeout from the shared header, the parent watched every tick, absolute-deadline sleeps."""
 
-    def __init__(self, devices, couplings, shared: _Shared, emulators, parent_pid: int, lib, **kw):
+    def __init__(self, devices, couplings, shared: _Shared, emulators, parent_pid: int, lib, slice_s=None, **kw):
         self._index = {h: i for i, h in enumerate(devices)}
         super().__init__(devices, couplings, force_log=_RingLog(shared, self._index), clock=time.perf_counter, **kw)
         self.shared, self.emulators, self.parent_pid, self.lib = shared, emulators, parent_pid, lib
         self.peer_gone = False
         self.timer_slack_ns: Dict[str, Optional[int]] = {}
+        self.slice_ns: Dict[str, Optional[int]] = {}
+        self.slice_s = slice_s
         self._messages: Dict[str, str] = {}
         for h, i in self._index.items():
             self._hands[h].mailbox = _SharedMailbox(shared.sim[i])
@@ -412,6 +449,7 @@ class _ProcessServo(ServoLoop):
     def _run(self, h) -> None:
         h.realtime = _try_fifo(self.priority)
         self.timer_slack_ns[h.name] = _set_timer_slack(self.lib)
+        self.slice_ns[h.name] = _set_short_slice(self.lib, self.slice_s)
         clock, period = self.clock, self.period_s
         # Phase shift per hand: their ticks never contend for this process's GIL.
         next_t = clock() + period * self._index[h.name] / max(len(self._hands), 1)
@@ -637,6 +675,7 @@ def _stats(loop: Optional[_ProcessServo], privileges: dict) -> dict:
     out = loop.stats()
     priv = dict(privileges)
     priv["timer_slack_ns"] = dict(loop.timer_slack_ns)
+    priv["slice_ns"] = dict(loop.slice_ns)
     priv["sched_fifo"] = {h: v["realtime"] for h, v in out["per_hand"].items()}
     priv["spin_s"] = loop.spin_s
     out["privileges"] = priv
@@ -767,7 +806,8 @@ class ServoProcess:
     ``ServoLoop``; ``drain(force_log)`` moves the rendered forces into a ``ForceLog``."""
 
     def __init__(self, specs: Mapping[str, DeviceSpec], *, period_s: float = 0.001, stall_timeout_s: float = 0.010,
-                 spin_s: float = 0.0, priority: Optional[int] = None, cpus: Optional[Sequence[int]] = None,
+                 spin_s: float = 0.0, slice_s: Optional[float] = 0.0001, priority: Optional[int] = None,
+                 cpus: Optional[Sequence[int]] = None,
                  switch_interval_s: Optional[float] = 0.0005, start_timeout_s: float = 60.0):
         if not specs:
             raise ConfigError("the servo process needs at least one device")
@@ -781,7 +821,7 @@ class ServoProcess:
         self.period_s = float(period_s)
         self.clock = time.perf_counter
         self.start_timeout_s = float(start_timeout_s)
-        self._servo_kw = {"period_s": self.period_s, "stall_timeout_s": float(stall_timeout_s), "spin_s": float(spin_s),
+        self._servo_kw = {"period_s": self.period_s, "stall_timeout_s": float(stall_timeout_s), "spin_s": float(spin_s), "slice_s": slice_s,
                           "priority": priority, "switch_interval_s": switch_interval_s}
         self._cpus = None if cpus is None else list(cpus)
         self._mailboxes = {h: SimulationMailbox(self.clock) for h in self._hands}
