@@ -282,6 +282,8 @@ class LiveSession:
             hands = {n: (v[0], self.servo_process.device(n), v[2]) for n, v in hands.items()}
         self._hands: Dict[str, _Hand] = self._bind_handles(hands)
         self.force_log = ForceLog(list(self._hands))
+        if self.servo_process is not None:
+            self.servo_process.force_log = self.force_log
         self.tear_log = ForceLog(list(self._hands))
         self.servo = None  # ServoLoop or ServoProcess once open
 
@@ -463,7 +465,6 @@ class LiveSession:
             proc.start({n: hs.coupling for n, hs in self._hands.items()})
         except BaseException:
             proc.stop()
-            proc.close()
             self.servo = None
             if self._switch_lowered:
                 _restore_switch_interval()
@@ -593,7 +594,6 @@ class LiveSession:
         now = clock()
         if self.servo_process is not None:
             self.servo_process.set_sim_time(self.session.time)
-            self.servo_process.drain(self.force_log)
         if self.first_tear_clock is None and self.cloth.stats()["tears_started"]:
             self.first_tear_clock, self.first_tear_time, self.first_tear_step = now, float(self.session.time), self.steps
         self.step_clock.append(now)
@@ -738,9 +738,7 @@ class LiveSession:
             except HapticError as exc:
                 self.shutdown_errors.append(exc)
         if self.servo_process is not None:
-            self.servo_process.stop()
-            self.servo_process.drain(self.force_log)  # the last ticks' forces
-            self.servo_process.close()
+            self.servo_process.stop()  # zero force, devices closed, the force log drained to the last tick
             if self._switch_lowered:
                 _restore_switch_interval()
                 self._switch_lowered = False

@@ -34,10 +34,16 @@ checks every value is finite before use and clamps the force regardless.
 Safety, all in the servo process, no help from the simulating one needed:
 - simulation stall: the mailbox's stamp older than ``stall_timeout_s`` (written into the shared
   header by the simulation, read every tick) zeroes the force, as in ``ServoLoop``;
-- simulating process gone (killed, crashed): every tick compares ``os.getppid()`` with the pid
-  that spawned it (a dead parent reparents us), and the control pipe's EOF tells the main
-  thread; either way the force goes to zero in that tick, the devices are closed and the process
-  exits. A hung simulating process stops publishing: the stall rule covers it;
+- simulating process gone (killed, crashed): the simulating process keeps two idle sentinel
+  threads, and every tick polls a thread pidfd of each (``pidfd_open(tid, PIDFD_THREAD)``, Linux
+  6.9+): a killed process's threads exit at once, while the process itself is only reaped (its
+  pipe closed, its children reparented) once its whole address space is torn down, measured 5-30
+  ms after SIGKILL here. Two sentinels because the last thread out does the teardown, and it can
+  be only one of them. Every tick also compares ``os.getppid()`` with the pid that spawned it (a
+  reaped parent reparents us) and the main thread sees the control pipe's EOF: the fallbacks
+  where thread pidfds are missing. Either way the force goes to zero in that tick, the devices
+  are closed and the process exits. A hung simulating process stops publishing: the stall rule
+  covers it;
 - device unplugged: the device's own LOST handling (zero force, that hand's loop ends);
 - stop (``ServoProcess.stop``, hence unregister and file load through ``LiveSession.stop``):
   zero force sent, devices closed, process joined; clamp and rate limit are ``ServoLoop``'s.
@@ -71,6 +77,7 @@ import importlib
 import math
 import mmap
 import os
+import select
 import socket
 import subprocess
 import sys
@@ -399,6 +406,8 @@ class _ProcessServo(ServoLoop):
         super().__init__(devices, couplings, force_log=_RingLog(shared, self._index), clock=time.perf_counter, **kw)
         self.shared, self.emulators, self.parent_pid, self.lib = shared, emulators, parent_pid, lib
         self.peer_gone = False
+        self.peer_fds: Sequence[int] = ()  # the sentinel threads' pidfds (set by _child_main)
+        self._pollers = threading.local()
         self.timer_slack_ns: Dict[str, Optional[int]] = {}
         self.slice_ns: Dict[str, Optional[int]] = {}
         self.slice_s = slice_s
@@ -407,8 +416,9 @@ class _ProcessServo(ServoLoop):
             self._hands[h].mailbox = _SharedMailbox(shared.sim[i])
 
     def tick(self, hand: str, now: Optional[float] = None) -> ProxySample:
-        if os.getppid() != self.parent_pid:
-            self.peer_gone = True  # reparented: the simulating process is gone
+        poller = getattr(self._pollers, "p", None)
+        if os.getppid() != self.parent_pid or (poller is not None and poller.poll(0)):
+            self.peer_gone = True  # a sentinel thread exited, or we were reparented: the simulating process is gone
         if self.peer_gone:
             h = self._hands[hand]
             h.force = h.device.set_force(np.zeros(3))
@@ -450,6 +460,7 @@ class _ProcessServo(ServoLoop):
         h.realtime = _try_fifo(self.priority)
         self.timer_slack_ns[h.name] = _set_timer_slack(self.lib)
         self.slice_ns[h.name] = _set_short_slice(self.lib, self.slice_s)
+        self._pollers.p = _poller(self.peer_fds)
         clock, period = self.clock, self.period_s
         # Phase shift per hand: their ticks never contend for this process's GIL.
         next_t = clock() + period * self._index[h.name] / max(len(self._hands), 1)
@@ -523,10 +534,37 @@ _BOOT = (
 def _child_entry(fd: int) -> None:
     conn = Connection(fd)
     try:
-        shm_name, hands, specs, couplings_unused, parent_pid, options = conn.recv()
+        shm_name, hands, specs, peer_tids, parent_pid, options = conn.recv()
     except (EOFError, OSError):
         return
+    options["peer_tids"] = peer_tids
     _child_main(conn, shm_name, hands, [DeviceSpec(*s) for s in specs], parent_pid, options)
+
+
+_PIDFD_THREAD = 0o200  # O_EXCL: a pidfd that becomes readable when that one thread exits (Linux 6.9)
+
+
+def _watch_threads(tids: Sequence[int]) -> List[int]:
+    """Thread pidfds of ``tids`` (none where the kernel has no thread pidfds)."""
+    opener = getattr(os, "pidfd_open", None)
+    fds = []
+    for tid in tids if opener is not None else ():
+        try:
+            fds.append(opener(int(tid), _PIDFD_THREAD))
+        except OSError:
+            pass
+    return fds
+
+
+def _poller(fds: Sequence[int]):
+    """A ``select.poll`` over ``fds`` for one thread (a poll object is not shared: concurrent
+    ``poll()`` calls on one object raise), None without fds."""
+    if not fds:
+        return None
+    poller = select.poll()
+    for fd in fds:
+        poller.register(fd, select.POLLIN)
+    return poller
 
 
 def _coupling_fields(c: HandCoupling) -> dict:
@@ -559,6 +597,13 @@ def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], 
         privileges["nice"] = None
     lib = _libc()
     privileges["clock_nanosleep"] = lib is not None
+    peer_fds = _watch_threads(options.get("peer_tids") or ())
+    peer_poll = _poller(peer_fds)  # the main thread's own
+    privileges["peer_watch"] = f"thread pidfds ({len(peer_fds)}) + getppid + pipe EOF" if peer_fds else "getppid + pipe EOF"
+
+    def peer_gone() -> bool:
+        return os.getppid() != parent_pid or bool(peer_poll is not None and peer_poll.poll(0))
+
     shared = _Shared(len(hands), shm_name)
     header = shared.header
     sim_clock = lambda: float(header[_H_SIM_TIME])  # noqa: E731 - the emulated hands' simulated time
@@ -592,7 +637,7 @@ def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], 
             return
         send("built", {h: _info(d) for h, d in devices.items()})
         while True:
-            if os.getppid() != parent_pid:
+            if peer_gone():
                 break
             try:
                 if not conn.poll(0.005):
@@ -619,6 +664,7 @@ def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], 
                 couplings = {h: HandCoupling(**{k: tuple(v) if k == "offset" else v for k, v in c.items()}) for h, c in msg[1].items()}
                 kw = msg[2]
                 loop = _ProcessServo(devices, couplings, shared, emulators, parent_pid, lib, **kw)
+                loop.peer_fds = peer_fds
                 gc.collect()
                 gc.freeze()
                 gc.disable()
@@ -661,6 +707,8 @@ def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], 
             if loop is not None:
                 loop._publish_device(loop._hands[hand])
         shared.close()
+        for fd in peer_fds:
+            os.close(fd)
 
 
 def _info(dev: HapticDevice) -> dict:
@@ -803,12 +851,15 @@ class ServoProcess:
     1 kHz threads; ``publish``/``proxy``/``stats`` while it runs; ``stop()`` zeroes, closes and
     joins. ``period_s``, ``stall_timeout_s`` (settable), ``clock``, ``hands``, ``mailbox(hand)``
     (the last sample published from here), ``device(hand)`` and ``coupling(hand)`` are those of
-    ``ServoLoop``; ``drain(force_log)`` moves the rendered forces into a ``ForceLog``."""
+    ``ServoLoop``. ``force_log`` (a ``ForceLog``) receives every tick's rendered force, moved from
+    the shared ring by a ``tearcloth-live-log`` thread every ``drain_every_s`` (whatever the
+    caller is doing, the log is at most that old) and once more after the servo has stopped."""
 
     def __init__(self, specs: Mapping[str, DeviceSpec], *, period_s: float = 0.001, stall_timeout_s: float = 0.010,
                  spin_s: float = 0.0, slice_s: Optional[float] = 0.0001, priority: Optional[int] = None,
                  cpus: Optional[Sequence[int]] = None,
-                 switch_interval_s: Optional[float] = 0.0005, start_timeout_s: float = 60.0):
+                 switch_interval_s: Optional[float] = 0.0005, start_timeout_s: float = 60.0, force_log=None,
+                 drain_every_s: float = 0.02):
         if not specs:
             raise ConfigError("the servo process needs at least one device")
         if not 0.0 < period_s <= 0.1:
@@ -838,6 +889,13 @@ class ServoProcess:
         self._stall = float(stall_timeout_s)
         self._ring_read = {h: 0 for h in self._hands}
         self.force_log_lost = 0
+        self.force_log = force_log
+        self.drain_every_s = float(drain_every_s)
+        self._drainer: Optional[threading.Thread] = None
+        self._drain_stop = threading.Event()
+        self._sentinel_stop = threading.Event()
+        self._sentinels: List[threading.Thread] = []
+        self._last_prox: Dict[str, np.ndarray] = {}
 
     # ---- properties shared with ServoLoop --------------------------------------------------------
     @property
@@ -909,6 +967,19 @@ class ServoProcess:
             raise DeviceStateError("the servo process was already opened")
         self._shared = _Shared(len(self._hands))
         self._shared.header[_H_STALL] = self._stall
+        tids: List[int] = []
+        ready = threading.Semaphore(0)
+
+        def sentinel():
+            tids.append(threading.get_native_id())
+            ready.release()
+            self._sentinel_stop.wait()  # blocked on a lock without the GIL: its exit is the signal
+
+        self._sentinel_stop.clear()
+        self._sentinels = [threading.Thread(target=sentinel, name=f"tearcloth-live-peer{i}", daemon=True) for i in range(2)]
+        for t in self._sentinels:
+            t.start()
+            ready.acquire()
         ours, theirs = socket.socketpair()
         try:
             self._proc = subprocess.Popen([sys.executable, "-c", _BOOT, _PACKAGE_DIR, str(theirs.fileno())],
@@ -916,7 +987,7 @@ class ServoProcess:
             theirs.close()
             self._conn = Connection(ours.detach())
             specs = [(s.factory, dict(s.kwargs), s.sim_clock_arg) for s in (self._specs[h] for h in self._hands)]
-            self._conn.send((self._shared.name, self._hands, specs, None, os.getpid(), {"cpus": self._cpus}))
+            self._conn.send((self._shared.name, self._hands, specs, tids, os.getpid(), {"cpus": self._cpus}))
             if not self._conn.poll(self.start_timeout_s):
                 raise HapticError(f"the servo process did not start within {self.start_timeout_s:.0f} s")
             reply = self._conn.recv()
@@ -938,6 +1009,14 @@ class ServoProcess:
         self._couplings = dict(couplings)
         self._call("start", {h: _coupling_fields(c) for h, c in self._couplings.items()}, self._servo_kw, expect="started")
         self.ticking = True
+        if self.force_log is not None:
+            self._drain_stop.clear()
+            self._drainer = threading.Thread(target=self._drain_loop, name="tearcloth-live-log", daemon=True)
+            self._drainer.start()
+
+    def _drain_loop(self) -> None:
+        while not self._drain_stop.wait(self.drain_every_s):
+            self.drain(self.force_log)
 
     def stop(self, timeout_s: float = 2.0) -> None:
         """Zero force on every device, close them, end the process. Idempotent."""
@@ -953,6 +1032,17 @@ class ServoProcess:
         except subprocess.TimeoutExpired:
             pass
         self._terminate()
+        if self._drainer is not None:
+            self._drain_stop.set()
+            self._drainer.join()
+            self._drainer = None
+        self._sentinel_stop.set()  # after the servo has gone: it must not read their exit as our death
+        for t in self._sentinels:
+            t.join()
+        self._sentinels = []
+        if self.force_log is not None:
+            self.drain(self.force_log)  # the last ticks, up to the zero force
+        self.close()
 
     def _terminate(self) -> None:
         if self._proc is not None and self._proc.poll() is None:
@@ -976,8 +1066,10 @@ class ServoProcess:
         # the shared block stays mapped until drained and closed by close()
 
     def close(self) -> None:
-        """Release the shared memory (after ``stop`` and the last ``drain``)."""
+        """Release the shared memory (``stop`` does; the last device blocks are kept: what each
+        device was left with stays readable)."""
         if self._shared is not None:
+            self._last_prox = {h: self._shared.prox[i].copy() for i, h in enumerate(self._hands)}
             self._shared.close()
             self._shared = None
 
@@ -998,7 +1090,7 @@ class ServoProcess:
 
     def _read_proxy(self, hand: str) -> Optional[np.ndarray]:
         if self._shared is None:
-            return None
+            return self._last_prox.get(hand)
         return _read(self._shared.prox[self._hands.index(hand)])
 
     def _message(self, hand: str, old: str) -> str:
@@ -1017,6 +1109,10 @@ class ServoProcess:
                            v[_P_F : _P_F + 3], float(v[_P_STAMP]), int(v[_P_NUM]))
 
     def drain(self, force_log) -> int:
+        """Called by one thread at a time: the drain thread while the servo runs, then ``stop``."""
+        return self._drain(force_log)
+
+    def _drain(self, force_log) -> int:
         """Move the rendered forces logged since the last call into ``force_log``; returns how
         many. Entries overwritten before being read (a drain more than 65 s late) are counted in
         ``force_log_lost``."""
