@@ -12,6 +12,7 @@ extension zip). SI units; times reported in ms and Hz.
 """
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -191,13 +192,47 @@ def measure_live_servo(
     finally:
         live.stop()
     out = live.stats()
-    out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s))
+    out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s),
+               servo=session_kwargs.get("servo", "thread"))
     return out
 
 
 # A pure-Python CPU hog for the other core (its own interpreter: it competes for the CPU, not
 # for our GIL).
 _HOG = "while True:\n    pass\n"
+
+# What the machine gives any unprivileged 1 kHz sleeper at the same moment: a bare loop with the
+# servo process's own measures (own session, 1 ns timer slack, short slice, absolute deadlines)
+# and no work, in a process of its own, run beside the loaded measurement. The servo cannot be
+# steadier than this; on a machine shared with other jobs it tells their share from ours.
+_FLOOR = """
+import json, os, sys, time, ctypes
+import numpy as np
+from tearcloth.haptics import servo_process as sp
+os.setsid()
+lib = sp._libc()
+sp._set_timer_slack(lib)
+sp._set_short_slice(lib, 0.0001)
+end = time.perf_counter() + float(sys.argv[1])
+nxt = time.perf_counter()
+last = None
+periods = []
+while True:
+    now = time.perf_counter()
+    if last is not None:
+        periods.append(now - last)
+    last = now
+    if now > end:
+        break
+    nxt += 0.001
+    if now - nxt > 0.001:
+        nxt = now
+    ts = sp._Timespec(int(nxt), int((nxt - int(nxt)) * 1e9))
+    lib.clock_nanosleep(1, 1, ctypes.byref(ts), None)
+p = np.asarray(periods)
+print(json.dumps({"rate_hz": float(1.0 / p.mean()), "p50_ms": float(np.percentile(p, 50) * 1e3),
+                  "p99_ms": float(np.percentile(p, 99) * 1e3), "max_ms": float(p.max() * 1e3)}))
+"""
 
 
 def measure_loaded_servo(
@@ -208,6 +243,7 @@ def measure_loaded_servo(
     collision: bool = True,
     gil_loop: bool = True,
     cpu_hog: bool = True,
+    floor: bool = True,
     **session_kwargs,
 ) -> dict:
     """Servo timing under the load of an artist's Blender, without real-time priority: two
@@ -218,15 +254,19 @@ def measure_loaded_servo(
     ``servo``: "process" (the servo process of ``haptics.servo_process``) or "thread" (the
     in-process servo threads, for the before/after comparison). Returns ``live.stats()`` (``rate_hz``,
     ``p50_ms``, ``p99_ms``, ``max_ms``: worst hand; ``privileges``: what the unprivileged servo
-    got), plus ``gil_loop_iterations`` and the set-up."""
+    got), plus ``gil_loop_iterations``, the set-up and, with ``floor``, ``floor_{rate_hz,p50_ms,
+    p99_ms,max_ms}``: a bare unprivileged 1 kHz sleeper measured beside it (``_FLOOR``)."""
     session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
     session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
     session_kwargs.setdefault("servo_priority", None)  # no SCHED_FIFO: what an artist's Blender gets
     live, _emus = emulated_session(scenario, collision=collision, servo=servo, **session_kwargs)
     hog = subprocess.Popen([sys.executable, "-c", _HOG]) if cpu_hog else None
     loops = 0
+    probe = None
     try:
         live.start()
+        if floor:
+            probe = subprocess.Popen([sys.executable, "-c", _FLOOR, str(duration_s)], stdout=subprocess.PIPE, text=True)
         end = time.perf_counter() + duration_s
         while time.perf_counter() < end and not live.ended:
             if gil_loop:
@@ -242,6 +282,13 @@ def measure_loaded_servo(
             hog.kill()
             hog.wait()
     out = live.stats()
+    if probe is not None:
+        try:
+            got, _ = probe.communicate(timeout=duration_s + 30.0)
+            out.update({f"floor_{k}": v for k, v in json.loads(got).items()})
+        except (subprocess.TimeoutExpired, ValueError):
+            probe.kill()
+            probe.wait()
     if "max_ms" not in out and out.get("per_hand"):
         out["max_ms"] = max(v["max_ms"] for v in out["per_hand"].values())
     out.update(scenario=scenario, servo=servo, collision=bool(collision), gil_loop=bool(gil_loop), cpu_hog=bool(cpu_hog),

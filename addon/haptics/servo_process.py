@@ -456,11 +456,16 @@ class _ProcessServo(ServoLoop):
             _write(self.shared.prox[i], ((_P_EFF, np.asarray(emu.efforts, dtype=float)), (_P_ZERO, zero),
                                          (_P_STATE, float(_STATES.index(h.device.state)))))
 
-    def _run(self, h) -> None:
-        h.realtime = _try_fifo(self.priority)
-        self.timer_slack_ns[h.name] = _set_timer_slack(self.lib)
-        self.slice_ns[h.name] = _set_short_slice(self.lib, self.slice_s)
+    def _thread_setup(self, names) -> Optional[bool]:
+        realtime = _try_fifo(self.priority)
+        slack, slice_ns = _set_timer_slack(self.lib), _set_short_slice(self.lib, self.slice_s)
+        for name in names:
+            self.timer_slack_ns[name], self.slice_ns[name] = slack, slice_ns
         self._pollers.p = _poller(self.peer_fds)
+        return realtime
+
+    def _run(self, h) -> None:
+        h.realtime = self._thread_setup([h.name])
         clock, period = self.clock, self.period_s
         # Phase shift per hand: their ticks never contend for this process's GIL.
         next_t = clock() + period * self._index[h.name] / max(len(self._hands), 1)
@@ -640,7 +645,7 @@ def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], 
             if peer_gone():
                 break
             try:
-                if not conn.poll(0.005):
+                if not conn.poll(0.05):  # the servo threads watch the peer every tick; this is for before they start
                     if loop is not None and loop.peer_gone:
                         break
                     continue
@@ -685,7 +690,7 @@ def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], 
                     send("emu", getattr(emu, value))
                 else:
                     getattr(emu, what)(*value)
-                    send("emu", None)
+                    send("emu", time.perf_counter())  # when it took effect (CLOCK_MONOTONIC)
             elif cmd == "stop":
                 if loop is not None:
                     try:
@@ -816,8 +821,10 @@ class RemoteEmulator:
     def __init__(self, servo: "ServoProcess", hand: str):
         self._servo, self._hand = servo, hand
 
-    def unplug(self) -> None:
-        self._servo._emu(self._hand, "unplug", ())
+    def unplug(self) -> Optional[float]:
+        """Pull the cable; returns when it was pulled (``time.perf_counter``; None if the servo
+        process has not started yet: then it is pulled as it starts)."""
+        return self._servo._emu(self._hand, "unplug", ())
 
     def replug(self) -> None:
         self._servo._emu(self._hand, "replug", ())
