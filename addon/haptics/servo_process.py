@@ -455,6 +455,7 @@ class _ProcessServo(ServoLoop):
             zero = math.nan if emu.zero_since is None else emu.zero_since
             _write(self.shared.prox[i], ((_P_EFF, np.asarray(emu.efforts, dtype=float)), (_P_ZERO, zero),
                                          (_P_STATE, float(_STATES.index(h.device.state)))))
+        _write(self.shared.prox[i], ((_P_F, h.coupling.force_to_scene(h.force)),))
 
     def _thread_setup(self, names) -> Optional[bool]:
         realtime = _try_fifo(self.priority)
@@ -1067,7 +1068,10 @@ class ServoProcess:
             self._conn.close()
         self._conn = None
         self.ticking = False
-        for d in self._devices.values():
+        for h, d in self._devices.items():
+            last = self._read_proxy(h)
+            if last is not None and h in self._couplings:  # the force the servo left it with
+                d._force = self._couplings[h].force_to_device(last[_P_F : _P_F + 3])
             if d._state is not DeviceState.LOST:
                 d._set_state(DeviceState.CLOSED, "closed")
         # the shared block stays mapped until drained and closed by close()
