@@ -100,10 +100,8 @@ from .device import (
     DeviceNotFoundError,
     DeviceState,
     DeviceStateError,
-    FirmwareError,
     HapticDevice,
     HapticError,
-    NotHomedError,
     Workspace,
 )
 from .falcon import FALCON_MAX_FORCE, FalconDevice

@@ -101,7 +101,7 @@ from .device import (
     HapticError,
     NotHomedError,
 )
-from .servo import HandCoupling, ProxySample, ServoLoop, SimulationMailbox, SimulationSample
+from .servo import HandCoupling, LoopEnd, ProxySample, ServoLoop, SimulationMailbox, SimulationSample, _set_realtime
 
 __all__ = ["DeviceSpec", "ServoProcess", "RemoteDevice", "RemoteEmulator", "open_ready"]
 
@@ -425,7 +425,7 @@ class _ProcessServo(ServoLoop):
             h.device.poll()  # the zero goes out in this tick's exchange
             h.alive = False
             self._publish_device(h)
-            raise _PeerGone()
+            raise LoopEnd()
         stall = float(self.shared.header[_H_STALL])
         if stall > self.period_s:
             self.stall_timeout_s = stall
@@ -457,42 +457,19 @@ class _ProcessServo(ServoLoop):
                                          (_P_STATE, float(_STATES.index(h.device.state)))))
         _write(self.shared.prox[i], ((_P_F, h.coupling.force_to_scene(h.force)),))
 
-    def _thread_setup(self, names) -> Optional[bool]:
-        realtime = _try_fifo(self.priority)
-        slack, slice_ns = _set_timer_slack(self.lib), _set_short_slice(self.lib, self.slice_s)
-        for name in names:
-            self.timer_slack_ns[name], self.slice_ns[name] = slack, slice_ns
+    def _thread_start(self, h) -> float:
+        # this thread's own unprivileged measures (timer slack, slice and priority are per thread)
+        h.realtime = _set_realtime(self.priority)
+        self.timer_slack_ns[h.name] = _set_timer_slack(self.lib)
+        self.slice_ns[h.name] = _set_short_slice(self.lib, self.slice_s)
         self._pollers.p = _poller(self.peer_fds)
-        return realtime
-
-    def _run(self, h) -> None:
-        h.realtime = self._thread_setup([h.name])
-        clock, period = self.clock, self.period_s
         # Phase shift per hand: their ticks never contend for this process's GIL.
-        next_t = clock() + period * self._index[h.name] / max(len(self._hands), 1)
+        next_t = self.clock() + self.period_s * self._index[h.name] / max(len(self._hands), 1)
         self._wait_until(next_t)
-        last_start = None
-        try:
-            while not self._stop.is_set():
-                start = clock()
-                if last_start is not None:
-                    h.record_period(start - last_start)
-                last_start = start
-                self.tick(h.name, start)
-                if not h.alive:
-                    break
-                next_t += period
-                now = clock()
-                if now - next_t > period:
-                    next_t = now  # fell behind (suspended VM, a stalled device): resync, no burst
-                self._wait_until(next_t)
-        except _PeerGone:
-            pass
-        except BaseException as exc:
-            h.error = exc
-        finally:
-            self._zero(h)
-            self._publish_device(h)
+        return next_t
+
+    def _thread_end(self, h) -> None:
+        self._publish_device(h)
 
     def _wait_until(self, deadline: float) -> None:
         lib, spin = self.lib, self.spin_s
@@ -505,20 +482,6 @@ class _ProcessServo(ServoLoop):
                 break  # EINTR: sleep again to the same absolute deadline
         while self.clock() < deadline:
             pass  # the short spin: the last ``spin_s`` (0 by default on small machines)
-
-
-class _PeerGone(Exception):
-    pass
-
-
-def _try_fifo(priority: Optional[int]) -> Optional[bool]:
-    if priority is None:
-        return None
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(int(priority)))
-        return True
-    except (AttributeError, OSError, ValueError, OverflowError):
-        return False
 
 
 # The servo process is started as ``python -c _BOOT dir fd`` rather than by multiprocessing:
