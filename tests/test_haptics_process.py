@@ -105,6 +105,10 @@ def test_exchange_round_trip_and_unprivileged_measures_reported():
         assert q.seq > p.seq
         np.testing.assert_allclose(q.force, 2000.0 * (p.position + [0.01, 0, 0] - q.position), atol=0.5)
         assert any(sp.emulator("left").efforts)
+        # what this process sees of the device is in the device's own frame, as for a local one
+        c, q = sp.coupling("left"), sp.proxy("left")
+        np.testing.assert_allclose(c.proxy(sp.device("left").position), q.position, atol=1e-3)
+        assert sp.device("left").state.value == "ready" and np.linalg.norm(sp.device("left").force) > 0.5
         st = sp.stats()
         priv = st["privileges"]
         assert priv["process"] is True and priv["sched_fifo"] == {"left": None, "right": None}  # not asked

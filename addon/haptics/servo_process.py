@@ -371,8 +371,10 @@ class _SharedMailbox:
         if b[_S_NUM] == self._num:
             return self._sample
         v = _read(b)
-        if v is None or v[_S_NUM] == 0.0 or not np.all(np.isfinite(v)):
-            return self._sample if v is not None and v[_S_NUM] == 0.0 else None
+        if v is None:
+            return self._sample  # the writer is mid-write (preempted): the previous sample, whose stamp ages
+        if v[_S_NUM] == 0.0 or not np.all(np.isfinite(v)):
+            return None  # nothing published yet, or a torn read on a weakly ordered CPU: zero force
         lin = v[_S_LIN] > 0.5
         self._sample = SimulationSample(
             v[_S_F : _S_F + 3], v[_S_X : _S_X + 3],
@@ -721,13 +723,15 @@ class RemoteDevice(HapticDevice):
         if self._state is DeviceState.CLOSED or not s.ticking:
             return
         st = s._read_proxy(self._hand_name)
-        if st is None:
-            return
+        if st is None or st[_P_NUM] == 0.0:
+            return  # no tick yet: what open() reported still holds
+        c = s.coupling(self._hand_name)
         self._state = _STATES[int(st[_P_STATE])]
-        self._position = st[_P_POS : _P_POS + 3].copy()
-        self._velocity = st[_P_VEL : _P_VEL + 3].copy()
+        # the shared block holds the proxy (scene frame): back to the device's own frame
+        self._position = c._r.T @ (st[_P_POS : _P_POS + 3] - c._o) / c.scale
+        self._velocity = c._r.T @ st[_P_VEL : _P_VEL + 3] / c.scale
         self._buttons = int(st[_P_BUT])
-        self._force = s.coupling(self._hand_name).force_to_device(st[_P_F : _P_F + 3])
+        self._force = c.force_to_device(st[_P_F : _P_F + 3])
         self._message = s._message(self._hand_name, self._message)
 
     @property
@@ -746,9 +750,19 @@ class RemoteDevice(HapticDevice):
         return self._position.copy()
 
     @property
+    def velocity(self) -> np.ndarray:
+        self._sync()
+        return self._velocity.copy()
+
+    @property
     def buttons(self) -> int:
         self._sync()
         return self._buttons
+
+    @property
+    def force(self) -> np.ndarray:
+        self._sync()
+        return self._force.copy()
 
     def _opened(self, info: dict) -> None:
         self.name = info["name"]
@@ -867,6 +881,7 @@ class ServoProcess:
         self._sentinel_stop = threading.Event()
         self._sentinels: List[threading.Thread] = []
         self._last_prox: Dict[str, np.ndarray] = {}
+        self._good: Dict[str, np.ndarray] = {}
 
     # ---- properties shared with ServoLoop --------------------------------------------------------
     @property
@@ -1065,7 +1080,11 @@ class ServoProcess:
     def _read_proxy(self, hand: str) -> Optional[np.ndarray]:
         if self._shared is None:
             return self._last_prox.get(hand)
-        return _read(self._shared.prox[self._hands.index(hand)])
+        v = _read(self._shared.prox[self._hands.index(hand)])
+        if v is None:  # the servo is mid-write (preempted): the last consistent copy
+            return self._good.get(hand)
+        self._good[hand] = v
+        return v
 
     def _message(self, hand: str, old: str) -> str:
         i = self._hands.index(hand)
