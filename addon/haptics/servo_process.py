@@ -463,7 +463,8 @@ class _ProcessServo(ServoLoop):
         # this thread's own unprivileged measures (timer slack, slice and priority are per thread)
         h.realtime = _set_realtime(self.priority)
         self.timer_slack_ns[h.name] = _set_timer_slack(self.lib)
-        self.slice_ns[h.name] = _set_short_slice(self.lib, self.slice_s)
+        # a slice is a SCHED_OTHER setting: asking for one would undo a granted SCHED_FIFO
+        self.slice_ns[h.name] = None if h.realtime else _set_short_slice(self.lib, self.slice_s)
         self._pollers.p = _poller(self.peer_fds)
         # Phase shift per hand: their ticks never contend for this process's GIL.
         next_t = self.clock() + self.period_s * self._index[h.name] / max(len(self._hands), 1)
