@@ -2,6 +2,10 @@
 log shows the paper's Fig. 6; the clamp holds; an unplugged device, a stalled simulation and a
 stop button all end in zero force; the recorder sees the torn mesh; bad set-ups fail clearly.
 
+Each of these runs twice: with the servo threads in this process ("thread") and with the servo
+process of its own ("process", haptics/servo_process.py: the emulated Falcons live there and are
+reached through RemoteEmulator).
+
 Timing: the hands of the Fig. 6 test follow the *simulated* time (``pace="simulation"``), so the
 cloth is pulled the same way on a fast or a loaded machine; the other tests use wall-time hands.
 Wall-clock bounds are generous safety nets only; the servo's guarantees are checked on its own
@@ -41,6 +45,9 @@ TEAR_STRESS = 2.0e6  # Pa: a quarter of cotton's, so the square tears within ~0.
 WALL_CAP = 60.0  # s: safety cap for runs that stop on simulated time
 
 
+SERVOS = pytest.mark.parametrize("servo", ["thread", "process"])
+
+
 def square_session(**kw):
     kw.setdefault("tear_stress", TEAR_STRESS)
     kw.setdefault("hold_s", 0.05)
@@ -60,6 +67,13 @@ def device_force_norms(live, hand):
     return np.linalg.norm(f, axis=1) * live.coupling(hand).force_scale
 
 
+def unplug(emu):
+    """Unplug an emulated Falcon; returns when: an in-process emulator at once, one in the servo
+    process reports when the command reached it (over a pipe, a few ms later)."""
+    t = time.perf_counter()
+    return emu.unplug() or t
+
+
 def rel(a, b):
     return abs(a - b) / max(abs(a), abs(b))
 
@@ -67,8 +81,9 @@ def rel(a, b):
 # ---------------------------------------------------------------------------------------------
 # The paper's Fig. 6 with two emulated Falcons
 # ---------------------------------------------------------------------------------------------
-def test_two_emulated_falcons_tear_the_square_like_fig6(tmp_path):
-    live, emus = square_session(pace="simulation", pull_s=0.6, pull_distance=0.02)
+@SERVOS
+def test_two_emulated_falcons_tear_the_square_like_fig6(tmp_path, servo):
+    live, emus = square_session(pace="simulation", pull_s=0.6, pull_distance=0.02, servo=servo)
     try:
         deadline = time.perf_counter() + WALL_CAP
         # Until 190 steps after the first tear: the drop, then 150 steps of propagation.
@@ -132,8 +147,9 @@ def test_two_emulated_falcons_tear_the_square_like_fig6(tmp_path):
         assert emu.efforts == (0, 0, 0)  # stop() left every motor at zero effort
 
 
-def test_device_force_never_exceeds_a_binding_clamp():
-    live, _ = square_session(max_force=1.5)  # far below what the pull asks for
+@SERVOS
+def test_device_force_never_exceeds_a_binding_clamp(servo):
+    live, _ = square_session(max_force=1.5, servo=servo)  # far below what the pull asks for
     try:
         live.run_for(1.5)
     finally:
@@ -148,12 +164,12 @@ def test_device_force_never_exceeds_a_binding_clamp():
 # ---------------------------------------------------------------------------------------------
 # Ending: device loss, simulation stall, stop button
 # ---------------------------------------------------------------------------------------------
-def test_unplugged_falcon_zeroes_its_force_and_ends_the_session():
-    live, emus = square_session()
+@SERVOS
+def test_unplugged_falcon_zeroes_its_force_and_ends_the_session(servo):
+    live, emus = square_session(servo=servo)
     live.run_for(0.5)
     assert device_force_norms(live, "right")[-50:].max() > 0.05  # the hand feels the cloth
-    t_unplug = time.perf_counter()
-    emus["right"].unplug()
+    t_unplug = unplug(emus["right"])
     live.run_for(5.0)  # returns as soon as the session notices; no exception escapes
     assert live.ended and live.error is None
     assert live.lost_hands == ["right"] and "right" in live.end_reason
@@ -169,12 +185,12 @@ def test_unplugged_falcon_zeroes_its_force_and_ends_the_session():
     assert no_live_threads()
 
 
-def test_unplugged_falcon_can_leave_the_other_hand_running():
-    live, emus = square_session(on_device_lost="continue")
+@SERVOS
+def test_unplugged_falcon_can_leave_the_other_hand_running(servo):
+    live, emus = square_session(on_device_lost="continue", servo=servo)
     try:
         live.run_for(0.4)
-        t_unplug = time.perf_counter()
-        emus["right"].unplug()
+        t_unplug = unplug(emus["right"])
         live.run_for(0.4)
         assert not live.ended and live.lost_hands == ["right"]
         t, f = live.force_log.series("left")
@@ -186,8 +202,9 @@ def test_unplugged_falcon_can_leave_the_other_hand_running():
     assert live.end_reason == "stopped" and no_live_threads()
 
 
-def test_simulation_stall_zeroes_the_force_within_the_stall_timeout():
-    live, _ = square_session()
+@SERVOS
+def test_simulation_stall_zeroes_the_force_within_the_stall_timeout(servo):
+    live, _ = square_session(servo=servo)
     try:
         live.run_for(0.6)
         timeout = live.servo.stall_timeout_s
@@ -218,8 +235,9 @@ def test_stall_timeout_rule():
     assert stall_timeout_rule([0.020] * 50, factor=2.0, minimum=0.005, maximum=1.0) == pytest.approx(0.040)
 
 
-def test_stop_button_ends_a_threaded_session():
-    live, emus = square_session(stop_buttons=FALCON_CENTRE_BUTTON)
+@SERVOS
+def test_stop_button_ends_a_threaded_session(servo):
+    live, emus = square_session(stop_buttons=FALCON_CENTRE_BUTTON, servo=servo)
     emus["left"].buttons = FALCON_CENTRE_BUTTON  # held while grasping: must not stop the session
     live.start()
     try:

@@ -2,7 +2,8 @@
 while one of the paper's scenes is simulated flat out on the calling thread.
 
 This file owns ``measure_servo`` (run a ``ServoLoop`` over given devices for a while, return its
-timing), ``emulated_session`` (the square cloth, the banknote or the T-shirt from
+timing), ``measure_loaded_servo`` (what the bench reports as ``servo.loaded.*``: the servo while
+the machine is as busy as an artist's Blender makes it), ``emulated_session`` (the square cloth, the banknote or the T-shirt from
 ``tearcloth.examples`` grasped by two emulated Falcons whose scripted hands pull apart: a
 ``LiveSession`` ready to run) and ``measure_live_servo`` (what the bench reports as
 ``servo.*``). The emulator and its scripted hands are a user feature and stay in
@@ -11,6 +12,9 @@ extension zip). SI units; times reported in ms and Hz.
 """
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 import time
 from typing import Callable, Dict, Mapping, Optional, Tuple
 
@@ -23,6 +27,7 @@ from ..haptics.falcon import FALCON_MAX_FORCE
 from ..haptics.falcon_emulator import FalconEmulator
 from ..haptics.live import LiveSession, emulated_falcon, falcon_coupling
 from ..haptics.servo import HandCoupling, ServoLoop
+from ..haptics.servo_process import DeviceSpec
 from ..materials import material
 from ..session import CollisionSettings, Session
 
@@ -95,6 +100,7 @@ def emulated_session(
     k_position: float = 2000.0,
     k_velocity: float = 20.0,
     max_force_rate: float = 1000.0,
+    servo: str = "thread",
     **live_kwargs,
 ) -> Tuple[LiveSession, Dict[str, FalconEmulator]]:
     """One of the paper's scenes ("cloth" = the square, "banknote", "tshirt") grasped by two
@@ -110,9 +116,16 @@ def emulated_session(
     damping 4 N·s/m, inside the Falcon's 3000 N/m and 20 N·s/m.
 
     The T-shirt is pinned along its ``shoulders`` group: without collision nothing else would
-    hold it up; with ``collision=True`` it also collides with the mannequin (slower)."""
+    hold it up; with ``collision=True`` it also collides with the mannequin (slower).
+
+    ``servo``: "thread" (the devices and their servo threads in this process; the emulators
+    returned are the objects themselves) or "process" (``DeviceSpec``s: the emulated Falcons and
+    the servo live in a servo process of their own; the emulators returned are
+    ``RemoteEmulator``s that reach them there)."""
     if scenario not in _SCENARIO_GROUPS:
         raise ConfigError(f"unknown scenario {scenario!r}; scenarios: {', '.join(_SCENARIO_GROUPS)}")
+    if servo not in ("thread", "process"):
+        raise ConfigError(f"servo must be 'thread' or 'process', got {servo!r}")
     if pace not in ("wall", "simulation"):
         raise ConfigError(f"pace must be 'wall' or 'simulation', got {pace!r}")
     body = None
@@ -139,23 +152,19 @@ def emulated_session(
     emulators = {}
     for i, (hand, group) in enumerate(_SCENARIO_GROUPS[scenario].items()):
         side = float(np.sign(mesh.vertices[mesh.groups[group] >= 0.5, 0].mean())) or (1.0 if hand == "right" else -1.0)
-        dev, emu = emulated_falcon(
-            f"EMU-{hand.upper()}-{i}",
-            hand,
-            (side, 0.0, 0.0),
-            distance=pull_distance,
-            hold_s=hold_s,
-            pull_s=pull_s,
-            stiffness=hand_stiffness,
-            damping=hand_damping,
-            clock=clock,
-            substeps=emulator_substeps,
-            max_force=max_force,
-        )
+        args = dict(serial=f"EMU-{hand.upper()}-{i}", hand=hand, direction=(side, 0.0, 0.0), distance=pull_distance, hold_s=hold_s,
+                    pull_s=pull_s, stiffness=hand_stiffness, damping=hand_damping, substeps=emulator_substeps, max_force=max_force)
+        if servo == "process":
+            # the simulated time reaches the servo process through the shared header
+            dev = DeviceSpec("tearcloth.haptics.live:emulated_falcon", args, sim_clock_arg="clock" if pace == "simulation" else None)
+        else:
+            dev, emulators[hand] = emulated_falcon(clock=clock, **args)
         coupling = falcon_coupling(scene_radius, k_position=k_position, k_velocity=k_velocity, force_scale=force_scale, max_force_rate=max_force_rate)
         hands[hand] = (group, dev, coupling)
-        emulators[hand] = emu
-    return LiveSession(session, hands, **live_kwargs), emulators
+    live = LiveSession(session, hands, **live_kwargs)
+    if servo == "process":
+        emulators = {hand: live.servo_process.emulator(hand) for hand in hands}
+    return live, emulators
 
 
 def measure_live_servo(
@@ -183,5 +192,105 @@ def measure_live_servo(
     finally:
         live.stop()
     out = live.stats()
-    out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s))
+    out.update(scenario=scenario, collision=bool(collision), emulator_substeps=int(emulator_substeps), duration_s=float(duration_s),
+               servo=session_kwargs.get("servo", "thread"))
+    return out
+
+
+# A pure-Python CPU hog for the other core (its own interpreter: it competes for the CPU, not
+# for our GIL).
+_HOG = "while True:\n    pass\n"
+
+# What the machine gives any unprivileged 1 kHz sleeper at the same moment: a bare loop with the
+# servo process's own measures (own session, 1 ns timer slack, short slice, absolute deadlines)
+# and no work, in a process of its own, run beside the loaded measurement. The servo cannot be
+# steadier than this; on a machine shared with other jobs it tells their share from ours.
+_FLOOR = """
+import json, os, sys, time, ctypes
+import numpy as np
+from tearcloth.haptics import servo_process as sp
+os.setsid()
+lib = sp._libc()
+sp._set_timer_slack(lib)
+sp._set_short_slice(lib, 0.0001)
+end = time.perf_counter() + float(sys.argv[1])
+nxt = time.perf_counter()
+last = None
+periods = []
+while True:
+    now = time.perf_counter()
+    if last is not None:
+        periods.append(now - last)
+    last = now
+    if now > end:
+        break
+    nxt += 0.001
+    if now - nxt > 0.001:
+        nxt = now
+    ts = sp._Timespec(int(nxt), int((nxt - int(nxt)) * 1e9))
+    lib.clock_nanosleep(1, 1, ctypes.byref(ts), None)
+p = np.asarray(periods)
+print(json.dumps({"rate_hz": float(1.0 / p.mean()), "p50_ms": float(np.percentile(p, 50) * 1e3),
+                  "p99_ms": float(np.percentile(p, 99) * 1e3), "max_ms": float(p.max() * 1e3)}))
+"""
+
+
+def measure_loaded_servo(
+    duration_s: float = 10.0,
+    scenario: str = "tshirt",
+    *,
+    servo: str = "process",
+    collision: bool = True,
+    gil_loop: bool = True,
+    cpu_hog: bool = True,
+    floor: bool = True,
+    **session_kwargs,
+) -> dict:
+    """Servo timing under the load of an artist's Blender, without real-time priority: two
+    emulated Falcons, the ``scenario`` (T-shirt) simulating with collision on its own thread
+    (``LiveSession.start``), the calling thread busy with a GIL-heavy pure-Python loop (standing
+    in for Blender's UI: panels, timers, handlers) and a CPU hog process on the other core.
+
+    ``servo``: "process" (the servo process of ``haptics.servo_process``) or "thread" (the
+    in-process servo threads, for the before/after comparison). Returns ``live.stats()`` (``rate_hz``,
+    ``p50_ms``, ``p99_ms``, ``max_ms``: worst hand; ``privileges``: what the unprivileged servo
+    got), plus ``gil_loop_iterations``, the set-up and, with ``floor``, ``floor_{rate_hz,p50_ms,
+    p99_ms,max_ms}``: a bare unprivileged 1 kHz sleeper measured beside it (``_FLOOR``)."""
+    session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
+    session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
+    session_kwargs.setdefault("servo_priority", None)  # no SCHED_FIFO: what an artist's Blender gets
+    live, _emus = emulated_session(scenario, collision=collision, servo=servo, **session_kwargs)
+    hog = subprocess.Popen([sys.executable, "-c", _HOG]) if cpu_hog else None
+    loops = 0
+    probe = None
+    try:
+        live.start()
+        if floor:
+            probe = subprocess.Popen([sys.executable, "-c", _FLOOR, str(duration_s)], stdout=subprocess.PIPE, text=True)
+        end = time.perf_counter() + duration_s
+        while time.perf_counter() < end and not live.ended:
+            if gil_loop:
+                x = 0
+                for i in range(20000):  # ~1 ms of bytecode between two checks of the clock
+                    x += i * i
+                loops += 1
+            else:
+                time.sleep(0.01)
+    finally:
+        live.stop()
+        if hog is not None:
+            hog.kill()
+            hog.wait()
+    out = live.stats()
+    if probe is not None:
+        try:
+            got, _ = probe.communicate(timeout=duration_s + 30.0)
+            out.update({f"floor_{k}": v for k, v in json.loads(got).items()})
+        except (subprocess.TimeoutExpired, ValueError):
+            probe.kill()
+            probe.wait()
+    if "max_ms" not in out and out.get("per_hand"):
+        out["max_ms"] = max(v["max_ms"] for v in out["per_hand"].values())
+    out.update(scenario=scenario, servo=servo, collision=bool(collision), gil_loop=bool(gil_loop), cpu_hog=bool(cpu_hog),
+               gil_loop_iterations=loops, duration_s=float(duration_s), error=None if live.error is None else repr(live.error))
     return out

@@ -18,7 +18,12 @@ What this file owns
 Threads (notes/haptics.md section 8)
 ------------------------------------
 bpy is only touched on the main thread, in ``HapticRun.tick`` (the modal operator's ~60 Hz
-TIMER branch, or ``run_for`` headless: the same function). The servo loop owns one thread per
+TIMER branch, or ``run_for`` headless: the same function). When every hand is an emulated Falcon
+the servo runs in a process of its own (``haptics.servo_process``: Blender's Python cannot hold a
+tick up, the servo zeroes the force by itself if Blender hangs or dies; ``devices`` are then
+``RemoteDevice``s and ``emulators`` ``RemoteEmulator``s). Falcons, SpaceMice and keyboard hands
+still use the in-process servo: a Falcon homes here, with the panel's LED feedback, and the
+keyboard hand is moved from this thread. The in-process servo loop owns one thread per
 device; the simulation runs on ``tearcloth-live-sim`` (the native step releases the GIL); the
 ``LiveRecorder`` (live_job.py) receives frames on the simulation thread and hands them over by a
 reference swap (display) and a queue (its cache writer thread, pure USD). Devices are opened on the
@@ -69,7 +74,9 @@ from ..haptics import discovery as devices
 from ..haptics.device import DeviceState, HapticError, Workspace
 from ..haptics.falcon import FALCON_MAX_FORCE, FalconDevice, read_firmware
 from ..haptics.live import FALCON_TO_SCENE, LiveSession, emulated_falcon
+from ..haptics.falcon_kinematics import WORKSPACE_CENTRE, WORKSPACE_RADIUS
 from ..haptics.servo import HandCoupling
+from ..haptics.servo_process import DeviceSpec
 from ..haptics.spacemouse import SpaceMouseDevice
 from ..haptics.virtual import VirtualDevice
 from . import jobs, modifier
@@ -330,6 +337,9 @@ class HapticRun:
                 rebase=rebase,
                 on_device_lost="stop",
             )
+            if self.live.servo_process is not None:  # what this process sees of the devices there
+                self.devices = {h: self.live.device(h) for h in hands}
+                self.emulators = {h: self.live.servo_process.emulator(h) for h in hands}
         except HapticError as exc:
             r.error(f"{obj.name}: {exc}")
         except BakeError:
@@ -361,6 +371,7 @@ class HapticRun:
         scale = plan.scale
         centroids = {h: plan.vertices[plan.groups[s.vertex_group] >= 0.5].mean(axis=0) for h, s in hands.items()}
         self._couplings = {}
+        in_process = not all(s.device == "EMULATED" for s in hands.values())
         for hand, s in hands.items():
             self.kinds[hand] = s.device
             rotation = FALCON_TO_SCENE if s.device in ("FALCON", "EMULATED") else None
@@ -392,19 +403,21 @@ class HapticRun:
                 dev = VirtualDevice(f"keyboard ({hand} hand)", workspace=KEYBOARD_WORKSPACE,
                                     max_force=float(s.max_force), hand=hand)
             else:
-                dev, emu = emulated_falcon(
-                    f"EMU-{hand.upper()}", hand, self._pull_direction(hand, centroids, plan),
-                    distance=float(settings.demo_pull), hold_s=float(settings.demo_hold),
-                    pull_s=float(settings.demo_pull_time),
-                    clock=(lambda: session.time) if settings.demo_pace == "SIMULATION" else None,
-                    max_force=min(float(s.max_force), FALCON_MAX_FORCE),
-                )
-                self.emulators[hand] = emu
+                args = dict(serial=f"EMU-{hand.upper()}", hand=hand,
+                            direction=tuple(float(v) for v in self._pull_direction(hand, centroids, plan)),
+                            distance=float(settings.demo_pull), hold_s=float(settings.demo_hold),
+                            pull_s=float(settings.demo_pull_time), max_force=min(float(s.max_force), FALCON_MAX_FORCE))
+                simulated = settings.demo_pace == "SIMULATION"
+                if in_process:
+                    dev, self.emulators[hand] = emulated_falcon(clock=(lambda: session.time) if simulated else None, **args)
+                else:  # built in the servo process; the simulated time reaches it through shared memory
+                    dev = DeviceSpec(".haptics.live:emulated_falcon", args, sim_clock_arg="clock" if simulated else None)
             self.devices[hand] = dev
             gains = dict(k_position=float(s.k_position), k_velocity=float(s.k_velocity),
                          force_scale=float(s.force_scale))
+            workspace = Workspace(WORKSPACE_CENTRE, WORKSPACE_RADIUS) if isinstance(dev, DeviceSpec) else dev.workspace
             if s.mapping == "FIT":
-                self._couplings[hand] = HandCoupling.fit(dev.workspace, centroids[hand], s.region_radius * scale,
+                self._couplings[hand] = HandCoupling.fit(workspace, centroids[hand], s.region_radius * scale,
                                                          rotation=rotation, **gains)
             else:
                 offset = tuple(float(v) * scale for v in s.offset)
@@ -434,6 +447,11 @@ class HapticRun:
         """Open the devices and start (or, while a Falcon homes, wait in ``tick``). BakeError,
         with every device closed again and the scene as it was, if it cannot."""
         jobs.add(self)
+        if self.live.servo_process is not None:
+            # the servo process opens its devices in live.open() (in _go), homed emulators READY at once
+            if not self._go(context):
+                self.reports.raise_if_errors()
+            return
         try:
             for hand in self.hands:
                 dev = self.devices[hand]

@@ -6,7 +6,9 @@ simulation itself (the session wires ``ServoLoop.publish``/``ServoLoop.proxy`` t
 - ``device``: ``HapticDevice`` interface, ``DeviceState``, the ``HapticError`` family;
 - ``falcon*``: Novint Falcon (packets, kinematics, FTDI transports, driver, byte-level emulator);
 - ``spacemouse``: 3Dconnexion HID pucks (input only); ``virtual``: scripted/keyboard device;
-- ``servo``: coupling, mailboxes, servo threads; ``forcelog``: CSV/PNG; ``live``: the bimanual
+- ``servo``: coupling, mailboxes, servo threads; ``servo_process``: the same servo in a process of
+  its own (devices built from ``DeviceSpec``s there, shared-memory exchange, the force zeroed by
+  the servo itself when the simulating process stalls or dies); ``forcelog``: CSV/PNG; ``live``: the bimanual
   session over devices (servo timing for the bench is ``tearcloth.bench.servo``, the test fakes
   are in the tests folder).
 
@@ -36,6 +38,7 @@ from .falcon_emulator import FalconEmulator
 from .falcon_transport import Transport, list_falcons, open_transport
 from .forcelog import ForceLog
 from .servo import HandCoupling, ProxySample, ServoLoop, SimulationMailbox
+from .servo_process import DeviceSpec, ServoProcess
 from .spacemouse import SpaceMouseDevice, list_spacemice
 from .virtual import VirtualDevice
 
@@ -70,6 +73,8 @@ __all__ = [
     "ProxySample",
     "ServoLoop",
     "SimulationMailbox",
+    "DeviceSpec",
+    "ServoProcess",
     "SpaceMouseDevice",
     "list_spacemice",
     "VirtualDevice",

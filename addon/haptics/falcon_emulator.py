@@ -30,6 +30,7 @@ from __future__ import annotations
 import collections
 import math
 import random
+import time
 from typing import Callable, Iterable, Optional, Sequence, Tuple
 
 import numpy as np
@@ -195,6 +196,10 @@ class FalconEmulator:
         self._x = x
         self._v = (0.0, 0.0, 0.0)
         self.efforts = (0, 0, 0)
+        # Wall-clock time (time.perf_counter, CLOCK_MONOTONIC: the same in every process) of the
+        # first zero-effort command after a non-zero one, None while a force is applied: how a
+        # test on another process reads when the motors really went quiet.
+        self.zero_since: Optional[float] = 0.0
         self.control = 0
         self.homed = 0b111 if homed else 0
         self._armed = [False, False, False]
@@ -342,6 +347,10 @@ class FalconEmulator:
     def _exchange(self, frame: bytes) -> None:
         cmd = decode_command(frame)
         self.efforts = cmd.efforts
+        if any(cmd.efforts):
+            self.zero_since = None
+        elif self.zero_since is None:
+            self.zero_since = time.perf_counter()
         self.control = cmd.control
         self.commands.append((self.time, cmd.efforts, cmd.control))
         self._step(self.dt)

@@ -62,9 +62,15 @@ Stop button: ``stop_buttons`` (a bit mask, default the Falcon's centre button; N
 ends the session when pressed on any hand - after it has been seen released once, so a button
 already held when the session starts does not end it at once.
 
-Threads: the servo owns one thread per device (``servo.ServoLoop``), run under SCHED_FIFO when
-the OS allows (``servo_priority``; on a loaded machine this is what keeps 1 kHz: a normal thread
-waits behind every runnable process for its slice). The simulation loop runs on one thread (the
+Where the servo runs. Hands given as ``DeviceSpec`` (``servo_process``) get a servo process of
+their own (``servo_process.ServoProcess``: the devices are built, opened and driven there, the
+exchange goes through shared memory, the servo zeroes the force by itself when this process
+stalls or dies); ``device(hand)`` is then a ``RemoteDevice`` and ``servo_process.emulator(hand)``
+reaches an emulated Falcon. This is the arrangement that holds 1 kHz while this process is busy
+with Python (Blender's UI) on a loaded machine, without privileges. Hands given as device objects
+keep the in-process servo (``servo.ServoLoop``, one thread per device, SCHED_FIFO when the OS
+allows: ``servo_priority``), for tests that drive devices directly and for devices only this
+process can reach. The simulation loop runs on one thread (the
 caller's or ``tearcloth-live-sim``); the recorder is called on the simulation thread with copies
 of the arrays, so the Blender layer must queue what it receives and touch bpy only from the main
 thread.
@@ -94,17 +100,16 @@ from .device import (
     DeviceNotFoundError,
     DeviceState,
     DeviceStateError,
-    FirmwareError,
     HapticDevice,
     HapticError,
-    NotHomedError,
     Workspace,
 )
 from .falcon import FALCON_MAX_FORCE, FalconDevice
 from .falcon_emulator import FalconEmulator, spring_hand
 from .falcon_kinematics import WORKSPACE_CENTRE, WORKSPACE_RADIUS
 from .forcelog import ForceLog
-from .servo import HandCoupling, ServoLoop
+from .servo import HandCoupling, ServoLoop, _lower_switch_interval, _restore_switch_interval
+from .servo_process import DeviceSpec, ServoProcess, open_ready
 
 __all__ = [
     "LiveSession",
@@ -262,10 +267,23 @@ class LiveSession:
 
         self._simulation_error = SimulationError
 
+        specs = {n: v[1] for n, v in hands.items() if isinstance(v, tuple) and len(v) == 3 and isinstance(v[1], DeviceSpec)}
+        self.servo_process: Optional[ServoProcess] = None
+        if specs:
+            if len(specs) != len(hands):
+                raise ConfigError("give every hand a DeviceSpec (servo process) or every hand a device (in-process servo), not a mix")
+            kw = self.servo_kwargs
+            self.servo_process = ServoProcess(specs, period_s=self.servo_period_s, stall_timeout_s=max(self.stall_timeout_s, 2.0 * self.servo_period_s),
+                                              spin_s=float((servo_kwargs or {}).get("spin_s", 0.0)), slice_s=kw.get("slice_s", 0.0001),
+                                              priority=kw.get("priority"), cpus=kw.get("cpus"),
+                                              switch_interval_s=kw.get("switch_interval_s", 0.0005))
+            hands = {n: (v[0], self.servo_process.device(n), v[2]) for n, v in hands.items()}
         self._hands: Dict[str, _Hand] = self._bind_handles(hands)
         self.force_log = ForceLog(list(self._hands))
+        if self.servo_process is not None:
+            self.servo_process.force_log = self.force_log
         self.tear_log = ForceLog(list(self._hands))
-        self.servo: Optional[ServoLoop] = None
+        self.servo = None  # ServoLoop or ServoProcess once open
 
         self.steps = 0
         self.held_steps = 0
@@ -281,6 +299,7 @@ class LiveSession:
         self.shutdown_errors: List[BaseException] = []
         self.lost_hands: List[str] = []
         self._opened = False
+        self._switch_lowered = False
         self._lock = threading.RLock()
         self._stop_event = threading.Event()
         self._thread: Optional[threading.Thread] = None
@@ -387,6 +406,10 @@ class LiveSession:
                 if self.ended:
                     raise DeviceStateError(f"this live session has ended ({self.end_reason}); create a new one")
                 return
+            if self.servo_process is not None:
+                self._open_process()
+                self._opened = True
+                return
             opened: List[HapticDevice] = []
             try:
                 for hs in self._hands.values():
@@ -420,42 +443,35 @@ class LiveSession:
             self._opened = True
 
     def _open_device(self, hs: _Hand) -> None:
-        dev = hs.device
+        open_ready(hs.device, hs.name, self.homing_timeout_s)
+
+    def _open_process(self) -> None:
+        """The servo-process arrangement of ``open``: the devices open (and home) there, bind on
+        the position they report, warm up, then the servo threads start in that process."""
+        proc = self.servo_process
+        # The servo no longer shares our GIL, but the simulation thread still does, with whatever
+        # pure Python runs here (Blender's UI): at the default 5 ms switch interval each GIL
+        # hand-back after a native step costs it up to 5 ms (measured: 8 steps/s instead of 33
+        # on the T-shirt beside a GIL-heavy loop). Restored when the session ends.
+        self._switch_lowered = _lower_switch_interval(0.0005)
         try:
-            state = dev.open()
-        except HapticError as exc:
-            # Same class (a FirmwareFileError stays one), with the hand named in front.
-            try:
-                named = type(exc)(f"hand {hs.name!r}: {exc}")
-            except Exception:
-                named = DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} could not be opened: {exc}")
-            raise named from exc
-        try:
-            if state is DeviceState.NEEDS_FIRMWARE:
-                raise FirmwareError(f"hand {hs.name!r}: {dev.message}")
-            if state is DeviceState.HOMING:
-                deadline = time.perf_counter() + self.homing_timeout_s
-                while dev.state is DeviceState.HOMING and time.perf_counter() < deadline:
-                    dev.poll()
-                    time.sleep(0.001)
-                if dev.state is DeviceState.HOMING:
-                    raise NotHomedError(
-                        f"hand {hs.name!r}: {dev.name} is not homed"
-                        + (f" after {self.homing_timeout_s:.1f} s" if self.homing_timeout_s > 0 else "")
-                        + f". {dev.message}"
-                    )
-            if dev.state is not DeviceState.READY:
-                raise DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} is not ready ({dev.state.value}): {dev.message}")
+            proc.open(self.homing_timeout_s)
+            for hs in self._hands.values():
+                self._bind_device(hs)
+            self.servo = proc
+            self._warm_up()
+            proc.start({n: hs.coupling for n, hs in self._hands.items()})
         except BaseException:
-            try:
-                dev.close()
-            except HapticError:
-                pass
+            proc.stop()
+            self.servo = None
+            if self._switch_lowered:
+                _restore_switch_interval()
+                self._switch_lowered = False
             raise
 
     def _bind_device(self, hs: _Hand) -> None:
         dev = hs.device
-        dev.poll()  # a fresh reading (still our thread: the servo has not started)
+        dev.poll()  # a fresh reading (still our thread: the servo has not started; a servo process polled already)
         if dev.state is not DeviceState.READY:
             raise DeviceNotFoundError(f"hand {hs.name!r}: {dev.name} stopped answering while binding: {dev.message}")
         c = hs.coupling
@@ -574,6 +590,8 @@ class LiveSession:
         except self._simulation_error:
             self._recover_step(held)
         now = clock()
+        if self.servo_process is not None:
+            self.servo_process.set_sim_time(self.session.time)
         if self.first_tear_clock is None and self.cloth.stats()["tears_started"]:
             self.first_tear_clock, self.first_tear_time, self.first_tear_step = now, float(self.session.time), self.steps
         self.step_clock.append(now)
@@ -717,6 +735,11 @@ class LiveSession:
                 self.servo.stop()  # zero force sent to every device, servo threads joined
             except HapticError as exc:
                 self.shutdown_errors.append(exc)
+        if self.servo_process is not None:
+            self.servo_process.stop()  # zero force, devices closed, the force log drained to the last tick
+            if self._switch_lowered:
+                _restore_switch_interval()
+                self._switch_lowered = False
         if self._opened or self.servo is not None:
             for hs in self._hands.values():
                 try:

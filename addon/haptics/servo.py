@@ -279,6 +279,10 @@ def _restore_switch_interval() -> None:
 _yield = getattr(os, "sched_yield", None) or (lambda: time.sleep(0))
 
 
+class LoopEnd(Exception):
+    """Raised by a tick to end its hand's loop without an error (the servo process's peer is gone)."""
+
+
 def _set_realtime(priority: Optional[int]) -> Optional[bool]:
     """Run the calling thread under SCHED_FIFO at ``priority`` (Linux: needs root, CAP_SYS_NICE
     or an RLIMIT_RTPRIO). On a loaded machine this is what keeps a 1 kHz tick on time: a normal
@@ -517,10 +521,17 @@ class ServoLoop:
         except HapticError:
             pass
 
-    def _run(self, h: _Hand) -> None:
+    def _thread_start(self, h: _Hand) -> float:
+        """Per-thread set-up at the start of a hand's loop; returns the first tick's time."""
         h.realtime = _set_realtime(self.priority)
+        return self.clock()
+
+    def _thread_end(self, h: _Hand) -> None:
+        """After the hand's loop has zeroed its device (hook for the servo process)."""
+
+    def _run(self, h: _Hand) -> None:
         clock, period = self.clock, self.period_s
-        next_t = clock()
+        next_t = self._thread_start(h)
         last_start = None
         try:
             while not self._stop.is_set():
@@ -536,10 +547,13 @@ class ServoLoop:
                 if now - next_t > period:
                     next_t = now  # fell behind (GC pause, suspended VM): resync, do not burst
                 self._wait_until(next_t)
+        except LoopEnd:
+            pass  # ended on purpose by the tick (force already zero)
         except BaseException as exc:  # keep the other hands running; report via stats()
             h.error = exc
         finally:
             self._zero(h)
+            self._thread_end(h)
 
     def _wait_until(self, deadline: float) -> None:
         clock, spin = self.clock, self.spin_s
