@@ -515,3 +515,26 @@ def test_one_registry_of_running_jobs_keeps_one_job_per_object(tmp_path):
     assert got["while_baking"] == [["Sheet"], True, []]
     assert "its bake is running" in got["live_while_baking"]
     assert got["after"] == [[], None]
+
+
+def test_a_field_the_file_never_set_comes_from_its_preset(tmp_path):
+    # a .blend saved before a material field existed (e.g. tear_radius) holds no value for it:
+    # the bake reads the object's preset, not the property default (cotton's)
+    got = run_blender(tmp_path, '''
+        import tearcloth
+        from tearcloth.blender import convert
+        from tearcloth.materials import MATERIALS
+        obj = build_scene(sys.argv[1], save=False)
+        s = obj.tearcloth
+        with bpy.context.temp_override(object=obj, active_object=obj):
+            bpy.ops.tearcloth.material_preset(preset="banknote")
+        s.property_unset("tear_radius")
+        s.property_unset("crack_speed_ratio")
+        s.young = 2.0e9  # what the user did set stays theirs
+        m = convert.material_from_settings(s, bpy.context.scene)
+        result(dict(radius=m.tear_radius, speed=m.crack_speed_ratio, young=m.young,
+                    banknote=[MATERIALS["banknote"].tear_radius, MATERIALS["banknote"].crack_speed_ratio],
+                    cotton=[MATERIALS["cotton"].tear_radius, MATERIALS["cotton"].crack_speed_ratio]))
+    ''', tmp_path)
+    assert [got["radius"], got["speed"]] == got["banknote"] != got["cotton"]
+    assert got["young"] == pytest.approx(2.0e9)

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .. import settings as table
-from ..materials import Material
+from ..materials import MATERIALS, Material
 from ..session import CollisionSettings
 from ..spaces import local_to_world_si  # the space formulas are bpy-free: the bake job needs them too
 
@@ -91,6 +91,14 @@ def material_from_settings(settings, scene) -> Material:
     """The object's Tear Cloth material settings as an SI ``Material`` (ValueError if absurd)."""
     values = {row.name: _from_blender(row, settings, scene) for row in table.rows("material")}
     values["name"] = values["name"] or "custom"
+    # A value the user never set (a field added after the file was saved, e.g. tear_radius in a
+    # .blend of an older version) is its preset's, not the property default (cotton's): a banknote
+    # saved before must not tear with cotton's radius.
+    preset = MATERIALS.get(values["name"])
+    if preset is not None:
+        for row in table.rows("material"):
+            if row.name != "name" and not settings.is_property_set(row.blender_name):
+                values[row.name] = getattr(preset, row.name)
     return Material(**values).validate()
 
 
