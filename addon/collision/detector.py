@@ -59,7 +59,7 @@ from .measure import (
     AbsoluteMeasure,
     RelativeMeasure,
 )
-from .narrow import RAY_BACKOFF, ClusterScenes, Contacts, ring_table
+from .narrow import RAY_BACKOFF, ClusterTrees, Contacts, ring_table
 
 __all__ = ["CollisionDetector", "Contacts"]
 
@@ -175,14 +175,14 @@ def twin_ring(ring, rest_id):
 class _Collider:
     """One collision target: a body (closed volume or open surface) or the cloth itself."""
 
-    def __init__(self, name, kind, vertices, triangles, cluster_size, tolerance, friction):
+    def __init__(self, name, kind, vertices, triangles, cluster_size, friction):
         self.name = name
         self.kind = kind  # 'volume' | 'surface' | 'self'
         self.friction = float(friction)
         self.vertices = np.ascontiguousarray(vertices, np.float64)
         self.measured = self.vertices.copy()  # positions at the last detect(): displacement origin
         self.velocities = np.zeros_like(self.vertices)
-        self.scenes = ClusterScenes(tolerance)
+        self.scenes = ClusterTrees()
         self.set_topology(triangles, cluster_size)
 
     def set_topology(self, triangles, cluster_size, clustering=None):
@@ -199,7 +199,7 @@ class _Collider:
                 rid = np.arange(n, dtype=np.int64)
             self.rest_id = rid
             self.ring = twin_ring(ring_table(self.triangles, n), rid)
-        self.scenes.set_topology(self.triangles, self.clustering, self.adj)
+        self.scenes.set_topology(self.triangles, self.clustering, self.adj, self.vertices)
         if self.kind == "self":
             # vertex -> incident triangles (CSR, ascending), for normals of a few clusters at a time
             corners = self.triangles.reshape(-1)
@@ -288,12 +288,6 @@ class CollisionDetector:
         # a standard deviation, not a maximum.
         reach = 2.0 if measure == "absolute" else 1.0
         self.track_range = self.thickness + 1.5 * reach * self.displacement_threshold
-        # Scenes are reused while a cluster deforms (non-rigidly) by less than this; the walker
-        # corrects the rest, so it only has to be small against the track range and the triangle
-        # size, and the scenes' margins (narrow.ClusterScenes) cover a border moved by it. At a
-        # quarter of the thickness a walking mannequin rebuilt a scene every step; at half, every
-        # other step.
-        self.scene_tolerance = 1.0 * min(self.thickness, self.displacement_threshold)
         self.bodies = {}
         self.cloth = None
         self._self = None
@@ -329,7 +323,7 @@ class CollisionDetector:
         elif signed_volume(v, t) < 0:
             t = t[:, [0, 2, 1]].copy()  # normals must point out of the body
         body = _Collider(
-            name, kind, v, t, self.cluster_size, self.scene_tolerance,
+            name, kind, v, t, self.cluster_size,
             self.friction if friction is None else friction,
         )
         self.bodies[name] = body
@@ -356,7 +350,7 @@ class CollisionDetector:
     def set_cloth(self, positions, triangles):
         """(Re)define the cloth: clusters it and forgets every history (a global redo)."""
         v, t = _check_mesh(positions, triangles, "cloth")
-        self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.scene_tolerance, self.friction)
+        self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.friction)
         self._cloth_prev = v.copy()
         self._first = True
         for name in list(self._tracks):
@@ -628,32 +622,11 @@ class CollisionDetector:
         if count == 0:
             return None, 0
         hit = np.empty(count, np.int64)
-        retry = np.empty(count, np.int64)
-        o, d, dist = buf.o, buf.d, buf.dist
-        oc, dc, distc = o[:count], d[:count], dist[:count]
+        hit_t = np.empty(count)
         rv = buf.vertex[:count]
-        seg = seg.tolist()
-        ptr = scenes.ptr
-        for g, b in enumerate(ub.tolist()):
-            s, e = seg[g], seg[g + 1]
-            if s == e:
-                continue
-            scene, stri = scenes.scene[b], scenes.tri[ptr[b]:ptr[b + 1]]
-            rays = np.arange(s, e, dtype=np.int64)
-            if not is_self:
-                prim = scene.run(o[s:e], d[s:e], dists=dist[s:e])
-                _collide.accept_hits(rays, prim, None, stri, rv, target.triangles, None, oc, dc, distc, hit, retry)
-                continue
-            # Self: skip the vertex's own two-ring by casting again from just past it (embreex has
-            # no hit filter). embreex writes tfar into the dists it is given: hand it a copy.
-            res = scene.run(o[s:e], d[s:e], dists=dist[s:e].copy(), output=1)
-            for _ in range(8):
-                again = _collide.accept_hits(rays, res["primID"], res["tfar"], stri, rv, target.triangles, ring, oc,
-                                             dc, distc, hit, retry)
-                if again == 0:
-                    break
-                rays = retry[:again].copy()
-                res = scene.run(o[rays], d[rays], dists=dist[rays], output=1)
+        # one C call: every ray into its collider cluster's refitted tree, the two-ring skipped
+        scenes.cast(target.vertices, target.triangles, ub, seg, buf.o[:count], buf.d[:count], buf.dist[:count], rv,
+                    ring, hit, hit_t)
         # Exact hits on the current geometry (the scenes may be up to the tolerance stale).
         ints = np.empty((3, count), np.int64)
         reals = np.empty((3, count))
