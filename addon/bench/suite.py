@@ -64,7 +64,10 @@ def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"),
     if "blender" in parts:
         out("... Blender's cloth against ours on the T-shirt (same mesh, body, sub-steps)")
         race = race_blender_cloth(frames=24, substeps=10)
-        results["blender_cloth"] = {k: race[k] for k in ("ours_s_per_frame", "blender_s_per_frame", "ratio")}
+        results["blender_cloth"] = {k: race[k] for k in ("ours_s_per_frame", "blender_s_per_frame", "ratio",
+                                                         "ours_penetration_max_m", "blender_penetration_max_m",
+                                                         "ours_vertices_inside", "blender_vertices_inside",
+                                                         "ours_cpu_s_per_frame", "blender_cpu_s_per_frame")}
         results["blender_cloth"]["detail"] = {k: v for k, v in race.items() if k not in results["blender_cloth"]}
         out(f"per frame: ours {race['ours_s_per_frame']:.3f} s, Blender {race['blender_s_per_frame']:.3f} s, "
             f"ratio {race['ratio']:.2f}" + (f" ({race['ours_error']})" if race.get("ours_error") else ""))

@@ -11,3 +11,11 @@ cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-san
    -DTC_NO_CLONES -Wall -Wextra -Wno-unused-parameter -I. \
    $core tests/test_core.c -lm -o "$out"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"
+# The collision kernels (native/collide/, all but their Python bindings) and their C tests: a
+# deforming cloth over a moving body, tree hits against an exhaustive test, a tear, bad indices.
+collide=$(ls collide/*.c | grep -v '^collide/pymodule\.c$')
+# shellcheck disable=SC2086
+cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all \
+   -Wall -Wextra -Wno-unused-parameter -I. -Icollide \
+   $collide tests/test_collide.c -lm -o "$out.collide"
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out.collide"
