@@ -132,9 +132,7 @@ def test_relative_measure_triggers_far_fewer_full_detections_when_moving_togethe
     rel = full_detections("relative", True)
     ab = full_detections("absolute", True)
     print(f"\nfull detections, moving together: relative {rel}, absolute {ab}")
-    # 4x before the trip rule became a bound (max deviation, predicted one step ahead: 1705 vs
-    # 7228 full detections); the bound makes both measures trip ~40 % more often (2468 vs 9813)
-    assert ab >= 3.5 * max(rel, 1), (ab, rel)
+    assert ab >= 4 * max(rel, 1), (ab, rel)
 
 
 def test_relative_and_absolute_similar_when_immobile():

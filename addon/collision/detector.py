@@ -64,22 +64,6 @@ from .narrow import RAY_BACKOFF, ClusterTrees, Contacts, ring_table
 __all__ = ["CollisionDetector", "Contacts"]
 
 _SLOT_SIGN = np.array([1.0, -1.0])
-# The tracking margin covers this many steps of the largest relative motion seen (_set_margin): a
-# pair is then fully detected at most about once in this many steps. 8: the tracks within the
-# longer range are walked every step, which costs far less than full detections (measured on the
-# simulated shirt at 10 sub-steps per frame, bench.collision.simulated_figures).
-MARGIN_STEPS = 8.0
-# The margin stays under this many thicknesses (and at least the threshold): hits are found along
-# the vertex normals only, so a body face that slides sideways over a vertex is seen at the next
-# full detection, not by the bound; the longer the margin, the later. Measured: the walking shirt
-# of tests/test_collision_session.py (4 mm thickness, 1 ms) sank 3.6 mm into the body with the
-# margin up to 2 thicknesses, stayed outside (+0.26 mm) at 1 and (+0.03 mm) at 0.5; on the random
-# deforming scenes of tests/test_collision_detect.py (sharp boxes, 10 mm) recall of deep vertices
-# was 0.9948 at 8 thicknesses, 0.9985 at 4, 0.9992 at 3, 0.9996 at 2 (the former fixed threshold:
-# 0.9995). When the cap binds it is flagged (stats['margin_capped']).
-MARGIN_THICKNESSES = 1.0
-BATCH_SHARE = 0.5  # of the steps a margin covers, how close to tripping a pair joins a batch
-MARGIN_PERCENTILE = 90.0  # of the close pairs' rates of a step, what the margin is sized for
 
 
 def _check_mesh(vertices, triangles, what):
@@ -298,10 +282,12 @@ class CollisionDetector:
         self.cluster_size = int(cluster_size)
         self.measure = measure
         self.self_collision = bool(self_collision)
-        self._reach = 2.0 if measure == "absolute" else 1.0
-        self._set_margin(self.displacement_threshold)
-        self._rate_max = 0.0
-        self._margin_grew = False
+        self.inflate = 0.5 * (self.displacement_threshold + self.thickness)
+        # Relative motion between two full detections of a pair stays under the threshold (twice
+        # it with the absolute measure, see measure.py); 1.5 because the measure is a mean plus
+        # a standard deviation, not a maximum.
+        reach = 2.0 if measure == "absolute" else 1.0
+        self.track_range = self.thickness + 1.5 * reach * self.displacement_threshold
         self.bodies = {}
         self.cloth = None
         self._self = None
@@ -318,56 +304,6 @@ class CollisionDetector:
         # this many steps join a step that runs full detection anyway.
         self.lookahead = 3.0
         self.stats = {}
-
-    def _set_margin(self, margin):
-        """The tracking margin (m): how far beyond the thickness a full detection records hits.
-
-        Relative measure (the trip rule): per step, |dis_avg(c1) - dis_avg(c2)| + spread(c1) +
-        spread(c2), spread the LARGEST deviation of a member's displacement from its cluster's
-        mean, bounds the relative motion of any vertex of c1 against any point of c2 (the paper's
-        standard deviation does not), and the pair accumulates it since its last full detection.
-        A vertex farther than ``track_range = thickness + margin`` at that detection (so not
-        tracked) cannot be within the thickness while the accumulated bound stays under the
-        margin; the pair goes to full detection in the step where the bound plus this step's rate
-        (the motion it can add before the next detection) would pass it. The margin follows the
-        step: it grows, by doublings from ``displacement_threshold``, to MARGIN_STEPS times the
-        largest pair rate seen, so that at any sub-step a pair is fully detected about every
-        MARGIN_STEPS steps or less often, not every step (at 10 sub-steps per 24 fps frame the
-        shirt's pairs moved 1.25-1.5 mm a step against the 1.5 mm threshold and tripped in 238 of
-        240 steps). It never shrinks (tracks recorded within a larger range would be dropped), and
-        when it grows every close pair is fully detected once, so that every pair's tracks cover it.
-        The absolute measure (the paper's comparison) follows the same rule per cluster, its own
-        motion bound |dis_avg| + spread against the margin, with twice the margin in range (two
-        clusters each under it may have moved twice it relative to each other; measure.py)."""
-        self.margin = float(margin)
-        self.inflate = 0.5 * (self._reach * self.margin + self.thickness)
-        self.track_range = self.thickness + self._reach * self.margin
-
-    def _grow_margin(self):
-        """After a step: the margin the next steps need (module docs of ``_set_margin``)."""
-        if self.measure == "full" or not self._rate_max > 0:
-            return
-        cap = self.margin_cap
-        want = min(MARGIN_STEPS * self._rate_max, cap)
-        if want <= self.margin:
-            return
-        m = self.margin
-        while m < want:
-            m *= 2.0
-        self._set_margin(min(m, cap))
-        self._margin_grew = True
-
-    def _batch_steps(self):
-        """Batching (measure.py) takes the pairs within a quarter of the margin's steps of
-        tripping, at most ``lookahead``: when the margin covers ~4 steps, a fixed 3 steps of
-        batching sent nearly every pair to every full detection."""
-        if self._rate_max > 0:
-            return min(self.lookahead, BATCH_SHARE * self.margin / self._rate_max)
-        return self.lookahead
-
-    @property
-    def margin_cap(self):
-        return max(self.displacement_threshold, MARGIN_THICKNESSES * self.thickness)
 
     # ------------------------------------------------------------------ scene setup
     def add_body(self, vertices, triangles, name, friction=None):
@@ -517,15 +453,12 @@ class CollisionDetector:
         normals, has_normal = lazy.normals, lazy.has_normal
 
         # 1. measure ---------------------------------------------------------------
-        avg_c, dev_c, spr_c = kernels.cluster_motion(cloth.clustering, pos, self._cloth_prev, spread=True)
+        avg_c, dev_c = kernels.cluster_motion(cloth.clustering, pos, self._cloth_prev)
         lo_c, hi_c = kernels.cluster_boxes(cloth.clustering, pos, self.inflate)
         due_c = None
-        rates = []
         if self.measure == "absolute":
-            absm = self._abs.setdefault("__cloth__", AbsoluteMeasure(self.displacement_threshold, self.lookahead))
-            absm.threshold, absm.lookahead = self.margin, self._batch_steps()
-            due_c = absm.accumulate(avg_c, spr_c, predict=True)
-            rates.append(absm.rate)
+            due_c = self._abs.setdefault(
+                "__cloth__", AbsoluteMeasure(self.displacement_threshold, self.lookahead)).accumulate(avg_c, dev_c)
             forget = getattr(self, "_abs_cloth_forget", None)
             if forget is not None and len(forget):
                 due_c[forget[forget < due_c.size]] = True
@@ -536,15 +469,14 @@ class CollisionDetector:
             if name == "__self__":
                 lo_b, hi_b = lo_c, hi_c
                 i, j = kernels.box_pairs(lo_c, hi_c, lo_c, hi_c, self_pairs=True)
-                avg_b, dev_b, spr_b = avg_c, dev_c, spr_c
+                avg_b, dev_b = avg_c, dev_c
             else:
-                avg_b, dev_b, spr_b = kernels.cluster_motion(target.clustering, target.vertices, target.measured,
-                                                             spread=True)
+                avg_b, dev_b = kernels.cluster_motion(target.clustering, target.vertices, target.measured)
                 lo_b, hi_b = kernels.cluster_boxes(target.clustering, target.vertices, self.inflate)
                 i, j = kernels.box_pairs(lo_c, hi_c, lo_b, hi_b)
             force = None
             forced = self._forced.get(name)
-            first = self._first or name in self._new_targets or self._margin_grew
+            first = self._first or name in self._new_targets
             if first:
                 force = np.ones(i.size, bool)
             elif forced is not None and len(forced):
@@ -554,20 +486,9 @@ class CollisionDetector:
             self._forced[name] = None
             self._new_targets.discard(name)
             if self.measure == "relative":
-                rel = self._rel[name]
-                rel.threshold = self.margin
-                rel.lookahead = self._batch_steps()
-                full = rel.step(i, j, avg_c, spr_c, avg_b, spr_b, force, predict=True)
-                if rel.rate.size:
-                    rates.append(rel.rate)
+                full = self._rel[name].step(i, j, avg_c, dev_c, avg_b, dev_b, force)
             elif self.measure == "absolute":
-                if name == "__self__":
-                    due_b = due_c
-                else:
-                    absm = self._abs[name]
-                    absm.threshold, absm.lookahead = self.margin, self._batch_steps()
-                    due_b = absm.accumulate(avg_b, spr_b, predict=True)
-                    rates.append(absm.rate)
+                due_b = due_c if name == "__self__" else self._abs[name].accumulate(avg_b, dev_b)
                 full = due_c[i] | due_b[j]
                 if force is not None:
                     full |= force
@@ -577,11 +498,6 @@ class CollisionDetector:
             plan.lo, plan.hi, plan.first = lo_b, hi_b, first
             plans.append(plan)
             n_close += i.size
-        self._margin_grew = False
-        if rates:
-            # the margin is sized for the typical fast pair, not the fastest: a pair that moves
-            # faster still trips in time (the rule is per pair), only more often
-            self._rate_max = max(self._rate_max, float(np.percentile(np.concatenate(rates), MARGIN_PERCENTILE)))
         t_measure = time.perf_counter()
 
         # 2. incremental: walk every tracked ray ------------------------------------
@@ -640,7 +556,6 @@ class CollisionDetector:
         for body in self.bodies.values():
             body.measured = body.vertices  # update_body replaces, never mutates, the array
         self._first = False
-        self._grow_margin()
         builds = sum(t.scenes.builds for _, t in self._targets())
         self.stats = {
             "close_pairs": n_close,
@@ -651,8 +566,6 @@ class CollisionDetector:
             "full_rays": n_rays,
             "contacts": len(contacts),
             "scene_builds_total": builds,
-            "margin_m": self.margin,
-            "margin_capped": bool(MARGIN_STEPS * self._rate_max > self.margin_cap),
             "ms": {
                 "measure": 1e3 * (t_measure - t_start),
                 "incremental": 1e3 * (t_incr - t_measure),

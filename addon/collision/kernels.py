@@ -48,17 +48,14 @@ def vertex_normals(positions, triangles):
     return out, has
 
 
-def cluster_motion(clustering, positions, previous, spread=False):
-    """dis_avg (K, 3) and dis_dev (K,) of the displacement positions - previous per cluster; with
-    ``spread`` also the largest |displacement - dis_avg| per cluster (K,), a bound, not a spread
-    measure: |dis_avg| + spread bounds every member's displacement."""
+def cluster_motion(clustering, positions, previous):
+    """dis_avg (K, 3) and dis_dev (K,) of the displacement positions - previous per cluster."""
     k = clustering.n_clusters
     avg = np.empty((k, 3))
     dev = np.empty(k)
-    most = np.empty(k) if spread else None
     _collide.cluster_motion(positions=positions, previous=previous, order=clustering.order, ptr=clustering.ptr,
-                            avg=avg, dev=dev, spread=most)
-    return (avg, dev, most) if spread else (avg, dev)
+                            avg=avg, dev=dev)
+    return avg, dev
 
 
 def cluster_boxes(clustering, positions, inflate):

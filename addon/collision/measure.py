@@ -113,15 +113,12 @@ class RelativeMeasure:
         self.rel_avg = np.zeros((0, 3))
         self.rel_dev = np.zeros(0)
 
-    def step(self, i, j, avg_a, dev_a, avg_b, dev_b, force=None, predict=False):
+    def step(self, i, j, avg_a, dev_a, avg_b, dev_b, force=None):
         """Update with this step's close pairs (i in object a, j in object b); returns a bool
         mask of the pairs that need full detection now (their measure is then reset).
 
         One C pass (``_collide.relative_measure``) merges the stored, sorted pair keys with this
-        step's pairs; ``step_reference`` is the numpy specification. With ``predict`` a pair also
-        goes to full detection when its amplitude plus this step's rate (the motion the next step
-        can add, ``self.rate``) passes the threshold: the trip happens before, not after, the
-        pair can have moved past it (the detector's trip rule, ``CollisionDetector._set_margin``)."""
+        step's pairs; ``step_reference`` is the numpy specification."""
         i = np.ascontiguousarray(i, np.int64)
         j = np.ascontiguousarray(j, np.int64)
         p = i.shape[0]
@@ -137,15 +134,6 @@ class RelativeMeasure:
             None if force is None else np.ascontiguousarray(force, bool), self.threshold,
             keys, rel_avg, rel_dev, amplitude, full, self.lookahead,
         )
-        self.rate = (np.sqrt(np.einsum("ij,ij->i", avg_a[i] - avg_b[j], avg_a[i] - avg_b[j])) + dev_a[i] + dev_b[j]
-                     if predict else np.zeros(p))
-        if predict:
-            extra = ~full & (amplitude + self.rate > self.threshold)
-            if extra.any():
-                at = np.searchsorted(keys, pair_keys(i[extra], j[extra]))
-                rel_avg[at] = 0.0
-                rel_dev[at] = 0.0
-                full |= extra
         self.keys, self.rel_avg, self.rel_dev = keys, rel_avg, rel_dev
         self.amplitude = amplitude
         return full
@@ -201,10 +189,9 @@ class AbsoluteMeasure:
         self.acc_avg = np.zeros((0, 3))
         self.acc_dev = np.zeros(0)
 
-    def accumulate(self, avg, dev, predict=False):
+    def accumulate(self, avg, dev):
         """Add this step's motion; returns the bool mask (K,) of clusters due for full detection
-        (amplitude over the threshold; with ``predict`` amplitude plus this step's rate, ``self.rate``,
-        as ``RelativeMeasure.step``); their accumulators reset."""
+        (amplitude over the threshold); their accumulators reset."""
         k = avg.shape[0]
         if self.acc_avg.shape[0] != k:
             grown_avg = np.zeros((k, 3))
@@ -216,10 +203,10 @@ class AbsoluteMeasure:
         self.acc_avg += avg
         self.acc_dev += dev
         amplitude = np.sqrt(np.einsum("ij,ij->i", self.acc_avg, self.acc_avg)) + self.acc_dev
-        self.rate = np.sqrt(np.einsum("ij,ij->i", avg, avg)) + dev
-        due = amplitude + (self.rate if predict else 0.0) > self.threshold
+        due = amplitude > self.threshold
         if self.lookahead > 0 and due.any():
-            due |= amplitude + self.lookahead * self.rate > self.threshold
+            rate = np.sqrt(np.einsum("ij,ij->i", avg, avg)) + dev
+            due |= amplitude + self.lookahead * rate > self.threshold
         self.acc_avg[due] = 0.0
         self.acc_dev[due] = 0.0
         return due

@@ -81,7 +81,7 @@ int tcc_rigid_fit(const tcc_mesh *m, const double *ref, const tcc_idx *tris, tcc
 /* Per cluster c (members order[ptr[c]..ptr[c+1])): mean displacement x - prev (avg, (k,3)) and
  * its standard deviation (dev, (k,)): sqrt(mean |d|^2 - |avg|^2). */
 int tcc_cluster_motion(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
-                       const tcc_idx *ptr, tcc_idx k, double *avg, double *dev, double *spread, tcc_error *err);
+                       const tcc_idx *ptr, tcc_idx k, double *avg, double *dev, tcc_error *err);
 
 /* Per cluster: AABB of the positions index[ptr[c]..ptr[c+1]) grown by inflate (empty: lo = +inf,
  * hi = -inf, which overlaps nothing). */

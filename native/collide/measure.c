@@ -12,7 +12,7 @@
 #include <stdlib.h>
 
 int tcc_cluster_motion(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
-                       const tcc_idx *ptr, tcc_idx k, double *avg, double *dev, double *spread, tcc_error *err)
+                       const tcc_idx *ptr, tcc_idx k, double *avg, double *dev, tcc_error *err)
 {
     for (tcc_idx c = 0; c < k; c++) {
         tcc_idx s = ptr[c], e = ptr[c + 1];
@@ -38,19 +38,6 @@ int tcc_cluster_motion(const double *x, const double *prev, tcc_idx n, const tcc
         avg[3 * c + 2] = a2;
         double var = sum[3] / cnt - (a0 * a0 + a1 * a1 + a2 * a2);
         dev[c] = sqrt(var > 0.0 ? var : 0.0);
-        if (spread) {
-            /* the largest distance of a member's displacement from the mean: with it, |avg| + spread
-             * bounds every member's motion (the standard deviation only describes it) */
-            double most = 0.0;
-            for (tcc_idx i = s; i < e; i++) {
-                tcc_idx v = order[i];
-                double d0 = x[3 * v] - prev[3 * v] - a0, d1 = x[3 * v + 1] - prev[3 * v + 1] - a1,
-                       d2 = x[3 * v + 2] - prev[3 * v + 2] - a2;
-                double q = d0 * d0 + d1 * d1 + d2 * d2;
-                most = q > most ? q : most;
-            }
-            spread[c] = sqrt(most);
-        }
     }
     return TCC_OK;
 }

@@ -175,9 +175,8 @@ static const pyarg_spec CLUSTER_MOTION[] = {
     ARR("ptr", PA_I64, 0, 1, 0, 0),
     ARR("avg", PA_F64, OUT, 2, 3, 0),
     ARR("dev", PA_F64, OUT, 1, 0, 0),
-    ARR("spread", PA_F64, OUT | OPT, 1, 0, 0),
 };
-enum { CM_X, CM_PREV, CM_ORDER, CM_PTR, CM_AVG, CM_DEV, CM_SPREAD, CM_N };
+enum { CM_X, CM_PREV, CM_ORDER, CM_PTR, CM_AVG, CM_DEV, CM_N };
 
 static PyObject *py_cluster_motion(PyObject *self, PyObject *args, PyObject *kw)
 {
@@ -188,12 +187,11 @@ static PyObject *py_cluster_motion(PyObject *self, PyObject *args, PyObject *kw)
     Py_ssize_t k = ROWS(CM_PTR) - 1;
     CHECK_ROWS(CM_AVG, k);
     CHECK_ROWS(CM_DEV, k);
-    CHECK_ROWS(CM_SPREAD, k);
     if (pyarg_no_overlap(&s)) goto fail;
     tcc_error err = {0};
     int rc;
     RUN(tcc_cluster_motion(D(CM_X), D(CM_PREV), n, D(CM_ORDER), ROWS(CM_ORDER), D(CM_PTR), k, D(CM_AVG), D(CM_DEV),
-                           D(CM_SPREAD), &err));
+                           &err));
     pyarg_release(&s);
     if (rc) return kernel_error(&err);
     Py_RETURN_NONE;
@@ -961,8 +959,7 @@ static PyMethodDef methods[] = {
            "cluster_normals(positions, triangles, vt_ptr, vt_tri, order, ptr, clusters, normals, has_normal, "
            "done=None): vertex normals of the listed clusters' vertices only (skipping and marking done clusters)."),
     KERNEL(cluster_motion,
-           "cluster_motion(positions, previous, order, ptr, avg, dev, spread=None): mean, standard deviation and "
-           "largest deviation of the displacement per cluster."),
+           "cluster_motion(positions, previous, order, ptr, avg, dev): mean and deviation of the displacement."),
     KERNEL(cluster_boxes, "cluster_boxes(positions, index, ptr, inflate, lo, hi): inflated AABB per cluster."),
     KERNEL(box_pairs,
            "box_pairs(lo_a, hi_a, lo_b, hi_b, self_pairs, i, j) -> count (> len(i): call again, larger)."),
