@@ -71,12 +71,13 @@ def test_a_corrupted_tree_is_refused():
     adj, _ = triangle_adjacency(T)
     trees = ClusterTrees()
     trees.set_topology(T, cl, adj, V)
+    trees.fit(np.array([0]), V, T, step=1)
     trees.first[0] = 0  # the root's right child pointing at itself would loop for ever
     with pytest.raises(IndexError, match="right child"):
-        trees.fit(np.array([0]), V, T, step=1)
+        trees.fit(np.array([0]), V, T, step=2)
     with pytest.raises(IndexError, match="not a node"):
-        o = np.zeros((1, 3), np.float32)
-        d = np.array([[0, 1, 0]], np.float32)
+        o = (V[T[trees.triangles(0)]].mean(axis=(0, 1)) - [0, 0.01, 0]).astype(np.float32)[None]
+        d = np.array([[0, 1, 0]], np.float32)  # through the root's box: the square lies in y = 0
         trees.cast(V, T, np.array([0]), np.array([0, 1]), o, d, np.ones(1, np.float32), np.zeros(1, np.int64), None,
                    np.empty(1, np.int64), np.empty(1))
     with pytest.raises(IndexError):

@@ -239,6 +239,7 @@ int tcc_bvh_cast(const tcc_mesh *m, const tcc_idx *ptr, tcc_idx k, const tcc_idx
 {
     int filter = ring && ring->table;
     tcc_idx stack[128];
+    double entry[128];
     for (tcc_idx g = 0; g < q; g++) {
         tcc_idx c = ub[g];
         if (c < 0 || c >= k)
@@ -264,19 +265,48 @@ int tcc_bvh_cast(const tcc_mesh *m, const tcc_idx *ptr, tcc_idx k, const tcc_idx
             if (filter && (v < 0 || v >= ring->rows))
                 return tcc_fail(err, TCC_ERR_INDEX, "ray %lld: vertex %lld has no exclusion row (of %lld)",
                                 (long long)r, (long long)v, (long long)ring->rows);
+            /* nearer child first, each with its entry distance: a subtree that starts beyond the
+             * nearest hit so far is skipped when it comes off the stack */
             int top = 0;
-            stack[top++] = 0;
+            double t_root = ray_box(oo, inv, best, L, H);
+            if (ct[0] < 0)
+                return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld: its tree has no root", (long long)c);
+            if (t_root != INFINITY) {
+                stack[top] = 0;
+                entry[top++] = t_root;
+            }
             while (top > 0) {
-                tcc_idx node = stack[--top];
-                if (ct[node] < 0 || (ct[node] == 0 && (fi[node] <= node + 1 || fi[node] > 2 * n - 2)) ||
+                top--;
+                tcc_idx node = stack[top];
+                if (entry[top] > best) continue;
+                if ((ct[node] == 0 && (fi[node] <= node + 1 || fi[node] > 2 * n - 2)) ||
                     (ct[node] > 0 && (fi[node] < 0 || fi[node] + ct[node] > n)))
                     return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld: node %lld is not a node of its tree",
                                     (long long)c, (long long)node);
-                if (ray_box(oo, inv, best, L + 3 * node, H + 3 * node) == INFINITY) continue;
                 if (ct[node] == 0) {
                     if (top + 2 > 128) return tcc_fail(err, TCC_ERR_VALUE, "cluster %lld: tree deeper than 128", (long long)c);
-                    stack[top++] = fi[node];
-                    stack[top++] = node + 1;
+                    tcc_idx a = node + 1, b = fi[node];
+                    if (ct[a] < 0 || ct[b] < 0)
+                        return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld: node %lld is not a node of its tree",
+                                        (long long)c, (long long)node);
+                    double ta = ray_box(oo, inv, best, L + 3 * a, H + 3 * a);
+                    double tb = ray_box(oo, inv, best, L + 3 * b, H + 3 * b);
+                    if (ta > tb) {
+                        double t = ta;
+                        ta = tb;
+                        tb = t;
+                        tcc_idx x = a;
+                        a = b;
+                        b = x;
+                    }
+                    if (tb != INFINITY) {
+                        stack[top] = b;
+                        entry[top++] = tb;
+                    }
+                    if (ta != INFINITY) {
+                        stack[top] = a;
+                        entry[top++] = ta;
+                    }
                     continue;
                 }
                 for (tcc_idx i = fi[node]; i < fi[node] + ct[node]; i++) {
