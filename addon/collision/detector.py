@@ -12,8 +12,10 @@ in C (``kernels.py`` -> ``tearcloth._collide``), so a step is a few dozen calls 
               detection in this same step (not the next one: the step's contact set would
               otherwise miss that vertex once).
 3. full     – for the marked pairs, grouped by collider cluster: the rays of every cloth cluster
-              paired with that collider cluster, culled against its box, go in one Embree call
-              into its cached scene (``narrow.py``), and are refined exactly on the current
+              paired with that collider cluster, culled against its box, are cast in one C call
+              into its tree, refitted to the current vertices (``narrow.ClusterTrees``,
+              ``native/collide/bvh.c``: no Embree scene to rebuild when a cluster deforms), and
+              are refined exactly on the current
               geometry.
 4. contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
               contact per vertex is returned (``all_contacts``: one per vertex per collider).
@@ -27,7 +29,7 @@ vertex that was not tracked cannot reach the contact distance (the 1.5 covers th
 being a mean + standard deviation, not a maximum).
 
 Ray length: for the same reason a full detection's rays need only reach ``track_range`` (plus
-the scene tolerance), and that is all they do for thin surfaces and the cloth itself. A closed
+the trees are exact), and that is all they do for thin surfaces and the cloth itself. A closed
 body's rays reach across it: a body face that sweeps sideways over a vertex (parallel to its
 normal rays) puts it inside with its exits along the normal far away, and only a long ray finds
 them. What keeps that affordable: rays are culled against the collider cluster's box (a few dozen
@@ -299,7 +301,7 @@ class CollisionDetector:
         self._first = True
         self._new_targets = set()
         self._abs_cloth_forget = None
-        self._rays = kernels.RayBuffer()  # float32 ray arrays for Embree, reused across steps
+        self._rays = kernels.RayBuffer()  # float32 ray arrays, reused across steps
         # Batching of full detections (measure.py): the pairs that would pass the threshold within
         # this many steps join a step that runs full detection anyway.
         self.lookahead = 3.0
@@ -406,14 +408,9 @@ class CollisionDetector:
             rid[new_v[dup]] = rid[parents[dup, 0]]
         cloth.rest_id = rid
         dirty = cloth.clustering.update(events, pos, tri)
-        # adjacency, two-ring table, vertex -> triangles; scenes of untouched clusters survive (their
-        # triangles keep their ids and corners)
+        # adjacency, two-ring table, vertex -> triangles, and every cluster's tree rebuilt (C, ~1 ms
+        # for the T-shirt: trees are refitted every step, so nothing of the old ones is worth keeping)
         cloth.set_topology(tri, self.cluster_size, clustering=cloth.clustering)
-        touched = np.concatenate([
-            np.asarray(events.get("changed_triangles", np.zeros(0)), np.int64).reshape(-1),
-            np.asarray(events.get("new_triangles", np.zeros(0)), np.int64).reshape(-1),
-        ])
-        cloth.scenes.invalidate(dirty, touched)
         self._cloth_prev = prev
         for name, tracks in self._tracks.items():
             tracks.resize(pos.shape[0], new_v, parents)
@@ -577,7 +574,7 @@ class CollisionDetector:
         return contacts
 
     def _full_detection(self, plan, fi, fj, pos, normals, has_normal, step):
-        """Embree candidates for cloth clusters fi against collider clusters fj, refined exactly.
+        """Tree candidates for cloth clusters fi against collider clusters fj, refined exactly.
         Returns ((vertex, slot, Hits, status) of the hits found, or None; rays cast)."""
         name, target = plan.name, plan.target
         cloth = self.cloth
@@ -599,7 +596,7 @@ class CollisionDetector:
             if not np.isfinite(extent):
                 extent = self.cluster_extent(target)
             short = long_ = self.track_range + 2.0 * self.inflate + extent
-        # One group per collider cluster, each cluster's scene fitted (or rebuilt) once.
+        # One group per collider cluster, each cluster's tree refitted once a step.
         order = np.argsort(fj, kind="stable")
         fi, fj = fi[order], fj[order]
         ub = np.unique(fj)
@@ -608,7 +605,7 @@ class CollisionDetector:
         args = (pos, normals, has_normal, None, cloth.clustering, plan.lo, plan.hi)
         dist_args = (short, long_, RAY_BACKOFF, scenes.tolerance)
         # Which collider clusters get any ray at all (the culling runs twice; it is cheap): only
-        # their scenes are fitted, or built.
+        # their trees are refitted.
         seg = buf.count(*args, fi, fj, ub, scenes, *dist_args)
         need = ub[seg[1:] > seg[:-1]]
         if need.size == 0:

@@ -22,7 +22,9 @@ triangle normal points to):
   when the vertex crossed the triangle during the last step, else from the current side.
   Self-collision never accepts a triangle of the vertex's own one-ring.
 
-Scenes: the embreex cost model (measured, shared/notes/collision.md and ``bench.py``): building a
+Acceleration: the detector casts through ``ClusterTrees`` (one refitted BVH per cluster, in C;
+why, in its docs). ``ClusterScenes`` below is the Embree alternative it replaced, kept with its
+tests as the measured reference for that choice. Scenes: the embreex cost model (measured, shared/notes/collision.md and ``bench.py``): building a
 scene copies ~1.4 µs per triangle plus the BVH build on first query (a 200-triangle cluster scene
 costs 0.3-0.8 ms to build and query once), while casting 200 rays into it costs 17-60 µs and a
 call's overhead is ~5-10 µs. A whole 8K-triangle body rebuilt every step would be ~14 ms. So scenes
@@ -440,10 +442,6 @@ class ClusterTrees:
 
     def triangles(self, c):
         return self.tri[self.ptr[c]:self.ptr[c + 1]]
-
-    def invalidate(self, clusters=None, triangles=None):
-        """Nothing to drop: ``set_topology`` rebuilt the trees of the new topology and refits
-        make them exact every step (kept for the ClusterScenes interface)."""
 
     def fit(self, clusters, positions, triangles, step):
         """Refit (C) the trees of ``clusters`` not yet refitted this step; returns the bool mask of
