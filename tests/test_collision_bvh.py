@@ -26,14 +26,20 @@ def _exhaustive(V, T, tris, o, d, dist, exclude_rows=None):
     return best, best_t
 
 
-@pytest.mark.parametrize("self_rays", [False, True])
-def test_tree_hits_equal_exhaustive_test_after_deformation(self_rays):
+def _square_trees():
+    """The example square cloth, its clusters and their trees, built on the rest pose."""
     m = examples.square_cloth()
     V, T = m.vertices.astype(np.float64), m.triangles.astype(np.int64)
     cl = Clustering(V, T, 60)
     adj, _ = triangle_adjacency(T)
     trees = ClusterTrees()
     trees.set_topology(T, cl, adj, V)
+    return V, T, cl, trees
+
+
+@pytest.mark.parametrize("self_rays", [False, True])
+def test_tree_hits_equal_exhaustive_test_after_deformation(self_rays):
+    V, T, cl, trees = _square_trees()
     rng = np.random.default_rng(3)
     # deform after the build: only refits follow (the trees were split on the rest pose)
     W = V + 0.02 * np.sin(7.0 * V[:, [2, 0, 1]]) + 0.003 * rng.normal(size=V.shape)
@@ -65,12 +71,7 @@ def test_tree_hits_equal_exhaustive_test_after_deformation(self_rays):
 
 
 def test_a_corrupted_tree_is_refused():
-    m = examples.square_cloth()
-    V, T = m.vertices.astype(np.float64), m.triangles.astype(np.int64)
-    cl = Clustering(V, T, 60)
-    adj, _ = triangle_adjacency(T)
-    trees = ClusterTrees()
-    trees.set_topology(T, cl, adj, V)
+    V, T, cl, trees = _square_trees()
     trees.fit(np.array([0]), V, T, step=1)
     trees.first[0] = 0  # the root's right child pointing at itself would loop for ever
     with pytest.raises(IndexError, match="right child"):
