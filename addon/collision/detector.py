@@ -12,11 +12,8 @@ in C (``kernels.py`` -> ``tearcloth._collide``), so a step is a few dozen calls 
               detection in this same step (not the next one: the step's contact set would
               otherwise miss that vertex once).
 3. full     – for the marked pairs, grouped by collider cluster: the rays of every cloth cluster
-              paired with that collider cluster, culled against its box, are cast - for the
-              cloth itself in one C call into its clusters' trees, refitted to the current
-              vertices (``narrow.ClusterTrees``, ``native/collide/bvh.c``: no Embree scene to
-              rebuild when a cluster deforms); for a body in one Embree call into the cluster's
-              cached scene (``narrow.ClusterScenes``) - and are refined exactly on the current
+              paired with that collider cluster, culled against its box, go in one Embree call
+              into its cached scene (``narrow.py``), and are refined exactly on the current
               geometry.
 4. contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
               contact per vertex is returned (``all_contacts``: one per vertex per collider).
@@ -62,7 +59,7 @@ from .measure import (
     AbsoluteMeasure,
     RelativeMeasure,
 )
-from .narrow import RAY_BACKOFF, ClusterScenes, ClusterTrees, Contacts, ring_table
+from .narrow import RAY_BACKOFF, ClusterScenes, Contacts, ring_table
 
 __all__ = ["CollisionDetector", "Contacts"]
 
@@ -185,13 +182,7 @@ class _Collider:
         self.vertices = np.ascontiguousarray(vertices, np.float64)
         self.measured = self.vertices.copy()  # positions at the last detect(): displacement origin
         self.velocities = np.zeros_like(self.vertices)
-        # The cloth deforms every step: refitted trees (narrow.ClusterTrees). A body's clusters
-        # mostly move rigidly (a skinned limb): Embree scenes kept in the cluster's frame and rebuilt
-        # only when the cluster deformed by more than ``tolerance`` (narrow.ClusterScenes), whose
-        # traversal is ~10x faster per ray than the trees' on the long rays a closed body needs.
-        # Measured on the simulated shirt at 1 ms (bench.collision.simulated_figures, replayed):
-        # trees for the body too made full detection 8 -> 31 ms immobile.
-        self.scenes = ClusterTrees() if kind == "self" else ClusterScenes(tolerance)
+        self.scenes = ClusterScenes(tolerance)
         self.set_topology(triangles, cluster_size)
 
     def set_topology(self, triangles, cluster_size, clustering=None):
@@ -208,7 +199,7 @@ class _Collider:
                 rid = np.arange(n, dtype=np.int64)
             self.rest_id = rid
             self.ring = twin_ring(ring_table(self.triangles, n), rid)
-        self.scenes.set_topology(self.triangles, self.clustering, self.adj, self.vertices)
+        self.scenes.set_topology(self.triangles, self.clustering, self.adj)
         if self.kind == "self":
             # vertex -> incident triangles (CSR, ascending), for normals of a few clusters at a time
             corners = self.triangles.reshape(-1)
@@ -297,11 +288,11 @@ class CollisionDetector:
         # a standard deviation, not a maximum.
         reach = 2.0 if measure == "absolute" else 1.0
         self.track_range = self.thickness + 1.5 * reach * self.displacement_threshold
-        # A body's Embree scenes are reused while its cluster deforms (non-rigidly) by less than
-        # this; the walker corrects the rest, so it only has to be small against the track range
-        # and the triangle size, and the scenes' margins (narrow.ClusterScenes) cover a border
-        # moved by it. At a quarter of the thickness a walking mannequin rebuilt a scene every
-        # step; at half, every other step.
+        # Scenes are reused while a cluster deforms (non-rigidly) by less than this; the walker
+        # corrects the rest, so it only has to be small against the track range and the triangle
+        # size, and the scenes' margins (narrow.ClusterScenes) cover a border moved by it. At a
+        # quarter of the thickness a walking mannequin rebuilt a scene every step; at half, every
+        # other step.
         self.scene_tolerance = 1.0 * min(self.thickness, self.displacement_threshold)
         self.bodies = {}
         self.cloth = None
@@ -314,7 +305,7 @@ class CollisionDetector:
         self._first = True
         self._new_targets = set()
         self._abs_cloth_forget = None
-        self._rays = kernels.RayBuffer()  # float32 ray arrays, reused across steps
+        self._rays = kernels.RayBuffer()  # float32 ray arrays for Embree, reused across steps
         # Batching of full detections (measure.py): the pairs that would pass the threshold within
         # this many steps join a step that runs full detection anyway.
         self.lookahead = 3.0
@@ -421,9 +412,14 @@ class CollisionDetector:
             rid[new_v[dup]] = rid[parents[dup, 0]]
         cloth.rest_id = rid
         dirty = cloth.clustering.update(events, pos, tri)
-        # adjacency, two-ring table, vertex -> triangles, and every cluster's tree rebuilt (C, ~1 ms
-        # for the T-shirt: trees are refitted every step, so nothing of the old ones is worth keeping)
+        # adjacency, two-ring table, vertex -> triangles; scenes of untouched clusters survive (their
+        # triangles keep their ids and corners)
         cloth.set_topology(tri, self.cluster_size, clustering=cloth.clustering)
+        touched = np.concatenate([
+            np.asarray(events.get("changed_triangles", np.zeros(0)), np.int64).reshape(-1),
+            np.asarray(events.get("new_triangles", np.zeros(0)), np.int64).reshape(-1),
+        ])
+        cloth.scenes.invalidate(dirty, touched)
         self._cloth_prev = prev
         for name, tracks in self._tracks.items():
             tracks.resize(pos.shape[0], new_v, parents)
@@ -587,7 +583,7 @@ class CollisionDetector:
         return contacts
 
     def _full_detection(self, plan, fi, fj, pos, normals, has_normal, step):
-        """Tree candidates for cloth clusters fi against collider clusters fj, refined exactly.
+        """Embree candidates for cloth clusters fi against collider clusters fj, refined exactly.
         Returns ((vertex, slot, Hits, status) of the hits found, or None; rays cast)."""
         name, target = plan.name, plan.target
         cloth = self.cloth
@@ -609,7 +605,7 @@ class CollisionDetector:
             if not np.isfinite(extent):
                 extent = self.cluster_extent(target)
             short = long_ = self.track_range + 2.0 * self.inflate + extent
-        # One group per collider cluster, each cluster's tree refitted once a step.
+        # One group per collider cluster, each cluster's scene fitted (or rebuilt) once.
         order = np.argsort(fj, kind="stable")
         fi, fj = fi[order], fj[order]
         ub = np.unique(fj)
@@ -618,7 +614,7 @@ class CollisionDetector:
         args = (pos, normals, has_normal, None, cloth.clustering, plan.lo, plan.hi)
         dist_args = (short, long_, RAY_BACKOFF, scenes.tolerance)
         # Which collider clusters get any ray at all (the culling runs twice; it is cheap): only
-        # their trees are refitted.
+        # their scenes are fitted, or built.
         seg = buf.count(*args, fi, fj, ub, scenes, *dist_args)
         need = ub[seg[1:] > seg[:-1]]
         if need.size == 0:
@@ -632,24 +628,32 @@ class CollisionDetector:
         if count == 0:
             return None, 0
         hit = np.empty(count, np.int64)
+        retry = np.empty(count, np.int64)
+        o, d, dist = buf.o, buf.d, buf.dist
+        oc, dc, distc = o[:count], d[:count], dist[:count]
         rv = buf.vertex[:count]
-        if isinstance(scenes, ClusterTrees):
-            # the cloth: one C call, every ray into its cluster's refitted tree, the two-ring skipped
-            scenes.cast(target.vertices, target.triangles, ub, seg, buf.o[:count], buf.d[:count], buf.dist[:count], rv,
-                        ring, hit, np.empty(count))
-        else:
-            # a body: one Embree call per collider cluster into its scene, kept in the cluster's
-            # frame (rays were prepared in it); a body carries no two-ring to skip
-            retry = np.empty(count, np.int64)
-            o, d, dist = buf.o, buf.d, buf.dist
-            ptr = scenes.ptr
-            for g, b in enumerate(ub.tolist()):
-                s, e = int(seg[g]), int(seg[g + 1])
-                if s == e:
-                    continue
-                prim = scenes.scene[b].run(o[s:e], d[s:e], dists=dist[s:e])
-                _collide.accept_hits(np.arange(s, e, dtype=np.int64), prim, None, scenes.tri[ptr[b]:ptr[b + 1]], rv,
-                                     target.triangles, None, o[:count], d[:count], dist[:count], hit, retry)
+        seg = seg.tolist()
+        ptr = scenes.ptr
+        for g, b in enumerate(ub.tolist()):
+            s, e = seg[g], seg[g + 1]
+            if s == e:
+                continue
+            scene, stri = scenes.scene[b], scenes.tri[ptr[b]:ptr[b + 1]]
+            rays = np.arange(s, e, dtype=np.int64)
+            if not is_self:
+                prim = scene.run(o[s:e], d[s:e], dists=dist[s:e])
+                _collide.accept_hits(rays, prim, None, stri, rv, target.triangles, None, oc, dc, distc, hit, retry)
+                continue
+            # Self: skip the vertex's own two-ring by casting again from just past it (embreex has
+            # no hit filter). embreex writes tfar into the dists it is given: hand it a copy.
+            res = scene.run(o[s:e], d[s:e], dists=dist[s:e].copy(), output=1)
+            for _ in range(8):
+                again = _collide.accept_hits(rays, res["primID"], res["tfar"], stri, rv, target.triangles, ring, oc,
+                                             dc, distc, hit, retry)
+                if again == 0:
+                    break
+                rays = retry[:again].copy()
+                res = scene.run(o[rays], d[rays], dists=dist[rays], output=1)
         # Exact hits on the current geometry (the scenes may be up to the tolerance stale).
         ints = np.empty((3, count), np.int64)
         reals = np.empty((3, count))

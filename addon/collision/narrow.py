@@ -22,9 +22,7 @@ triangle normal points to):
   when the vertex crossed the triangle during the last step, else from the current side.
   Self-collision never accepts a triangle of the vertex's own one-ring.
 
-Acceleration: the detector casts through ``ClusterTrees`` (one refitted BVH per cluster, in C;
-why, in its docs). ``ClusterScenes`` below is the Embree alternative it replaced, kept with its
-tests as the measured reference for that choice. Scenes: the embreex cost model (measured, shared/notes/collision.md and ``bench.py``): building a
+Scenes: the embreex cost model (measured, shared/notes/collision.md and ``bench.py``): building a
 scene copies ~1.4 µs per triangle plus the BVH build on first query (a 200-triangle cluster scene
 costs 0.3-0.8 ms to build and query once), while casting 200 rays into it costs 17-60 µs and a
 call's overhead is ~5-10 µs. A whole 8K-triangle body rebuilt every step would be ~14 ms. So scenes
@@ -63,8 +61,6 @@ __all__ = [
     "VertexNormals",
     "face_normals",
     "ClusterScenes",
-    "ClusterTrees",
-    "scene_triangles",
     "build_scene",
     "cast",
     "initial_side",
@@ -280,11 +276,19 @@ class ClusterScenes:
         self.centre = np.zeros((0, 3))
         self.ref_centre = np.zeros((0, 3))
 
-    def set_topology(self, triangles, clustering, adj, positions=None):
+    def set_topology(self, triangles, clustering, adj):
         """Each cluster's scene triangles (its own plus their edge neighbours). A built scene whose
         triangle list did not change keeps its scene, reference corners and transform."""
+        m = int(triangles.shape[0])
         k = clustering.n_clusters
-        ptr, tri = scene_triangles(triangles, clustering, adj)
+        lab = clustering.tri_labels
+        f = np.arange(m, dtype=np.int64)
+        nb = adj.reshape(-1)
+        ok = nb >= 0
+        key = np.unique(np.concatenate([lab * m + f, np.repeat(lab, 3)[ok] * m + nb[ok]]))
+        ptr = np.zeros(k + 1, np.int64)
+        np.cumsum(np.bincount(key // m, minlength=k), out=ptr[1:])
+        tri = key % m
         ref = np.zeros((tri.size, 3, 3))
         scene = [None] * k
         R = np.tile(np.eye(3), (k, 1, 1))
@@ -363,104 +367,6 @@ class ClusterScenes:
         o = (origins - centre) @ R + ref_centre
         d = directions @ R
         return cast(self.scene[c], o, d, max_dist + self.tolerance, self.triangles(c), exclude, triangles)
-
-
-def scene_triangles(triangles, clustering, adj):
-    """Each cluster's scene triangles, its own plus their neighbours across an edge (a margin: a
-    ray that meets the cluster at its border still finds a candidate, and the walker steps to the
-    exact triangle, in whichever cluster it is). Returns (ptr (k+1,), tri): cluster c's are
-    tri[ptr[c]:ptr[c+1]], ascending."""
-    m = int(triangles.shape[0])
-    k = clustering.n_clusters
-    lab = clustering.tri_labels
-    f = np.arange(m, dtype=np.int64)
-    nb = adj.reshape(-1)
-    ok = nb >= 0
-    key = np.unique(np.concatenate([lab * m + f, np.repeat(lab, 3)[ok] * m + nb[ok]]))
-    ptr = np.zeros(k + 1, np.int64)
-    np.cumsum(np.bincount(key // m, minlength=k), out=ptr[1:])
-    return ptr, np.ascontiguousarray(key % m)
-
-
-class ClusterTrees:
-    """The full detection's acceleration structure: one bounding volume hierarchy per cluster of
-    one collider (``native/collide/bvh.c``), over the cluster's scene triangles (``scene_triangles``).
-
-    A tree is built once per topology, in C, and refitted - its boxes recomputed from the current
-    corners - the first time a step queries the cluster, so it is exact on the current geometry
-    however the cluster deforms (a cloth cluster, a skinned limb): nothing is ever stale and nothing
-    is rebuilt while the topology stays. Why this and not Embree scenes (``ClusterScenes``):
-    embreex has no refit, and building a scene copies every triangle through Python (~1.4 µs
-    each, 0.3-0.8 ms a 200-triangle cluster with its BVH); measured on the T-shirt simulated on
-    the walking mannequin, full detection spent most of its time rebuilding deformed clusters'
-    scenes (``tearcloth.bench.collision.simulated_figures``). A refit costs microseconds per
-    cluster, and the C traversal skips a self-collision ray's own two-ring itself (embreex has no
-    hit filter: up to eight re-casts from Python). At the few thousand rays a step casts, Embree's
-    faster traversal does not pay that back, for the cloth or for a skinned body.
-
-    Rays are cast in world coordinates: ``R``, ``centre``, ``ref_centre`` are the identity frames
-    the ray preparation (``kernels.RayBuffer``) reads, and ``tolerance`` is 0 (exact boxes)."""
-
-    tolerance = 0.0
-
-    def __init__(self, tolerance=None):
-        # ``tolerance`` is accepted for the ClusterScenes signature; exact refits need none
-        self.builds = 0
-        self.build_triangles = 0
-        self._empty(0)
-
-    def _empty(self, k):
-        self.ptr = np.zeros(k + 1, np.int64)
-        self.tri = np.zeros(0, np.int64)
-        self.perm = np.zeros(0, np.int64)
-        self.first = np.zeros(0, np.int64)
-        self.count = np.zeros(0, np.int64)
-        self.lo = np.zeros((0, 3))
-        self.hi = np.zeros((0, 3))
-        self.fit_step = np.full(k, -1, np.int64)
-        self.R = np.tile(np.eye(3), (k, 1, 1))
-        self.centre = np.zeros((k, 3))
-        self.ref_centre = np.zeros((k, 3))
-
-    def set_topology(self, triangles, clustering, adj, positions=None):
-        """(Re)build every cluster's tree (C; the centroids of ``positions`` split the nodes)."""
-        k = clustering.n_clusters
-        self._empty(k)
-        self.ptr, self.tri = scene_triangles(triangles, clustering, adj)
-        n = self.tri.size
-        self.perm = np.empty(n, np.int64)
-        self.first = np.empty(2 * n, np.int64)
-        self.count = np.empty(2 * n, np.int64)
-        self.lo = np.empty((2 * n, 3))
-        self.hi = np.empty((2 * n, 3))
-        if positions is None:
-            raise ValueError("ClusterTrees.set_topology needs the collider's vertex positions")
-        _collide.bvh_build(target_vertices=positions, target_triangles=triangles, ptr=self.ptr, triangles=self.tri,
-                           perm=self.perm, first=self.first, count=self.count)
-        self.builds += int(np.count_nonzero(np.diff(self.ptr)))
-        self.build_triangles += n
-
-    def triangles(self, c):
-        return self.tri[self.ptr[c]:self.ptr[c + 1]]
-
-    def fit(self, clusters, positions, triangles, step):
-        """Refit (C) the trees of ``clusters`` not yet refitted this step; returns the bool mask of
-        the clusters that have a tree (a cluster without triangles has none)."""
-        clusters = np.asarray(clusters, np.int64)
-        todo = np.ascontiguousarray(clusters[self.fit_step[clusters] != step])
-        if todo.size:
-            _collide.bvh_refit(target_vertices=positions, target_triangles=triangles, ptr=self.ptr, perm=self.perm,
-                               first=self.first, count=self.count, clusters=todo, lo=self.lo, hi=self.hi)
-            self.fit_step[todo] = step
-        return self.ptr[clusters + 1] > self.ptr[clusters]
-
-    def cast(self, positions, triangles, clusters, seg, o, d, dist, ray_vertex, ring, hit, hit_t):
-        """First hits (global triangle or -1, t) of the rays ``seg[g]:seg[g+1]`` in the tree of
-        ``clusters[g]`` (refitted this step), two-ring triangles of ``ring`` skipped."""
-        _collide.bvh_cast(target_vertices=positions, target_triangles=triangles, ptr=self.ptr, perm=self.perm,
-                          first=self.first, count=self.count, lo=self.lo, hi=self.hi, clusters=clusters,
-                          segments=seg, origins=o, directions=d, dists=dist, ray_vertex=ray_vertex, ring=ring,
-                          hit_triangle=hit, hit_t=hit_t)
 
 
 def initial_side(x_prev, x_now, tri_prev, tri_now):

@@ -252,20 +252,4 @@ int tcc_assemble(const tcc_idx *seg, tcc_idx c, const tcc_idx *v, const double *
                  double *all_normal, double *all_depth, double *all_velocity, double *all_friction, tcc_idx *nall,
                  tcc_error *err);
 
-/* bvh.c: one tree per collider cluster over its scene triangles tris[ptr[c]:ptr[c+1]] (node rows
- * [2 ptr[c], 2 ptr[c+1]) of first / count / lo / hi), built once per topology, refitted before a
- * query, cast into with the self-collision two-ring skipped (layout in bvh.c) */
-int tcc_bvh_build(const tcc_mesh *m, const tcc_idx *ptr, tcc_idx k, const tcc_idx *tris, tcc_idx ntris,
-                  tcc_idx *perm, tcc_idx *first, tcc_idx *count, tcc_error *err);
-
-int tcc_bvh_refit(const tcc_mesh *m, const tcc_idx *ptr, tcc_idx k, const tcc_idx *perm, tcc_idx ntris,
-                  const tcc_idx *first, const tcc_idx *count, const tcc_idx *clusters, tcc_idx q, double *lo,
-                  double *hi, tcc_error *err);
-
-int tcc_bvh_cast(const tcc_mesh *m, const tcc_idx *ptr, tcc_idx k, const tcc_idx *perm, tcc_idx ntris,
-                 const tcc_idx *first, const tcc_idx *count, const double *lo, const double *hi, const tcc_idx *ub,
-                 tcc_idx q, const tcc_idx *seg, const float *o, const float *d, const float *dist,
-                 const tcc_idx *ray_v, tcc_idx nrays, const tcc_ring *ring, tcc_idx *hit_tri, double *hit_t,
-                 tcc_error *err);
-
 #endif

@@ -837,118 +837,6 @@ fail:
     return NULL;
 }
 
-/* ---------------------------------------------------------------- cluster trees (bvh.c) */
-
-#define TREE_ROWS                                                                                                     \
-    ARR("target_vertices", PA_F64, 0, 2, 3, 0), ARR("target_triangles", PA_I64, 0, 2, 3, 0),                          \
-        ARR("ptr", PA_I64, 0, 1, 0, 0), ARR("perm", PA_I64, 0, 1, 0, 0), ARR("first", PA_I64, 0, 1, 0, 0),            \
-        ARR("count", PA_I64, 0, 1, 0, 0)
-
-static const pyarg_spec BVH_BUILD[] = {
-    ARR("target_vertices", PA_F64, 0, 2, 3, 0),
-    ARR("target_triangles", PA_I64, 0, 2, 3, 0),
-    ARR("ptr", PA_I64, 0, 1, 0, 0),
-    ARR("triangles", PA_I64, 0, 1, 0, 0),
-    ARR("perm", PA_I64, OUT, 1, 0, 0),
-    ARR("first", PA_I64, OUT, 1, 0, 0),
-    ARR("count", PA_I64, OUT, 1, 0, 0),
-};
-enum { BB_X, BB_T, BB_PTR, BB_TRIS, BB_PERM, BB_FIRST, BB_COUNT, BB_N };
-
-static PyObject *py_bvh_build(PyObject *self, PyObject *args, PyObject *kw)
-{
-    PARSE("bvh_build", BVH_BUILD, BB_N);
-    if (!bounds_ok(ROWS(BB_PTR), "ptr", "cluster")) goto fail;
-    Py_ssize_t nt = ROWS(BB_TRIS);
-    CHECK_ROWS(BB_PERM, nt);
-    CHECK_ROWS(BB_FIRST, 2 * nt);
-    CHECK_ROWS(BB_COUNT, 2 * nt);
-    if (pyarg_no_overlap(&s)) goto fail;
-    tcc_mesh m = {D(BB_X), ROWS(BB_X), D(BB_T), ROWS(BB_T), NULL, NULL};
-    tcc_error err = {0};
-    int rc;
-    RUN(tcc_bvh_build(&m, D(BB_PTR), ROWS(BB_PTR) - 1, D(BB_TRIS), nt, D(BB_PERM), D(BB_FIRST), D(BB_COUNT), &err));
-    pyarg_release(&s);
-    if (rc) return kernel_error(&err);
-    Py_RETURN_NONE;
-fail:
-    pyarg_release(&s);
-    return NULL;
-}
-
-static const pyarg_spec BVH_REFIT[] = {
-    TREE_ROWS,
-    ARR("clusters", PA_I64, 0, 1, 0, 0),
-    ARR("lo", PA_F64, OUT, 2, 3, 0),
-    ARR("hi", PA_F64, OUT, 2, 3, 0),
-};
-enum { BR_X, BR_T, BR_PTR, BR_PERM, BR_FIRST, BR_COUNT, BR_CL, BR_LO, BR_HI, BR_N };
-
-static PyObject *py_bvh_refit(PyObject *self, PyObject *args, PyObject *kw)
-{
-    PARSE("bvh_refit", BVH_REFIT, BR_N);
-    if (!bounds_ok(ROWS(BR_PTR), "ptr", "cluster")) goto fail;
-    Py_ssize_t nt = ROWS(BR_PERM);
-    for (int i = BR_FIRST; i <= BR_COUNT; i++) CHECK_ROWS(i, 2 * nt);
-    CHECK_ROWS(BR_LO, 2 * nt);
-    CHECK_ROWS(BR_HI, 2 * nt);
-    if (pyarg_no_overlap(&s)) goto fail;
-    tcc_mesh m = {D(BR_X), ROWS(BR_X), D(BR_T), ROWS(BR_T), NULL, NULL};
-    tcc_error err = {0};
-    int rc;
-    RUN(tcc_bvh_refit(&m, D(BR_PTR), ROWS(BR_PTR) - 1, D(BR_PERM), nt, D(BR_FIRST), D(BR_COUNT), D(BR_CL),
-                      ROWS(BR_CL), D(BR_LO), D(BR_HI), &err));
-    pyarg_release(&s);
-    if (rc) return kernel_error(&err);
-    Py_RETURN_NONE;
-fail:
-    pyarg_release(&s);
-    return NULL;
-}
-
-static const pyarg_spec BVH_CAST[] = {
-    TREE_ROWS,
-    ARR("lo", PA_F64, 0, 2, 3, 0),
-    ARR("hi", PA_F64, 0, 2, 3, 0),
-    ARR("clusters", PA_I64, 0, 1, 0, 0),
-    ARR("segments", PA_I64, 0, 1, 0, 0),
-    ARR("origins", PA_F32, 0, 2, 3, 0),
-    ARR("directions", PA_F32, 0, 2, 3, 0),
-    ARR("dists", PA_F32, 0, 1, 0, 0),
-    ARR("ray_vertex", PA_I64, 0, 1, 0, 0),
-    RING_ROW,
-    ARR("hit_triangle", PA_I64, OUT, 1, 0, 0),
-    ARR("hit_t", PA_F64, OUT, 1, 0, 0),
-};
-enum { BC_X, BC_T, BC_PTR, BC_PERM, BC_FIRST, BC_COUNT, BC_LO, BC_HI, BC_CL, BC_SEG, BC_O, BC_D, BC_DIST, BC_RV,
-       BC_RING, BC_HIT, BC_HT, BC_N };
-
-static PyObject *py_bvh_cast(PyObject *self, PyObject *args, PyObject *kw)
-{
-    PARSE("bvh_cast", BVH_CAST, BC_N);
-    if (!bounds_ok(ROWS(BC_PTR), "ptr", "cluster")) goto fail;
-    Py_ssize_t nt = ROWS(BC_PERM), nr = ROWS(BC_RV), q = ROWS(BC_CL);
-    for (int i = BC_FIRST; i <= BC_HI; i++) CHECK_ROWS(i, 2 * nt);
-    CHECK_ROWS(BC_SEG, q + 1);
-    for (int i = BC_O; i <= BC_DIST; i++) CHECK_ROWS(i, nr);
-    CHECK_ROWS(BC_HIT, nr);
-    CHECK_ROWS(BC_HT, nr);
-    if (pyarg_no_overlap(&s)) goto fail;
-    tcc_mesh m = {D(BC_X), ROWS(BC_X), D(BC_T), ROWS(BC_T), NULL, NULL};
-    tcc_ring ring = ring_from(&s, BC_RING);
-    tcc_error err = {0};
-    int rc;
-    RUN(tcc_bvh_cast(&m, D(BC_PTR), ROWS(BC_PTR) - 1, D(BC_PERM), nt, D(BC_FIRST), D(BC_COUNT), D(BC_LO), D(BC_HI),
-                     D(BC_CL), q, D(BC_SEG), D(BC_O), D(BC_D), D(BC_DIST), D(BC_RV), nr, &ring, D(BC_HIT), D(BC_HT),
-                     &err));
-    pyarg_release(&s);
-    if (rc) return kernel_error(&err);
-    Py_RETURN_NONE;
-fail:
-    pyarg_release(&s);
-    return NULL;
-}
-
 #define KERNEL(name, doc) {#name, (PyCFunction)(void (*)(void))py_##name, METH_VARARGS | METH_KEYWORDS, doc}
 
 static PyMethodDef methods[] = {
@@ -1003,16 +891,6 @@ static PyMethodDef methods[] = {
            "assemble(segments, vertex, depth, normal, velocity, friction, n, deep_vertex, deep_normal, deep_depth, "
            "deep_velocity, deep_friction, all_vertex, all_normal, all_depth, all_velocity, all_friction) -> "
            "(deep count, all count)."),
-    KERNEL(bvh_build,
-           "bvh_build(target_vertices, target_triangles, ptr, triangles, perm, first, count): one tree per cluster "
-           "over its scene triangles triangles[ptr[c]:ptr[c+1]] (first / count have 2 rows per scene triangle)."),
-    KERNEL(bvh_refit,
-           "bvh_refit(target_vertices, target_triangles, ptr, perm, first, count, clusters, lo, hi): the listed "
-           "clusters' node boxes from the current vertices."),
-    KERNEL(bvh_cast,
-           "bvh_cast(target_vertices, target_triangles, ptr, perm, first, count, lo, hi, clusters, segments, "
-           "origins, directions, dists, ray_vertex, ring, hit_triangle, hit_t): first hit of rays "
-           "segments[g]:segments[g+1] in cluster clusters[g]'s tree (-1 and inf for none), skipping ring triangles."),
     {NULL, NULL, 0, NULL},
 };
 

@@ -12,7 +12,7 @@ cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-san
    $core tests/test_core.c -lm -o "$out"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"
 # The collision kernels (native/collide/, all but their Python bindings) and their C tests: a
-# deforming cloth over a moving body, tree hits against an exhaustive test, a tear, bad indices.
+# deforming cloth over a moving body, before and after a tear, and bad indices.
 collide=$(ls collide/*.c | grep -v '^collide/pymodule\.c$')
 # shellcheck disable=SC2086
 cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all \
