@@ -27,12 +27,12 @@ def scene_recall(kind, seed, dt, steps=40):
     spin = rng.uniform(-1.5, 1.5)  # rad/s about z
     wave_k = rng.uniform(2, 6, 2)
     wave_w = rng.uniform(5, 15)  # rad/s: the cloth deforms, not only the body moves
-    start = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), -0.27])
+    # the body's top starts 5 mm below the cloth and rises through it by speed x steps x dt
+    start = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), -bv[:, 2].max() - 0.005])
     total = found = 0
     for s in range(steps):
         time = (s + 1) * dt
-        # the body crosses the cloth within the 40 steps at either dt: start lower at the small dt
-        offset = start + vel * time + np.array([0, 0, 0.27 - 40 * 0.004 * 0.7]) * (dt < 2e-3)
+        offset = start + vel * time
         ang = spin * time
         R = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
         bpos = bv @ R.T + offset
