@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import spaces
-from .cache import CacheWriter, _remove_quietly
+from .cache import CacheWriter, _remove_quietly, staging_path_for
 from .cloth import Cloth, SimulationError
 from .materials import Material
 from .session import CollisionSettings, Session, StepReport
@@ -83,6 +83,9 @@ class BakePlan:
     body_triangles: dict = field(default_factory=dict)  # collider name -> (k, 3)
     resume: bool = False
     hand_groups: dict = field(default_factory=dict)     # live session: hand name -> vertex-group name
+    # The user's polygon of each triangle and vertex of each vertex (messages name those)
+    triangle_polygons: np.ndarray | None = None         # (m,)
+    vertex_ids: np.ndarray | None = None                # (n,)
 
     @property
     def state_path(self) -> str:
@@ -201,14 +204,19 @@ class BakeJob:
         self._tears_before = 0
         self._grasp: list = []
         self._handles: list = []
+        # A fresh bake is staged beside the old cache and replaces it with its first simulated
+        # frame (``_write``): a bake that fails before that (bad geometry found by the core,
+        # a cancel) leaves the user's previous bake, its resume state included, as it was.
         self.writer = CacheWriter(
             plan.cache_path, plan.prim_name, plan.fps, "Z", plan.scale,
             object_name=plan.object_name, fingerprint=plan.fingerprint, resume=plan.resume,
+            stage=not plan.resume,
         )
         last = self.writer.last_frame
         if plan.resume and last is not None:
             state = load_state(plan.state_path)
-            if state is None or state["frame"] < last or state["object_name"] != plan.object_name:
+            if (state is None or state["frame"] < last or state["object_name"] != plan.object_name
+                    or (plan.fingerprint and state["fingerprint"] and state["fingerprint"] != plan.fingerprint)):
                 self.writer.close(complete=False)
                 raise ValueError(
                     f"{plan.cache_path}: cannot resume: the simulation state for frame {last} is missing "
@@ -217,11 +225,15 @@ class BakeJob:
             self._state = state
             self.start_frame = int(state["frame"])
         else:
-            _remove_quietly(plan.state_path)
             self.start_frame = plan.frame_start
         self.next_frame = self.start_frame + 1
         self.progress.first_frame = self.start_frame
         self.progress.frame = last
+
+    @property
+    def resumed(self) -> bool:
+        """True when this job continues a saved state (its cloth may be torn already)."""
+        return self._state is not None
 
     @property
     def done(self) -> bool:
@@ -292,28 +304,48 @@ class BakeJob:
         return True
 
     def _write(self, inputs: FrameInputs, save_state: bool = True) -> None:
-        plan, cloth = self.plan, self.session.cloth
+        plan, cloth, writer = self.plan, self.session.cloth, self.writer
         tears = self._tears_before + int(cloth.stats()["tears_started"])
+        # the state follows the cache it belongs to: beside the staged root until it is promoted
+        state_path = state_path_for(writer.path)
         if save_state:
-            save_state_file(plan.state_path, inputs.frame, plan, cloth, tears, self._has_uv)
+            save_state_file(state_path, inputs.frame, plan, cloth, tears, self._has_uv)
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
         # The writer takes metres with meters_per_unit = scale, so the file holds local BU:
         # exactly what the Mesh Sequence Cache modifier (which ignores metersPerUnit) shows.
-        self.writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
-                                cloth.corner_uv if self._has_uv else None, velocity * plan.scale)
+        writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
+                           cloth.corner_uv if self._has_uv else None, velocity * plan.scale)
+        if writer.staged and inputs.frame > self.start_frame:
+            self._promote()
         self.progress.frame = inputs.frame
         self.progress.tears = tears
         self.progress.vertices = cloth.num_vertices
         if self.on_event is not None:
             self.on_event(BakeEvent("frame", self, inputs.frame))
 
+    def _promote(self) -> None:
+        """The new bake has a simulated frame: it replaces the old one. The state file moves
+        first: a crash before the cache moves leaves the old cache with a state of an earlier
+        frame than its last, which resume refuses as stale (never a wrong continuation)."""
+        staged_state = state_path_for(self.writer.path)
+        if os.path.exists(staged_state):
+            os.replace(staged_state, self.plan.state_path)
+        else:
+            _remove_quietly(self.plan.state_path)
+        self.writer.promote()
+
     def close(self, complete: bool | None = None) -> None:
         if complete is None:
             complete = self.done
         if not self.writer.closed:
+            if self.writer.staged and complete and self.writer.frames:
+                self._promote()
+            staged = self.writer.staged
             self.writer.close(complete=complete)
+            if staged:  # never promoted: the staged bake and its state are gone, the old one stays
+                _remove_quietly(state_path_for(staging_path_for(self.plan.cache_path)))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -364,12 +396,13 @@ def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: 
     cloth always has a UV array, zeros without a UV map; a resumed bake must write what the
     cache holds)."""
     names = list(cloth.group_names)
-    groups = np.stack([cloth.group(n) for n in names], axis=1) if names else np.zeros((cloth.num_vertices, 0))
+    groups = cloth.groups
     uv = cloth.corner_uv if has_uv else None
     data = dict(
         version=np.int64(STATE_VERSION),
         frame=np.int64(frame),
         object_name=np.array(plan.object_name),
+        fingerprint=np.array(plan.fingerprint or ""),
         positions=np.array(cloth.positions),
         velocities=np.array(cloth.velocities),
         rest=np.array(cloth.rest_positions),
@@ -398,6 +431,7 @@ def load_state(path: str) -> dict | None:
         return None
     state["frame"] = int(state["frame"])
     state["object_name"] = str(state["object_name"])
+    state["fingerprint"] = str(state["fingerprint"]) if "fingerprint" in state else ""
     state["group_names"] = [str(n) for n in state["group_names"]]
     if state["corner_uv"].size == 0:
         state["corner_uv"] = None

@@ -31,6 +31,12 @@ cache is split::
   every frame, so at every instant it names only frame files that already exist in full. A crash
   between a frame's rename and the root's rewrite leaves one complete frame the root does not
   name yet; ``resume=True`` adopts it.
+* A re-bake never destroys the bake it replaces before it has something better: it is written
+  beside it (``.cloth.baking.usda`` + ``.cloth.baking_frames/``, ``CacheWriter(stage=True)``)
+  and replaces it with ``promote()`` once it holds a simulated frame (the bake calls it after
+  its first step frame). A bake that fails or is cancelled before that leaves the old cache,
+  frames and resume state untouched, and its staged files are deleted (``discard``); a staging
+  left by a killed process is cleared by the next bake. Only Free Bake deletes frames on purpose.
 * Value clips hold, not interpolate: between two frames (motion-blur sub-frames) the earlier
   frame's mesh is used as is, which is the only correct answer when the topology differs; before
   the first frame the first one is shown, after the last the last one.
@@ -82,6 +88,7 @@ __all__ = [
     "delete_cache",
     "mesh_fingerprint",
     "frames_dir_for",
+    "staging_path_for",
     "FORMAT_VERSION",
 ]
 
@@ -463,6 +470,33 @@ def delete_cache(path) -> None:
             pass  # the user keeps other files there
 
 
+def staging_path_for(path) -> str:
+    """Where a re-bake of the cache ``path`` is written until it replaces it (hidden name, same
+    folder, so the final move is a rename on one file system)."""
+    folder, base = os.path.split(os.path.abspath(os.fspath(path)))
+    stem, ext = os.path.splitext(base)
+    return os.path.join(folder, f".{stem}.baking{ext}")
+
+
+def _remove_staging(staging: str) -> None:
+    """Delete a staging root and its frames folder. Their hidden names are made only by
+    ``CacheWriter(stage=True)``, so whatever is there is a left-over of a bake attempt."""
+    _remove_quietly(staging)
+    folder, base = os.path.split(staging)
+    for name in os.listdir(folder) if os.path.isdir(folder) else ():
+        if name.startswith(_TMP_PREFIX) and name.endswith("-" + base):
+            _remove_quietly(os.path.join(folder, name))
+    frames_dir = frames_dir_for(staging)
+    if os.path.isdir(frames_dir):
+        for name in os.listdir(frames_dir):
+            if _FRAME_RE.match(name) or name == _MANIFEST or name.startswith(_TMP_PREFIX):
+                _remove_quietly(os.path.join(frames_dir, name))
+        try:
+            os.rmdir(frames_dir)
+        except OSError:
+            pass
+
+
 # ---------------------------------------------------------------------------------------------
 # Writing
 
@@ -478,7 +512,10 @@ class CacheWriter:
 
     ``resume=False`` replaces an existing Tear Cloth cache at ``path`` (and refuses to replace
     any other file); ``resume=True`` reopens it, keeps the frames written up to the last complete
-    one and continues after ``last_frame``. ``durable=True`` also fsyncs every file (power-cut
+    one and continues after ``last_frame``. ``stage=True`` (a re-bake) writes beside the cache at
+    ``path`` without touching it until ``promote()`` replaces it; ``discard()`` (or closing an
+    incomplete staged bake) drops the new frames and leaves the old cache as it was.
+    ``durable=True`` also fsyncs every file (power-cut
     safety; crash and SIGKILL safety need no fsync).
     """
 
@@ -494,9 +531,11 @@ class CacheWriter:
         fingerprint: str | None = None,
         resume: bool = False,
         durable: bool = False,
+        stage: bool = False,
     ):
         Gf, Sdf, Tf, Usd, Vt = _pxr()
         self.path = os.path.abspath(os.fspath(path))
+        self.final_path = self.path
         ext = os.path.splitext(self.path)[1].lower()
         if ext not in _ROOT_EXTENSIONS:
             raise ValueError(f"{self.path}: the cache root must end in .usda, .usdc or .usd")
@@ -528,6 +567,18 @@ class CacheWriter:
         os.makedirs(os.path.dirname(self.path), exist_ok=True)
         if resume and os.path.lexists(self.path):
             self._resume()
+        elif stage:
+            # The re-bake rule: a new bake is written beside the old one (a hidden staging root
+            # and frames folder) and replaces it only in ``promote`` (called by the bake once the
+            # new bake has a simulated frame). Until then the old cache is not touched, so a bake
+            # that fails or is cancelled early leaves the previous bake exactly as it was.
+            if os.path.lexists(self.path):
+                _read_root(self.path, check_frames=False)  # refuse a foreign file before writing anything
+            self.path = staging_path_for(self.final_path)
+            self.frames_dir = frames_dir_for(self.path)
+            _remove_staging(self.path)  # left by an attempt that was killed before it replaced anything
+            os.makedirs(self.frames_dir, exist_ok=True)
+            self._write_root(complete=False)
         else:
             delete_cache(self.path)  # refuses foreign files; clears stale frames of an old bake
             os.makedirs(self.frames_dir, exist_ok=True)
@@ -548,6 +599,40 @@ class CacheWriter:
     @property
     def closed(self) -> bool:
         return self._closed
+
+    @property
+    def staged(self) -> bool:
+        """True while a new bake is still written beside the old one (see ``promote``)."""
+        return self.path != self.final_path
+
+    def promote(self) -> None:
+        """Replace the cache at the final path by the staged one and keep writing there.
+
+        Order: the old root goes first (delete_cache: no moment where a root names deleted
+        frames), then its frames, then the staged frame files move into the final frames folder
+        (per file, so a frames folder the user keeps other files in still works), then the final
+        root naming them is written, and the staging root removed last."""
+        if not self.staged:
+            return
+        delete_cache(self.final_path)
+        final_frames = frames_dir_for(self.final_path)
+        os.makedirs(final_frames, exist_ok=True)
+        for name in os.listdir(self.frames_dir):
+            if _FRAME_RE.match(name) or name == _MANIFEST:
+                os.replace(os.path.join(self.frames_dir, name), os.path.join(final_frames, name))
+        staging = self.path
+        self.path, self.frames_dir = self.final_path, final_frames
+        self._write_root(complete=False)
+        _remove_staging(staging)
+
+    def discard(self) -> None:
+        """Drop a staged bake that never replaced the old one (failed or cancelled early): its
+        files go, the old cache stays as it was. A writer that was promoted keeps its frames."""
+        if not self.staged:
+            return
+        _remove_staging(self.path)
+        self._frames = []
+        self._closed = True
 
     # -- writing -------------------------------------------------------------------------------
 
@@ -616,6 +701,11 @@ class CacheWriter:
         but tells the UI the bake was interrupted."""
         if self._closed:
             return
+        if self.staged:  # a staged bake replaces the old one only when it is complete
+            if not (complete and self._frames):
+                self.discard()
+                return
+            self.promote()
         self._write_root(complete=complete)
         self._closed = True
 

@@ -18,7 +18,8 @@ What this file owns
   ``loop_triangles`` (the user's mesh is never touched), UVs are taken per triangle corner from
   the active UV map, vertex groups become weight arrays, and vertices that belong to no face
   (loose vertices, wire edges) are dropped because a membrane solver has nothing to do with them;
-  ``MeshArrays.kept`` maps back to the mesh's own vertex indices.
+  ``MeshArrays.kept`` maps back to the mesh's own vertex indices and ``MeshArrays.polygons``
+  each triangle back to the polygon it came from, so messages name the user's elements.
 * Colliders are read from the EVALUATED object (modifiers and armatures applied) at the current
   frame, in world space, metres.
 """
@@ -141,7 +142,7 @@ class MeshArrays:
 
     vertices (n, 3) float64 BU; triangles (m, 3) int32 indexing ``vertices``; corner_uv
     (m, 3, 2) float64 or None; groups name -> (n,) float64 weights in [0, 1]; kept (n,) the
-    mesh's own index of every vertex; ngons: faces with more than four corners (triangulated);
+    mesh's own index of every vertex; polygons (m,) the mesh's polygon of every triangle; ngons: faces with more than four corners (triangulated);
     loose: vertices dropped because no face uses them.
     """
 
@@ -152,6 +153,7 @@ class MeshArrays:
     kept: np.ndarray | None = None
     ngons: int = 0
     loose: int = 0
+    polygons: np.ndarray | None = None  # (m,) the mesh's polygon index of every triangle
 
 
 def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> MeshArrays:
@@ -170,6 +172,8 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
     tri_verts = np.empty(3 * m, dtype=np.int32)
     tris.foreach_get("vertices", tri_verts)
     tri_verts = tri_verts.reshape(m, 3)
+    tri_polygons = np.empty(m, dtype=np.int32)
+    tris.foreach_get("polygon_index", tri_polygons)
 
     sizes = np.empty(len(mesh.polygons), dtype=np.int32)
     mesh.polygons.foreach_get("loop_total", sizes)
@@ -218,6 +222,7 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
         kept=kept,
         ngons=ngons,
         loose=loose,
+        polygons=tri_polygons,
     )
 
 

@@ -104,7 +104,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
                with_cache: bool = True) -> tuple[BakePlan, Sources]:
     """Check everything a bake of ``obj`` needs and gather it. Every problem goes into
     ``reports`` (and the log); BakeError if any is an error. Changes nothing in the scene (when
-    everything else is right it creates a missing cache folder).
+    the cache folder is not created here: the bake makes it).
 
     For a live haptic session: ``hands`` maps each hand to the vertex group it grasps (checked
     like a handle's; the bake handles on the same groups are left to the hands, the others hold
@@ -241,6 +241,8 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         body_triangles=body_triangles,
         resume=bool(resume),
         hand_groups=hand_groups,
+        triangle_polygons=mesh.polygons,
+        vertex_ids=mesh.kept,
     )
     sources = Sources(obj.name, follow, list(body_triangles))
     return plan, sources
@@ -251,19 +253,21 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
     if os.path.exists(folder) and not os.path.isdir(folder):
         reports.error(f"{obj.name}: the cache folder {folder} is a file, not a folder")
         return
-    if not os.path.isdir(folder):
-        try:
-            os.makedirs(folder)
-            reports.info(f"{obj.name}: created the cache folder {folder}")
-        except OSError as exc:
-            reports.error(f"{obj.name}: cannot create the cache folder {folder}: {exc.strerror or exc}")
-            return
+    # A missing folder is made by the bake itself once every check passed (and removed again if
+    # the attempt fails): here only its nearest existing ancestor must take new files.
+    existing = folder
+    while not os.path.exists(existing) and os.path.dirname(existing) != existing:
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        reports.error(f"{obj.name}: cannot create the cache folder {folder}: {existing} is a file, not a folder")
+        return
     # A real write, not os.access: that says yes to root on a read-only mount.
     try:
-        with tempfile.TemporaryFile(dir=folder):
+        with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as exc:
-        reports.error(f"{obj.name}: the cache folder {folder} is not writable ({exc.strerror or exc}); "
+        what = "is not writable" if existing == folder else f"cannot be created in {existing}"
+        reports.error(f"{obj.name}: the cache folder {folder} {what} ({exc.strerror or exc}); "
                       "choose another folder")
         return
     if resume:
