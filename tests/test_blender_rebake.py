@@ -210,3 +210,24 @@ def test_geometry_messages_name_the_users_polygons_and_vertices(tmp_path):
     # polygon 4 (quad x=1, z=1) is the first with a collapsed edge; its solver triangle is 8 or 9
     assert "polygon 4 " in message and "degenerate" in message, message
     assert "10" in message and "11" in message and "triangle" not in message, message
+
+
+OPEN_COLLIDER = '''
+    from tearcloth.blender import bake
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=2)
+    bpy.ops.mesh.primitive_plane_add(size=2.0, location=(0.0, 0.0, 0.5))  # open: no inside
+    plane = bpy.context.active_object
+    s = obj.tearcloth
+    s.use_collision = True
+    s.colliders.add().object = plane
+    r = bake.Reports()
+    res = bake.bake_object(bpy.context, obj, reports=r)
+    result(dict(state=res.state, warnings=r.warnings))
+'''
+
+
+def test_open_collider_is_a_report(tmp_path):
+    got = run_blender(tmp_path, OPEN_COLLIDER, tmp_path)
+    assert got["state"] == "done"
+    assert any("not a closed" in w and "Plane" in w for w in got["warnings"]), got["warnings"]

@@ -217,7 +217,9 @@ class BakeRun:
                 try:
                     inputs = gather_inputs(context, self.sources, self.job.next_frame,
                                            self.plan.scale)
-                    self.job.advance(inputs)
+                    if not self.job.advance(inputs):  # cancelled inside the frame: it is dropped
+                        self.progress.state = "cancelled"
+                        break
                 except (BakeError, ClothError, ValueError, cache.CacheError) as exc:
                     self.progress.state, self.progress.message = "error", str(exc)
                     break
