@@ -35,6 +35,7 @@ the resume frame.
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import os
@@ -83,9 +84,28 @@ class BakePlan:
     body_triangles: dict = field(default_factory=dict)  # collider name -> (k, 3)
     resume: bool = False
     hand_groups: dict = field(default_factory=dict)     # live session: hand name -> vertex-group name
+    uv_name: str = "st"             # the cache's UV primvar: the user's UV map name (a USD identifier)
+    object_id: str = ""             # the object's persistent id (cache identity; see cache.OWNER_KEYS)
+    blend: str = ""                 # the .blend the bake is made in
     # The user's polygon of each triangle and vertex of each vertex (messages name those)
     triangle_polygons: np.ndarray | None = None         # (m,)
     vertex_ids: np.ndarray | None = None                # (n,)
+
+    @property
+    def settings_fingerprint(self) -> str:
+        """A short hash of everything that decides the simulation besides the rest mesh (the
+        material, solver, tearing and collision settings, steps, fps, start frame, the roles of
+        the vertex groups): a partial bake resumes only under the same."""
+        collision = None if self.collision is None else sorted(vars(self.collision).items())
+        key = repr((sorted(vars(self.material).items()), sorted(self.solver.items()), sorted(self.tearing.items()),
+                    collision, self.steps_per_frame, self.fps, self.frame_start, self.scale, self.pin_group,
+                    list(self.handle_groups), self.seam_group, self.seam_factor, sorted(self.body_triangles)))
+        return hashlib.sha256(key.encode("utf-8")).hexdigest()[:16]
+
+    @property
+    def owner(self) -> dict:
+        """The owner fields the cache records (``cache.OWNER_KEYS``)."""
+        return {"object_id": self.object_id, "blend": self.blend, "settings": self.settings_fingerprint}
 
     @property
     def state_path(self) -> str:
@@ -110,9 +130,15 @@ class FrameInputs:
 
 
 class Progress:
-    """Shared between the worker and the UI; plain attributes (each write is atomic under the GIL)."""
+    """Shared between the worker and the UI; plain attributes (each write is atomic under the GIL).
 
-    def __init__(self, object_name: str, frame_start: int, frame_end: int):
+    The ETA comes from the last ``ETA_WINDOW`` frames, not from the whole run: steps slow down
+    several times once a tear starts (more vertices, a scan of the tear tips every step), so an
+    average over the calm frames before it promises far too early an end."""
+
+    ETA_WINDOW = 5  # frames
+
+    def __init__(self, object_name: str, frame_start: int, frame_end: int, clock=time.perf_counter):
         self.object_name = object_name
         self.frame_start = frame_start
         self.frame_end = frame_end
@@ -122,9 +148,16 @@ class Progress:
         self.step_seconds = 0.0
         self.tears = 0
         self.vertices = 0
-        self.started = time.perf_counter()
+        self._clock = clock
+        self.started = clock()
         self.state = "running"              # running, done, cancelled, error
         self.message = ""
+        self._recent: list = []             # (time, frame) of the last frames written
+
+    def frame_done(self, frame: int) -> None:
+        """A frame is on disk (called by the job after each frame)."""
+        self.frame = frame
+        self._recent = (self._recent + [(self._clock(), frame)])[-(self.ETA_WINDOW + 1):]
 
     @property
     def factor(self) -> float:
@@ -140,8 +173,11 @@ class Progress:
     def eta_seconds(self) -> float | None:
         if self.frame is None or self.frame <= self.first_frame:
             return None
-        elapsed = time.perf_counter() - self.started
-        per_frame = elapsed / (self.frame - self.first_frame)
+        if len(self._recent) >= 2 and self._recent[-1][1] > self._recent[0][1]:
+            (t0, f0), (t1, f1) = self._recent[0], self._recent[-1]
+            per_frame = (t1 - t0) / (f1 - f0)
+        else:  # one frame so far: the time since the start is all there is
+            per_frame = (self._clock() - self.started) / (self.frame - self.first_frame)
         return per_frame * (self.frame_end - self.frame)
 
     def text(self, elapsed: bool = False) -> str:
@@ -152,7 +188,7 @@ class Progress:
                  f"{self.tears} tear{'s' if self.tears != 1 else ''}"]
         eta = self.eta_seconds
         if elapsed:
-            parts += [duration(time.perf_counter() - self.started), f"ETA {duration(eta)}"]
+            parts += [duration(self._clock() - self.started), f"ETA {duration(eta)}"]
         elif eta is not None:
             parts.append(f"ETA {duration(eta)}")
         return ", ".join(parts)
@@ -210,7 +246,7 @@ class BakeJob:
         self.writer = CacheWriter(
             plan.cache_path, plan.prim_name, plan.fps, "Z", plan.scale,
             object_name=plan.object_name, fingerprint=plan.fingerprint, resume=plan.resume,
-            stage=not plan.resume,
+            stage=not plan.resume, owner=plan.owner, uv_name=plan.uv_name,
         )
         last = self.writer.last_frame
         if plan.resume and last is not None:
@@ -319,7 +355,7 @@ class BakeJob:
                            cloth.corner_uv if self._has_uv else None, velocity * plan.scale)
         if writer.staged and inputs.frame > self.start_frame:
             self._promote()
-        self.progress.frame = inputs.frame
+        self.progress.frame_done(inputs.frame)
         self.progress.tears = tears
         self.progress.vertices = cloth.num_vertices
         if self.on_event is not None:

@@ -24,7 +24,9 @@ cache is split::
 * Each frame file is written under a temporary name in the same folder and then renamed with
   ``os.replace`` (atomic on POSIX and Windows), so a file with a final name is always complete.
 * The root holds the Mesh prim, its non-varying attributes (subdivisionScheme = none, the
-  ``primvars:st`` declaration with faceVarying interpolation, the owner attributes) and USD
+  UV primvar's declaration with faceVarying interpolation, ``primvars:<uv_name>``: ``st`` unless
+  the writer is given the user's UV map name, which Blender then shows as the UV layer's name;
+  the owner attributes) and USD
   *value clips* (``clips = {default: {assetPaths, active, times, primPath,
   manifestAssetPath}}``): clip *i* is the file of the *i*-th frame, active from that frame on,
   with an identity time mapping. The root is rewritten (temporary name + ``os.replace``) after
@@ -85,11 +87,15 @@ __all__ = [
     "read_velocities",
     "cache_info",
     "check_owner",
+    "owner_of",
+    "damaged_root",
+    "repair_root",
     "delete_cache",
     "mesh_fingerprint",
     "frames_dir_for",
     "staging_path_for",
     "FORMAT_VERSION",
+    "OWNER_KEYS",
 ]
 
 # Bumped when the layout changes in a way an older reader would misread.
@@ -112,6 +118,13 @@ _VARYING = {
     "primvars:st": "TexCoord2fArray",
     "velocities": "Vector3fArray",
 }
+
+
+# What a cache records about its owner besides the object's name and mesh fingerprint:
+# object_id: a persistent id of the Blender object (a custom property; survives renames, differs
+# between an object and a new one given its old name); blend: the .blend the bake was made in;
+# settings: a fingerprint of the simulation settings (a partial bake resumes only with the same).
+OWNER_KEYS = ("object_id", "blend", "settings")
 
 
 class CacheError(Exception):
@@ -297,11 +310,14 @@ def _read_root(path, check_frames: bool = True) -> dict:
         "fingerprint": str(prim.attributes["tearcloth:fingerprint"].default)
         if "tearcloth:fingerprint" in prim.attributes
         else "",
+        "owner": {key: str(prim.attributes[f"tearcloth:{key}"].default) for key in OWNER_KEYS
+                  if f"tearcloth:{key}" in prim.attributes},
         "up_axis": str(layer.pseudoRoot.GetInfo("upAxis")) if layer.pseudoRoot.HasInfo("upAxis") else "Y",
         "meters_per_unit": float(layer.pseudoRoot.GetInfo("metersPerUnit"))
         if layer.pseudoRoot.HasInfo("metersPerUnit")
         else 0.01,
         "has_uv": bool(meta.get("has_uv", False)),
+        "uv_name": str(meta.get("uv_name", "st")),
         "has_velocities": bool(meta.get("has_velocities", False)),
         "complete": bool(meta.get("complete", False)),
         "format": int(meta["format"]),
@@ -325,18 +341,28 @@ def cache_info(path) -> dict:
 
     Returns a dict with ``frames`` (sorted ints), ``prim_path`` (the Mesh Sequence Cache
     ``object_path``), ``fps``, ``object`` and ``fingerprint`` (who it was baked for),
-    ``up_axis``, ``meters_per_unit``, ``has_uv``, ``has_velocities``, ``complete`` (False while
+    ``owner`` (the recorded ``OWNER_KEYS``), ``up_axis``, ``meters_per_unit``, ``has_uv``, ``has_velocities``, ``complete`` (False while
     baking or after a crash), ``path``, ``frames_dir``, ``frame_files`` and ``format``.
     Raises ``CacheError`` naming the file and what is wrong.
     """
     return _read_root(path, check_frames=True)
 
 
-def check_owner(path, object_name: str, fingerprint: str | None = None) -> dict:
+def check_owner(path, object_name: str, fingerprint: str | None = None, object_id: str | None = None) -> dict:
     """Refuse a cache baked for another object: ``CacheOwnerError`` unless the cache's object
-    name (and, when given and recorded, mesh fingerprint) match. Returns ``cache_info``."""
+    name (and, when given and recorded, mesh fingerprint) match. With ``object_id`` given and
+    recorded, the id decides instead of the name: a renamed object still owns its cache, a new
+    object that took the old name does not. Returns ``cache_info``."""
     info = cache_info(path)
-    if info["object"] != object_name:
+    recorded_id = info["owner"].get("object_id")
+    if object_id and recorded_id:
+        if recorded_id != object_id:
+            blend = info["owner"].get("blend")
+            raise CacheOwnerError(
+                f"{info['path']}: this cache belongs to another object (baked for {info['object']!r}"
+                + (f" of {blend}" if blend else "") + f", object id {recorded_id}; this object's id is {object_id})"
+            )
+    elif info["object"] != object_name:
         raise CacheOwnerError(
             f"{info['path']}: this cache was baked for object {info['object']!r}, not {object_name!r}"
         )
@@ -346,6 +372,62 @@ def check_owner(path, object_name: str, fingerprint: str | None = None) -> dict:
             f"(fingerprint {info['fingerprint']}, the object's mesh is {fingerprint}); re-bake it"
         )
     return info
+
+
+def owner_of(path) -> dict | None:
+    """Who a cache root says it belongs to: ``{"object": name, **owner fields}`` (a damaged
+    cache whose frames went missing still answers), or None if there is no Tear Cloth root."""
+    try:
+        info = _read_root(path, check_frames=False)
+    except CacheError:
+        return None
+    return {"object": info["object"], "fingerprint": info["fingerprint"], **info["owner"]}
+
+
+def damaged_root(path) -> bool:
+    """True for a cache root USD cannot read (cut short by a crash or a full disk) whose frames
+    folder still holds Tear Cloth frame files and the clip manifest: ``repair_root`` rebuilds it,
+    ``delete_cache`` frees it. Any other unreadable file is not ours to touch."""
+    path = os.path.abspath(os.fspath(path))
+    if not os.path.isfile(path):
+        return False
+    try:
+        _read_root(path, check_frames=False)
+        return False
+    except CacheError:
+        pass
+    frames_dir = frames_dir_for(path)
+    return bool(_scan_frames(frames_dir)) and os.path.isfile(os.path.join(frames_dir, _MANIFEST))
+
+
+def repair_root(path, object_name: str, fingerprint: str | None = None, owner: dict | None = None) -> list[int]:
+    """Rebuild a damaged root (``damaged_root``) from its intact frame files, for the object the
+    caller knows it belongs to (the owner fields lived in the lost root). The prim, fps, axis and
+    units come from the first frame file; every readable frame from the first on is kept, the
+    cache is marked interrupted. Returns the frames. CacheError if the frames cannot be read."""
+    _, Sdf, Tf, _, _ = _pxr()
+    path = os.path.abspath(os.fspath(path))
+    frames = _scan_frames(frames_dir_for(path))
+    if not frames:
+        raise CacheError(f"{path}: no frame files to rebuild the cache from")
+    first = frames[min(frames)]
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(first)
+    except Tf.ErrorException as exc:
+        raise CacheError(f"{first}: cannot rebuild from it ({_tf_text(exc)})") from exc
+    if layer is None or not layer.defaultPrim:
+        raise CacheError(f"{first}: cannot rebuild from it (no mesh prim)")
+    root = layer.pseudoRoot
+    prim = layer.GetPrimAtPath("/" + str(layer.defaultPrim))
+    uv_names = [a.name[len("primvars:"):] for a in (prim.attributes if prim else []) if a.name.startswith("primvars:")]
+    settings = (str(layer.defaultPrim), float(layer.timeCodesPerSecond) or 24.0,
+                str(root.GetInfo("upAxis")) if root.HasInfo("upAxis") else "Z",
+                float(root.GetInfo("metersPerUnit")) if root.HasInfo("metersPerUnit") else 1.0)
+    who = dict(object_name=object_name, fingerprint=fingerprint, owner=owner, uv_name=(uv_names or ["st"])[0])
+    CacheWriter(path, *settings, **who, _root_only=True)  # a root that names no frame yet ...
+    writer = CacheWriter(path, *settings, **who, resume=True)  # ... then adopt the frame files
+    writer.close(complete=False)
+    return writer.frames
 
 
 def _open_stage(path: str):
@@ -418,7 +500,7 @@ def read_frame(path, frame: int):
     triangles = indices.reshape(-1, 3)
     corner_uv = None
     if info["has_uv"]:
-        st = _get(prim, "primvars:st", frame, info, file, True)
+        st = _get(prim, "primvars:" + info["uv_name"], frame, info, file, True)
         corner_uv = np.asarray(st, dtype=np.float64).reshape(-1, 3, 2)
         if len(corner_uv) != len(triangles):
             raise CacheError(f"{file}: frame {frame} has {len(corner_uv)} UV triangles for {len(triangles)} triangles")
@@ -453,7 +535,8 @@ def delete_cache(path) -> None:
     Tear Cloth cache; a missing root only clears the frames folder."""
     path = os.path.abspath(os.fspath(path))
     if os.path.lexists(path):
-        _read_root(path, check_frames=False)  # raises for a foreign or corrupt file: keep it
+        if not damaged_root(path):  # a damaged root of ours goes; a foreign or corrupt file stays
+            _read_root(path, check_frames=False)
         os.remove(path)  # the root first: no moment where it names deleted frames
     folder, base = os.path.split(path)
     for name in os.listdir(folder) if os.path.isdir(folder) else ():
@@ -532,6 +615,9 @@ class CacheWriter:
         resume: bool = False,
         durable: bool = False,
         stage: bool = False,
+        owner: dict | None = None,
+        uv_name: str = "st",
+        _root_only: bool = False,
     ):
         Gf, Sdf, Tf, Usd, Vt = _pxr()
         self.path = os.path.abspath(os.fspath(path))
@@ -549,12 +635,22 @@ class CacheWriter:
             raise ValueError(f"fps must be positive, not {fps!r}")
         if not (float(meters_per_unit) > 0 and np.isfinite(meters_per_unit)):
             raise ValueError(f"meters_per_unit must be positive, not {meters_per_unit!r}")
+        if not Sdf.Path.IsValidIdentifier(uv_name):
+            raise ValueError(f"uv_name {uv_name!r} is not a USD identifier; use e.g. {Tf.MakeValidIdentifier(uv_name)!r}")
+        self.uv_name = uv_name
+        self._uv_attr = "primvars:" + uv_name
         self.prim_path = "/" + prim_name
         self.fps = float(fps)
         self.up_axis = up_axis
         self.meters_per_unit = float(meters_per_unit)
         self.object_name = object_name if object_name is not None else prim_name
         self.fingerprint = fingerprint
+        # who else the cache belongs to (OWNER_KEYS: the object's persistent id, the .blend,
+        # the settings): recorded in the root, compared by check_owner and on resume
+        self.owner = {k: str(v) for k, v in (owner or {}).items() if v}
+        unknown = sorted(set(self.owner) - set(OWNER_KEYS))
+        if unknown:
+            raise ValueError(f"unknown owner field(s) {', '.join(unknown)}; known: {', '.join(OWNER_KEYS)}")
         self.durable = bool(durable)
         self.frames_dir = frames_dir_for(self.path)
         self.bytes_written = 0  # frame files + roots, for benchmarks and progress reports
@@ -564,6 +660,12 @@ class CacheWriter:
         self._closed = False
         self._counts_cache = np.empty(0, dtype=np.int32)
 
+        if _root_only:
+            # repair_root: replace a damaged root by one that names no frame (the frame files
+            # are left alone; a resumed writer adopts them next)
+            self._write_root(complete=False)
+            self._closed = True
+            return
         os.makedirs(os.path.dirname(self.path), exist_ok=True)
         if resume and os.path.lexists(self.path):
             self._resume()
@@ -572,7 +674,7 @@ class CacheWriter:
             # and frames folder) and replaces it only in ``promote`` (called by the bake once the
             # new bake has a simulated frame). Until then the old cache is not touched, so a bake
             # that fails or is cancelled early leaves the previous bake exactly as it was.
-            if os.path.lexists(self.path):
+            if os.path.lexists(self.path) and not damaged_root(self.path):
                 _read_root(self.path, check_frames=False)  # refuse a foreign file before writing anything
             self.path = staging_path_for(self.final_path)
             self.frames_dir = frames_dir_for(self.path)
@@ -669,7 +771,7 @@ class CacheWriter:
             "extent": Vt.Vec3fArray.FromNumpy(np.stack([stage_pos.min(axis=0), stage_pos.max(axis=0)])),
         }
         if uv is not None:
-            values["primvars:st"] = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uv.reshape(-1, 2), dtype=np.float32))
+            values[self._uv_attr] = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uv.reshape(-1, 2), dtype=np.float32))
         if vel is not None:
             values["velocities"] = Vt.Vec3fArray.FromNumpy(_to_stage(vel, self.up_axis, self.meters_per_unit))
         for name, value in values.items():
@@ -758,7 +860,7 @@ class CacheWriter:
     def _attribute_names(self) -> list[str]:
         names = ["points", "faceVertexCounts", "faceVertexIndices", "extent"]
         if self._has_uv:
-            names.append("primvars:st")
+            names.append(self._uv_attr)
         if self._has_vel:
             names.append("velocities")
         return names
@@ -766,8 +868,9 @@ class CacheWriter:
     @staticmethod
     def _declare(prim, name: str):
         _, Sdf, _, _, _ = _pxr()
-        spec = Sdf.AttributeSpec(prim, name, getattr(Sdf.ValueTypeNames, _VARYING[name]))
-        if name == "primvars:st":
+        uv = name.startswith("primvars:")  # the UV map, under its own name
+        spec = Sdf.AttributeSpec(prim, name, getattr(Sdf.ValueTypeNames, _VARYING["primvars:st" if uv else name]))
+        if uv:
             spec.SetInfo("interpolation", "faceVarying")
         return spec
 
@@ -800,6 +903,7 @@ class CacheWriter:
         meta = {"format": FORMAT_VERSION, "prim_path": self.prim_path, "complete": bool(complete)}
         if self._has_uv is not None:
             meta["has_uv"] = bool(self._has_uv)
+            meta["uv_name"] = self.uv_name
             meta["has_velocities"] = bool(self._has_vel)
         layer.customLayerData = {"tearcloth": meta}
 
@@ -810,7 +914,9 @@ class CacheWriter:
         scheme.default = "none"  # a triangle cache, not a subdivision cage
         sided = Sdf.AttributeSpec(prim, "doubleSided", Sdf.ValueTypeNames.Bool, Sdf.VariabilityUniform)
         sided.default = True  # cloth is seen from both sides
-        for name, value in (("tearcloth:object", self.object_name), ("tearcloth:fingerprint", self.fingerprint or "")):
+        owned = [("tearcloth:object", self.object_name), ("tearcloth:fingerprint", self.fingerprint or "")]
+        owned += [(f"tearcloth:{key}", value) for key, value in sorted(self.owner.items())]
+        for name, value in owned:
             spec = Sdf.AttributeSpec(prim, name, Sdf.ValueTypeNames.String, Sdf.VariabilityUniform, declaresCustom=True)
             spec.default = value
         # Clips supply values, never metadata: the primvar's faceVarying interpolation (and the
@@ -847,7 +953,7 @@ class CacheWriter:
             attr = prim.attributes[name] if name in prim.attributes else None
             if attr is None or layer.QueryTimeSample(attr.path, float(frame)) is None:
                 return None
-        return "primvars:st" in prim.attributes, "velocities" in prim.attributes
+        return self._uv_attr in prim.attributes, "velocities" in prim.attributes
 
     def _resume(self) -> None:
         info = _read_root(self.path, check_frames=False)  # CacheError for foreign/corrupt roots
@@ -858,13 +964,22 @@ class CacheWriter:
                 ("fps", info["fps"], self.fps),
                 ("up axis", info["up_axis"], self.up_axis),
                 ("metersPerUnit", info["meters_per_unit"], self.meters_per_unit),
+                ("UV map", info["uv_name"] if info["frames"] and info["has_uv"] else self.uv_name, self.uv_name),
             )
             if theirs != ours
         ]
         if mismatch:
             raise CacheError(f"{self.path}: cannot resume, the cache has " + ", ".join(mismatch))
+        theirs_id, ours_id = info["owner"].get("object_id"), self.owner.get("object_id")
+        if theirs_id and ours_id and theirs_id != ours_id:
+            raise CacheOwnerError(f"{self.path}: cannot resume, the cache belongs to another object "
+                                  f"(baked for {info['object']!r}, object id {theirs_id})")
         if info["object"] != self.object_name:
             raise CacheOwnerError(f"{self.path}: cannot resume, the cache was baked for object {info['object']!r}")
+        theirs_set, ours_set = info["owner"].get("settings"), self.owner.get("settings")
+        if theirs_set and ours_set and theirs_set != ours_set:
+            raise CacheOwnerError(f"{self.path}: cannot resume, the simulation settings changed since the "
+                                  "interrupted bake")
         if self.fingerprint is not None and info["fingerprint"] and info["fingerprint"] != self.fingerprint:
             raise CacheOwnerError(f"{self.path}: cannot resume, the cache was baked for a different mesh")
         self.fingerprint = self.fingerprint or info["fingerprint"] or None

@@ -160,3 +160,17 @@ def test_help_lists_every_sub_command(capsys):
     out = capsys.readouterr().out
     for command in ("bake", "demo", "bench", "clusters"):
         assert f"\n    {command} " in out
+
+
+def test_eta_follows_the_recent_frames():
+    """Frames at 0.1 s each, then 0.3 s each once 'a tear started' (the banknote: ~690 -> ~230
+    steps/s): the ETA at frame 12 of 20 is 8 frames at the recent pace, not at the average."""
+    now = [0.0]
+    p = Progress("Banknote", 1, 20, clock=lambda: now[0])
+    for frame in range(1, 13):
+        now[0] += 0.1 if frame <= 6 else 0.3
+        p.frame_done(frame)
+    assert p.eta_seconds == pytest.approx(8 * 0.3)
+    average = (now[0] / (12 - 1)) * 8
+    assert average < 0.8 * p.eta_seconds  # what a whole-run average would have promised
+    assert "ETA 2 s" in p.text()

@@ -25,6 +25,8 @@ pytest.importorskip("bpy")
 pytest.importorskip("pxr")
 from tearcloth import cache  # noqa: E402
 
+from test_blender_bake import find_cache  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 SQUARE = REPO / "example_blends" / "square_cloth.blend"
 FRAMES = "1-14"
@@ -36,15 +38,15 @@ def command(out: Path, *extra) -> list:
 
 
 def root(out: Path) -> Path:
-    return out / "tearcloth_cache" / "SquareCloth.usda"
+    return Path(find_cache(out / "tearcloth_cache", "SquareCloth", "square_cloth"))
 
 
 def stop_mid_bake(out: Path, sig: int, after_frame: int = 5) -> subprocess.CompletedProcess:
     """Start the bake, send ``sig`` once frame ``after_frame`` is in the cache, wait for the end."""
-    frame_file = out / "tearcloth_cache" / "SquareCloth_frames" / f"frame_{after_frame:06d}.usdc"
+    pattern = f"square_cloth/SquareCloth_frames/frame_{after_frame:06d}.usdc"  # not the hidden staging
     proc = subprocess.Popen(command(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 200
-    while not frame_file.exists():
+    while not list((out / "tearcloth_cache").glob(pattern)):
         assert proc.poll() is None, proc.communicate()[1][-3000:]
         assert time.monotonic() < deadline, "the bake did not reach the frame"
         time.sleep(0.02)
@@ -115,4 +117,5 @@ def test_restart_bakes_from_the_first_frame(tmp_path):
     info = cache.cache_info(root(out))
     assert info["complete"] and info["frames"] == list(range(1, 15))
     assert Path(info["frame_files"][0]).stat().st_mtime_ns != first  # baked again
-    assert sorted(os.listdir(root(out).parent)) == ["SquareCloth.state.npz", "SquareCloth.usda", "SquareCloth_frames"]
+    stem = root(out).stem
+    assert sorted(os.listdir(root(out).parent)) == [f"{stem}.state.npz", f"{stem}.usda", f"{stem}_frames"]

@@ -126,9 +126,10 @@ REBAKE = '''
     from tearcloth import cache
     folder = sys.argv[1]
     obj = build_scene(folder, frame_end=6)
-    path = os.path.join(folder, "tearcloth_cache", "Sheet.usda")
-    state_path = os.path.join(folder, "tearcloth_cache", "Sheet.state.npz")
     assert op("bake", obj) == {"FINISHED"}
+    from tearcloth.blender import modifier
+    path = modifier.cache_path(obj)
+    state_path = path[:-len(".usda")] + ".state.npz"
     md = obj.modifiers["Tear Cloth"]
 
     def snapshot():
@@ -231,3 +232,266 @@ def test_open_collider_is_a_report(tmp_path):
     got = run_blender(tmp_path, OPEN_COLLIDER, tmp_path)
     assert got["state"] == "done"
     assert any("not a closed" in w and "Plane" in w for w in got["warnings"]), got["warnings"]
+
+
+IDENTITY = '''
+    from tearcloth.blender import bake, modifier
+    from tearcloth import cache
+    folder = sys.argv[1]
+    obj = build_scene(folder, name="MySheet", frame_end=3)
+    assert op("bake", obj) == {"FINISHED"}
+    bpy.ops.wm.save_mainfile()  # scene.blend, with the bake
+    first = modifier.cache_path(obj)
+    before = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)]
+    out = dict(first=first, id=modifier.object_id(obj), owner=cache.cache_info(first)["owner"])
+    # 1. the same file saved beside itself under another name: same object names, same ids
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(folder, "copy.blend"))
+    obj.tearcloth.tear_stress = 2e6
+    assert op("bake", obj) == {"FINISHED"}
+    out["copy_path"] = modifier.cache_path(obj)
+    out["first_kept"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    # 2. rename the baked object, make a new one with its old name (a smaller sheet), bake it
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(folder, "scene.blend"))
+    old = bpy.data.objects["MySheet"]
+    old.name = "OldSheet"
+    import mathutils
+    new = bpy.data.objects.new("MySheet", old.data.copy())  # a new object (no id) given the old name
+    new.data.transform(mathutils.Matrix.Scale(0.5, 4))
+    bpy.context.scene.collection.objects.link(new)
+    assert op("enable", new) == {"FINISHED"}
+    new.tearcloth.frame_end = 3
+    assert op("bake", new) == {"FINISHED"}
+    out["new_path"] = modifier.cache_path(new)
+    out["new_id"] = modifier.object_id(new)
+    out["old_plays"] = modifier.attached_path(old)
+    out["old_kept"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    # 3. a duplicate (custom properties copied: the same id) bakes into its own cache
+    dup = old.copy()
+    dup.name = "Dup"
+    bpy.context.scene.collection.objects.link(dup)
+    assert op("bake", dup) == {"FINISHED"}
+    out["dup_id"] = modifier.object_id(dup)
+    out["old_id"] = modifier.object_id(old)
+    out["dup_path"] = modifier.cache_path(dup)
+    out["old_kept_after_dup"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    result(out)
+'''
+
+
+def test_caches_never_collide_across_files_renames_and_duplicates(tmp_path):
+    got = run_blender(tmp_path, IDENTITY, tmp_path)
+    first = got["first"]
+    assert first.endswith(os.path.join("tearcloth_cache", "scene", "MySheet.usda"))
+    assert got["owner"]["object_id"] == got["id"] and got["owner"]["blend"].endswith("scene.blend")
+    assert got["owner"]["settings"]
+    # another file: its own folder, the first file's bake untouched
+    assert got["copy_path"].endswith(os.path.join("tearcloth_cache", "copy", "MySheet.usda"))
+    assert got["first_kept"]
+    # a new object with the old name: its own file; the renamed one still plays its own bake
+    assert got["new_id"] != got["id"]
+    assert got["new_path"].endswith(f"MySheet-{got['new_id']}.usda")
+    assert got["old_plays"] == first and got["old_kept"]
+    # a duplicate gets an id of its own and a cache of its own
+    assert got["dup_id"] not in (got["id"], got["new_id"]) and got["old_id"] == got["id"]
+    assert got["dup_path"].endswith("Dup.usda") and got["old_kept_after_dup"]
+
+
+EDIT_MODE = '''
+    import bmesh
+    from tearcloth.blender import modifier
+    from tearcloth import cache
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=3)
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(obj.data)  # an edit not yet written back to the mesh
+    bm.verts.ensure_lookup_table()
+    bm.verts[0].co.y += 0.01
+    bmesh.update_edit_mesh(obj.data)
+    state = sorted(op("bake", obj))
+    path = modifier.cache_path(obj)
+    positions, triangles, uv = cache.read_frame(path, 1)
+    result(dict(state=state, mode=obj.mode, y0=float(positions[0][1]), has_uv=uv is not None,
+                n=len(positions)))
+'''
+
+
+def test_bake_in_edit_mode_takes_the_edit_mesh(tmp_path):
+    got = run_blender(tmp_path, EDIT_MODE, tmp_path)
+    assert got["state"] == ["FINISHED"] and got["mode"] == "EDIT"
+    assert got["n"] == 400 and got["has_uv"]
+    assert got["y0"] == pytest.approx(0.01, abs=1e-6)  # the edit-mode position, not the saved one
+
+
+TRUNCATED = '''
+    from tearcloth.blender import bake, modifier
+    from tearcloth import cache
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=6)
+    run = bake.bake_object(bpy.context, obj, progress=lambda p: p.frame < 4)  # interrupted at frame 4
+    path = modifier.cache_path(obj)
+    def truncate():
+        with open(path, "rb") as f:
+            text = f.read()
+        with open(path, "wb") as f:
+            f.write(text[: len(text) // 2])
+    truncate()
+    out = dict(first=run.state, damaged=cache.damaged_root(path))
+    r = bake.Reports()
+    resumed = bake.bake_object(bpy.context, obj, resume=True, reports=r)
+    info = cache.cache_info(path)
+    out["resume"] = dict(state=resumed.state, frames=info["frames"], complete=info["complete"], warnings=r.warnings,
+                         readable=all(len(cache.read_frame(path, f)[0]) >= 400 for f in info["frames"]))
+    truncate()
+    out["free"] = attempt("free_bake", obj)
+    out["left"] = sorted(os.listdir(os.path.dirname(path)))
+    result(out)
+'''
+
+
+def test_truncated_root_is_rebuilt_or_freed(tmp_path):
+    got = run_blender(tmp_path, TRUNCATED, tmp_path)
+    assert got["first"] == "cancelled" and got["damaged"]
+    res = got["resume"]
+    assert res["state"] == "done" and res["frames"] == [1, 2, 3, 4, 5, 6] and res["complete"] and res["readable"]
+    assert any("damaged" in w and "rebuilt" in w and "frames 1-4" in w for w in res["warnings"]), res["warnings"]
+    assert got["free"][0] == ["FINISHED"]
+    assert got["left"] == []  # root, frames and resume state gone
+
+
+VALUES = '''
+    from tearcloth.blender import bake
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=2)
+    s = obj.tearcloth
+    out = {}
+    for name, value in (("young", 0.0), ("poisson", 0.5), ("density", 0.0), ("thickness", -0.001),
+                        ("tear_stress", -5.0)):
+        keep = getattr(s, name)
+        setattr(s, name, value)
+        out[name] = attempt("bake", obj)
+        setattr(s, name, keep)
+    s.young = 100.0  # possible, but no cloth is that soft
+    r = bake.Reports()
+    out["soft"] = dict(state=bake.bake_object(bpy.context, obj, reports=r).state, warnings=r.warnings)
+    result(out)
+'''
+
+
+def test_absurd_values_are_refused_and_suspicious_ones_warned(tmp_path):
+    got = run_blender(tmp_path, VALUES, tmp_path)
+    for name, shown in (("young", "young = 0.0 Pa"), ("poisson", "poisson = 0.5"), ("density", "density = 0.0"),
+                        ("thickness", "thickness = 0.0 m"), ("tear_stress", "tear_stress = 0.0 Pa")):
+        state, message = got[name]
+        assert state == ["ERROR"] and shown in message and "hard bounds" in message, (name, message)
+    soft = got["soft"]
+    assert soft["state"] == "done"
+    assert any("young = 100.0 Pa is unusual" in w for w in soft["warnings"]), soft["warnings"]
+
+
+UNITS = '''
+    import tearcloth
+    from tearcloth.blender import convert
+    out = {}
+    for scale in (1.0, 0.01):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        tearcloth.register()
+        scene = bpy.context.scene
+        scene.unit_settings.scale_length = scale
+        bpy.ops.mesh.primitive_plane_add()
+        obj = bpy.context.active_object
+        assert op("enable", obj) == {"FINISHED"}
+        s = obj.tearcloth
+        fresh = dict(thickness=s.thickness, collision=s.collision_thickness, threshold=s.displacement_threshold,
+                     si=convert.material_from_settings(s, scene).thickness)
+        s.thickness = 1.0  # a preset writes physical values through the scene's units
+        assert op("material_preset", obj, preset="cotton") == {"FINISHED"}
+        out[str(scale)] = dict(fresh=fresh, preset=s.thickness)
+    result(out)
+'''
+
+
+def test_defaults_and_presets_follow_the_scene_unit_scale(tmp_path):
+    got = run_blender(tmp_path, UNITS)
+    metre, cm = got["1.0"], got["0.01"]
+    assert metre["fresh"]["thickness"] == pytest.approx(4e-4)
+    for key in ("thickness", "collision", "threshold"):
+        assert cm["fresh"][key] == pytest.approx(metre["fresh"][key] / 0.01), key  # 0.4 mm is 0.04 cm
+    assert cm["fresh"]["si"] == pytest.approx(4e-4) and metre["fresh"]["si"] == pytest.approx(4e-4)
+    assert cm["preset"] == pytest.approx(0.04) and metre["preset"] == pytest.approx(4e-4)
+
+
+UV_BAKE = '''
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=12)
+    obj.data.uv_layers.new(name="Second")  # added after UVMap; UVMap stays the active one
+    r = bake.Reports()
+    res = bake.bake_object(bpy.context, obj, reports=r)
+    bpy.ops.wm.save_mainfile()
+    result(dict(state=res.state, warnings=r.warnings, path=modifier.cache_path(obj)))
+'''
+
+UV_PLAY = '''
+    bpy.ops.wm.open_mainfile(filepath=sys.argv[1])
+    assert "tearcloth" not in sys.modules
+    obj = bpy.data.objects["Sheet"]
+    bpy.context.scene.frame_set(12)
+    ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+    m = ev.to_mesh()
+    uv = np.empty(2 * len(m.loops), np.float32)
+    m.uv_layers["UVMap"].data.foreach_get("uv", uv)
+    result(dict(names=[u.name for u in m.uv_layers], active=m.uv_layers.active.name, n=len(m.vertices),
+                loops=len(m.loops), uv=uv.tolist()))
+'''
+
+
+def test_uvs_arrive_under_the_users_name(tmp_path):
+    baked = run_blender(tmp_path, UV_BAKE, tmp_path)
+    assert baked["state"] == "done"
+    assert any("'Second'" in w and "not in the baked mesh" in w for w in baked["warnings"]), baked["warnings"]
+    played = run_blender(tmp_path, UV_PLAY, tmp_path / "scene.blend", name="play.py")
+    positions, triangles, corner_uv = cache.read_frame(baked["path"], 12)
+    assert played["n"] > 400, "the sheet should have torn by frame 12"
+    # the user's map, active; (Blender keeps the input mesh's other map beside it, not carried: warned)
+    assert played["names"][0] == "UVMap" and played["active"] == "UVMap"
+    uv = np.array(played["uv"]).reshape(-1, 2)
+    assert len(uv) == 3 * len(triangles) and np.abs(uv).max() > 0.5  # real UVs, not a layer of zeros
+    np.testing.assert_allclose(uv, corner_uv.reshape(-1, 2), atol=1e-6)
+
+
+PRESETS = '''
+    import tearcloth
+    from tearcloth.blender import convert, ui
+    out = {}
+    def sheet(scale):
+        bpy.ops.wm.read_factory_settings(use_empty=True)
+        tearcloth.register()
+        bpy.context.scene.unit_settings.scale_length = scale
+        bpy.ops.mesh.primitive_plane_add()
+        obj = bpy.context.active_object
+        assert op("enable", obj) == {"FINISHED"}
+        return obj
+    obj = sheet(0.01)  # saved from a centimetre scene ...
+    s = obj.tearcloth
+    s.young, s.tear_stress, s.thickness = 2.5e6, 1.5e6, 0.12  # 0.12 cm = 1.2 mm felt
+    with bpy.context.temp_override(object=obj, active_object=obj):
+        assert bpy.ops.tearcloth.material_preset_save(name="My Felt") == {"FINISHED"}
+    path = bpy.utils.preset_find("My Felt", ui.PRESET_SUBDIR, display_name=True)  # as the menu lists it
+    obj = sheet(1.0)  # ... applied in a metre scene, through Blender's own preset operator
+    with bpy.context.temp_override(object=obj, active_object=obj):
+        state = bpy.ops.script.execute_preset(filepath=path, menu_idname="TEARCLOTH_MT_material_presets")
+    m = convert.material_from_settings(obj.tearcloth, bpy.context.scene)
+    result(dict(path=path, state=sorted(state), young=m.young, tear=m.tear_stress, thickness=m.thickness,
+                name=obj.tearcloth.material_preset))
+'''
+
+
+def test_users_save_and_share_material_presets(tmp_path, monkeypatch):
+    monkeypatch.setenv("BLENDER_USER_SCRIPTS", str(tmp_path / "scripts"))  # not the machine's own folder
+    got = run_blender(tmp_path, PRESETS)
+    assert got["path"].startswith(str(tmp_path / "scripts")) and got["path"].endswith(".py")
+    assert got["state"] == ["FINISHED"] and got["name"] == "My Felt"
+    assert got["young"] == pytest.approx(2.5e6) and got["tear"] == pytest.approx(1.5e6)
+    assert got["thickness"] == pytest.approx(1.2e-3)  # metres, whatever the scene's unit scale

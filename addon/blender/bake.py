@@ -83,7 +83,14 @@ class BakeRun:
                 scene.frame_set(first)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                self.plan, self.sources = build_plan(context, obj, frame_start, frame_end, resume, self.reports)
+                try:
+                    self.plan, self.sources = build_plan(context, obj, frame_start, frame_end, resume, self.reports)
+                except BakeError:
+                    raise
+                except Exception as exc:  # a bug: a report (and the frame restored), not a traceback
+                    self.reports.error(f"{getattr(obj, 'name', '?')}: internal error while checking the bake "
+                                       f"({type(exc).__name__}: {exc}); please report it")
+                    self.reports.raise_if_errors()
             self._report_warnings(caught)
             self.object_name = obj.name
             self.progress = Progress(obj.name, self.plan.frame_start, self.plan.frame_end)
@@ -114,7 +121,7 @@ class BakeRun:
         """Show the cache that is at the object's path again (the previous bake a failed or
         cancelled re-bake left as it was); False if there is none."""
         try:
-            cache.check_owner(self.plan.cache_path, obj.name)
+            cache.check_owner(self.plan.cache_path, obj.name, object_id=self.plan.object_id)
         except cache.CacheError:
             return False
         try:
@@ -352,20 +359,22 @@ def free_bake(obj, reports: Reports) -> bool:
         path = attached
     elif os.path.lexists(path):
         try:
-            cache.check_owner(path, obj.name)
+            cache.check_owner(path, obj.name, object_id=modifier.object_id(obj))
         except cache.CacheOwnerError as exc:
             reports.error(f"{obj.name}: {exc}; left untouched")
             return False
         except cache.CacheError:
             pass  # damaged: delete_cache below still refuses anything that is not a Tear Cloth cache
     modifier.detach_cache(obj)
+    damaged = cache.damaged_root(path)
     try:
         cache.delete_cache(path)
     except cache.CacheError as exc:
         reports.error(f"{obj.name}: {exc}; left untouched")
         return False
     delete_state(path)
-    reports.info(f"{obj.name}: freed the bake at {path}")
+    reports.info(f"{obj.name}: freed the bake at {path}"
+                 + (" (its root file was damaged, cut short; its frame files are deleted with it)" if damaged else ""))
     return True
 
 

@@ -88,6 +88,21 @@ def _to_blender(row, settings, scene, value) -> None:
     setattr(settings, row.blender_name, value)
 
 
+def scene_length_defaults(settings, scene) -> list:
+    """Write the table's default of every length of ``settings`` (an object's or the scene's
+    Tear Cloth settings) the user has not set, converted to the scene's units: the properties'
+    own defaults are metres taken as Blender units, 100 times too small in a centimetre scene.
+    Returns the names written."""
+    written = []
+    for row in table.SETTINGS:
+        name = row.blender_name
+        if (row.is_scene_length and name is not None and hasattr(settings, name)
+                and not settings.is_property_set(name)):
+            _to_blender(row, settings, scene, row.default)
+            written.append(name)
+    return written
+
+
 def material_from_settings(settings, scene) -> Material:
     """The object's Tear Cloth material settings as an SI ``Material`` (ValueError if absurd)."""
     values = {row.name: _from_blender(row, settings, scene) for row in table.rows("material")}
@@ -154,6 +169,8 @@ class MeshArrays:
     ngons: int = 0
     loose: int = 0
     polygons: np.ndarray | None = None  # (m,) the mesh's polygon index of every triangle
+    uv_name: str | None = None          # the name of the UV map corner_uv comes from (the active one)
+    other_uv: list = field(default_factory=list)  # names of the UV maps that are not carried
 
 
 def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> MeshArrays:
@@ -187,6 +204,8 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
         loop_uv = np.empty(2 * len(mesh.loops), dtype=np.float64)
         layer.data.foreach_get("uv", loop_uv)
         corner_uv = loop_uv.reshape(-1, 2)[tri_loops].reshape(m, 3, 2)
+    uv_name = layer.name if corner_uv is not None else None
+    other_uv = [u.name for u in mesh.uv_layers if u.name != uv_name] if uv else []
 
     groups = {}
     if group_names:
@@ -223,6 +242,8 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
         ngons=ngons,
         loose=loose,
         polygons=tri_polygons,
+        uv_name=uv_name,
+        other_uv=other_uv,
     )
 
 

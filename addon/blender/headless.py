@@ -251,7 +251,7 @@ def _start_run(obj, start, end, reports: Reports, listen, progress: ProgressLine
 def _partial_bake(obj) -> list | None:
     """The frames of an interrupted bake at the object's cache path, or None."""
     try:
-        info = cache.check_owner(modifier.cache_path(obj), obj.name)
+        info = cache.check_owner(modifier.cache_path(obj), obj.name, object_id=modifier.object_id(obj))
     except (BakeError, cache.CacheError):
         return None
     return info["frames"] if info["frames"] and not info["complete"] else None

@@ -20,6 +20,7 @@ from .. import cache
 from .. import settings as table
 from ..materials import MATERIALS
 from . import bake, haptic_session, modifier
+from .ops import PRESET_SUBDIR
 
 
 def _rows(layout, data, block):
@@ -66,12 +67,19 @@ class TearClothPanel:
 
 
 class TEARCLOTH_MT_material_presets(Menu):
+    """The built-in materials, then the user's own (Blender's preset files, ops.PRESET_SUBDIR)."""
+
     bl_label = "Material Presets"
+    preset_subdir = PRESET_SUBDIR
+    preset_operator = "script.execute_preset"
 
     def draw(self, context):
         layout = self.layout
         for name in MATERIALS:
             layout.operator("tearcloth.material_preset", text=name.title()).preset = name
+        layout.separator()
+        self.draw_preset(context)
+        layout.operator("tearcloth.material_preset_save", text="Save Preset...", icon="ADD")
 
 
 def _draw_presets(layout, settings):
