@@ -537,7 +537,14 @@ def delete_cache(path) -> None:
     if os.path.lexists(path):
         if not damaged_root(path):  # a damaged root of ours goes; a foreign or corrupt file stays
             _read_root(path, check_frames=False)
-        os.remove(path)  # the root first: no moment where it names deleted frames
+    _remove_cache_files(path)
+
+
+def _remove_cache_files(path: str) -> None:
+    """Delete a root (first: no moment where it names deleted frames), its temporaries, its
+    frame files and manifest, then its frames folder if nothing else is in it. No checks: the
+    callers decided the files are ours."""
+    _remove_quietly(path)
     folder, base = os.path.split(path)
     for name in os.listdir(folder) if os.path.isdir(folder) else ():
         if name.startswith(_TMP_PREFIX) and name.endswith("-" + base):
@@ -564,20 +571,7 @@ def staging_path_for(path) -> str:
 def _remove_staging(staging: str) -> None:
     """Delete a staging root and its frames folder. Their hidden names are made only by
     ``CacheWriter(stage=True)``, so whatever is there is a left-over of a bake attempt."""
-    _remove_quietly(staging)
-    folder, base = os.path.split(staging)
-    for name in os.listdir(folder) if os.path.isdir(folder) else ():
-        if name.startswith(_TMP_PREFIX) and name.endswith("-" + base):
-            _remove_quietly(os.path.join(folder, name))
-    frames_dir = frames_dir_for(staging)
-    if os.path.isdir(frames_dir):
-        for name in os.listdir(frames_dir):
-            if _FRAME_RE.match(name) or name == _MANIFEST or name.startswith(_TMP_PREFIX):
-                _remove_quietly(os.path.join(frames_dir, name))
-        try:
-            os.rmdir(frames_dir)
-        except OSError:
-            pass
+    _remove_cache_files(staging)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -116,7 +116,7 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
     assert "operator" in drawn["TEARCLOTH_PT_haptics"]  # Start Haptic Session, Discover, ...
     assert drawn["TEARCLOTH_PT_material"].count("prop") == 9
     assert "template_list" in drawn["TEARCLOTH_PT_pins"] and "template_list" in drawn["TEARCLOTH_PT_collision"]
-    assert drawn["menu+button"].count("operator") == 5 + 1  # five presets, the disable button
+    assert drawn["menu+button"].count("operator") == 5 + 1 + 1  # five presets, Save Preset..., the disable button
     assert drawn["running"] == ["progress", "operator"]  # the bar and Cancel
     assert drawn["status"] == ["progress"]
     assert "operator" in drawn["cache_running"] and "tearcloth.bake" not in drawn["cache_running"]

@@ -67,18 +67,21 @@ class TearClothPanel:
 
 
 class TEARCLOTH_MT_material_presets(Menu):
-    """The built-in materials, then the user's own (Blender's preset files, ops.PRESET_SUBDIR)."""
+    """The built-in materials, then the user's own: Blender preset files (ops.PRESET_SUBDIR in
+    every scripts folder Blender searches), applied by Blender's ``script.execute_preset``."""
 
     bl_label = "Material Presets"
-    preset_subdir = PRESET_SUBDIR
-    preset_operator = "script.execute_preset"
 
     def draw(self, context):
         layout = self.layout
         for name in MATERIALS:
             layout.operator("tearcloth.material_preset", text=name.title()).preset = name
         layout.separator()
-        self.draw_preset(context)
+        for folder in bpy.utils.preset_paths(PRESET_SUBDIR):
+            for file in sorted(f for f in os.listdir(folder) if f.endswith(".py")):
+                item = layout.operator("script.execute_preset", text=bpy.path.display_name(file))
+                item.filepath = os.path.join(folder, file)
+                item.menu_idname = "TEARCLOTH_MT_material_presets"
         layout.operator("tearcloth.material_preset_save", text="Save Preset...", icon="ADD")
 
 
