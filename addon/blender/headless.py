@@ -5,7 +5,9 @@ What this file owns: ``bake_file`` (run a plan checked by ``tearcloth.cli`` befo
 imported), ``ObjectResult`` (how one object's bake ended), ``render`` and ``frame_path``
 (Blender's ``#`` frame-number convention), and ``InputError`` for the bad input that only the
 opened file can reveal (no Tear Cloth object, an unknown name, no camera): the CLI turns it into
-its one-line error and exit status 2. Progress reaches the caller as the bake job's events
+its one-line error and exit status 2. Each object's bake resumes an interrupted bake of the same
+object found in its cache (``_start_run``; ``plan.restart`` starts over), and SIGTERM/SIGINT stop
+the run cleanly (``_Stop``: the frame in progress is dropped, the file saved). Progress reaches the caller as the bake job's events
 (``tearcloth.bake.BakeEvent``), drawn by a ``ProgressLine``; nothing here prints but through it.
 
 The plan (``tearcloth.cli.FilePlan``) is read by attribute only: ``source``, ``compressed``,
