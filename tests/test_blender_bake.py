@@ -106,8 +106,14 @@ def run_blender(tmp_path: Path, body: str, *args, timeout: float = 120.0, name: 
     return json.loads(lines[-1][len("RESULT "):])
 
 
-def cache_root(folder: Path, name: str = "Sheet") -> str:
-    return str(folder / "tearcloth_cache" / f"{name}.usda")
+def cache_root(folder: Path, name: str = "Sheet", blend: str = "scene") -> str:
+    """The cache root of object ``name`` baked in ``folder/<blend>.blend`` (the default cache
+    folder: ``//tearcloth_cache/<blend>/<name>.usda``)."""
+    return find_cache(folder / "tearcloth_cache", name, blend)
+
+
+def find_cache(cache_folder: Path, name: str, blend: str) -> str:
+    return str(cache_folder / blend / f"{name}.usda")
 
 
 # Plays the saved .blend with stock Blender only: the add-on is never imported in this child.
@@ -144,7 +150,7 @@ PLAYBACK = '''
     scene.render.resolution_x = scene.render.resolution_y = 480
     scene.display.shading.light = "STUDIO"
     scene.display.shading.show_object_outline = True
-    # a colour grid through the baked UVs ('st'): the texture stays put on both sides of the tear
+    # a colour grid through the baked UVs (the user's 'UVMap'): the texture stays put on both sides of the tear
     grid = bpy.data.images.new("grid", 512, 512)
     grid.generated_type = "COLOR_GRID"
     mat = bpy.data.materials.new("grid")
@@ -179,7 +185,8 @@ def test_bake_through_operators_plays_back_in_stock_blender(tmp_path):
                     mesh_faces=len(obj.data.polygons), frame=bpy.context.scene.frame_current))
     ''', tmp_path)
     assert baked["state"] == ["FINISHED"]
-    assert baked["cache"] == "//tearcloth_cache/Sheet.usda"  # relative: moves with the .blend
+    # relative (moves with the .blend), in a folder of its own .blend (apart from other files')
+    assert baked["cache"] == "//tearcloth_cache/scene/Sheet.usda", baked["cache"]
     assert baked["mesh_faces"] == 19 * 19  # the user's quads are untouched
     assert baked["frame"] == 1  # the scene is back on the frame it was on
     print(f"bake: {baked['seconds'] / 20:.3f} s per frame (20 frames, 400 vertices, 10 steps/frame)")
@@ -204,7 +211,7 @@ def test_bake_through_operators_plays_back_in_stock_blender(tmp_path):
         assert co.shape == positions.shape, f"frame {frame}"
         np.testing.assert_array_equal(co, positions.astype(np.float32))  # the very numbers baked
         assert got["faces"] == len(triangles)
-        assert "st" in got["uv"]
+        assert got["uv"] == ["UVMap"]  # under the user's own name, so materials find it
         assert corner_uv is not None and corner_uv.shape == (len(triangles), 3, 2)
         counts.append(len(co))
     assert counts[0] == 400

@@ -28,6 +28,8 @@ pytest.importorskip("bpy")  # Blender runs in the children only
 pytest.importorskip("pxr")
 from tearcloth import cache, examples  # noqa: E402
 
+from test_blender_bake import find_cache  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "example_blends"
 SUMMARY = re.compile(r"^(?P<name>\S+): baked frames (?P<a>-?\d+)-(?P<b>-?\d+): (?P<tears>\d+) tears?, "
@@ -103,7 +105,7 @@ def test_square_cloth_bakes_and_the_render_shows_the_tear(tmp_path):
     assert (tmp_path / "square_cloth.blend").is_file() and not (tmp_path / "square_cloth.blend1").exists()
     s = baked["SquareCloth"]
     assert s["frames"] == (1, 24) and s["tears"] >= 1
-    root = tmp_path / "tearcloth_cache" / "SquareCloth.usda"
+    root = find_cache(tmp_path / "tearcloth_cache", "SquareCloth", "square_cloth")
     info = cache.cache_info(root)
     assert info["frames"] == list(range(1, 25)) and info["complete"]
     check_cache_torn(root, 1, 24)
@@ -115,7 +117,7 @@ def test_banknote_bakes_and_the_render_shows_the_tear(tmp_path):
                  "--render-frame", "1,20", "--resolution-percent", "25", "--transparent")
     s = baked["Banknote"]
     assert s["frames"] == (1, 20) and s["tears"] >= 1
-    root = tmp_path / "tearcloth_cache" / "Banknote.usda"
+    root = find_cache(tmp_path / "tearcloth_cache", "Banknote", "banknote")
     check_cache_torn(root, 1, 20)
     v, t, _ = cache.read_frame(root, 20)
     assert examples.validate_mesh(v, t)["n_components"] >= 2, "the note is not torn in two by frame 20"
@@ -186,7 +188,7 @@ def test_tshirt_bakes_and_stays_outside_the_walking_body(tmp_path):
     source = EXAMPLES / "tshirt.blend"
     baked = bake(source, tmp_path, "--frames", f"1-{frames}", timeout=400)
     assert baked["TShirt"]["frames"] == (1, frames)
-    root = tmp_path / "tearcloth_cache" / "TShirt.usda"
+    root = find_cache(tmp_path / "tearcloth_cache", "TShirt", "tshirt")
     script = tmp_path / "dump_body.py"
     script.write_text(BODY_DUMP)
     dump, png = tmp_path / "body.npz", tmp_path / "tshirt.png"
@@ -350,5 +352,5 @@ def test_overwrite_bakes_into_the_given_file_only(tmp_path):
     proc = run_cli(work, "--overwrite", "--frames", "1-3", timeout=240)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
     assert work.read_bytes() != before and (tmp_path / "shot.blend1").exists()  # Blender's usual backup
-    assert cache.cache_info(tmp_path / "tearcloth_cache" / "SquareCloth.usda")["frames"] == [1, 2, 3]
+    assert cache.cache_info(find_cache(tmp_path / "tearcloth_cache", "SquareCloth", "shot"))["frames"] == [1, 2, 3]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shot.blend", "shot.blend1", "tearcloth_cache"]

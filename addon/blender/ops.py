@@ -18,6 +18,7 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy.types import Operator
 
+from .. import settings as table
 from .. import spaces
 from ..materials import MATERIALS
 from . import bake, convert, haptic_session, jobs, modifier
@@ -56,6 +57,8 @@ class TEARCLOTH_OT_enable(Operator):
             reports.to_operator(self)
             return {"CANCELLED"}
         modifier.add_modifier(obj)
+        # lengths the user never set start as their physical defaults in this scene's units
+        convert.scene_length_defaults(obj.tearcloth, context.scene)
         return {"FINISHED"}
 
 
@@ -295,6 +298,65 @@ class TEARCLOTH_OT_material_preset(Operator):
     def execute(self, context):
         convert.material_to_settings(MATERIALS[self.preset], context.object.tearcloth, context.scene)
         return {"FINISHED"}
+
+
+# Users' own material presets: Python files in Blender's preset folder
+# (<user scripts>/presets/tearcloth/material/), listed by the presets menu next to the built-in
+# ones and applied by Blender's own ``script.execute_preset``, so they can be copied to other
+# machines like any Blender preset. The file holds SI values and converts the lengths through the
+# unit scale of the scene it is applied in (Blender's AddPresetBase would store Blender units,
+# wrong in a scene with another unit scale).
+PRESET_SUBDIR = os.path.join("tearcloth", "material")
+
+
+def preset_file_text(settings, scene, name: str) -> str:
+    """The preset file of the object's current material (one line per material row)."""
+    material = convert.material_from_settings(settings, scene)
+    lines = ["# Tear Cloth material preset (SI units; lengths converted to the scene's units)", "import bpy",
+             "settings = bpy.context.object.tearcloth",
+             "scale = bpy.context.scene.unit_settings.scale_length or 1.0"]
+    for row in table.rows("material"):
+        if row.name == "name":
+            lines.append(f"settings.{row.blender_name} = {name!r}")
+        elif row.is_scene_length:
+            lines.append(f"settings.{row.blender_name} = {getattr(material, row.name)!r} / scale  # {row.unit}")
+        else:
+            lines.append(f"settings.{row.blender_name} = {getattr(material, row.name)!r}  # {row.unit}")
+    return "\n".join(lines) + "\n"
+
+
+class TEARCLOTH_OT_material_preset_save(Operator):
+    """Save this object's material as a preset of your own (listed in the presets menu, shareable as a file)"""
+
+    bl_idname = "tearcloth.material_preset_save"
+    bl_label = "Save Material Preset"
+
+    name: StringProperty(name="Name", description="Name of the preset (its file name too)", maxlen=64)
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and modifier.is_enabled(context.object)
+
+    def invoke(self, context, event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    def execute(self, context):
+        reports = Reports()
+        name = self.name.strip()
+        if not name:
+            reports.error("give the preset a name")
+            return _finish(self, reports, {"CANCELLED"})
+        try:
+            text = preset_file_text(context.object.tearcloth, context.scene, name)
+        except ValueError as exc:
+            reports.error(f"{context.object.name}: {exc}; not saved")
+            return _finish(self, reports, {"CANCELLED"})
+        folder = bpy.utils.user_resource("SCRIPTS", path=os.path.join("presets", PRESET_SUBDIR), create=True)
+        path = os.path.join(folder, bpy.path.clean_name(name) + ".py")
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+        reports.info(f"saved the material preset {name!r} to {path}")
+        return _finish(self, reports, {"FINISHED"})
 
 
 class TEARCLOTH_OT_handle_add(Operator):
@@ -732,6 +794,7 @@ classes = (
     TEARCLOTH_OT_bake_cancel,
     TEARCLOTH_OT_free_bake,
     TEARCLOTH_OT_material_preset,
+    TEARCLOTH_OT_material_preset_save,
     TEARCLOTH_OT_handle_add,
     TEARCLOTH_OT_handle_remove,
     TEARCLOTH_OT_collider_add,

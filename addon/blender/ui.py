@@ -20,6 +20,7 @@ from .. import cache
 from .. import settings as table
 from ..materials import MATERIALS
 from . import bake, haptic_session, modifier
+from .ops import PRESET_SUBDIR
 
 
 def _rows(layout, data, block):
@@ -66,12 +67,22 @@ class TearClothPanel:
 
 
 class TEARCLOTH_MT_material_presets(Menu):
+    """The built-in materials, then the user's own: Blender preset files (ops.PRESET_SUBDIR in
+    every scripts folder Blender searches), applied by Blender's ``script.execute_preset``."""
+
     bl_label = "Material Presets"
 
     def draw(self, context):
         layout = self.layout
         for name in MATERIALS:
             layout.operator("tearcloth.material_preset", text=name.title()).preset = name
+        layout.separator()
+        for folder in bpy.utils.preset_paths(PRESET_SUBDIR):
+            for file in sorted(f for f in os.listdir(folder) if f.endswith(".py")):
+                item = layout.operator("script.execute_preset", text=bpy.path.display_name(file))
+                item.filepath = os.path.join(folder, file)
+                item.menu_idname = "TEARCLOTH_MT_material_presets"
+        layout.operator("tearcloth.material_preset_save", text="Save Preset...", icon="ADD")
 
 
 def _draw_presets(layout, settings):
