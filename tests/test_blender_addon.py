@@ -36,13 +36,6 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
         tearcloth.register()
         tearcloth.register()  # twice in a row is harmless too
         states.append(present())
-        def op_exists(idname):
-            module, name = idname.split(".")
-            try:
-                getattr(getattr(bpy.ops, module), name).get_rna_type()
-                return True
-            except (KeyError, AttributeError):
-                return False
         callable_ops = [op_exists("tearcloth." + o) for o in ops]
 
         # Draw every panel against a recording layout that checks each property and operator name.
@@ -192,12 +185,7 @@ BAD_INPUTS = '''
     from tearcloth.blender import bake_object, BakeError, bake
     from tearcloth import cache
 
-    logged = []
-    class Collect(logging.Handler):
-        def emit(self, record):
-            logged.append((record.levelname, record.getMessage()))
-    logging.getLogger("tearcloth").addHandler(Collect())
-    logging.getLogger("tearcloth").setLevel(logging.INFO)
+    logged = collect_log()
 
     folder = sys.argv[1]
     out = {}

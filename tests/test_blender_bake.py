@@ -89,6 +89,46 @@ PRELUDE = textwrap.dedent(
 
     def result(value):
         print("RESULT " + json.dumps(value), flush=True)
+
+    import contextlib
+    import logging
+
+    def collect_log(level=logging.INFO):
+        """From now on, every record of the add-on's logger as (level name, message)."""
+        logged = []
+
+        class Collect(logging.Handler):
+            def emit(self, record):
+                logged.append((record.levelname, record.getMessage()))
+
+        logger = logging.getLogger("tearcloth")
+        logger.addHandler(Collect())
+        logger.setLevel(level)
+        return logged
+
+    @contextlib.contextmanager
+    def evaluated_mesh(obj):
+        """The object's mesh as evaluated at the current frame (modifiers applied), freed after."""
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        try:
+            yield ev.to_mesh()
+        finally:
+            ev.to_mesh_clear()
+
+    def positions(mesh):
+        """A mesh's vertex coordinates as a flat float32 array (foreach_get: no Python per vertex)."""
+        co = np.empty(3 * len(mesh.vertices), np.float32)
+        mesh.vertices.foreach_get("co", co)
+        return co
+
+    def op_exists(idname):
+        """An operator is registered under this id (``bpy.ops.x.y`` resolves to a real RNA type)."""
+        module, name = idname.split(".")
+        try:
+            getattr(getattr(bpy.ops, module), name).get_rna_type()
+            return True
+        except (KeyError, AttributeError):
+            return False
     '''
 )
 
@@ -129,13 +169,8 @@ PLAYBACK = '''
     frames = {}
     for frame in range(1, 21):
         scene.frame_set(frame)
-        dg = bpy.context.evaluated_depsgraph_get()
-        ev = obj.evaluated_get(dg)
-        m = ev.to_mesh()
-        co = np.empty(3 * len(m.vertices), np.float32)
-        m.vertices.foreach_get("co", co)
-        frames[frame] = dict(co=co.tolist(), faces=len(m.polygons), uv=[layer.name for layer in m.uv_layers])
-        ev.to_mesh_clear()
+        with evaluated_mesh(obj) as m:
+            frames[frame] = dict(co=positions(m).tolist(), faces=len(m.polygons), uv=[layer.name for layer in m.uv_layers])
     # the modifier below works on the torn mesh (Solidify doubles it)
     below.show_viewport = True
     scene.frame_set(12)

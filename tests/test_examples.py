@@ -28,7 +28,7 @@ pytest.importorskip("bpy")  # Blender runs in the children only
 pytest.importorskip("pxr")
 from tearcloth import cache, examples  # noqa: E402
 
-from test_blender_bake import find_cache  # noqa: E402
+from test_blender_bake import PRELUDE, find_cache  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "example_blends"
@@ -153,7 +153,6 @@ def test_demo_bakes_the_square_cloth_and_plots_the_hand_forces(tmp_path):
 # Opens the baked T-shirt scene with STOCK Blender (the add-on is not imported): the body as the
 # Armature modifier deforms it, at each frame asked for, plus a render of the last one.
 BODY_DUMP = '''
-import sys, numpy as np, bpy
 blend, out, png = sys.argv[1], sys.argv[2], sys.argv[3]
 frames = [int(f) for f in sys.argv[4:]]
 bpy.ops.wm.open_mainfile(filepath=blend)
@@ -163,17 +162,13 @@ body = bpy.data.objects["Mannequin"]
 data = {}
 for f in frames:
     scene.frame_set(f)
-    dg = bpy.context.evaluated_depsgraph_get()
-    ev = body.evaluated_get(dg)
-    m = ev.to_mesh()
-    co = np.empty(3 * len(m.vertices), np.float32)
-    m.vertices.foreach_get("co", co)
-    tri = np.empty(3 * len(m.polygons), np.int32)
-    m.polygons.foreach_get("vertices", tri)
+    with evaluated_mesh(body) as m:
+        co = positions(m)
+        tri = np.empty(3 * len(m.polygons), np.int32)
+        m.polygons.foreach_get("vertices", tri)
     mw = np.array(body.matrix_world)
     co = co.reshape(-1, 3).astype(np.float64) @ mw[:3, :3].T + mw[:3, 3]
     data[f"v{f}"], data["triangles"] = co, tri.reshape(-1, 3)
-    ev.to_mesh_clear()
 np.savez(out, **data)
 scene.render.resolution_percentage = 25
 scene.render.film_transparent = True
@@ -190,7 +185,7 @@ def test_tshirt_bakes_and_stays_outside_the_walking_body(tmp_path):
     assert baked["TShirt"]["frames"] == (1, frames)
     root = find_cache(tmp_path / "tearcloth_cache", "TShirt", "tshirt")
     script = tmp_path / "dump_body.py"
-    script.write_text(BODY_DUMP)
+    script.write_text(PRELUDE + BODY_DUMP)  # the shared helpers (bpy only: the add-on stays out)
     dump, png = tmp_path / "body.npz", tmp_path / "tshirt.png"
     proc = subprocess.run([sys.executable, str(script), str(tmp_path / "tshirt.blend"), str(dump), str(png),
                            *map(str, range(1, frames + 1))], capture_output=True, text=True, timeout=240)

@@ -62,16 +62,21 @@ class TEARCLOTH_OT_enable(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_disable(Operator):
-    """Remove the "Tear Cloth" modifier (the baked files stay on disk; Free Bake deletes them)"""
+class _OnTearCloth:
+    """An operator on an object whose Tear Cloth is enabled (undoable)."""
 
-    bl_idname = "tearcloth.disable"
-    bl_label = "Disable Tear Cloth"
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         return modifier.is_enabled(context.object)
+
+
+class TEARCLOTH_OT_disable(_OnTearCloth, Operator):
+    """Remove the "Tear Cloth" modifier (the baked files stay on disk; Free Bake deletes them)"""
+
+    bl_idname = "tearcloth.disable"
+    bl_label = "Disable Tear Cloth"
 
     def execute(self, context):
         obj = context.object
@@ -256,16 +261,11 @@ class TEARCLOTH_OT_bake_cancel(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_free_bake(Operator):
+class TEARCLOTH_OT_free_bake(_OnTearCloth, Operator):
     """Delete this object's baked cache; the modifier shows the rest mesh again"""
 
     bl_idname = "tearcloth.free_bake"
     bl_label = "Free Bake"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return modifier.is_enabled(context.object)
 
     def execute(self, context):
         reports = Reports()
@@ -359,16 +359,21 @@ class TEARCLOTH_OT_material_preset_save(Operator):
         return _finish(self, reports, {"FINISHED"})
 
 
-class TEARCLOTH_OT_handle_add(Operator):
-    """Add a handle: a vertex group grasped as one, optionally following an object"""
+class _OnMesh:
+    """An operator on the active mesh object, Tear Cloth enabled or not (undoable)."""
 
-    bl_idname = "tearcloth.handle_add"
-    bl_label = "Add Handle"
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         return _active_mesh(context) is not None
+
+
+class TEARCLOTH_OT_handle_add(_OnMesh, Operator):
+    """Add a handle: a vertex group grasped as one, optionally following an object"""
+
+    bl_idname = "tearcloth.handle_add"
+    bl_label = "Add Handle"
 
     def execute(self, context):
         settings = context.object.tearcloth
@@ -380,36 +385,41 @@ class TEARCLOTH_OT_handle_add(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_handle_remove(Operator):
-    """Remove the active handle"""
+class _RemoveActiveSlot:
+    """Remove the active slot of one of the object's lists (``collection`` and its ``index``
+    property name it): handles and colliders behave alike."""
 
-    bl_idname = "tearcloth.handle_remove"
-    bl_label = "Remove Handle"
+    collection = ""
+    index = ""
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         obj = _active_mesh(context)
-        return obj is not None and len(obj.tearcloth.handles) > 0
+        return obj is not None and len(getattr(obj.tearcloth, cls.collection)) > 0
 
     def execute(self, context):
         settings = context.object.tearcloth
-        i = min(settings.active_handle_index, len(settings.handles) - 1)
-        settings.handles.remove(i)
-        settings.active_handle_index = max(0, i - 1)
+        slots = getattr(settings, self.collection)
+        i = min(getattr(settings, self.index), len(slots) - 1)
+        slots.remove(i)
+        setattr(settings, self.index, max(0, i - 1))
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_collider_add(Operator):
+class TEARCLOTH_OT_handle_remove(_RemoveActiveSlot, Operator):
+    """Remove the active handle"""
+
+    bl_idname = "tearcloth.handle_remove"
+    bl_label = "Remove Handle"
+    collection, index = "handles", "active_handle_index"
+
+
+class TEARCLOTH_OT_collider_add(_OnMesh, Operator):
     """Add a collider slot (selected mesh objects other than this one are filled in)"""
 
     bl_idname = "tearcloth.collider_add"
     bl_label = "Add Collider"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return _active_mesh(context) is not None
 
     def execute(self, context):
         obj = context.object
@@ -423,24 +433,12 @@ class TEARCLOTH_OT_collider_add(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_collider_remove(Operator):
+class TEARCLOTH_OT_collider_remove(_RemoveActiveSlot, Operator):
     """Remove the active collider slot"""
 
     bl_idname = "tearcloth.collider_remove"
     bl_label = "Remove Collider"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        obj = _active_mesh(context)
-        return obj is not None and len(obj.tearcloth.colliders) > 0
-
-    def execute(self, context):
-        settings = context.object.tearcloth
-        i = min(settings.active_collider_index, len(settings.colliders) - 1)
-        settings.colliders.remove(i)
-        settings.active_collider_index = max(0, i - 1)
-        return {"FINISHED"}
+    collection, index = "colliders", "active_collider_index"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -460,16 +458,11 @@ def cluster_colours(labels: np.ndarray) -> np.ndarray:
     return table[labels]
 
 
-class TEARCLOTH_OT_preview_clusters(Operator):
+class TEARCLOTH_OT_preview_clusters(_OnMesh, Operator):
     """Colour the mesh by collision cluster (colour attribute "tearcloth_clusters"), as collision detection will split it"""
 
     bl_idname = "tearcloth.preview_clusters"
     bl_label = "Preview Clusters"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return _active_mesh(context) is not None
 
     def execute(self, context):
         from ..collision import cluster_mesh

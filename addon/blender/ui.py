@@ -118,6 +118,15 @@ def _baked(obj) -> bool:
     return modifier.attached_path(obj) is not None
 
 
+def _settings_layout(panel, context):
+    """A settings panel's layout (property split) and the object's settings; greyed out once the
+    object plays a bake, since changed settings only act on the next one."""
+    layout = panel.layout
+    layout.use_property_split = True
+    layout.active = not _baked(context.object)
+    return layout, context.object.tearcloth
+
+
 class TEARCLOTH_PT_material(TearClothPanel, Panel):
     bl_label = "Material"
     bl_parent_id = "TEARCLOTH_PT_main"
@@ -126,10 +135,7 @@ class TEARCLOTH_PT_material(TearClothPanel, Panel):
         _draw_presets(self.layout, context.object.tearcloth)
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        settings = context.object.tearcloth
-        layout.active = not _baked(context.object)
+        layout, settings = _settings_layout(self, context)
         flow = layout.grid_flow(row_major=False, columns=0, even_columns=True, even_rows=False, align=True)
         for block in ("material.elastic", "material.tearing", "material.damping"):
             _rows(flow.column(), settings, block)
@@ -140,10 +146,7 @@ class TEARCLOTH_PT_quality(TearClothPanel, Panel):
     bl_parent_id = "TEARCLOTH_PT_main"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        settings = context.object.tearcloth
-        layout.active = not _baked(context.object)
+        layout, settings = _settings_layout(self, context)
         col = layout.column()
         _rows(col, settings, "solver.steps")
         fps = context.scene.render.fps / context.scene.render.fps_base
@@ -199,13 +202,9 @@ class TEARCLOTH_PT_seams(TearClothPanel, Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        obj = context.object
-        settings = obj.tearcloth
-        layout.active = not _baked(obj)
+        layout, settings = _settings_layout(self, context)
         col = layout.column()
-        col.prop_search(settings, "seam_group", obj, "vertex_groups", text="Vertex Group")
+        col.prop_search(settings, "seam_group", context.object, "vertex_groups", text="Vertex Group")
         sub = col.column()
         sub.active = bool(settings.seam_group)
         sub.prop(settings, "seam_factor")
