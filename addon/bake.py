@@ -35,6 +35,7 @@ the resume frame.
 """
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import os
@@ -47,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import spaces
-from .cache import CacheWriter, _remove_quietly
+from .cache import CacheWriter, _remove_quietly, staging_path_for
 from .cloth import Cloth, SimulationError
 from .materials import Material
 from .session import CollisionSettings, Session, StepReport
@@ -83,6 +84,28 @@ class BakePlan:
     body_triangles: dict = field(default_factory=dict)  # collider name -> (k, 3)
     resume: bool = False
     hand_groups: dict = field(default_factory=dict)     # live session: hand name -> vertex-group name
+    uv_name: str = "st"             # the cache's UV primvar: the user's UV map name (a USD identifier)
+    object_id: str = ""             # the object's persistent id (cache identity; see cache.OWNER_KEYS)
+    blend: str = ""                 # the .blend the bake is made in
+    # The user's polygon of each triangle and vertex of each vertex (messages name those)
+    triangle_polygons: np.ndarray | None = None         # (m,)
+    vertex_ids: np.ndarray | None = None                # (n,)
+
+    @property
+    def settings_fingerprint(self) -> str:
+        """A short hash of everything that decides the simulation besides the rest mesh (the
+        material, solver, tearing and collision settings, steps, fps, start frame, the roles of
+        the vertex groups): a partial bake resumes only under the same."""
+        collision = None if self.collision is None else sorted(vars(self.collision).items())
+        key = repr((sorted(vars(self.material).items()), sorted(self.solver.items()), sorted(self.tearing.items()),
+                    collision, self.steps_per_frame, self.fps, self.frame_start, self.scale, self.pin_group,
+                    list(self.handle_groups), self.seam_group, self.seam_factor, sorted(self.body_triangles)))
+        return hashlib.sha256(key.encode("utf-8")).hexdigest()[:16]
+
+    @property
+    def owner(self) -> dict:
+        """The owner fields the cache records (``cache.OWNER_KEYS``)."""
+        return {"object_id": self.object_id, "blend": self.blend, "settings": self.settings_fingerprint}
 
     @property
     def state_path(self) -> str:
@@ -107,9 +130,15 @@ class FrameInputs:
 
 
 class Progress:
-    """Shared between the worker and the UI; plain attributes (each write is atomic under the GIL)."""
+    """Shared between the worker and the UI; plain attributes (each write is atomic under the GIL).
 
-    def __init__(self, object_name: str, frame_start: int, frame_end: int):
+    The ETA comes from the last ``ETA_WINDOW`` frames, not from the whole run: steps slow down
+    several times once a tear starts (more vertices, a scan of the tear tips every step), so an
+    average over the calm frames before it promises far too early an end."""
+
+    ETA_WINDOW = 5  # frames
+
+    def __init__(self, object_name: str, frame_start: int, frame_end: int, clock=time.perf_counter):
         self.object_name = object_name
         self.frame_start = frame_start
         self.frame_end = frame_end
@@ -119,9 +148,16 @@ class Progress:
         self.step_seconds = 0.0
         self.tears = 0
         self.vertices = 0
-        self.started = time.perf_counter()
+        self._clock = clock
+        self.started = clock()
         self.state = "running"              # running, done, cancelled, error
         self.message = ""
+        self._recent: list = []             # (time, frame) of the last frames written
+
+    def frame_done(self, frame: int) -> None:
+        """A frame is on disk (called by the job after each frame)."""
+        self.frame = frame
+        self._recent = (self._recent + [(self._clock(), frame)])[-(self.ETA_WINDOW + 1):]
 
     @property
     def factor(self) -> float:
@@ -137,8 +173,11 @@ class Progress:
     def eta_seconds(self) -> float | None:
         if self.frame is None or self.frame <= self.first_frame:
             return None
-        elapsed = time.perf_counter() - self.started
-        per_frame = elapsed / (self.frame - self.first_frame)
+        if len(self._recent) >= 2 and self._recent[-1][1] > self._recent[0][1]:
+            (t0, f0), (t1, f1) = self._recent[0], self._recent[-1]
+            per_frame = (t1 - t0) / (f1 - f0)
+        else:  # one frame so far: the time since the start is all there is
+            per_frame = (self._clock() - self.started) / (self.frame - self.first_frame)
         return per_frame * (self.frame_end - self.frame)
 
     def text(self, elapsed: bool = False) -> str:
@@ -149,7 +188,7 @@ class Progress:
                  f"{self.tears} tear{'s' if self.tears != 1 else ''}"]
         eta = self.eta_seconds
         if elapsed:
-            parts += [duration(time.perf_counter() - self.started), f"ETA {duration(eta)}"]
+            parts += [duration(self._clock() - self.started), f"ETA {duration(eta)}"]
         elif eta is not None:
             parts.append(f"ETA {duration(eta)}")
         return ", ".join(parts)
@@ -201,14 +240,19 @@ class BakeJob:
         self._tears_before = 0
         self._grasp: list = []
         self._handles: list = []
+        # A fresh bake is staged beside the old cache and replaces it with its first simulated
+        # frame (``_write``): a bake that fails before that (bad geometry found by the core,
+        # a cancel) leaves the user's previous bake, its resume state included, as it was.
         self.writer = CacheWriter(
             plan.cache_path, plan.prim_name, plan.fps, "Z", plan.scale,
             object_name=plan.object_name, fingerprint=plan.fingerprint, resume=plan.resume,
+            stage=not plan.resume, owner=plan.owner, uv_name=plan.uv_name,
         )
         last = self.writer.last_frame
         if plan.resume and last is not None:
             state = load_state(plan.state_path)
-            if state is None or state["frame"] < last or state["object_name"] != plan.object_name:
+            if (state is None or state["frame"] < last or state["object_name"] != plan.object_name
+                    or (plan.fingerprint and state["fingerprint"] and state["fingerprint"] != plan.fingerprint)):
                 self.writer.close(complete=False)
                 raise ValueError(
                     f"{plan.cache_path}: cannot resume: the simulation state for frame {last} is missing "
@@ -217,11 +261,15 @@ class BakeJob:
             self._state = state
             self.start_frame = int(state["frame"])
         else:
-            _remove_quietly(plan.state_path)
             self.start_frame = plan.frame_start
         self.next_frame = self.start_frame + 1
         self.progress.first_frame = self.start_frame
         self.progress.frame = last
+
+    @property
+    def resumed(self) -> bool:
+        """True when this job continues a saved state (its cloth may be torn already)."""
+        return self._state is not None
 
     @property
     def done(self) -> bool:
@@ -292,28 +340,48 @@ class BakeJob:
         return True
 
     def _write(self, inputs: FrameInputs, save_state: bool = True) -> None:
-        plan, cloth = self.plan, self.session.cloth
+        plan, cloth, writer = self.plan, self.session.cloth, self.writer
         tears = self._tears_before + int(cloth.stats()["tears_started"])
+        # the state follows the cache it belongs to: beside the staged root until it is promoted
+        state_path = state_path_for(writer.path)
         if save_state:
-            save_state_file(plan.state_path, inputs.frame, plan, cloth, tears, self._has_uv)
+            save_state_file(state_path, inputs.frame, plan, cloth, tears, self._has_uv)
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
         # The writer takes metres with meters_per_unit = scale, so the file holds local BU:
         # exactly what the Mesh Sequence Cache modifier (which ignores metersPerUnit) shows.
-        self.writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
-                                cloth.corner_uv if self._has_uv else None, velocity * plan.scale)
-        self.progress.frame = inputs.frame
+        writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
+                           cloth.corner_uv if self._has_uv else None, velocity * plan.scale)
+        if writer.staged and inputs.frame > self.start_frame:
+            self._promote()
+        self.progress.frame_done(inputs.frame)
         self.progress.tears = tears
         self.progress.vertices = cloth.num_vertices
         if self.on_event is not None:
             self.on_event(BakeEvent("frame", self, inputs.frame))
 
+    def _promote(self) -> None:
+        """The new bake has a simulated frame: it replaces the old one. The state file moves
+        first: a crash before the cache moves leaves the old cache with a state of an earlier
+        frame than its last, which resume refuses as stale (never a wrong continuation)."""
+        staged_state = state_path_for(self.writer.path)
+        if os.path.exists(staged_state):
+            os.replace(staged_state, self.plan.state_path)
+        else:
+            _remove_quietly(self.plan.state_path)
+        self.writer.promote()
+
     def close(self, complete: bool | None = None) -> None:
         if complete is None:
             complete = self.done
         if not self.writer.closed:
+            if self.writer.staged and complete and self.writer.frames:
+                self._promote()
+            staged = self.writer.staged
             self.writer.close(complete=complete)
+            if staged:  # never promoted: the staged bake and its state are gone, the old one stays
+                _remove_quietly(state_path_for(staging_path_for(self.plan.cache_path)))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -364,12 +432,13 @@ def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: 
     cloth always has a UV array, zeros without a UV map; a resumed bake must write what the
     cache holds)."""
     names = list(cloth.group_names)
-    groups = np.stack([cloth.group(n) for n in names], axis=1) if names else np.zeros((cloth.num_vertices, 0))
+    groups = cloth.groups
     uv = cloth.corner_uv if has_uv else None
     data = dict(
         version=np.int64(STATE_VERSION),
         frame=np.int64(frame),
         object_name=np.array(plan.object_name),
+        fingerprint=np.array(plan.fingerprint or ""),
         positions=np.array(cloth.positions),
         velocities=np.array(cloth.velocities),
         rest=np.array(cloth.rest_positions),
@@ -398,6 +467,7 @@ def load_state(path: str) -> dict | None:
         return None
     state["frame"] = int(state["frame"])
     state["object_name"] = str(state["object_name"])
+    state["fingerprint"] = str(state["fingerprint"]) if "fingerprint" in state else ""
     state["group_names"] = [str(n) for n in state["group_names"]]
     if state["corner_uv"].size == 0:
         state["corner_uv"] = None

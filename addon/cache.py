@@ -24,13 +24,21 @@ cache is split::
 * Each frame file is written under a temporary name in the same folder and then renamed with
   ``os.replace`` (atomic on POSIX and Windows), so a file with a final name is always complete.
 * The root holds the Mesh prim, its non-varying attributes (subdivisionScheme = none, the
-  ``primvars:st`` declaration with faceVarying interpolation, the owner attributes) and USD
+  UV primvar's declaration with faceVarying interpolation, ``primvars:<uv_name>``: ``st`` unless
+  the writer is given the user's UV map name, which Blender then shows as the UV layer's name;
+  the owner attributes) and USD
   *value clips* (``clips = {default: {assetPaths, active, times, primPath,
   manifestAssetPath}}``): clip *i* is the file of the *i*-th frame, active from that frame on,
   with an identity time mapping. The root is rewritten (temporary name + ``os.replace``) after
   every frame, so at every instant it names only frame files that already exist in full. A crash
   between a frame's rename and the root's rewrite leaves one complete frame the root does not
   name yet; ``resume=True`` adopts it.
+* A re-bake never destroys the bake it replaces before it has something better: it is written
+  beside it (``.cloth.baking.usda`` + ``.cloth.baking_frames/``, ``CacheWriter(stage=True)``)
+  and replaces it with ``promote()`` once it holds a simulated frame (the bake calls it after
+  its first step frame). A bake that fails or is cancelled before that leaves the old cache,
+  frames and resume state untouched, and its staged files are deleted (``discard``); a staging
+  left by a killed process is cleared by the next bake. Only Free Bake deletes frames on purpose.
 * Value clips hold, not interpolate: between two frames (motion-blur sub-frames) the earlier
   frame's mesh is used as is, which is the only correct answer when the topology differs; before
   the first frame the first one is shown, after the last the last one.
@@ -79,10 +87,15 @@ __all__ = [
     "read_velocities",
     "cache_info",
     "check_owner",
+    "owner_of",
+    "damaged_root",
+    "repair_root",
     "delete_cache",
     "mesh_fingerprint",
     "frames_dir_for",
+    "staging_path_for",
     "FORMAT_VERSION",
+    "OWNER_KEYS",
 ]
 
 # Bumped when the layout changes in a way an older reader would misread.
@@ -105,6 +118,13 @@ _VARYING = {
     "primvars:st": "TexCoord2fArray",
     "velocities": "Vector3fArray",
 }
+
+
+# What a cache records about its owner besides the object's name and mesh fingerprint:
+# object_id: a persistent id of the Blender object (a custom property; survives renames, differs
+# between an object and a new one given its old name); blend: the .blend the bake was made in;
+# settings: a fingerprint of the simulation settings (a partial bake resumes only with the same).
+OWNER_KEYS = ("object_id", "blend", "settings")
 
 
 class CacheError(Exception):
@@ -290,11 +310,14 @@ def _read_root(path, check_frames: bool = True) -> dict:
         "fingerprint": str(prim.attributes["tearcloth:fingerprint"].default)
         if "tearcloth:fingerprint" in prim.attributes
         else "",
+        "owner": {key: str(prim.attributes[f"tearcloth:{key}"].default) for key in OWNER_KEYS
+                  if f"tearcloth:{key}" in prim.attributes},
         "up_axis": str(layer.pseudoRoot.GetInfo("upAxis")) if layer.pseudoRoot.HasInfo("upAxis") else "Y",
         "meters_per_unit": float(layer.pseudoRoot.GetInfo("metersPerUnit"))
         if layer.pseudoRoot.HasInfo("metersPerUnit")
         else 0.01,
         "has_uv": bool(meta.get("has_uv", False)),
+        "uv_name": str(meta.get("uv_name", "st")),
         "has_velocities": bool(meta.get("has_velocities", False)),
         "complete": bool(meta.get("complete", False)),
         "format": int(meta["format"]),
@@ -318,18 +341,28 @@ def cache_info(path) -> dict:
 
     Returns a dict with ``frames`` (sorted ints), ``prim_path`` (the Mesh Sequence Cache
     ``object_path``), ``fps``, ``object`` and ``fingerprint`` (who it was baked for),
-    ``up_axis``, ``meters_per_unit``, ``has_uv``, ``has_velocities``, ``complete`` (False while
+    ``owner`` (the recorded ``OWNER_KEYS``), ``up_axis``, ``meters_per_unit``, ``has_uv``, ``has_velocities``, ``complete`` (False while
     baking or after a crash), ``path``, ``frames_dir``, ``frame_files`` and ``format``.
     Raises ``CacheError`` naming the file and what is wrong.
     """
     return _read_root(path, check_frames=True)
 
 
-def check_owner(path, object_name: str, fingerprint: str | None = None) -> dict:
+def check_owner(path, object_name: str, fingerprint: str | None = None, object_id: str | None = None) -> dict:
     """Refuse a cache baked for another object: ``CacheOwnerError`` unless the cache's object
-    name (and, when given and recorded, mesh fingerprint) match. Returns ``cache_info``."""
+    name (and, when given and recorded, mesh fingerprint) match. With ``object_id`` given and
+    recorded, the id decides instead of the name: a renamed object still owns its cache, a new
+    object that took the old name does not. Returns ``cache_info``."""
     info = cache_info(path)
-    if info["object"] != object_name:
+    recorded_id = info["owner"].get("object_id")
+    if object_id and recorded_id:
+        if recorded_id != object_id:
+            blend = info["owner"].get("blend")
+            raise CacheOwnerError(
+                f"{info['path']}: this cache belongs to another object (baked for {info['object']!r}"
+                + (f" of {blend}" if blend else "") + f", object id {recorded_id}; this object's id is {object_id})"
+            )
+    elif info["object"] != object_name:
         raise CacheOwnerError(
             f"{info['path']}: this cache was baked for object {info['object']!r}, not {object_name!r}"
         )
@@ -339,6 +372,62 @@ def check_owner(path, object_name: str, fingerprint: str | None = None) -> dict:
             f"(fingerprint {info['fingerprint']}, the object's mesh is {fingerprint}); re-bake it"
         )
     return info
+
+
+def owner_of(path) -> dict | None:
+    """Who a cache root says it belongs to: ``{"object": name, **owner fields}`` (a damaged
+    cache whose frames went missing still answers), or None if there is no Tear Cloth root."""
+    try:
+        info = _read_root(path, check_frames=False)
+    except CacheError:
+        return None
+    return {"object": info["object"], "fingerprint": info["fingerprint"], **info["owner"]}
+
+
+def damaged_root(path) -> bool:
+    """True for a cache root USD cannot read (cut short by a crash or a full disk) whose frames
+    folder still holds Tear Cloth frame files and the clip manifest: ``repair_root`` rebuilds it,
+    ``delete_cache`` frees it. Any other unreadable file is not ours to touch."""
+    path = os.path.abspath(os.fspath(path))
+    if not os.path.isfile(path):
+        return False
+    try:
+        _read_root(path, check_frames=False)
+        return False
+    except CacheError:
+        pass
+    frames_dir = frames_dir_for(path)
+    return bool(_scan_frames(frames_dir)) and os.path.isfile(os.path.join(frames_dir, _MANIFEST))
+
+
+def repair_root(path, object_name: str, fingerprint: str | None = None, owner: dict | None = None) -> list[int]:
+    """Rebuild a damaged root (``damaged_root``) from its intact frame files, for the object the
+    caller knows it belongs to (the owner fields lived in the lost root). The prim, fps, axis and
+    units come from the first frame file; every readable frame from the first on is kept, the
+    cache is marked interrupted. Returns the frames. CacheError if the frames cannot be read."""
+    _, Sdf, Tf, _, _ = _pxr()
+    path = os.path.abspath(os.fspath(path))
+    frames = _scan_frames(frames_dir_for(path))
+    if not frames:
+        raise CacheError(f"{path}: no frame files to rebuild the cache from")
+    first = frames[min(frames)]
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(first)
+    except Tf.ErrorException as exc:
+        raise CacheError(f"{first}: cannot rebuild from it ({_tf_text(exc)})") from exc
+    if layer is None or not layer.defaultPrim:
+        raise CacheError(f"{first}: cannot rebuild from it (no mesh prim)")
+    root = layer.pseudoRoot
+    prim = layer.GetPrimAtPath("/" + str(layer.defaultPrim))
+    uv_names = [a.name[len("primvars:"):] for a in (prim.attributes if prim else []) if a.name.startswith("primvars:")]
+    settings = (str(layer.defaultPrim), float(layer.timeCodesPerSecond) or 24.0,
+                str(root.GetInfo("upAxis")) if root.HasInfo("upAxis") else "Z",
+                float(root.GetInfo("metersPerUnit")) if root.HasInfo("metersPerUnit") else 1.0)
+    who = dict(object_name=object_name, fingerprint=fingerprint, owner=owner, uv_name=(uv_names or ["st"])[0])
+    CacheWriter(path, *settings, **who, _root_only=True)  # a root that names no frame yet ...
+    writer = CacheWriter(path, *settings, **who, resume=True)  # ... then adopt the frame files
+    writer.close(complete=False)
+    return writer.frames
 
 
 def _open_stage(path: str):
@@ -411,7 +500,7 @@ def read_frame(path, frame: int):
     triangles = indices.reshape(-1, 3)
     corner_uv = None
     if info["has_uv"]:
-        st = _get(prim, "primvars:st", frame, info, file, True)
+        st = _get(prim, "primvars:" + info["uv_name"], frame, info, file, True)
         corner_uv = np.asarray(st, dtype=np.float64).reshape(-1, 3, 2)
         if len(corner_uv) != len(triangles):
             raise CacheError(f"{file}: frame {frame} has {len(corner_uv)} UV triangles for {len(triangles)} triangles")
@@ -446,8 +535,16 @@ def delete_cache(path) -> None:
     Tear Cloth cache; a missing root only clears the frames folder."""
     path = os.path.abspath(os.fspath(path))
     if os.path.lexists(path):
-        _read_root(path, check_frames=False)  # raises for a foreign or corrupt file: keep it
-        os.remove(path)  # the root first: no moment where it names deleted frames
+        if not damaged_root(path):  # a damaged root of ours goes; a foreign or corrupt file stays
+            _read_root(path, check_frames=False)
+    _remove_cache_files(path)
+
+
+def _remove_cache_files(path: str) -> None:
+    """Delete a root (first: no moment where it names deleted frames), its temporaries, its
+    frame files and manifest, then its frames folder if nothing else is in it. No checks: the
+    callers decided the files are ours."""
+    _remove_quietly(path)
     folder, base = os.path.split(path)
     for name in os.listdir(folder) if os.path.isdir(folder) else ():
         if name.startswith(_TMP_PREFIX) and name.endswith("-" + base):
@@ -461,6 +558,20 @@ def delete_cache(path) -> None:
             os.rmdir(frames_dir)
         except OSError:
             pass  # the user keeps other files there
+
+
+def staging_path_for(path) -> str:
+    """Where a re-bake of the cache ``path`` is written until it replaces it (hidden name, same
+    folder, so the final move is a rename on one file system)."""
+    folder, base = os.path.split(os.path.abspath(os.fspath(path)))
+    stem, ext = os.path.splitext(base)
+    return os.path.join(folder, f".{stem}.baking{ext}")
+
+
+def _remove_staging(staging: str) -> None:
+    """Delete a staging root and its frames folder. Their hidden names are made only by
+    ``CacheWriter(stage=True)``, so whatever is there is a left-over of a bake attempt."""
+    _remove_cache_files(staging)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -478,7 +589,10 @@ class CacheWriter:
 
     ``resume=False`` replaces an existing Tear Cloth cache at ``path`` (and refuses to replace
     any other file); ``resume=True`` reopens it, keeps the frames written up to the last complete
-    one and continues after ``last_frame``. ``durable=True`` also fsyncs every file (power-cut
+    one and continues after ``last_frame``. ``stage=True`` (a re-bake) writes beside the cache at
+    ``path`` without touching it until ``promote()`` replaces it; ``discard()`` (or closing an
+    incomplete staged bake) drops the new frames and leaves the old cache as it was.
+    ``durable=True`` also fsyncs every file (power-cut
     safety; crash and SIGKILL safety need no fsync).
     """
 
@@ -494,9 +608,14 @@ class CacheWriter:
         fingerprint: str | None = None,
         resume: bool = False,
         durable: bool = False,
+        stage: bool = False,
+        owner: dict | None = None,
+        uv_name: str = "st",
+        _root_only: bool = False,
     ):
         Gf, Sdf, Tf, Usd, Vt = _pxr()
         self.path = os.path.abspath(os.fspath(path))
+        self.final_path = self.path
         ext = os.path.splitext(self.path)[1].lower()
         if ext not in _ROOT_EXTENSIONS:
             raise ValueError(f"{self.path}: the cache root must end in .usda, .usdc or .usd")
@@ -510,12 +629,22 @@ class CacheWriter:
             raise ValueError(f"fps must be positive, not {fps!r}")
         if not (float(meters_per_unit) > 0 and np.isfinite(meters_per_unit)):
             raise ValueError(f"meters_per_unit must be positive, not {meters_per_unit!r}")
+        if not Sdf.Path.IsValidIdentifier(uv_name):
+            raise ValueError(f"uv_name {uv_name!r} is not a USD identifier; use e.g. {Tf.MakeValidIdentifier(uv_name)!r}")
+        self.uv_name = uv_name
+        self._uv_attr = "primvars:" + uv_name
         self.prim_path = "/" + prim_name
         self.fps = float(fps)
         self.up_axis = up_axis
         self.meters_per_unit = float(meters_per_unit)
         self.object_name = object_name if object_name is not None else prim_name
         self.fingerprint = fingerprint
+        # who else the cache belongs to (OWNER_KEYS: the object's persistent id, the .blend,
+        # the settings): recorded in the root, compared by check_owner and on resume
+        self.owner = {k: str(v) for k, v in (owner or {}).items() if v}
+        unknown = sorted(set(self.owner) - set(OWNER_KEYS))
+        if unknown:
+            raise ValueError(f"unknown owner field(s) {', '.join(unknown)}; known: {', '.join(OWNER_KEYS)}")
         self.durable = bool(durable)
         self.frames_dir = frames_dir_for(self.path)
         self.bytes_written = 0  # frame files + roots, for benchmarks and progress reports
@@ -525,9 +654,27 @@ class CacheWriter:
         self._closed = False
         self._counts_cache = np.empty(0, dtype=np.int32)
 
+        if _root_only:
+            # repair_root: replace a damaged root by one that names no frame (the frame files
+            # are left alone; a resumed writer adopts them next)
+            self._write_root(complete=False)
+            self._closed = True
+            return
         os.makedirs(os.path.dirname(self.path), exist_ok=True)
         if resume and os.path.lexists(self.path):
             self._resume()
+        elif stage:
+            # The re-bake rule: a new bake is written beside the old one (a hidden staging root
+            # and frames folder) and replaces it only in ``promote`` (called by the bake once the
+            # new bake has a simulated frame). Until then the old cache is not touched, so a bake
+            # that fails or is cancelled early leaves the previous bake exactly as it was.
+            if os.path.lexists(self.path) and not damaged_root(self.path):
+                _read_root(self.path, check_frames=False)  # refuse a foreign file before writing anything
+            self.path = staging_path_for(self.final_path)
+            self.frames_dir = frames_dir_for(self.path)
+            _remove_staging(self.path)  # left by an attempt that was killed before it replaced anything
+            os.makedirs(self.frames_dir, exist_ok=True)
+            self._write_root(complete=False)
         else:
             delete_cache(self.path)  # refuses foreign files; clears stale frames of an old bake
             os.makedirs(self.frames_dir, exist_ok=True)
@@ -548,6 +695,40 @@ class CacheWriter:
     @property
     def closed(self) -> bool:
         return self._closed
+
+    @property
+    def staged(self) -> bool:
+        """True while a new bake is still written beside the old one (see ``promote``)."""
+        return self.path != self.final_path
+
+    def promote(self) -> None:
+        """Replace the cache at the final path by the staged one and keep writing there.
+
+        Order: the old root goes first (delete_cache: no moment where a root names deleted
+        frames), then its frames, then the staged frame files move into the final frames folder
+        (per file, so a frames folder the user keeps other files in still works), then the final
+        root naming them is written, and the staging root removed last."""
+        if not self.staged:
+            return
+        delete_cache(self.final_path)
+        final_frames = frames_dir_for(self.final_path)
+        os.makedirs(final_frames, exist_ok=True)
+        for name in os.listdir(self.frames_dir):
+            if _FRAME_RE.match(name) or name == _MANIFEST:
+                os.replace(os.path.join(self.frames_dir, name), os.path.join(final_frames, name))
+        staging = self.path
+        self.path, self.frames_dir = self.final_path, final_frames
+        self._write_root(complete=False)
+        _remove_staging(staging)
+
+    def discard(self) -> None:
+        """Drop a staged bake that never replaced the old one (failed or cancelled early): its
+        files go, the old cache stays as it was. A writer that was promoted keeps its frames."""
+        if not self.staged:
+            return
+        _remove_staging(self.path)
+        self._frames = []
+        self._closed = True
 
     # -- writing -------------------------------------------------------------------------------
 
@@ -584,7 +765,7 @@ class CacheWriter:
             "extent": Vt.Vec3fArray.FromNumpy(np.stack([stage_pos.min(axis=0), stage_pos.max(axis=0)])),
         }
         if uv is not None:
-            values["primvars:st"] = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uv.reshape(-1, 2), dtype=np.float32))
+            values[self._uv_attr] = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uv.reshape(-1, 2), dtype=np.float32))
         if vel is not None:
             values["velocities"] = Vt.Vec3fArray.FromNumpy(_to_stage(vel, self.up_axis, self.meters_per_unit))
         for name, value in values.items():
@@ -616,6 +797,11 @@ class CacheWriter:
         but tells the UI the bake was interrupted."""
         if self._closed:
             return
+        if self.staged:  # a staged bake replaces the old one only when it is complete
+            if not (complete and self._frames):
+                self.discard()
+                return
+            self.promote()
         self._write_root(complete=complete)
         self._closed = True
 
@@ -668,7 +854,7 @@ class CacheWriter:
     def _attribute_names(self) -> list[str]:
         names = ["points", "faceVertexCounts", "faceVertexIndices", "extent"]
         if self._has_uv:
-            names.append("primvars:st")
+            names.append(self._uv_attr)
         if self._has_vel:
             names.append("velocities")
         return names
@@ -676,8 +862,9 @@ class CacheWriter:
     @staticmethod
     def _declare(prim, name: str):
         _, Sdf, _, _, _ = _pxr()
-        spec = Sdf.AttributeSpec(prim, name, getattr(Sdf.ValueTypeNames, _VARYING[name]))
-        if name == "primvars:st":
+        uv = name.startswith("primvars:")  # the UV map, under its own name
+        spec = Sdf.AttributeSpec(prim, name, getattr(Sdf.ValueTypeNames, _VARYING["primvars:st" if uv else name]))
+        if uv:
             spec.SetInfo("interpolation", "faceVarying")
         return spec
 
@@ -710,6 +897,7 @@ class CacheWriter:
         meta = {"format": FORMAT_VERSION, "prim_path": self.prim_path, "complete": bool(complete)}
         if self._has_uv is not None:
             meta["has_uv"] = bool(self._has_uv)
+            meta["uv_name"] = self.uv_name
             meta["has_velocities"] = bool(self._has_vel)
         layer.customLayerData = {"tearcloth": meta}
 
@@ -720,7 +908,9 @@ class CacheWriter:
         scheme.default = "none"  # a triangle cache, not a subdivision cage
         sided = Sdf.AttributeSpec(prim, "doubleSided", Sdf.ValueTypeNames.Bool, Sdf.VariabilityUniform)
         sided.default = True  # cloth is seen from both sides
-        for name, value in (("tearcloth:object", self.object_name), ("tearcloth:fingerprint", self.fingerprint or "")):
+        owned = [("tearcloth:object", self.object_name), ("tearcloth:fingerprint", self.fingerprint or "")]
+        owned += [(f"tearcloth:{key}", value) for key, value in sorted(self.owner.items())]
+        for name, value in owned:
             spec = Sdf.AttributeSpec(prim, name, Sdf.ValueTypeNames.String, Sdf.VariabilityUniform, declaresCustom=True)
             spec.default = value
         # Clips supply values, never metadata: the primvar's faceVarying interpolation (and the
@@ -757,7 +947,7 @@ class CacheWriter:
             attr = prim.attributes[name] if name in prim.attributes else None
             if attr is None or layer.QueryTimeSample(attr.path, float(frame)) is None:
                 return None
-        return "primvars:st" in prim.attributes, "velocities" in prim.attributes
+        return self._uv_attr in prim.attributes, "velocities" in prim.attributes
 
     def _resume(self) -> None:
         info = _read_root(self.path, check_frames=False)  # CacheError for foreign/corrupt roots
@@ -768,13 +958,22 @@ class CacheWriter:
                 ("fps", info["fps"], self.fps),
                 ("up axis", info["up_axis"], self.up_axis),
                 ("metersPerUnit", info["meters_per_unit"], self.meters_per_unit),
+                ("UV map", info["uv_name"] if info["frames"] and info["has_uv"] else self.uv_name, self.uv_name),
             )
             if theirs != ours
         ]
         if mismatch:
             raise CacheError(f"{self.path}: cannot resume, the cache has " + ", ".join(mismatch))
+        theirs_id, ours_id = info["owner"].get("object_id"), self.owner.get("object_id")
+        if theirs_id and ours_id and theirs_id != ours_id:
+            raise CacheOwnerError(f"{self.path}: cannot resume, the cache belongs to another object "
+                                  f"(baked for {info['object']!r}, object id {theirs_id})")
         if info["object"] != self.object_name:
             raise CacheOwnerError(f"{self.path}: cannot resume, the cache was baked for object {info['object']!r}")
+        theirs_set, ours_set = info["owner"].get("settings"), self.owner.get("settings")
+        if theirs_set and ours_set and theirs_set != ours_set:
+            raise CacheOwnerError(f"{self.path}: cannot resume, the simulation settings changed since the "
+                                  "interrupted bake")
         if self.fingerprint is not None and info["fingerprint"] and info["fingerprint"] != self.fingerprint:
             raise CacheOwnerError(f"{self.path}: cannot resume, the cache was baked for a different mesh")
         self.fingerprint = self.fingerprint or info["fingerprint"] or None

@@ -7,7 +7,7 @@ The work itself lives below: ``tearcloth.blender.headless`` (the bpy half of a b
 ``tearcloth.bench`` (benchmarks). Nothing heavy is imported at module level, so a typo costs
 no Blender start-up and no native build.
 
-    tearcloth bake FILE.blend [--objects NAMES] [--frames A-B] [--out DIR] [--overwrite]
+    tearcloth bake FILE.blend [--objects NAMES] [--frames A-B] [--out DIR] [--overwrite] [--restart]
                               [--render PNG [--render-frame N[,M...]] [--resolution-percent P]
                                             [--transparent]]
 
@@ -29,15 +29,21 @@ What a bake does, in order:
 4. Each object is baked inline by the add-on's own ``BakeRun`` (what the Bake button runs on a
    worker thread), frames ``--frames A-B`` or the object's own range. A progress line on stderr
    (a carriage-return line on a terminal, a line every 10 % otherwise) shows frames, steps per
-   second, tears so far and the ETA. Ctrl-C stops the bake: the frames baked so far are kept,
-   the file is saved (Resume in Blender continues it) and the exit status is 130.
+   second, tears so far and the ETA. Ctrl-C (SIGINT) and SIGTERM (what a render-farm manager
+   sends) stop the bake alike: the frame being simulated is dropped, every complete frame is
+   kept, the file is saved pointing at them, one line on stderr says so, and the exit status is
+   130 (SIGINT) or 143 (SIGTERM).
+   Resume: when an object's cache holds an interrupted bake of the same object (a killed or
+   stopped run of the same command), the bake continues after its last complete frame and says
+   so; a bake that cannot be resumed (another mesh, a stale state) starts over and says why.
+   ``--restart`` always bakes from the first frame.
 5. ``--render PNG`` renders a frame (default: the last baked frame; ``--render-frame 1,24``
    renders several into a name with ``#`` for the frame number, Blender's convention:
    ``torn_####.png``) with the scene's camera and render engine, after saving (the render
    settings touched here are not saved); ``--transparent`` leaves the background out (RGBA).
 
 Exit status of a bake: 0 all baked, 1 a bake failed (the others are kept and saved), 2 bad
-input, 130 interrupted.
+input, 130 interrupted by SIGINT, 143 stopped by SIGTERM.
 
 `tearcloth demo` (``demo()``) bakes the repository's ``example_blends/square_cloth.blend`` (the
 paper's Fig. 1) this way, renders the torn cloth and plots the force each hand feels.
@@ -56,6 +62,7 @@ from pathlib import Path
 from . import settings
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_TERMINATED = 143  # 128 + SIGTERM, the shells' convention
 CACHE_SUBFOLDER = "tearcloth_cache"
 
 # First bytes of a .blend: plain, zstd-compressed (Blender 3.0+) or gzip-compressed (older).
@@ -108,6 +115,8 @@ def parser() -> _Parser:
                    help="output folder for the baked .blend and its caches (default: <input folder>/<name>_baked)")
     k.add_argument("--overwrite", action="store_true",
                    help="save the bakes into the input file itself instead of a copy")
+    k.add_argument("--restart", action="store_true",
+                   help="bake from the first frame even where an interrupted bake could be resumed")
     k.add_argument("--render", metavar="PNG", help="after baking, render one frame to this PNG file")
     k.add_argument("--render-frame", metavar="N[,M...]",
                    help="frame(s) to render (default: the last baked frame); several need # in the PNG name")
@@ -223,6 +232,7 @@ class FilePlan:
     render_frames: list | None = None
     resolution_percent: int | None = None
     transparent: bool = False
+    restart: bool = False           # never resume a partial bake
     created: list = field(default_factory=list)  # folders made by the checks (removed if unused)
 
 
@@ -267,7 +277,7 @@ def plan_from_args(args) -> FilePlan:
             raise UsageError(f"the output {output} is the input file; pass --overwrite to bake into it, "
                              "or choose another --out folder")
     plan = FilePlan(source, compressed, output, cache_dir, objects, frames, png, render_frames,
-                    args.resolution_percent, args.transparent)
+                    args.resolution_percent, args.transparent, restart=bool(getattr(args, "restart", False)))
     try:
         if args.overwrite:
             check_folder(source.parent, "folder of the input file")  # Blender saves by renaming a new file
@@ -311,7 +321,10 @@ def bake_file(plan: FilePlan, on_event=None) -> dict:
 def _report(summary: dict, out) -> int:
     prog = "tearcloth bake"
     status = EXIT_OK
+    signal_name = summary.get("signal")
     for r in summary["objects"]:
+        if r.state == "cancelled" and signal_name:
+            continue  # said once, in the interruption's line below
         if r.state == "done":
             spf = r.seconds_per_frame
             rate = f" ({spf:.3f} s/frame)" if spf is not None else ""
@@ -324,6 +337,14 @@ def _report(summary: dict, out) -> int:
         else:
             print(f"{prog}: error: {r.name}: {r.message}", file=sys.stderr)
             status = max(status, EXIT_FAILED)
+    if signal_name:
+        # one line: what stopped it, what is kept, where, and how to go on
+        kept = [f"{r.name} frames {r.frames[0]}-{r.frames[-1]}" for r in summary["objects"]
+                if r.state == "cancelled" and r.frames]
+        saved = f"; saved {summary['output']}" if summary["saved"] else ""
+        print(f"{prog}: stopped by {signal_name}: {', '.join(kept) or 'no frame'} kept{saved}; "
+              "run the same command again to resume", file=sys.stderr)
+        return EXIT_TERMINATED if signal_name == "SIGTERM" else EXIT_INTERRUPTED
     if summary["saved"]:
         out(f"saved {summary['output']}")
     for path in summary["rendered"]:

@@ -210,7 +210,16 @@ class Cloth:
             k = self.group_names.index(name)
         except ValueError:
             raise KeyError(f"no vertex group {name!r}; groups: {self.group_names}") from None
-        return self._array(_native.GROUPS)[:, k]
+        return self.groups[:, k]
+
+    @property
+    def groups(self) -> np.ndarray:
+        """(n, k) weights of every vertex group, in ``group_names`` order (k may be 0 or 1)."""
+        if not self.group_names:
+            return np.zeros((self.num_vertices, 0))
+        # The core hands a one-column block back flat (n,): the shape is ours to restore, for
+        # every number of groups, so one group reads like many.
+        return self._array(_native.GROUPS).reshape(self.num_vertices, len(self.group_names))
 
     def set_positions(self, x) -> None:
         self._c.set_positions(_f64(x, "positions", 3))

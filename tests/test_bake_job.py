@@ -160,3 +160,46 @@ def test_help_lists_every_sub_command(capsys):
     out = capsys.readouterr().out
     for command in ("bake", "demo", "bench", "clusters"):
         assert f"\n    {command} " in out
+
+
+def test_eta_follows_the_recent_frames():
+    """Frames at 0.1 s each, then 0.3 s each once 'a tear started' (the banknote: ~690 -> ~230
+    steps/s): the ETA at frame 12 of 20 is 8 frames at the recent pace, not at the average."""
+    now = [0.0]
+    p = Progress("Banknote", 1, 20, clock=lambda: now[0])
+    for frame in range(1, 13):
+        now[0] += 0.1 if frame <= 6 else 0.3
+        p.frame_done(frame)
+    assert p.eta_seconds == pytest.approx(8 * 0.3)
+    average = (now[0] / (12 - 1)) * 8
+    assert average < 0.8 * p.eta_seconds  # what a whole-run average would have promised
+    assert "ETA 2 s" in p.text()
+
+
+@pytest.mark.parametrize("groups", [["pin"], ["pin", "pull"]])  # one group came back flat from the core
+def test_the_saved_state_rebuilds_the_cloth_exactly(tmp_path, groups):
+    """What the resume state carries comes back bit for bit in a torn cloth: positions,
+    velocities, rest shape, triangles, UVs, vertex-group weights, tear strengths. (What it cannot
+    carry, the core's solver warm start and tear tips, is why a resumed bake is not yet equal to
+    an uninterrupted one to 1e-9 m: tests/test_bake_resume_cli.py.)"""
+    from tearcloth.bake import load_state, save_state_file
+
+    plan = plan_for(tmp_path)
+    plan.groups = {g: plan.groups[g] for g in groups}
+    plan.handle_groups = ["pull"] if "pull" in groups else []
+    plan.corner_uv = np.random.default_rng(1).random((len(plan.triangles), 3, 2))
+    plan.seam_group, plan.seam_factor = "pin", 0.5
+    session, _ = make_session(plan, {}, 0.0)
+    cloth = session.cloth
+    for _ in range(3):
+        session.step(plan.dt)
+    cloth.scripted_tear(60, (0.0, 1.0, 0.0), 0.03)
+    session.step(plan.dt)
+    assert cloth.num_vertices > len(plan.vertices)  # torn
+    path = str(tmp_path / "Sheet.state.npz")
+    save_state_file(path, 3, plan, cloth, 1, True)
+    state = load_state(path)
+    again, _ = make_session(plan, {}, 0.0, state)
+    for name in ("positions", "velocities", "rest_positions", "triangles", "corner_uv", "groups", "tear_strength"):
+        assert np.array_equal(getattr(again.cloth, name), getattr(cloth, name)), name
+    assert again.cloth.group_names == cloth.group_names == groups

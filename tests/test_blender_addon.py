@@ -36,13 +36,6 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
         tearcloth.register()
         tearcloth.register()  # twice in a row is harmless too
         states.append(present())
-        def op_exists(idname):
-            module, name = idname.split(".")
-            try:
-                getattr(getattr(bpy.ops, module), name).get_rna_type()
-                return True
-            except (KeyError, AttributeError):
-                return False
         callable_ops = [op_exists("tearcloth." + o) for o in ops]
 
         # Draw every panel against a recording layout that checks each property and operator name.
@@ -116,7 +109,7 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
     assert "operator" in drawn["TEARCLOTH_PT_haptics"]  # Start Haptic Session, Discover, ...
     assert drawn["TEARCLOTH_PT_material"].count("prop") == 11  # nine + tear radius, crack speed
     assert "template_list" in drawn["TEARCLOTH_PT_pins"] and "template_list" in drawn["TEARCLOTH_PT_collision"]
-    assert drawn["menu+button"].count("operator") == 5 + 1  # five presets, the disable button
+    assert drawn["menu+button"].count("operator") == 5 + 1 + 1  # five presets, Save Preset..., the disable button
     assert drawn["running"] == ["progress", "operator"]  # the bar and Cancel
     assert drawn["status"] == ["progress"]
     assert "operator" in drawn["cache_running"] and "tearcloth.bake" not in drawn["cache_running"]
@@ -192,12 +185,7 @@ BAD_INPUTS = '''
     from tearcloth.blender import bake_object, BakeError, bake
     from tearcloth import cache
 
-    logged = []
-    class Collect(logging.Handler):
-        def emit(self, record):
-            logged.append((record.levelname, record.getMessage()))
-    logging.getLogger("tearcloth").addHandler(Collect())
-    logging.getLogger("tearcloth").setLevel(logging.INFO)
+    logged = collect_log()
 
     folder = sys.argv[1]
     out = {}
@@ -251,7 +239,7 @@ BAD_INPUTS = '''
     s.cache_folder = "//tearcloth_cache/"
 
     # a corrupt cache file and a foreign USD file: refused and left as they were
-    path = os.path.join(folder, "tearcloth_cache", "Sheet.usda")
+    path = os.path.join(folder, "tearcloth_cache", "scene", "Sheet.usda")  # the .blend's own cache folder
     op("free_bake", obj)
     for key, content in (("corrupt", "#usda 1.0\\n(\\n garbage ((( \\n"),
                          ("foreign", '#usda 1.0\\ndef Xform "World"\\n{\\n}\\n')):
@@ -270,7 +258,7 @@ BAD_INPUTS = '''
     for g in obj.vertex_groups:
         other.vertex_groups.new(name=g.name)
     op("enable", other)
-    other_path = os.path.join(folder, "tearcloth_cache", "Other.usda")
+    other_path = os.path.join(folder, "tearcloth_cache", "scene", "Other.usda")
     w = cache.CacheWriter(other_path, "Other", 24.0, object_name="Sheet")
     w.write_frame(1, np.zeros((3, 3)) + np.eye(3), np.array([[0, 1, 2]]))
     w.close()
@@ -324,7 +312,7 @@ BAD_INPUTS = '''
     for name in ("Free", "Circle"):
         op("free_bake", bpy.data.objects[name])
     attempt("bake_all", lambda: bpy.ops.tearcloth.bake_all())
-    out["bake_all_baked"] = [cache.cache_info(os.path.join(folder, "tearcloth_cache", n + ".usda"))["complete"]
+    out["bake_all_baked"] = [cache.cache_info(os.path.join(folder, "tearcloth_cache", "scene", n + ".usda"))["complete"]
                              for n in ("Free", "Circle")]
 
     # an unsaved file with a relative cache folder

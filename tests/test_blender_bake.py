@@ -89,6 +89,46 @@ PRELUDE = textwrap.dedent(
 
     def result(value):
         print("RESULT " + json.dumps(value), flush=True)
+
+    import contextlib
+    import logging
+
+    def collect_log(level=logging.INFO):
+        """From now on, every record of the add-on's logger as (level name, message)."""
+        logged = []
+
+        class Collect(logging.Handler):
+            def emit(self, record):
+                logged.append((record.levelname, record.getMessage()))
+
+        logger = logging.getLogger("tearcloth")
+        logger.addHandler(Collect())
+        logger.setLevel(level)
+        return logged
+
+    @contextlib.contextmanager
+    def evaluated_mesh(obj):
+        """The object's mesh as evaluated at the current frame (modifiers applied), freed after."""
+        ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
+        try:
+            yield ev.to_mesh()
+        finally:
+            ev.to_mesh_clear()
+
+    def positions(mesh):
+        """A mesh's vertex coordinates as a flat float32 array (foreach_get: no Python per vertex)."""
+        co = np.empty(3 * len(mesh.vertices), np.float32)
+        mesh.vertices.foreach_get("co", co)
+        return co
+
+    def op_exists(idname):
+        """An operator is registered under this id (``bpy.ops.x.y`` resolves to a real RNA type)."""
+        module, name = idname.split(".")
+        try:
+            getattr(getattr(bpy.ops, module), name).get_rna_type()
+            return True
+        except (KeyError, AttributeError):
+            return False
     '''
 )
 
@@ -106,8 +146,14 @@ def run_blender(tmp_path: Path, body: str, *args, timeout: float = 120.0, name: 
     return json.loads(lines[-1][len("RESULT "):])
 
 
-def cache_root(folder: Path, name: str = "Sheet") -> str:
-    return str(folder / "tearcloth_cache" / f"{name}.usda")
+def cache_root(folder: Path, name: str = "Sheet", blend: str = "scene") -> str:
+    """The cache root of object ``name`` baked in ``folder/<blend>.blend`` (the default cache
+    folder: ``//tearcloth_cache/<blend>/<name>.usda``)."""
+    return find_cache(folder / "tearcloth_cache", name, blend)
+
+
+def find_cache(cache_folder: Path, name: str, blend: str) -> str:
+    return str(cache_folder / blend / f"{name}.usda")
 
 
 # Plays the saved .blend with stock Blender only: the add-on is never imported in this child.
@@ -123,13 +169,8 @@ PLAYBACK = '''
     frames = {}
     for frame in range(1, 21):
         scene.frame_set(frame)
-        dg = bpy.context.evaluated_depsgraph_get()
-        ev = obj.evaluated_get(dg)
-        m = ev.to_mesh()
-        co = np.empty(3 * len(m.vertices), np.float32)
-        m.vertices.foreach_get("co", co)
-        frames[frame] = dict(co=co.tolist(), faces=len(m.polygons), uv=[layer.name for layer in m.uv_layers])
-        ev.to_mesh_clear()
+        with evaluated_mesh(obj) as m:
+            frames[frame] = dict(co=positions(m).tolist(), faces=len(m.polygons), uv=[layer.name for layer in m.uv_layers])
     # the modifier below works on the torn mesh (Solidify doubles it)
     below.show_viewport = True
     scene.frame_set(12)
@@ -144,7 +185,7 @@ PLAYBACK = '''
     scene.render.resolution_x = scene.render.resolution_y = 480
     scene.display.shading.light = "STUDIO"
     scene.display.shading.show_object_outline = True
-    # a colour grid through the baked UVs ('st'): the texture stays put on both sides of the tear
+    # a colour grid through the baked UVs (the user's 'UVMap'): the texture stays put on both sides of the tear
     grid = bpy.data.images.new("grid", 512, 512)
     grid.generated_type = "COLOR_GRID"
     mat = bpy.data.materials.new("grid")
@@ -179,7 +220,8 @@ def test_bake_through_operators_plays_back_in_stock_blender(tmp_path):
                     mesh_faces=len(obj.data.polygons), frame=bpy.context.scene.frame_current))
     ''', tmp_path)
     assert baked["state"] == ["FINISHED"]
-    assert baked["cache"] == "//tearcloth_cache/Sheet.usda"  # relative: moves with the .blend
+    # relative (moves with the .blend), in a folder of its own .blend (apart from other files')
+    assert baked["cache"] == "//tearcloth_cache/scene/Sheet.usda", baked["cache"]
     assert baked["mesh_faces"] == 19 * 19  # the user's quads are untouched
     assert baked["frame"] == 1  # the scene is back on the frame it was on
     print(f"bake: {baked['seconds'] / 20:.3f} s per frame (20 frames, 400 vertices, 10 steps/frame)")
@@ -204,7 +246,7 @@ def test_bake_through_operators_plays_back_in_stock_blender(tmp_path):
         assert co.shape == positions.shape, f"frame {frame}"
         np.testing.assert_array_equal(co, positions.astype(np.float32))  # the very numbers baked
         assert got["faces"] == len(triangles)
-        assert "st" in got["uv"]
+        assert got["uv"] == ["UVMap"]  # under the user's own name, so materials find it
         assert corner_uv is not None and corner_uv.shape == (len(triangles), 3, 2)
         counts.append(len(co))
     assert counts[0] == 400

@@ -38,12 +38,7 @@ from tearcloth import examples
 from tearcloth.blender import haptic_session as hs
 from tearcloth.haptics import discovery as devices  # the device hooks tests replace
 
-logged = []
-class Collect(logging.Handler):
-    def emit(self, record):
-        logged.append((record.levelname, record.getMessage()))
-logging.getLogger("tearcloth").addHandler(Collect())
-logging.getLogger("tearcloth").setLevel(logging.INFO)
+logged = collect_log()
 
 def haptic_scene(folder, record=False, save=True):
     """The square sheet with handle_left / handle_right groups, both hands on emulated Falcons."""
@@ -103,14 +98,6 @@ def attempt(fn):
 
 # Draws panels against a layout that records every call and checks each name against the RNA.
 LAYOUT = '''
-def op_exists(idname):
-    module, name = idname.split(".")
-    try:
-        getattr(getattr(bpy.ops, module), name).get_rna_type()
-        return True
-    except (KeyError, AttributeError):
-        return False
-
 class Layout:
     def __init__(self): self.calls = []
     def __getattr__(self, name):

@@ -28,6 +28,8 @@ pytest.importorskip("bpy")  # Blender runs in the children only
 pytest.importorskip("pxr")
 from tearcloth import cache, examples  # noqa: E402
 
+from test_blender_bake import PRELUDE, find_cache  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "example_blends"
 SUMMARY = re.compile(r"^(?P<name>\S+): baked frames (?P<a>-?\d+)-(?P<b>-?\d+): (?P<tears>\d+) tears?, "
@@ -103,7 +105,7 @@ def test_square_cloth_bakes_and_the_render_shows_the_tear(tmp_path):
     assert (tmp_path / "square_cloth.blend").is_file() and not (tmp_path / "square_cloth.blend1").exists()
     s = baked["SquareCloth"]
     assert s["frames"] == (1, 24) and s["tears"] >= 1
-    root = tmp_path / "tearcloth_cache" / "SquareCloth.usda"
+    root = find_cache(tmp_path / "tearcloth_cache", "SquareCloth", "square_cloth")
     info = cache.cache_info(root)
     assert info["frames"] == list(range(1, 25)) and info["complete"]
     check_cache_torn(root, 1, 24)
@@ -115,7 +117,7 @@ def test_banknote_bakes_and_the_render_shows_the_tear(tmp_path):
                  "--render-frame", "1,20", "--resolution-percent", "25", "--transparent")
     s = baked["Banknote"]
     assert s["frames"] == (1, 20) and s["tears"] >= 1
-    root = tmp_path / "tearcloth_cache" / "Banknote.usda"
+    root = find_cache(tmp_path / "tearcloth_cache", "Banknote", "banknote")
     check_cache_torn(root, 1, 20)
     v, t, _ = cache.read_frame(root, 20)
     assert examples.validate_mesh(v, t)["n_components"] >= 2, "the note is not torn in two by frame 20"
@@ -151,7 +153,6 @@ def test_demo_bakes_the_square_cloth_and_plots_the_hand_forces(tmp_path):
 # Opens the baked T-shirt scene with STOCK Blender (the add-on is not imported): the body as the
 # Armature modifier deforms it, at each frame asked for, plus a render of the last one.
 BODY_DUMP = '''
-import sys, numpy as np, bpy
 blend, out, png = sys.argv[1], sys.argv[2], sys.argv[3]
 frames = [int(f) for f in sys.argv[4:]]
 bpy.ops.wm.open_mainfile(filepath=blend)
@@ -161,17 +162,13 @@ body = bpy.data.objects["Mannequin"]
 data = {}
 for f in frames:
     scene.frame_set(f)
-    dg = bpy.context.evaluated_depsgraph_get()
-    ev = body.evaluated_get(dg)
-    m = ev.to_mesh()
-    co = np.empty(3 * len(m.vertices), np.float32)
-    m.vertices.foreach_get("co", co)
-    tri = np.empty(3 * len(m.polygons), np.int32)
-    m.polygons.foreach_get("vertices", tri)
+    with evaluated_mesh(body) as m:
+        co = positions(m)
+        tri = np.empty(3 * len(m.polygons), np.int32)
+        m.polygons.foreach_get("vertices", tri)
     mw = np.array(body.matrix_world)
     co = co.reshape(-1, 3).astype(np.float64) @ mw[:3, :3].T + mw[:3, 3]
     data[f"v{f}"], data["triangles"] = co, tri.reshape(-1, 3)
-    ev.to_mesh_clear()
 np.savez(out, **data)
 scene.render.resolution_percentage = 25
 scene.render.film_transparent = True
@@ -186,9 +183,9 @@ def test_tshirt_bakes_and_stays_outside_the_walking_body(tmp_path):
     source = EXAMPLES / "tshirt.blend"
     baked = bake(source, tmp_path, "--frames", f"1-{frames}", timeout=400)
     assert baked["TShirt"]["frames"] == (1, frames)
-    root = tmp_path / "tearcloth_cache" / "TShirt.usda"
+    root = find_cache(tmp_path / "tearcloth_cache", "TShirt", "tshirt")
     script = tmp_path / "dump_body.py"
-    script.write_text(BODY_DUMP)
+    script.write_text(PRELUDE + BODY_DUMP)  # the shared helpers (bpy only: the add-on stays out)
     dump, png = tmp_path / "body.npz", tmp_path / "tshirt.png"
     proc = subprocess.run([sys.executable, str(script), str(tmp_path / "tshirt.blend"), str(dump), str(png),
                            *map(str, range(1, frames + 1))], capture_output=True, text=True, timeout=240)
@@ -350,5 +347,5 @@ def test_overwrite_bakes_into_the_given_file_only(tmp_path):
     proc = run_cli(work, "--overwrite", "--frames", "1-3", timeout=240)
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-3000:]
     assert work.read_bytes() != before and (tmp_path / "shot.blend1").exists()  # Blender's usual backup
-    assert cache.cache_info(tmp_path / "tearcloth_cache" / "SquareCloth.usda")["frames"] == [1, 2, 3]
+    assert cache.cache_info(find_cache(tmp_path / "tearcloth_cache", "SquareCloth", "shot"))["frames"] == [1, 2, 3]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["shot.blend", "shot.blend1", "tearcloth_cache"]

@@ -236,8 +236,8 @@ def test_a_fresh_blender_installs_the_package_and_bakes_with_it(package, tmp_pat
     assert got["libusb"] and got["libusb"].startswith(site), got["libusb"]
     assert got["wheel_package"].startswith(site)
     assert got["collision"]
-    assert got["baked"] == ["FINISHED"] and got["cache"] == "//tearcloth_cache/SquareCloth.usda"
+    assert got["baked"] == ["FINISHED"] and got["cache"] == "//tearcloth_cache/scene/SquareCloth.usda"
     from tearcloth import cache
 
-    info = cache.cache_info(tmp_path / "tearcloth_cache" / "SquareCloth.usda")
+    info = cache.cache_info(tmp_path / "tearcloth_cache" / "scene" / "SquareCloth.usda")
     assert info["frames"] == [1, 2, 3, 4, 5, 6] and info["complete"]

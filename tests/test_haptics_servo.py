@@ -228,13 +228,19 @@ def test_linearised_stiffness_is_limited_to_what_the_device_renders():
     assert np.linalg.norm(k) == pytest.approx(3000.0 - 1000.0)
 
 
-def test_lost_device_zeroes_force_and_ends_its_tick_loop():
+def pulling():
+    """A virtual device whose proxy is pulled 1 m away: after one tick it feels a force."""
     clock = Clock()
     dev = virtual(clock)
     loop = loop_for(dev, clock)
     loop.publish("right", (1.0, 0, 0), (0, 0, 0))
     loop.tick("right")
     assert dev.force[0] > 0
+    return dev, loop
+
+
+def test_lost_device_zeroes_force_and_ends_its_tick_loop():
+    dev, loop = pulling()
     dev.unplug()
     p = loop.tick("right")
     assert p.state is DeviceState.LOST
@@ -276,12 +282,7 @@ def test_threads_one_hand_lost_other_keeps_running_and_stop_zeroes():
 
 
 def test_stop_without_threads_zeroes_forces():
-    clock = Clock()
-    dev = virtual(clock)
-    loop = loop_for(dev, clock)
-    loop.publish("right", (1.0, 0, 0), (0, 0, 0))
-    loop.tick("right")
-    assert dev.force[0] > 0
+    dev, loop = pulling()
     loop.stop()
     assert dev.force.tolist() == [0, 0, 0]
 

@@ -292,6 +292,15 @@ class _Ours:
 # ------------------------------------------------------------------------------------------------
 
 
+def penetration(body_vertices, body_triangles, shirt_vertices) -> tuple[float, int]:
+    """(deepest shirt vertex inside the closed body in metres, 0.0 when none; vertices inside),
+    by exact signed distance to the body surface (``examples.closest_points``)."""
+    _, sd, _ = examples.closest_points(np.asarray(body_vertices, np.float64), body_triangles,
+                                       np.asarray(shirt_vertices, np.float64))
+    inside = sd < 0
+    return (float(-sd[inside].min()) if inside.any() else 0.0), int(inside.sum())
+
+
 def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, pull_speed: float = PULL_SPEED,
                        tear_stress: float = TEAR_STRESS, target_triangles: int = 3300,
                        collision_quality: int = 2, collision: CollisionSettings | None = None,
@@ -345,6 +354,10 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
     pose_err = max(float(np.abs(got["body_vertices"][f] - examples.body_pose(body, start_time + (f - 1) / fps)).max())
                    for f in check)
     raced = len(t_ours)
+    # penetration after the race, each side against the body at its own last frame (Blender's
+    # skinned body as Blender evaluated it; ours as we posed it)
+    pen_ours = penetration(examples.body_pose(body, start_time + raced / fps), body.triangles, ours.cloth.positions)
+    pen_bl = penetration(got["body_vertices"][frames + 1], body.triangles, got["shirt_end"])
     t_bl = got["frame_s"]
     moved = float(np.abs(got["shirt_end"] - got["shirt_rest"]).max())
     replay = got["replay_s_per_frame"]
@@ -357,6 +370,13 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
         "blender_s_per_frame": bl_mean,
         "ratio": ours_mean / bl_mean if raced else float("nan"),
         "ours_s_per_frame_median": statistics.median(t_ours) if raced else float("nan"),
+        # deepest shirt vertex inside the body (m, 0 when none) and how many are inside, last frame
+        "ours_penetration_max_m": pen_ours[0],
+        "ours_vertices_inside": pen_ours[1],
+        "blender_penetration_max_m": pen_bl[0],
+        "blender_vertices_inside": pen_bl[1],
+        "ours_collision_share_of_substep": (ours.parts["collision"] / sum(v for k, v in ours.parts.items() if k != "pose")
+                                            if raced and sum(ours.parts.values()) > 0 else float("nan")),
         # CPU seconds of the whole process per frame: above the wall time, a side used several
         # cores (ours steps on one thread; Blender's collision and BVH code may use more)
         "ours_cpu_s_per_frame": ours.cpu_s / raced if raced else float("nan"),
@@ -416,6 +436,10 @@ def format_race(r: dict) -> str:
         f"Blender {r['blender_s_per_frame']:.3f} s/frame (median {r['blender_s_per_frame_median']:.3f}), "
         f"replay from cache {r['blender_replay_s_per_frame']:.4f} s/frame",
         f"CPU s/frame: ours {r['ours_cpu_s_per_frame']:.3f}, Blender {r['blender_cpu_s_per_frame']:.3f}",
+        f"penetration at the last frame: ours {r['ours_penetration_max_m'] * 1e3:.1f} mm, "
+        f"{r['ours_vertices_inside']} vertices inside; Blender {r['blender_penetration_max_m'] * 1e3:.1f} mm, "
+        f"{r['blender_vertices_inside']} vertices inside",
+        f"collision share of our sub-step time: {r['ours_collision_share_of_substep']:.2f}",
         f"ratio ours/Blender {r['ratio']:.2f}",
         f"Blender cloth: {bl['cloth']}",
         f"Blender collision: {bl['collision']}; body: {bl['body_collision']}; scene: {bl['scene']}",

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from dataclasses import dataclass
 
 import bpy
@@ -27,7 +28,7 @@ from ..bake import BakeJob, Progress, delete_state, start_worker
 from ..cloth import ClothError
 from . import jobs, modifier
 from .inputs import build_plan, gather_inputs
-from .report import BakeError, Reports, log
+from .report import BakeError, Reports, log, user_geometry_message
 
 # Frames gathered ahead of the worker: enough to keep it busy between two ticks, few enough that
 # collider meshes in the queue stay small.
@@ -74,20 +75,34 @@ class BakeRun:
         if obj is not None and obj.name in jobs.live_sessions:
             self.reports.error(f"{obj.name}: a live haptic session is running on this object; stop it first (Esc)")
             self.reports.raise_if_errors()
+        self.created_folders: list = []  # cache folders this attempt made (removed again if it fails)
         try:
             # The rest state is the scene at the first frame (object matrix, modifiers above).
             if obj is not None and obj.type == "MESH":
                 first = obj.tearcloth.frame_start if frame_start is None else int(frame_start)
                 scene.frame_set(first)
-            self.plan, self.sources = build_plan(context, obj, frame_start, frame_end, resume, self.reports)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    self.plan, self.sources = build_plan(context, obj, frame_start, frame_end, resume, self.reports)
+                except BakeError:
+                    raise
+                except Exception as exc:  # a bug: a report (and the frame restored), not a traceback
+                    self.reports.error(f"{getattr(obj, 'name', '?')}: internal error while checking the bake "
+                                       f"({type(exc).__name__}: {exc}); please report it")
+                    self.reports.raise_if_errors()
+            self._report_warnings(caught)
             self.object_name = obj.name
             self.progress = Progress(obj.name, self.plan.frame_start, self.plan.frame_end)
+            self.created_folders = _missing_folders(os.path.dirname(self.plan.cache_path))
             # Blender must let go of the old cache before the writer deletes or rewrites it.
             modifier.detach_cache(obj)
             try:
                 self.job = BakeJob(self.plan, self.progress, on_event)
-            except (cache.CacheError, ValueError, OSError) as exc:
-                self.reports.error(f"{obj.name}: {exc}")
+            except Exception as exc:
+                self.reports.error(f"{obj.name}: {exc}" if isinstance(exc, (cache.CacheError, ValueError, OSError))
+                                   else f"{obj.name}: internal error ({type(exc).__name__}: {exc})")
+                self._remove_created_folders()
                 self._reattach_existing(obj)
                 self.reports.raise_if_errors()
         except BaseException:
@@ -95,27 +110,66 @@ class BakeRun:
                 scene.frame_set(self.original_frame)
             raise
 
-    def _reattach_existing(self, obj) -> None:
+    def _report_warnings(self, caught) -> None:
+        """Python warnings raised below (an open collider, ...) become reports: the operator
+        shows them and the headless bake logs them, instead of a line on stderr only."""
+        for w in caught:
+            self.reports.warning(f"{self.object_name if hasattr(self, 'object_name') else ''}: {w.message}"
+                                 .lstrip(": "))
+
+    def _reattach_existing(self, obj) -> bool:
+        """Show the cache that is at the object's path again (the previous bake a failed or
+        cancelled re-bake left as it was); False if there is none."""
         try:
-            cache.cache_info(self.plan.cache_path)
+            cache.check_owner(self.plan.cache_path, obj.name, object_id=self.plan.object_id)
         except cache.CacheError:
-            return
-        modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
+            return False
+        try:
+            modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
+        except BakeError as exc:
+            self.reports.error(str(exc))
+            return False
+        return True
+
+    def _remove_created_folders(self) -> None:
+        """Remove the cache folders this attempt created, if they are still empty: a failed
+        attempt leaves nothing behind, and nothing it did not make is touched."""
+        for folder in reversed(self.created_folders):
+            try:
+                os.rmdir(folder)
+            except OSError:
+                break  # not empty (or not ours any more): keep it and its parents
+        self.created_folders = []
 
     # -- shared by both ways of running ---------------------------------------------------------
 
     def start(self, context) -> None:
+        """Build the simulation at the first frame. Never raises: a failure is the progress's
+        'error' state, and ``finish`` (which every way of running calls) cleans up."""
         jobs.add(self)
         try:
             inputs = gather_inputs(context, self.sources, self.job.start_frame,
                                    self.plan.scale)
-            self.job.begin(inputs)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                self.job.begin(inputs)
+            self._report_warnings(caught)
         except (BakeError, ClothError, ValueError, cache.CacheError) as exc:
-            self.progress.state, self.progress.message = "error", str(exc)
-            self.job.close(complete=False)
+            self.progress.state, self.progress.message = "error", self._user_message(str(exc))
+        except Exception as exc:  # a bug: still a clean stop (registry, frame, files), named as such
+            self.progress.state = "error"
+            self.progress.message = f"internal error ({type(exc).__name__}: {exc})"
         self.next_gather = self.job.next_frame
-        if self.job.start_frame > self.plan.frame_start:
+        if self.progress.state == "running" and self.job.start_frame > self.plan.frame_start:
             self.reports.info(f"{self.object_name}: resuming after frame {self.job.start_frame}")
+
+    def _user_message(self, text: str) -> str:
+        """The core's words about the mesh in the user's polygon and vertex indices (the solver's
+        triangles are the user's polygons triangulated, loose vertices left out). Only a fresh
+        start has the user's numbering; a resumed cloth may be torn already."""
+        if self.job.resumed:
+            return text
+        return user_geometry_message(text, self.plan.triangle_polygons, self.plan.vertex_ids)
 
     def finish(self, context) -> str:
         """Close the cache, show it on the modifier, put the scene back on its frame; returns the
@@ -126,6 +180,10 @@ class BakeRun:
         except Exception as exc:  # the cache keeps every frame it had; say why it is not closed
             self.progress.state, self.progress.message = "error", f"could not finish the cache: {exc}"
         frames = self.job.writer.frames
+        if not frames:
+            self._remove_created_folders()
+        elif self.created_folders:
+            self.reports.info(f"{self.object_name}: created the cache folder {self.created_folders[-1]}")
         if self.abandoned:  # another file is open now: touch none of its data
             self.reports.warning(f"{self.object_name}: bake stopped by loading another file; "
                                  + (f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"))
@@ -134,13 +192,18 @@ class BakeRun:
         if scene is not None and scene.frame_current != self.original_frame:
             scene.frame_set(self.original_frame)
         obj = bpy.data.objects.get(self.object_name)
+        previous = False
         if obj is not None and frames and modifier.is_enabled(obj):
             try:
                 modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
             except BakeError as exc:
                 self.reports.error(str(exc))
+        elif obj is not None and modifier.is_enabled(obj):
+            previous = self._reattach_existing(obj)
         p = self.progress
         kept = f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"
+        if previous:
+            kept += "; the previous bake is kept as it was"
         if p.state == "done":
             self.reports.info(f"{self.object_name}: baked frames {frames[0]}-{frames[-1]} "
                               f"({p.tears} tear{'s' if p.tears != 1 else ''}, {p.vertices} vertices at the end) "
@@ -155,13 +218,15 @@ class BakeRun:
     # -- inline (bake_object) ------------------------------------------------------------------
 
     def run_inline(self, context, progress=None) -> str:
-        self.start(context)
         try:
+            self.start(context)
             while self.progress.state == "running" and not self.job.done:
                 try:
                     inputs = gather_inputs(context, self.sources, self.job.next_frame,
                                            self.plan.scale)
-                    self.job.advance(inputs)
+                    if not self.job.advance(inputs):  # cancelled inside the frame: it is dropped
+                        self.progress.state = "cancelled"
+                        break
                 except (BakeError, ClothError, ValueError, cache.CacheError) as exc:
                     self.progress.state, self.progress.message = "error", str(exc)
                     break
@@ -172,6 +237,9 @@ class BakeRun:
         except KeyboardInterrupt:
             self.progress.state = "cancelled"
             raise
+        except Exception as exc:  # a bug: reported, and finish() still restores the scene and files
+            self.progress.state = "error"
+            self.progress.message = f"internal error ({type(exc).__name__}: {exc})"
         finally:
             self.finish(context)
         return self.progress.state
@@ -231,6 +299,19 @@ class BakeRun:
             self.progress.state = state
 
 
+def _missing_folders(folder: str) -> list:
+    """The folders from the first missing ancestor of ``folder`` down to it (outermost first)."""
+    missing = []
+    folder = os.path.abspath(folder)
+    while folder and not os.path.exists(folder):
+        missing.append(folder)
+        parent = os.path.dirname(folder)
+        if parent == folder:
+            break
+        folder = parent
+    return list(reversed(missing))
+
+
 @dataclass
 class BakeResult:
     state: str                # 'done', 'cancelled' or 'error'
@@ -278,20 +359,22 @@ def free_bake(obj, reports: Reports) -> bool:
         path = attached
     elif os.path.lexists(path):
         try:
-            cache.check_owner(path, obj.name)
+            cache.check_owner(path, obj.name, object_id=modifier.object_id(obj))
         except cache.CacheOwnerError as exc:
             reports.error(f"{obj.name}: {exc}; left untouched")
             return False
         except cache.CacheError:
             pass  # damaged: delete_cache below still refuses anything that is not a Tear Cloth cache
     modifier.detach_cache(obj)
+    damaged = cache.damaged_root(path)
     try:
         cache.delete_cache(path)
     except cache.CacheError as exc:
         reports.error(f"{obj.name}: {exc}; left untouched")
         return False
     delete_state(path)
-    reports.info(f"{obj.name}: freed the bake at {path}")
+    reports.info(f"{obj.name}: freed the bake at {path}"
+                 + (" (its root file was damaged, cut short; its frame files are deleted with it)" if damaged else ""))
     return True
 
 

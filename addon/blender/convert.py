@@ -18,7 +18,8 @@ What this file owns
   ``loop_triangles`` (the user's mesh is never touched), UVs are taken per triangle corner from
   the active UV map, vertex groups become weight arrays, and vertices that belong to no face
   (loose vertices, wire edges) are dropped because a membrane solver has nothing to do with them;
-  ``MeshArrays.kept`` maps back to the mesh's own vertex indices.
+  ``MeshArrays.kept`` maps back to the mesh's own vertex indices and ``MeshArrays.polygons``
+  each triangle back to the polygon it came from, so messages name the user's elements.
 * Colliders are read from the EVALUATED object (modifiers and armatures applied) at the current
   frame, in world space, metres.
 """
@@ -87,6 +88,21 @@ def _to_blender(row, settings, scene, value) -> None:
     setattr(settings, row.blender_name, value)
 
 
+def scene_length_defaults(settings, scene) -> list:
+    """Write the table's default of every length of ``settings`` (an object's or the scene's
+    Tear Cloth settings) the user has not set, converted to the scene's units: the properties'
+    own defaults are metres taken as Blender units, 100 times too small in a centimetre scene.
+    Returns the names written."""
+    written = []
+    for row in table.SETTINGS:
+        name = row.blender_name
+        if (row.is_scene_length and name is not None and hasattr(settings, name)
+                and not settings.is_property_set(name)):
+            _to_blender(row, settings, scene, row.default)
+            written.append(name)
+    return written
+
+
 def material_from_settings(settings, scene) -> Material:
     """The object's Tear Cloth material settings as an SI ``Material`` (ValueError if absurd)."""
     values = {row.name: _from_blender(row, settings, scene) for row in table.rows("material")}
@@ -149,7 +165,7 @@ class MeshArrays:
 
     vertices (n, 3) float64 BU; triangles (m, 3) int32 indexing ``vertices``; corner_uv
     (m, 3, 2) float64 or None; groups name -> (n,) float64 weights in [0, 1]; kept (n,) the
-    mesh's own index of every vertex; ngons: faces with more than four corners (triangulated);
+    mesh's own index of every vertex; polygons (m,) the mesh's polygon of every triangle; ngons: faces with more than four corners (triangulated);
     loose: vertices dropped because no face uses them.
     """
 
@@ -160,6 +176,9 @@ class MeshArrays:
     kept: np.ndarray | None = None
     ngons: int = 0
     loose: int = 0
+    polygons: np.ndarray | None = None  # (m,) the mesh's polygon index of every triangle
+    uv_name: str | None = None          # the name of the UV map corner_uv comes from (the active one)
+    other_uv: list = field(default_factory=list)  # names of the UV maps that are not carried
 
 
 def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> MeshArrays:
@@ -178,6 +197,8 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
     tri_verts = np.empty(3 * m, dtype=np.int32)
     tris.foreach_get("vertices", tri_verts)
     tri_verts = tri_verts.reshape(m, 3)
+    tri_polygons = np.empty(m, dtype=np.int32)
+    tris.foreach_get("polygon_index", tri_polygons)
 
     sizes = np.empty(len(mesh.polygons), dtype=np.int32)
     mesh.polygons.foreach_get("loop_total", sizes)
@@ -191,6 +212,8 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
         loop_uv = np.empty(2 * len(mesh.loops), dtype=np.float64)
         layer.data.foreach_get("uv", loop_uv)
         corner_uv = loop_uv.reshape(-1, 2)[tri_loops].reshape(m, 3, 2)
+    uv_name = layer.name if corner_uv is not None else None
+    other_uv = [u.name for u in mesh.uv_layers if u.name != uv_name] if uv else []
 
     groups = {}
     if group_names:
@@ -226,6 +249,9 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
         kept=kept,
         ngons=ngons,
         loose=loose,
+        polygons=tri_polygons,
+        uv_name=uv_name,
+        other_uv=other_uv,
     )
 
 

@@ -5,7 +5,9 @@ What this file owns: ``bake_file`` (run a plan checked by ``tearcloth.cli`` befo
 imported), ``ObjectResult`` (how one object's bake ended), ``render`` and ``frame_path``
 (Blender's ``#`` frame-number convention), and ``InputError`` for the bad input that only the
 opened file can reveal (no Tear Cloth object, an unknown name, no camera): the CLI turns it into
-its one-line error and exit status 2. Progress reaches the caller as the bake job's events
+its one-line error and exit status 2. Each object's bake resumes an interrupted bake of the same
+object found in its cache (``_start_run``; ``plan.restart`` starts over), and SIGTERM/SIGINT stop
+the run cleanly (``_Stop``: the frame in progress is dropped, the file saved). Progress reaches the caller as the bake job's events
 (``tearcloth.bake.BakeEvent``), drawn by a ``ProgressLine``; nothing here prints but through it.
 
 The plan (``tearcloth.cli.FilePlan``) is read by attribute only: ``source``, ``compressed``,
@@ -14,9 +16,12 @@ The plan (``tearcloth.cli.FilePlan``) is read by attribute only: ``source``, ``c
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
+import signal
+import threading
 import time
 import warnings
 from dataclasses import dataclass
@@ -24,6 +29,7 @@ from pathlib import Path
 
 import bpy
 
+from .. import cache
 from ..bake import ProgressLine
 from . import modifier, register
 from .bake import BakeRun
@@ -128,40 +134,11 @@ def bake_file(plan, progress: ProgressLine | None = None, on_event=None) -> dict
                         # the property takes '//' paths although it does not declare so (yet)
                         warnings.simplefilter("ignore", RuntimeWarning)
                         settings.cache_folder = setting
-        results = []
         start, end = plan.frames if plan.frames else (None, None)
-        interrupted = False
-        for index, name in enumerate(names, 1):
-            obj = bpy.data.objects[name]
-            reports = Reports()
-            t0 = time.perf_counter()
-
-            def listen(event, index=index):
-                # a frame the job simulated (not the rest frame it starts from) moves the line on
-                if event.kind == "frame" and event.frame > event.job.start_frame:
-                    progress.update(event.job.progress, index, len(names))
-                if on_event is not None:
-                    on_event(event)
-
-            try:
-                run = BakeRun(bpy.context, obj, start, end, False, reports, on_event=listen)
-            except BakeError as exc:
-                results.append(ObjectResult(name, "error", [], None, message=str(exc)))
-                continue
-            try:
-                state = run.run_inline(bpy.context)
-            except KeyboardInterrupt:
-                state, interrupted = "cancelled", True
-            progress.update(run.progress, index, len(names), final=True)
-            progress.end()
-            p = run.progress
-            message = p.message if state == "error" else ""
-            if state == "error" and not message:
-                message = "; ".join(reports.errors)
-            results.append(ObjectResult(name, state, list(run.job.writer.frames), run.plan.cache_path, p.tears,
-                                        p.vertices, time.perf_counter() - t0, message))
-            if interrupted:
-                break
+        stop = _Stop()
+        with stop.installed():
+            results = _bake_objects(names, start, end, plan, progress, on_event, stop)
+        interrupted = stop.signal is not None
         baked_any = any(r.frames for r in results)
         if baked_any or plan.output != plan.source:
             _save(plan.output, plan.compressed)
@@ -173,11 +150,119 @@ def bake_file(plan, progress: ProgressLine | None = None, on_event=None) -> dict
                 rendered.append(render(scene, frame_path(plan.render, frame), frame, plan.resolution_percent,
                                        plan.transparent))
         return {"output": str(plan.output), "objects": results, "rendered": rendered, "interrupted": interrupted,
-                "saved": baked_any or plan.output != plan.source}
+                "signal": stop.signal, "saved": baked_any or plan.output != plan.source}
     finally:
         logger.removeHandler(handler)
         logger.setLevel(saved[0])
         logger.propagate = saved[1]
+
+
+def _bake_objects(names, start, end, plan, progress: ProgressLine, on_event, stop: "_Stop") -> list:
+    """Bake each object inline, one after the other, until done or a signal stops the run."""
+    results = []
+    for index, name in enumerate(names, 1):
+        if stop.signal is not None:
+            break
+        obj = bpy.data.objects[name]
+        reports = Reports()
+        t0 = time.perf_counter()
+
+        def listen(event, index=index):
+            # a frame the job simulated (not the rest frame it starts from) moves the line on
+            if event.kind == "frame" and event.frame > event.job.start_frame:
+                progress.update(event.job.progress, index, len(names))
+            if on_event is not None:
+                on_event(event)
+
+        try:
+            run = _start_run(obj, start, end, reports, listen, progress,
+                             restart=getattr(plan, "restart", False))
+        except BakeError as exc:
+            results.append(ObjectResult(name, "error", [], None, message=str(exc)))
+            continue
+        stop.run = run
+        if stop.signal is not None:  # came while the bake was being set up
+            run.job.cancel.set()
+        try:
+            state = run.run_inline(bpy.context)
+        except KeyboardInterrupt:  # raised by a caller's own handler: the same stop
+            state = "cancelled"
+            stop.signal = stop.signal or "SIGINT"
+        finally:
+            stop.run = None
+        progress.update(run.progress, index, len(names), final=True)
+        progress.end()
+        p = run.progress
+        message = p.message if state == "error" else ""
+        if state == "error" and not message:
+            message = "; ".join(reports.errors)
+        results.append(ObjectResult(name, state, list(run.job.writer.frames), run.plan.cache_path, p.tears,
+                                    p.vertices, time.perf_counter() - t0, message))
+    return results
+
+
+class _Stop:
+    """SIGTERM (what render-farm managers send) and SIGINT (Ctrl-C) handled alike while a bake
+    runs: the job is asked to stop at its next step, so the frame being simulated is dropped,
+    every complete frame stays, and the caller saves the .blend pointing at them. ``signal``:
+    the name of the signal that stopped the run, or None."""
+
+    def __init__(self):
+        self.signal = None
+        self.run = None  # the bake running now
+
+    def _handler(self, signum, frame):
+        self.signal = signal.Signals(signum).name
+        if self.run is not None:
+            self.run.job.cancel.set()
+
+    @contextlib.contextmanager
+    def installed(self):
+        """The handlers for the whole run (restored after; signals are only for the main thread)."""
+        old = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                old[sig] = signal.signal(sig, self._handler)
+        try:
+            yield self
+        finally:
+            for sig, handler in old.items():
+                signal.signal(sig, handler)
+
+
+def _start_run(obj, start, end, reports: Reports, listen, progress: ProgressLine, restart: bool) -> BakeRun:
+    """The object's bake: resumed from its last complete frame when a compatible partial bake
+    is in its cache (a killed run of the same command), from the start otherwise or with
+    ``restart``. Says which on the progress stream."""
+    partial = None if restart else _partial_bake(obj)
+    if partial is not None:
+        tried = Reports()
+        try:
+            run = BakeRun(bpy.context, obj, start, end, True, tried, on_event=listen)
+        except BakeError as exc:
+            _say(progress, f"{obj.name}: the partial bake (frames {partial[0]}-{partial[-1]}) cannot be resumed "
+                           f"({exc}); baking from the start")
+        else:
+            reports.items.extend(tried.items)
+            _say(progress, f"{obj.name}: resuming the partial bake after frame {run.job.start_frame} "
+                           "(--restart bakes from the start)")
+            return run
+    return BakeRun(bpy.context, obj, start, end, False, reports, on_event=listen)
+
+
+def _partial_bake(obj) -> list | None:
+    """The frames of an interrupted bake at the object's cache path, or None."""
+    try:
+        info = cache.check_owner(modifier.cache_path(obj), obj.name, object_id=modifier.object_id(obj))
+    except (BakeError, cache.CacheError):
+        return None
+    return info["frames"] if info["frames"] and not info["complete"] else None
+
+
+def _say(progress: ProgressLine, text: str) -> None:
+    progress.end()
+    progress.stream.write(f"{PROG}: {text}\n")
+    progress.stream.flush()
 
 
 def _save(path: Path, compress: bool, copy_to: bool = False) -> None:

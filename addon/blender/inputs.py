@@ -10,6 +10,7 @@ and ``gather_inputs`` (move the scene to a frame and copy out what the job needs
 from __future__ import annotations
 
 import os
+import re
 import tempfile
 from dataclasses import dataclass, field
 
@@ -64,15 +65,18 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
     """The cloth's rest mesh: the object's mesh as evaluated by the modifiers ABOVE "Tear Cloth"
     (like Blender's Cloth modifier). Those below, and Tear Cloth itself, are switched off for the
     one evaluation and switched back on."""
-    if obj.mode == "EDIT":
-        obj.update_from_editmode()
+    editing = obj.mode == "EDIT"
+    if editing:
+        obj.update_from_editmode()  # the edit-mode mesh, as the user sees it, is the rest mesh
     md = modifier.find_modifier(obj)
     mods = list(obj.modifiers)
     index = mods.index(md)
     above = [m for m in mods[:index] if m.show_viewport]
     try:
         # Shape keys are evaluated like modifiers: their mix, not the basis, is the rest shape.
-        if not above and obj.data.shape_keys is None:
+        # In Edit Mode the original mesh's corner data (UVs) reads as empty: take the evaluated
+        # copy, which has all of it.
+        if not above and obj.data.shape_keys is None and not editing:
             return convert.read_mesh(obj.data, vertex_groups=obj.vertex_groups, group_names=group_names)
         switched = [m for m in mods[index:] if m.show_viewport]
         try:
@@ -104,7 +108,8 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
                with_cache: bool = True) -> tuple[BakePlan, Sources]:
     """Check everything a bake of ``obj`` needs and gather it. Every problem goes into
     ``reports`` (and the log); BakeError if any is an error. Changes nothing in the scene (when
-    everything else is right it creates a missing cache folder).
+    the cache folder is not created here: the bake makes it; the object gets its persistent id,
+    ``modifier.claim_id``).
 
     For a live haptic session: ``hands`` maps each hand to the vertex group it grasps (checked
     like a handle's; the bake handles on the same groups are left to the hands, the others hold
@@ -164,25 +169,40 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
 
     reports.raise_if_errors()
 
-    # The cache location last: checking it may create the folder, which only a bake should do.
+    mesh = _input_mesh(context, obj, reports, wanted)
+    reports.raise_if_errors()
+    if len(mesh.triangles) == 0:
+        reports.error(f"{obj.name}: the mesh has no faces to simulate")
+        reports.raise_if_errors()
+    fingerprint = cache.mesh_fingerprint(mesh.vertices * scale, mesh.triangles)
+
+    # The cache location once the mesh is known (its fingerprint guards the object's identity).
     path = None
     if with_cache:
         try:
+            modifier.claim_id(obj, fingerprint)  # the cache's identity (the one change a plan makes)
             path = modifier.cache_path(obj)
         except BakeError as exc:
             reports.error(f"{obj.name}: {exc}")
         if path is not None:
             _check_cache_location(obj, path, resume, reports)
     reports.raise_if_errors()
-
-    mesh = _input_mesh(context, obj, reports, wanted)
-    reports.raise_if_errors()
-    if len(mesh.triangles) == 0:
-        reports.error(f"{obj.name}: the mesh has no faces to simulate")
-        reports.raise_if_errors()
     if mesh.ngons:
         reports.warning(f"{obj.name}: {mesh.ngons} n-gon{'s' if mesh.ngons != 1 else ''} triangulated for the "
                         "solver (your mesh is unchanged); triangulate them yourself to choose the diagonals")
+    uv_name = "st"
+    if mesh.uv_name is not None:
+        # the cache's UVs carry the user's UV map name, so materials that read it by name see them
+        uv_name = re.sub(r"[^A-Za-z0-9_]", "_", mesh.uv_name)
+        if not uv_name or uv_name[0].isdigit():
+            uv_name = "_" + uv_name
+        if uv_name != mesh.uv_name:
+            reports.warning(f"{obj.name}: the UV map {mesh.uv_name!r} is named {uv_name!r} in the cache (USD names "
+                            "allow letters, digits and _ only); rename it to keep the name")
+    if mesh.other_uv:
+        reports.warning(f"{obj.name}: only the active UV map ({mesh.uv_name!r}) is carried through tears into the "
+                        f"cache; {', '.join(repr(n) for n in mesh.other_uv)} "
+                        f"{'is' if len(mesh.other_uv) == 1 else 'are'} not in the baked mesh")
     if mesh.loose:
         reports.warning(f"{obj.name}: {mesh.loose} loose {'vertices' if mesh.loose != 1 else 'vertex'} (in no face) "
                         "left out of the simulation")
@@ -233,7 +253,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         triangles=mesh.triangles,
         corner_uv=mesh.corner_uv,
         groups=mesh.groups,
-        fingerprint=cache.mesh_fingerprint(mesh.vertices * scale, mesh.triangles),
+        fingerprint=fingerprint,
         pin_group=settings.pin_group or None,
         handle_groups=[h.vertex_group for _, h in handles],
         seam_group=settings.seam_group or None,
@@ -241,6 +261,11 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         body_triangles=body_triangles,
         resume=bool(resume),
         hand_groups=hand_groups,
+        uv_name=uv_name,
+        object_id=modifier.object_id(obj),
+        blend=bpy.data.filepath,
+        triangle_polygons=mesh.polygons,
+        vertex_ids=mesh.kept,
     )
     sources = Sources(obj.name, follow, list(body_triangles))
     return plan, sources
@@ -251,21 +276,36 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
     if os.path.exists(folder) and not os.path.isdir(folder):
         reports.error(f"{obj.name}: the cache folder {folder} is a file, not a folder")
         return
-    if not os.path.isdir(folder):
-        try:
-            os.makedirs(folder)
-            reports.info(f"{obj.name}: created the cache folder {folder}")
-        except OSError as exc:
-            reports.error(f"{obj.name}: cannot create the cache folder {folder}: {exc.strerror or exc}")
-            return
+    # A missing folder is made by the bake itself once every check passed (and removed again if
+    # the attempt fails): here only its nearest existing ancestor must take new files.
+    existing = folder
+    while not os.path.exists(existing) and os.path.dirname(existing) != existing:
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        reports.error(f"{obj.name}: cannot create the cache folder {folder}: {existing} is a file, not a folder")
+        return
     # A real write, not os.access: that says yes to root on a read-only mount.
     try:
-        with tempfile.TemporaryFile(dir=folder):
+        with tempfile.TemporaryFile(dir=existing):
             pass
     except OSError as exc:
-        reports.error(f"{obj.name}: the cache folder {folder} is not writable ({exc.strerror or exc}); "
+        what = "is not writable" if existing == folder else f"cannot be created: {existing} is not writable"
+        reports.error(f"{obj.name}: the cache folder {folder} {what} ({exc.strerror or exc}); "
                       "choose another folder")
         return
+    if cache.damaged_root(path):
+        # a root cut short (a crash or a full disk while it was rewritten): its frame files are
+        # intact, so it is rebuilt from them for this object (whose path it is)
+        try:
+            frames = cache.repair_root(path, obj.name, owner={"object_id": modifier.object_id(obj),
+                                                              "blend": bpy.data.filepath})
+        except cache.CacheError as exc:
+            reports.error(f"{obj.name}: the cache root {path} is damaged and cannot be rebuilt ({exc}); "
+                          "Free Bake deletes it")
+            return
+        span = f"frames {frames[0]}-{frames[-1]}" if frames else "no frame"
+        reports.warning(f"{obj.name}: the cache root {path} was damaged (cut short); rebuilt it from its intact "
+                        f"frame files ({span})")
     if resume:
         if not os.path.exists(path):
             attached = modifier.attached_path(obj)
@@ -276,7 +316,7 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
                 reports.error(f"{obj.name}: there is no bake to resume at {path}")
             return
         try:
-            info = cache.check_owner(path, obj.name)
+            info = cache.check_owner(path, obj.name, object_id=modifier.object_id(obj))
         except cache.CacheError as exc:
             reports.error(f"{obj.name}: cannot resume: {exc}")
             return
@@ -284,7 +324,7 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
             reports.error(f"{obj.name}: the bake is complete up to frame {info['frames'][-1]}; nothing to resume")
     elif os.path.lexists(path):
         try:
-            cache.check_owner(path, obj.name)
+            cache.check_owner(path, obj.name, object_id=modifier.object_id(obj))
         except cache.CacheOwnerError as exc:
             reports.error(f"{obj.name}: {exc}. It was left untouched: free it from that object, or choose "
                           "another cache folder")

@@ -5,13 +5,15 @@ The modifier strategy (one modifier, its place kept for good)
 Enabling Tear Cloth adds Blender's STOCK Mesh Sequence Cache (MSC) modifier named "Tear Cloth".
 Before a bake it has no cache file, and an MSC without a cache file passes its input mesh through
 unchanged: the object shows its rest mesh and every modifier above and below works as before.
-A bake attaches the baked USD root (``//tearcloth_cache/<object>.usda``, relative to the .blend)
+A bake attaches the baked USD root (``//tearcloth_cache/<blend>/<object>.usda``, relative
+to the .blend; see ``cache_path``)
 to that same modifier, so the stack order the user chose never changes, and the result plays
 back and renders with stock Blender alone (no add-on, no Python) on any machine, a render farm
 node included. Freeing the bake detaches the cache again. Like Blender's own Cloth modifier, the
 simulation starts from the mesh as evaluated by the modifiers ABOVE "Tear Cloth"; modifiers below
 act on the torn result every frame (Solidify, Subdivision Surface, ...). The baked mesh carries
-positions, faces, the UV map (named "st", USD's name for it) and velocities (for motion blur);
+positions, faces, the active UV map under its own name (so a material's UV Map node finds it) and
+velocities (for motion blur);
 vertex groups are not in the cache, so modifiers below cannot use them.
 
 A Geometry Nodes pass-through swapped for the MSC at bake time was the alternative; it would need
@@ -25,10 +27,11 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import uuid
 
 import bpy
 
-from .. import settings
+from .. import cache, settings
 from .report import BakeError
 
 MODIFIER_NAME = "Tear Cloth"
@@ -85,16 +88,76 @@ def cache_folder(settings) -> str:
     return settings.cache_folder or DEFAULT_CACHE_FOLDER
 
 
-def cache_path(obj) -> str:
-    """Absolute path of the object's cache root. BakeError if it cannot be resolved."""
+# The custom property that holds an object's persistent id (copied with the object into other
+# files, kept through renames; a new object has none until its first bake).
+ID_PROPERTY = "tearcloth_id"
+
+
+def object_id(obj) -> str:
+    """The object's persistent id, or '' before its first bake."""
+    value = obj.get(ID_PROPERTY) if hasattr(obj, "get") else None
+    return value if isinstance(value, str) else ""
+
+
+def _recorded(path: str) -> dict | None:
+    """The owner a cache at ``path`` records (name and ``owner`` fields), or None."""
+    return cache.owner_of(path)
+
+
+def claim_id(obj, fingerprint: str | None = None) -> str:
+    """Make sure the object has a persistent id of its own, and return it.
+
+    An object without one adopts the id its cache recorded when that cache was baked for an
+    object of its name and that id is not another object's in this file (the bake ran, the file
+    was not saved after it) and, when ``fingerprint`` is given, for the same rest mesh;
+    otherwise it gets a new id. An object that shares its id with
+    another (Duplicate copies custom properties) keeps it only if its cache was baked for it."""
+    current = object_id(obj)
+    taken = {object_id(o) for o in bpy.data.objects if o is not obj} - {""}
+    if current and current not in taken:
+        return current
+    recorded = _recorded(_plain_path(obj))
+    same_mesh = recorded is not None and (not fingerprint or not recorded.get("fingerprint")
+                                          or recorded["fingerprint"] == fingerprint)
+    if recorded is not None and recorded["object"] == obj.name and same_mesh:
+        theirs = recorded.get("object_id", "")
+        if theirs and (theirs == current or (not current and theirs not in taken)):
+            obj[ID_PROPERTY] = theirs
+            return theirs
+    new = uuid.uuid4().hex[:12]
+    obj[ID_PROPERTY] = new
+    return new
+
+
+def _folder(obj) -> str:
     folder = cache_folder(obj.tearcloth)
     if folder.startswith("//") and not bpy.data.filepath:
         raise BakeError(
             f"the cache folder {folder!r} is relative to the .blend file, which is not saved yet: "
             "save the file first or choose an absolute cache folder (Physics > Tear Cloth > Cache)"
         )
-    absolute = os.path.normpath(bpy.path.abspath(folder))
-    return os.path.join(absolute, prim_name_for(obj.name) + ".usda")
+    blend = bpy.path.display_name_from_filepath(bpy.data.filepath) or "untitled"
+    return os.path.join(os.path.normpath(bpy.path.abspath(folder)), blend)
+
+
+def _plain_path(obj) -> str:
+    return os.path.join(_folder(obj), prim_name_for(obj.name) + ".usda")
+
+
+def cache_path(obj) -> str:
+    """Absolute path of the object's cache root. BakeError if it cannot be resolved.
+
+    ``<cache folder>/<.blend name>/<object>.usda``: the .blend's name keeps two files in one
+    folder (with objects of the same names, or one a copy of the other) apart. When that file
+    belongs to another object (its recorded persistent id is not this object's: the object
+    that baked it was renamed and this one took its name), this object's cache is
+    ``<object>-<id>.usda`` instead, so the two never share a file."""
+    plain = _plain_path(obj)
+    ident = object_id(obj)
+    recorded = _recorded(plain) if ident else None
+    if recorded is not None and recorded.get("object_id") and recorded["object_id"] != ident:
+        return os.path.join(os.path.dirname(plain), f"{prim_name_for(obj.name)}-{ident}.usda")
+    return plain
 
 
 def stored_path(path: str) -> str:

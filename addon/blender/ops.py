@@ -18,6 +18,7 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy.types import Operator
 
+from .. import settings as table
 from .. import spaces
 from ..materials import MATERIALS
 from . import bake, convert, haptic_session, jobs, modifier
@@ -56,19 +57,26 @@ class TEARCLOTH_OT_enable(Operator):
             reports.to_operator(self)
             return {"CANCELLED"}
         modifier.add_modifier(obj)
+        # lengths the user never set start as their physical defaults in this scene's units
+        convert.scene_length_defaults(obj.tearcloth, context.scene)
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_disable(Operator):
-    """Remove the "Tear Cloth" modifier (the baked files stay on disk; Free Bake deletes them)"""
+class _OnTearCloth:
+    """An operator on an object whose Tear Cloth is enabled (undoable)."""
 
-    bl_idname = "tearcloth.disable"
-    bl_label = "Disable Tear Cloth"
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         return modifier.is_enabled(context.object)
+
+
+class TEARCLOTH_OT_disable(_OnTearCloth, Operator):
+    """Remove the "Tear Cloth" modifier (the baked files stay on disk; Free Bake deletes them)"""
+
+    bl_idname = "tearcloth.disable"
+    bl_label = "Disable Tear Cloth"
 
     def execute(self, context):
         obj = context.object
@@ -253,16 +261,11 @@ class TEARCLOTH_OT_bake_cancel(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_free_bake(Operator):
+class TEARCLOTH_OT_free_bake(_OnTearCloth, Operator):
     """Delete this object's baked cache; the modifier shows the rest mesh again"""
 
     bl_idname = "tearcloth.free_bake"
     bl_label = "Free Bake"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return modifier.is_enabled(context.object)
 
     def execute(self, context):
         reports = Reports()
@@ -297,16 +300,80 @@ class TEARCLOTH_OT_material_preset(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_handle_add(Operator):
-    """Add a handle: a vertex group grasped as one, optionally following an object"""
+# Users' own material presets: Python files in Blender's preset folder
+# (<user scripts>/presets/tearcloth/material/), listed by the presets menu next to the built-in
+# ones and applied by Blender's own ``script.execute_preset``, so they can be copied to other
+# machines like any Blender preset. The file holds SI values and converts the lengths through the
+# unit scale of the scene it is applied in (Blender's AddPresetBase would store Blender units,
+# wrong in a scene with another unit scale).
+PRESET_SUBDIR = os.path.join("tearcloth", "material")
 
-    bl_idname = "tearcloth.handle_add"
-    bl_label = "Add Handle"
+
+def preset_file_text(settings, scene, name: str) -> str:
+    """The preset file of the object's current material (one line per material row)."""
+    material = convert.material_from_settings(settings, scene)
+    lines = ["# Tear Cloth material preset (SI units; lengths converted to the scene's units)", "import bpy",
+             "settings = bpy.context.object.tearcloth",
+             "scale = bpy.context.scene.unit_settings.scale_length or 1.0"]
+    for row in table.rows("material"):
+        if row.name == "name":
+            lines.append(f"settings.{row.blender_name} = {name!r}")
+        elif row.is_scene_length:
+            lines.append(f"settings.{row.blender_name} = {getattr(material, row.name)!r} / scale  # {row.unit}")
+        else:
+            lines.append(f"settings.{row.blender_name} = {getattr(material, row.name)!r}  # {row.unit}")
+    return "\n".join(lines) + "\n"
+
+
+class TEARCLOTH_OT_material_preset_save(Operator):
+    """Save this object's material as a preset of your own (listed in the presets menu, shareable as a file)"""
+
+    bl_idname = "tearcloth.material_preset_save"
+    bl_label = "Save Material Preset"
+
+    name: StringProperty(name="Name", description="Name of the preset (its file name too)", maxlen=64)
+
+    @classmethod
+    def poll(cls, context):
+        return context.object is not None and modifier.is_enabled(context.object)
+
+    def invoke(self, context, event):
+        return context.window_manager.invoke_props_dialog(self)
+
+    def execute(self, context):
+        reports = Reports()
+        name = self.name.strip()
+        if not name:
+            reports.error("give the preset a name")
+            return _finish(self, reports, {"CANCELLED"})
+        try:
+            text = preset_file_text(context.object.tearcloth, context.scene, name)
+        except ValueError as exc:
+            reports.error(f"{context.object.name}: {exc}; not saved")
+            return _finish(self, reports, {"CANCELLED"})
+        folder = bpy.utils.user_resource("SCRIPTS", path=os.path.join("presets", PRESET_SUBDIR), create=True)
+        path = os.path.join(folder, bpy.path.clean_name(name) + ".py")
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+        reports.info(f"saved the material preset {name!r} to {path}")
+        return _finish(self, reports, {"FINISHED"})
+
+
+class _OnMesh:
+    """An operator on the active mesh object, Tear Cloth enabled or not (undoable)."""
+
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         return _active_mesh(context) is not None
+
+
+class TEARCLOTH_OT_handle_add(_OnMesh, Operator):
+    """Add a handle: a vertex group grasped as one, optionally following an object"""
+
+    bl_idname = "tearcloth.handle_add"
+    bl_label = "Add Handle"
 
     def execute(self, context):
         settings = context.object.tearcloth
@@ -318,36 +385,41 @@ class TEARCLOTH_OT_handle_add(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_handle_remove(Operator):
-    """Remove the active handle"""
+class _RemoveActiveSlot:
+    """Remove the active slot of one of the object's lists (``collection`` and its ``index``
+    property name it): handles and colliders behave alike."""
 
-    bl_idname = "tearcloth.handle_remove"
-    bl_label = "Remove Handle"
+    collection = ""
+    index = ""
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         obj = _active_mesh(context)
-        return obj is not None and len(obj.tearcloth.handles) > 0
+        return obj is not None and len(getattr(obj.tearcloth, cls.collection)) > 0
 
     def execute(self, context):
         settings = context.object.tearcloth
-        i = min(settings.active_handle_index, len(settings.handles) - 1)
-        settings.handles.remove(i)
-        settings.active_handle_index = max(0, i - 1)
+        slots = getattr(settings, self.collection)
+        i = min(getattr(settings, self.index), len(slots) - 1)
+        slots.remove(i)
+        setattr(settings, self.index, max(0, i - 1))
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_collider_add(Operator):
+class TEARCLOTH_OT_handle_remove(_RemoveActiveSlot, Operator):
+    """Remove the active handle"""
+
+    bl_idname = "tearcloth.handle_remove"
+    bl_label = "Remove Handle"
+    collection, index = "handles", "active_handle_index"
+
+
+class TEARCLOTH_OT_collider_add(_OnMesh, Operator):
     """Add a collider slot (selected mesh objects other than this one are filled in)"""
 
     bl_idname = "tearcloth.collider_add"
     bl_label = "Add Collider"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return _active_mesh(context) is not None
 
     def execute(self, context):
         obj = context.object
@@ -361,24 +433,12 @@ class TEARCLOTH_OT_collider_add(Operator):
         return {"FINISHED"}
 
 
-class TEARCLOTH_OT_collider_remove(Operator):
+class TEARCLOTH_OT_collider_remove(_RemoveActiveSlot, Operator):
     """Remove the active collider slot"""
 
     bl_idname = "tearcloth.collider_remove"
     bl_label = "Remove Collider"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        obj = _active_mesh(context)
-        return obj is not None and len(obj.tearcloth.colliders) > 0
-
-    def execute(self, context):
-        settings = context.object.tearcloth
-        i = min(settings.active_collider_index, len(settings.colliders) - 1)
-        settings.colliders.remove(i)
-        settings.active_collider_index = max(0, i - 1)
-        return {"FINISHED"}
+    collection, index = "colliders", "active_collider_index"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -398,16 +458,11 @@ def cluster_colours(labels: np.ndarray) -> np.ndarray:
     return table[labels]
 
 
-class TEARCLOTH_OT_preview_clusters(Operator):
+class TEARCLOTH_OT_preview_clusters(_OnMesh, Operator):
     """Colour the mesh by collision cluster (colour attribute "tearcloth_clusters"), as collision detection will split it"""
 
     bl_idname = "tearcloth.preview_clusters"
     bl_label = "Preview Clusters"
-    bl_options = {"REGISTER", "UNDO"}
-
-    @classmethod
-    def poll(cls, context):
-        return _active_mesh(context) is not None
 
     def execute(self, context):
         from ..collision import cluster_mesh
@@ -732,6 +787,7 @@ classes = (
     TEARCLOTH_OT_bake_cancel,
     TEARCLOTH_OT_free_bake,
     TEARCLOTH_OT_material_preset,
+    TEARCLOTH_OT_material_preset_save,
     TEARCLOTH_OT_handle_add,
     TEARCLOTH_OT_handle_remove,
     TEARCLOTH_OT_collider_add,

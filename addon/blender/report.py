@@ -7,6 +7,7 @@ It imports no bpy: validation code fills a ``Reports`` and never needs to know w
 from __future__ import annotations
 
 import logging
+import re
 
 log = logging.getLogger("tearcloth")
 
@@ -71,3 +72,45 @@ def object_kind(type_name: str) -> str:
 
 def not_a_mesh(obj) -> str:
     return f"{obj.name!r} is {object_kind(obj.type)}, not a mesh: Tear Cloth works on mesh objects"
+
+
+# ---------------------------------------------------------------------------------------------
+# The solver's element indices in the user's terms
+
+_NUMBERS = r"(\d+(?:(?:, | and )\d+)*)"
+
+
+def user_geometry_message(text: str, polygons, vertices) -> str:
+    """A message of the core about the mesh it was given, with its triangle and vertex indices
+    replaced by the user's polygon and vertex indices.
+
+    ``polygons`` (m,): the user's polygon of each solver triangle; ``vertices`` (n,): the user's
+    vertex of each solver vertex (loose vertices are left out of the solver, so the two numberings
+    differ). Valid only for the mesh as it was handed to the core, before any tear. The core names
+    elements as 'triangle(s) N[, N and N]', 'vertices N, N, N', 'vertex N', 'a vertex (N, N, N)' and
+    'edge (N, N)' (native/mesh.c, native/cloth.c); anything else passes unchanged.
+    """
+    if polygons is None or vertices is None:
+        return text
+
+    def mapped(numbers: str, table) -> str:
+        def one(m):
+            i = int(m.group(0))
+            return str(int(table[i])) if 0 <= i < len(table) else m.group(0)
+        return re.sub(r"\d+", one, numbers)
+
+    def triangles(m):
+        plural = m.group(1) == "triangles"
+        parts = [int(x) for x in re.findall(r"\d+", m.group(2))]
+        polys = list(dict.fromkeys(int(polygons[i]) if 0 <= i < len(polygons) else i for i in parts))
+        if len(polys) == 1:
+            return f"polygon {polys[0]}"
+        listed = ", ".join(str(p) for p in polys[:-1]) + f" and {polys[-1]}"
+        return ("polygons " if plural or len(polys) > 1 else "polygon ") + listed
+
+    text = re.sub(r"\b(triangles?) " + _NUMBERS, triangles, text)
+    text = re.sub(r"\b(vertices|vertex) \(?" + _NUMBERS, lambda m: m.group(0)[: -len(m.group(2))]
+                  + mapped(m.group(2), vertices), text)
+    text = re.sub(r"\bedge \((\d+), (\d+)\)", lambda m: f"edge between vertices "
+                  f"{mapped(m.group(1), vertices)} and {mapped(m.group(2), vertices)}", text)
+    return text

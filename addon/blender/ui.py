@@ -20,6 +20,7 @@ from .. import cache
 from .. import settings as table
 from ..materials import MATERIALS
 from . import bake, haptic_session, modifier
+from .ops import PRESET_SUBDIR
 
 
 def _rows(layout, data, block):
@@ -66,12 +67,22 @@ class TearClothPanel:
 
 
 class TEARCLOTH_MT_material_presets(Menu):
+    """The built-in materials, then the user's own: Blender preset files (ops.PRESET_SUBDIR in
+    every scripts folder Blender searches), applied by Blender's ``script.execute_preset``."""
+
     bl_label = "Material Presets"
 
     def draw(self, context):
         layout = self.layout
         for name in MATERIALS:
             layout.operator("tearcloth.material_preset", text=name.title()).preset = name
+        layout.separator()
+        for folder in bpy.utils.preset_paths(PRESET_SUBDIR):
+            for file in sorted(f for f in os.listdir(folder) if f.endswith(".py")):
+                item = layout.operator("script.execute_preset", text=bpy.path.display_name(file))
+                item.filepath = os.path.join(folder, file)
+                item.menu_idname = "TEARCLOTH_MT_material_presets"
+        layout.operator("tearcloth.material_preset_save", text="Save Preset...", icon="ADD")
 
 
 def _draw_presets(layout, settings):
@@ -107,6 +118,15 @@ def _baked(obj) -> bool:
     return modifier.attached_path(obj) is not None
 
 
+def _settings_layout(panel, context):
+    """A settings panel's layout (property split) and the object's settings; greyed out once the
+    object plays a bake, since changed settings only act on the next one."""
+    layout = panel.layout
+    layout.use_property_split = True
+    layout.active = not _baked(context.object)
+    return layout, context.object.tearcloth
+
+
 class TEARCLOTH_PT_material(TearClothPanel, Panel):
     bl_label = "Material"
     bl_parent_id = "TEARCLOTH_PT_main"
@@ -115,10 +135,7 @@ class TEARCLOTH_PT_material(TearClothPanel, Panel):
         _draw_presets(self.layout, context.object.tearcloth)
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        settings = context.object.tearcloth
-        layout.active = not _baked(context.object)
+        layout, settings = _settings_layout(self, context)
         flow = layout.grid_flow(row_major=False, columns=0, even_columns=True, even_rows=False, align=True)
         for block in ("material.elastic", "material.tearing", "material.damping"):
             _rows(flow.column(), settings, block)
@@ -129,10 +146,7 @@ class TEARCLOTH_PT_quality(TearClothPanel, Panel):
     bl_parent_id = "TEARCLOTH_PT_main"
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        settings = context.object.tearcloth
-        layout.active = not _baked(context.object)
+        layout, settings = _settings_layout(self, context)
         col = layout.column()
         _rows(col, settings, "solver.steps")
         fps = context.scene.render.fps / context.scene.render.fps_base
@@ -188,13 +202,9 @@ class TEARCLOTH_PT_seams(TearClothPanel, Panel):
     bl_options = {"DEFAULT_CLOSED"}
 
     def draw(self, context):
-        layout = self.layout
-        layout.use_property_split = True
-        obj = context.object
-        settings = obj.tearcloth
-        layout.active = not _baked(obj)
+        layout, settings = _settings_layout(self, context)
         col = layout.column()
-        col.prop_search(settings, "seam_group", obj, "vertex_groups", text="Vertex Group")
+        col.prop_search(settings, "seam_group", context.object, "vertex_groups", text="Vertex Group")
         sub = col.column()
         sub.active = bool(settings.seam_group)
         sub.prop(settings, "seam_factor")

@@ -14,25 +14,9 @@ simulation itself (the session wires ``ServoLoop.publish``/``ServoLoop.proxy`` t
 
 Pure Python (numpy; pyftdi/hidapi/matplotlib imported only when used), SI units, no bpy.
 """
-from .device import (
-    ConfigError,
-    DeviceNotFoundError,
-    DeviceState,
-    DeviceStateError,
-    EchoMismatchError,
-    FirmwareError,
-    FirmwareFileError,
-    FirmwareNotRunningError,
-    HandshakeError,
-    HapticDevice,
-    HapticError,
-    KinematicsError,
-    NotHomedError,
-    ProtocolError,
-    TransportError,
-    VelocityFilter,
-    Workspace,
-)
+from . import device
+# the device interface's own list (errors, states, the base class): written once, in device.py
+from .device import *  # noqa: F401,F403
 from .falcon import FalconDevice, assign_hands, open_falcons, read_firmware
 from .falcon_emulator import FalconEmulator
 from .falcon_transport import Transport, list_falcons, open_transport
@@ -43,23 +27,7 @@ from .spacemouse import SpaceMouseDevice, list_spacemice
 from .virtual import VirtualDevice
 
 __all__ = [
-    "ConfigError",
-    "DeviceNotFoundError",
-    "DeviceState",
-    "DeviceStateError",
-    "EchoMismatchError",
-    "FirmwareError",
-    "FirmwareFileError",
-    "FirmwareNotRunningError",
-    "HandshakeError",
-    "HapticDevice",
-    "HapticError",
-    "KinematicsError",
-    "NotHomedError",
-    "ProtocolError",
-    "TransportError",
-    "VelocityFilter",
-    "Workspace",
+    *device.__all__,
     "FalconDevice",
     "FalconEmulator",
     "assign_hands",

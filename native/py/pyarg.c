@@ -174,11 +174,13 @@ static int scalar(PyObject *obj, const pyarg_spec *sp, pyarg_value *out)
         Py_DECREF(ix);
         return out->n == -1 && PyErr_Occurred() ? -1 : 0;
     }
-    long l = PyLong_AsLong(ix);
+    /* long long, not long: long is 32-bit on Windows, where the range check would vanish and
+     * PyLong_AsLong's own message would name no argument */
+    long long l = PyLong_AsLongLong(ix);
     Py_DECREF(ix);
     if (l == -1 && PyErr_Occurred()) return -1;
-    if (l < -2147483647L - 1 || l > 2147483647L) {
-        PyErr_Format(PyExc_OverflowError, "%s = %ld does not fit a C int", sp->name, l);
+    if (l < -2147483647LL - 1 || l > 2147483647LL) {
+        PyErr_Format(PyExc_OverflowError, "%s = %lld does not fit a C int", sp->name, l);
         return -1;
     }
     out->i = (int)l;

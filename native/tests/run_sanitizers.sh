@@ -16,3 +16,11 @@ for kernel in scalar sse2 avx2; do
     echo "kernel $kernel:"
     TEARCLOTH_SIMD=$kernel ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"
 done
+# The collision kernels (native/collide/, all but their Python bindings) and their C tests: a
+# deforming cloth over a moving body, before and after a tear, and bad indices.
+collide=$(ls collide/*.c | grep -v '^collide/pymodule\.c$')
+# shellcheck disable=SC2086
+cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all \
+   -Wall -Wextra -Wno-unused-parameter -I. -Icollide \
+   $collide tests/test_collide.c -lm -o "$out.collide"
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out.collide"

@@ -1,0 +1,223 @@
+/* test_collide.c - native tests of the collision kernels (native/collide/, no Python), built with
+ * AddressSanitizer and UndefinedBehaviorSanitizer by native/tests/run_sanitizers.sh. A cloth grid
+ * deforms step by step over a closed box body that moves; every step runs the per-step kernels a
+ * detection runs (normals, cluster motion, boxes, pairs, the relative measure, rays,
+ * refinement of candidate hits, walks), the grid is then "torn" (a row of vertices duplicated,
+ * triangles re-indexed) and run again, and bad indices must come back as errors. Each check prints and counts; the exit code is the number of
+ * failures. */
+#include "collide.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int failures, checks;
+#define CHECK(cond, ...) do { checks++; if (!(cond)) { failures++; printf("FAIL %s:%d: ", __FILE__, __LINE__); printf(__VA_ARGS__); printf("\n"); } } while (0)
+
+enum { NX = 24, NY = 24 };
+
+typedef struct {
+    double *x;
+    tcc_idx *tri;
+    tcc_idx nv, nt;
+} mesh;
+
+static mesh grid(void)
+{
+    mesh m = {malloc(sizeof(double) * 3 * (NX * NY + NY)), malloc(sizeof(tcc_idx) * 6 * (NX - 1) * (NY - 1)), NX * NY,
+              2 * (NX - 1) * (NY - 1)};
+    for (int i = 0; i < NX; i++)
+        for (int j = 0; j < NY; j++) {
+            double *p = m.x + 3 * (i * NY + j);
+            p[0] = -0.3 + 0.6 * i / (NX - 1);
+            p[1] = -0.3 + 0.6 * j / (NY - 1);
+            p[2] = 0.0;
+        }
+    tcc_idx k = 0;
+    for (int i = 0; i < NX - 1; i++)
+        for (int j = 0; j < NY - 1; j++) {
+            tcc_idx a = i * NY + j, b = (i + 1) * NY + j, c = (i + 1) * NY + j + 1, d = i * NY + j + 1;
+            tcc_idx *t = m.tri + 3 * k;
+            t[0] = a; t[1] = b; t[2] = c; t[3] = a; t[4] = c; t[5] = d;
+            k += 2;
+        }
+    return m;
+}
+
+/* closed box, outward winding: 8 corners, 12 triangles */
+static const tcc_idx BOX_T[36] = {0, 2, 1, 0, 3, 2, 4, 5, 6, 4, 6, 7, 0, 1, 5, 0, 5, 4,
+                                  1, 2, 6, 1, 6, 5, 2, 3, 7, 2, 7, 6, 3, 0, 4, 3, 4, 7};
+
+static void box_at(double *x, double cx, double cy, double cz)
+{
+    static const double s[8][3] = {{-1, -1, -1}, {1, -1, -1}, {1, 1, -1}, {-1, 1, -1},
+                                   {-1, -1, 1},  {1, -1, 1},  {1, 1, 1},  {-1, 1, 1}};
+    for (int v = 0; v < 8; v++) {
+        x[3 * v] = cx + 0.1 * s[v][0];
+        x[3 * v + 1] = cy + 0.1 * s[v][1];
+        x[3 * v + 2] = cz + 0.05 * s[v][2];
+    }
+}
+
+/* clusters of the grid: k strips of rows (order = identity, ptr by rows), triangles by the same */
+static void strips(tcc_idx nv, tcc_idx nt, tcc_idx k, tcc_idx *order, tcc_idx *ptr, tcc_idx *tptr)
+{
+    for (tcc_idx v = 0; v < nv; v++) order[v] = v;
+    for (tcc_idx c = 0; c <= k; c++) {
+        ptr[c] = nv * c / k;
+        tptr[c] = nt * c / k;
+    }
+}
+
+static void test_measure_and_detection_steps(mesh *m)
+{
+    enum { K = 6, KB = 2 };
+    tcc_idx order[NX * NY + NY], ptr[K + 1], tptr[K + 1];
+    strips(m->nv, m->nt, K, order, ptr, tptr);
+    double *prev = malloc(sizeof(double) * 3 * m->nv), *normals = malloc(sizeof(double) * 3 * m->nv);
+    uint8_t *has = malloc(m->nv);
+    double avg[3 * K], dev[K], lo[3 * K], hi[3 * K];
+    double bx[24], bprev[24], bavg[3 * KB], bdev[KB], blo[3 * KB], bhi[3 * KB];
+    tcc_idx border[8] = {0, 1, 2, 3, 4, 5, 6, 7}, bptr[KB + 1] = {0, 4, 8};
+    tcc_idx old_keys[K * KB], keys[K * KB], pi[K * KB], pj[K * KB], np_ = 0, nold = 0, nfull;
+    double old_avg[3 * K * KB], old_dev[K * KB], rel_avg[3 * K * KB], rel_dev[K * KB], amp[K * KB];
+    uint8_t full[K * KB];
+    tcc_error err = {0};
+    memcpy(prev, m->x, sizeof(double) * 3 * m->nv);
+    box_at(bx, 0.0, 0.0, -0.2);
+    memcpy(bprev, bx, sizeof bx);
+    tcc_mesh cloth = {m->x, m->nv, m->tri, m->nt, NULL, NULL};
+    int tripped = 0, refined = 0;
+    for (int step = 0; step < 30; step++) {
+        box_at(bx, 0.0, 0.0, -0.2 + 0.01 * step); /* rises through the cloth */
+        for (tcc_idx v = 0; v < m->nv; v++) m->x[3 * v + 2] = 0.003 * sin(8.0 * m->x[3 * v] + 0.5 * step);
+        CHECK(tcc_vertex_normals(&cloth, normals, has, &err) == TCC_OK, "normals: %s", err.what);
+        CHECK(tcc_cluster_motion(m->x, prev, m->nv, order, m->nv, ptr, K, avg, dev, &err) == TCC_OK,
+              "motion: %s", err.what);
+        for (int c = 0; c < K; c++) CHECK(dev[c] >= 0 && isfinite(dev[c]), "a deviation is a finite distance");
+        CHECK(tcc_cluster_motion(bx, bprev, 8, border, 8, bptr, KB, bavg, bdev, &err) == TCC_OK, "body");
+        CHECK(tcc_cluster_boxes(m->x, m->nv, order, m->nv, ptr, K, 0.002, lo, hi, &err) == TCC_OK, "boxes");
+        CHECK(tcc_cluster_boxes(bx, 8, border, 8, bptr, KB, 0.002, blo, bhi, &err) == TCC_OK, "body boxes");
+        tcc_box_pairs(lo, hi, K, blo, bhi, KB, 0, pi, pj, K * KB, &np_);
+        CHECK(np_ <= K * KB, "pairs fit");
+        CHECK(tcc_relative_measure(old_keys, old_avg, old_dev, nold, pi, pj, np_, avg, dev, K, bavg, bdev, KB,
+                                   NULL, 0.01, 3.0, keys, rel_avg, rel_dev, amp, full, &nfull, &err) == TCC_OK,
+              "measure: %s", err.what);
+        tripped += nfull > 0;
+        memcpy(old_keys, keys, sizeof(tcc_idx) * np_);
+        memcpy(old_avg, rel_avg, sizeof(double) * 3 * np_);
+        memcpy(old_dev, rel_dev, sizeof(double) * np_);
+        nold = np_;
+        /* rays of every pair into the body (world frame: identity transforms) */
+        if (np_ > 0) {
+            double R[9 * KB], cen[3 * KB] = {0}, ref[3 * KB] = {0};
+            for (int b = 0; b < KB; b++)
+                for (int q = 0; q < 9; q++) R[9 * b + q] = q % 4 == 0;
+            tcc_idx ub[KB], q = 0, sa[K * KB], sb[K * KB], ns = 0;
+            for (int b = 0; b < KB; b++) {
+                int any = 0;
+                for (tcc_idx p = 0; p < np_; p++)
+                    if (pj[p] == b) {
+                        sa[ns] = pi[p];
+                        sb[ns++] = b;
+                        any = 1;
+                    }
+                if (any) ub[q++] = b;
+            }
+            tcc_ray_setup rs = {m->x, normals, has, NULL, m->nv, order, ptr, m->nv, K, blo, bhi, KB, 0.5, 0.5, 1e-6, 0.0};
+            tcc_idx cap = 2 * m->nv, count = 0, seg[KB + 1];
+            float *o = malloc(sizeof(float) * 3 * cap), *d = malloc(sizeof(float) * 3 * cap), *dist = malloc(sizeof(float) * cap);
+            tcc_idx *rv = malloc(sizeof(tcc_idx) * cap), *rslot = malloc(sizeof(tcc_idx) * cap), *hit = malloc(sizeof(tcc_idx) * cap);
+            double *ht = malloc(sizeof(double) * cap);
+            CHECK(tcc_prepare_rays(&rs, sa, sb, ns, ub, R, cen, ref, q, o, d, dist, rv, rslot, cap, seg, &count, &err) ==
+                      TCC_OK, "rays: %s", err.what);
+            CHECK(count <= cap, "rays fit");
+            /* the candidate hits: each ray's first hit among the body's 12 triangles, exhaustively
+             * (what a scene query returns), so refine and walk run on real candidates */
+            for (tcc_idx r = 0; r < count; r++) {
+                double oo[3] = {o[3 * r], o[3 * r + 1], o[3 * r + 2]}, dd[3] = {d[3 * r], d[3 * r + 1], d[3 * r + 2]};
+                hit[r] = -1;
+                ht[r] = INFINITY;
+                for (tcc_idx f = 0; f < 12; f++) {
+                    const tcc_idx *tv = BOX_T + 3 * f;
+                    double t, u, w;
+                    if (!tcc_line_triangle(oo, dd, bx + 3 * tv[0], bx + 3 * tv[1], bx + 3 * tv[2], &t, &u, &w)) continue;
+                    if (t >= 0 && t <= dist[r] && u >= 0 && w >= 0 && u + w <= 1 && t < ht[r]) {
+                        ht[r] = t;
+                        hit[r] = f;
+                    }
+                }
+            }
+            tcc_idx *ov = malloc(sizeof(tcc_idx) * (count + 1)), *os = malloc(sizeof(tcc_idx) * (count + 1));
+            tcc_idx *otri = malloc(sizeof(tcc_idx) * (count + 1));
+            double *ot = malloc(sizeof(double) * (count + 1)), *ou = malloc(sizeof(double) * (count + 1)),
+                   *ovv = malloc(sizeof(double) * (count + 1));
+            uint8_t *of = malloc(count + 1), *st = malloc(count + 1);
+            tcc_hits out = {otri, ot, ou, ovv, of};
+            tcc_idx kept = 0;
+            tcc_idx adj[36];
+            uint8_t flip[36] = {0};
+            for (int i = 0; i < 36; i++) adj[i] = -1;
+            tcc_mesh bodyw = {bx, 8, BOX_T, 12, adj, flip};
+            CHECK(tcc_refine(m->x, normals, m->nv, rv, rslot, hit, count, &bodyw, NULL, TCC_VOLUME, 0.01, NULL, ov, os, out,
+                             st, &kept, &err) == TCC_OK, "refine: %s", err.what);
+            CHECK(kept <= count, "refined hits fit");
+            refined += kept > 0;
+            /* walks of the kept hits from their own triangles stay on them */
+            if (kept > 0) {
+                tcc_hits wout = {otri, ot, ou, ovv, of};
+                tcc_idx *start = malloc(sizeof(tcc_idx) * kept);
+                memcpy(start, otri, sizeof(tcc_idx) * kept);
+                CHECK(tcc_walk(m->x, normals, m->nv, ov, os, start, kept, &bodyw, NULL, 4, wout, &err) == TCC_OK,
+                      "walk: %s", err.what);
+                free(start);
+            }
+            free(o); free(d); free(dist); free(rv); free(rslot); free(hit); free(ht);
+            free(ov); free(os); free(otri); free(ot); free(ou); free(ovv); free(of); free(st);
+        }
+        memcpy(prev, m->x, sizeof(double) * 3 * m->nv);
+        memcpy(bprev, bx, sizeof bx);
+    }
+    CHECK(tripped > 0, "the rising body trips full detection");
+    CHECK(refined > 0, "rays found the body and were refined on it");
+    /* bad indices are errors */
+    order[0] = m->nv + 5;
+    CHECK(tcc_cluster_motion(m->x, prev, m->nv, order, m->nv, ptr, K, avg, dev, &err) == TCC_ERR_INDEX,
+          "bad member");
+    order[0] = 0;
+    free(prev);
+    free(normals);
+    free(has);
+}
+
+/* a tear: the middle row of vertices is duplicated and the triangles on one side use the copies */
+static void tear(mesh *m)
+{
+    tcc_idx mid = NX / 2;
+    for (int j = 0; j < NY; j++) {
+        tcc_idx src = mid * NY + j, dst = m->nv + j;
+        memcpy(m->x + 3 * dst, m->x + 3 * src, sizeof(double) * 3);
+    }
+    for (tcc_idx f = 0; f < m->nt; f++) {
+        tcc_idx *t = m->tri + 3 * f;
+        int right = 0;
+        for (int q = 0; q < 3; q++) right |= t[q] / NY > mid;
+        if (!right) continue;
+        for (int q = 0; q < 3; q++)
+            if (t[q] / NY == mid) t[q] = m->nv + t[q] % NY;
+    }
+    m->nv += NY;
+}
+
+int main(void)
+{
+    mesh m = grid();
+    test_measure_and_detection_steps(&m);
+    tear(&m);
+    test_measure_and_detection_steps(&m);
+    free(m.x);
+    free(m.tri);
+    printf("collide: %d checks, %d failures\n", checks, failures);
+    return failures;
+}

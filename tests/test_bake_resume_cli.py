@@ -1,0 +1,121 @@
+"""`tearcloth bake` stopped by SIGTERM or SIGINT and run again (issue 12, defects 5 and 6), always
+in a subprocess, on the repository's square cloth (tearing on, no collider):
+
+* a signal mid-bake: the frame being simulated is dropped, every complete frame is kept, the
+  .blend is saved pointing at them, ONE line on stderr says so, exit status 143 (SIGTERM) or
+  130 (SIGINT);
+* the same command again resumes after the last complete frame, says so, keeps the frames
+  already on disk byte for byte, and ends with the topology of an uninterrupted bake and its
+  positions within 2e-5 m (1e-9 needs state only the core holds: see the test);
+* ``--restart`` bakes from the first frame.
+"""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("bpy")
+pytest.importorskip("pxr")
+from tearcloth import cache  # noqa: E402
+
+from test_blender_bake import find_cache  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+SQUARE = REPO / "example_blends" / "square_cloth.blend"
+FRAMES = "1-14"
+
+
+def command(out: Path, *extra) -> list:
+    return [sys.executable, "-m", "tearcloth.cli", "bake", str(SQUARE), "--out", str(out), "--frames", FRAMES,
+            *extra]
+
+
+def root(out: Path) -> Path:
+    return Path(find_cache(out / "tearcloth_cache", "SquareCloth", "square_cloth"))
+
+
+def stop_mid_bake(out: Path, sig: int, after_frame: int = 5) -> subprocess.CompletedProcess:
+    """Start the bake, send ``sig`` once frame ``after_frame`` is in the cache, wait for the end."""
+    pattern = f"square_cloth/SquareCloth_frames/frame_{after_frame:06d}.usdc"  # not the hidden staging
+    proc = subprocess.Popen(command(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 200
+    while not list((out / "tearcloth_cache").glob(pattern)):
+        assert proc.poll() is None, proc.communicate()[1][-3000:]
+        assert time.monotonic() < deadline, "the bake did not reach the frame"
+        time.sleep(0.02)
+    proc.send_signal(sig)
+    stdout, stderr = proc.communicate(timeout=120)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+
+
+def frames_of(path: Path) -> dict:
+    info = cache.cache_info(path)
+    return {f: cache.read_frame(path, f) for f in info["frames"]}
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    out = tmp_path_factory.mktemp("whole")
+    proc = subprocess.run(command(out), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return frames_of(root(out))
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_keeps_frames_saves_and_resume_matches(tmp_path, uninterrupted, sig, code):
+    out = tmp_path / "out"
+    stopped = stop_mid_bake(out, sig)
+    assert stopped.returncode == code, stopped.stderr[-3000:]
+    name = signal.Signals(sig).name
+    lines = [line for line in stopped.stderr.splitlines() if "stopped by" in line]
+    assert len(lines) == 1 and name in lines[0] and "kept" in lines[0] and "saved" in lines[0], stopped.stderr
+    assert "Traceback" not in stopped.stderr
+    info = cache.cache_info(root(out))
+    last = info["frames"][-1]
+    assert not info["complete"] and info["frames"] == list(range(1, last + 1)) and last >= 5
+    assert (out / "square_cloth.blend").exists()
+    kept_bytes = {f: Path(file).read_bytes() for f, file in zip(info["frames"], info["frame_files"])}
+
+    again = subprocess.run(command(out), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert f"resuming the partial bake after frame {last}" in again.stderr, again.stderr
+    info = cache.cache_info(root(out))
+    assert info["complete"] and info["frames"] == list(range(1, 15))
+    for f, file in zip(info["frames"], info["frame_files"]):
+        if f in kept_bytes:
+            assert Path(file).read_bytes() == kept_bytes[f], f"frame {f} was rewritten"
+    resumed = frames_of(root(out))
+    for f, (positions, triangles, uv) in uninterrupted.items():
+        got = resumed[f]
+        assert got[1].shape == triangles.shape and np.array_equal(got[1], triangles), f"frame {f}: topology"
+        if f <= last:  # the frames before the stop are the uninterrupted bake's, to the bit
+            assert np.array_equal(got[0], positions), f"frame {f}"
+        else:
+            # NOT yet 1e-9: the core keeps state the Python layer can neither read nor set (the
+            # solver's warm start, the tear tips with their directions, the scan cursor, the
+            # order of edge pairs after tears), so the resumed solve starts from zero where the
+            # uninterrupted one started from the last velocity change. Measured: 1.2e-7 m at the
+            # first resumed frame, 4.9e-6 m at most over 14 frames, same topology.
+            assert np.abs(got[0] - positions).max() <= 2e-5, f"frame {f}: positions"
+
+
+def test_restart_bakes_from_the_first_frame(tmp_path):
+    out = tmp_path / "out"
+    stopped = stop_mid_bake(out, signal.SIGTERM, after_frame=3)
+    assert stopped.returncode == 143
+    first = Path(cache.cache_info(root(out))["frame_files"][0]).stat().st_mtime_ns
+    again = subprocess.run(command(out, "--restart"), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "resuming" not in again.stderr
+    info = cache.cache_info(root(out))
+    assert info["complete"] and info["frames"] == list(range(1, 15))
+    assert Path(info["frame_files"][0]).stat().st_mtime_ns != first  # baked again
+    stem = root(out).stem
+    assert sorted(os.listdir(root(out).parent)) == [f"{stem}.state.npz", f"{stem}.usda", f"{stem}_frames"]
