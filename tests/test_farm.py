@@ -328,3 +328,39 @@ def test_wall_time_of_four_bakes_on_two_workers_against_one(local_two, tmp_path)
     assert [t["status"] for t in m1["tasks"]] == ["done"] * 4
     print(f"\nfour bakes (frames 1-6): one worker {m1['wall_seconds']:.1f} s, two workers {m2['wall_seconds']:.1f} s "
           f"(ratio {m1['wall_seconds'] / m2['wall_seconds']:.2f}); commands {one:.1f} s vs {two:.1f} s")
+
+
+# ------------------------------------------------------------------------------------------------
+# the Open Job Description template
+
+
+OPENJD = REPO / "farm" / "openjd" / "tearcloth_bake.yaml"
+
+
+def test_the_open_job_description_template_is_valid_and_wedges_four_tasks():
+    from openjd.model import DocumentType, decode_job_template, document_string_to_object
+
+    check = subprocess.run([str(BIN / "openjd"), "check", str(OPENJD)], capture_output=True, text=True, timeout=60)
+    assert check.returncode == 0 and "passes validation" in check.stdout, check.stdout + check.stderr
+    template = decode_job_template(template=document_string_to_object(document=OPENJD.read_text(),
+                                                                       document_type=DocumentType.YAML))
+    assert [s.name for s in template.steps] == ["Bake", "ContactSheet"]
+    summary = subprocess.run([str(BIN / "openjd"), "summary", str(OPENJD), "-p", f"BlendFile={SQUARE}",
+                              "-p", f"Object={OBJECT}", "-p", "OutDir=/tmp/unused"],
+                             capture_output=True, text=True, timeout=60)
+    assert summary.returncode == 0 and "'Bake' (4 total Tasks)" in summary.stdout, summary.stdout + summary.stderr
+
+
+def test_one_task_of_the_template_bakes_its_variation(tmp_path):
+    out = tmp_path / "wedge"
+    env = dict(os.environ, PATH=f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}")
+    proc = subprocess.run([str(BIN / "openjd"), "run", str(OPENJD), "--step", "Bake", "-tp", "A=4e6", "-tp", "B=5e-3",
+                           "-p", f"BlendFile={SQUARE}", "-p", f"Object={OBJECT}", "-p", f"OutDir={out}",
+                           "-p", "Frames=1-3"], capture_output=True, text=True, timeout=240, env=env)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-2000:]
+    (task,) = _manifest(out / "tear_stress=4e6,bending=5e-3")["tasks"]
+    assert task["status"] == "done" and task["settings"] == {"material.tear_stress": 4e6, "material.bending": 5e-3}
+    assert task["frames"] == [1, 3]
+    from tearcloth.farm.sheet import gather
+
+    assert gather(out).is_file()

@@ -5,10 +5,15 @@ each task's ``tearcloth bake --render`` with the scene's camera, Workbench unles
 of exactly two parameters on one object is laid out as a table, rows the first parameter's
 values and columns the second's, so the eye reads one parameter down and one across; anything
 else fills a near-square grid in task order.
+
+``python -m tearcloth.farm.sheet DIR`` gathers the manifests of several farm runs below DIR (one
+per task of the Open Job Description template, ``farm/openjd/``) into ``DIR/contact_sheet.png``.
 """
 from __future__ import annotations
 
+import json
 import math
+import sys
 from pathlib import Path
 
 
@@ -57,3 +62,21 @@ def contact_sheet(results: list, path: Path, with_object: bool = False, frame: i
     fig.savefig(path, dpi=100)
     plt.close(fig)
     return path
+
+
+def gather(folder: Path) -> Path:
+    """The contact sheet of every run whose manifest lies in a folder right below ``folder``."""
+    results = []
+    for manifest in sorted(folder.glob("*/manifest.json")):
+        results += [r for r in json.loads(manifest.read_text())["tasks"]
+                    if r.get("render") and Path(r["render"]).is_file()]
+    if not results:
+        raise FileNotFoundError(f"no farm run with rendered frames below {folder}")
+    several = len({(r["file"], r["object"]) for r in results}) > 1
+    return contact_sheet(results, folder / "contact_sheet.png", several)
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        sys.exit("usage: python -m tearcloth.farm.sheet DIR")
+    print(f"wrote {gather(Path(sys.argv[1]))}")
