@@ -364,3 +364,62 @@ def test_one_task_of_the_template_bakes_its_variation(tmp_path):
     from tearcloth.farm.sheet import gather
 
     assert gather(out).is_file()
+
+
+# ------------------------------------------------------------------------------------------------
+# nobody gets in: TLS to a remote scheduler
+
+
+def _certificates(folder: Path) -> dict:
+    """A CA and one certificate it signed (for 127.0.0.1), made with openssl for this test."""
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        pytest.skip("needs openssl to make test certificates")
+    run = lambda *a: subprocess.run([openssl, *a], cwd=folder, check=True, capture_output=True, timeout=60)  # noqa: E731
+    run("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj", "/CN=tearcloth test CA",
+        "-keyout", "ca.key", "-out", "ca.pem")
+    run("req", "-newkey", "rsa:2048", "-nodes", "-subj", "/CN=127.0.0.1", "-keyout", "key.pem", "-out", "cert.csr")
+    (folder / "san.ext").write_text("subjectAltName=IP:127.0.0.1,DNS:localhost\n")
+    run("x509", "-req", "-in", "cert.csr", "-CA", "ca.pem", "-CAkey", "ca.key", "-CAcreateserial", "-days", "1",
+        "-extfile", "san.ext", "-out", "cert.pem")
+    return {k: str(folder / f) for k, f in (("ca", "ca.pem"), ("cert", "cert.pem"), ("key", "key.pem"))}
+
+
+def test_a_tls_scheduler_is_reached_with_the_certificates(tmp_path):
+    pem = _certificates(tmp_path)
+    port = _free_port()
+    address = f"tls://127.0.0.1:{port}"
+    tls = ["--tls-ca-file", pem["ca"], "--tls-cert", pem["cert"], "--tls-key", pem["key"]]
+    procs = [subprocess.Popen([str(BIN / "dask"), "scheduler", "--protocol", "tls", "--host", "127.0.0.1", "--port",
+                               str(port), "--no-dashboard", *tls], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, cwd=tmp_path)]
+    procs.append(subprocess.Popen([str(BIN / "dask"), "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+                                   "--no-dashboard", *tls], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                  cwd=tmp_path))
+    try:
+        deadline = time.monotonic() + 60
+        while True:  # the scheduler listens
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline, "the TLS scheduler did not start"
+                time.sleep(0.3)
+        # without certificates a tls:// scheduler is refused before anything starts
+        proc, _ = _farm(SQUARE, "--scheduler", address, "--out", tmp_path / "never", timeout=60)
+        assert proc.returncode == 2 and "needs --tls-ca, --tls-cert and --tls-key" in proc.stderr, proc.stderr
+        out = tmp_path / "tls"
+        proc, _ = _farm(SQUARE, "--scheduler", address, "--tls-ca", pem["ca"], "--tls-cert", pem["cert"],
+                        "--tls-key", pem["key"], "--frames", "1-3", "--out", out, timeout=240)
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        m = _manifest(out)
+        assert m["scheduler"] == address and m["tasks"][0]["status"] == "done"
+        assert m["tasks"][0]["worker"].startswith("tls://127.0.0.1:")
+    finally:
+        for p in reversed(procs):
+            p.terminate()
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
