@@ -506,7 +506,8 @@ def _farm(args) -> int:
         raise UsageError(str(exc), prog) from None
     manifest = run.run(prepared, workers=args.workers or 2, retries=args.retries)
     done = [r for r in manifest["tasks"] if r["status"] == "done"]
-    print(f"{len(done)}/{len(manifest['tasks'])} bakes done in {manifest['wall_seconds']:.1f} s; "
+    stopped = "; interrupted" if manifest["interrupted"] else ""
+    print(f"{len(done)}/{len(manifest['tasks'])} bakes done{stopped} in {manifest['wall_seconds']:.1f} s; "
           f"wrote {prepared.out / 'manifest.json'}" + (f" and {manifest['contact_sheet']}" if "contact_sheet" in manifest else ""))
     for r in manifest["tasks"]:
         if r["status"] != "done":

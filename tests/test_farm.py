@@ -423,3 +423,30 @@ def test_a_tls_scheduler_is_reached_with_the_certificates(tmp_path):
                 p.wait(timeout=20)
             except subprocess.TimeoutExpired:
                 p.kill()
+
+
+def test_ctrl_c_cancels_the_bakes_and_keeps_their_frames(tmp_path):
+    out = tmp_path / "stopped"
+    # the whole process group gets the SIGINT, as from a terminal's Ctrl-C
+    farm = subprocess.Popen([str(BIN / "tearcloth"), "farm", str(SQUARE), "--frames", "1-40", "--workers", "1",
+                             "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not list(out.glob("*/*/*/tearcloth_cache/*_frames/frame_000004.usdc")):
+            assert time.monotonic() < deadline and farm.poll() is None, "the bake never reached frame 4"
+            time.sleep(0.1)
+        os.killpg(farm.pid, signal.SIGINT)
+        stdout, stderr = farm.communicate(timeout=120)
+    finally:
+        if farm.poll() is None:
+            os.killpg(farm.pid, signal.SIGKILL)
+    assert farm.returncode == 130, stderr[-3000:]
+    m = _manifest(out)
+    (task,) = m["tasks"]
+    assert m["interrupted"] and task["status"] == "cancelled"
+    first, last = task["frames"]
+    assert first == 1 and 4 <= last < 40
+    frames = sorted(Path(task["folder"]).glob("tearcloth_cache/*_frames/frame_*.usdc"))
+    assert len(frames) == last  # every finished frame is kept on disk
+    assert Path(task["blend"]).is_file()  # and the baked copy was saved

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -169,8 +170,17 @@ def _client(prepared: Prepared, workers: int):
             dashboard = "127.0.0.1:0"
         except ImportError:
             dashboard = None
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=dashboard, scheduler_kwargs={"dashboard": dashboard is not None})
+        # A Ctrl-C at the terminal reaches the whole process group: the worker processes start
+        # with SIGINT ignored (inherited), so they live on to stop their bakes when told and
+        # return what was baked; only this process turns the Ctrl-C into the cancel event.
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=dashboard, scheduler_kwargs={"dashboard": dashboard is not None})
+        finally:
+            if main:
+                signal.signal(signal.SIGINT, previous)
         client = Client(cluster)
         return client, cluster, client.dashboard_link if dashboard else None
     security = None

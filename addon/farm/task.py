@@ -11,7 +11,7 @@ a task's subprocesses:
   or startup script of the worker's account can switch script auto-execution on (both open files
   with it off);
 * on Linux they die with the worker (``PR_SET_PDEATHSIG``): a worker killed mid-task leaves no
-  orphan bake writing into a folder its retry is writing into;
+  orphan bake writing into a folder its retry is writing into (elsewhere an orphan runs on);
 * a failed bake raises, so Dask retries it (``retries=``); bad input (exit 2) and a cancelled run
   (exit 130) are results, not retried;
 * the farm's cancel event (a ``distributed.Event``) is polled; when set, the bake gets SIGINT,
@@ -37,6 +37,7 @@ _FRAME = re.compile(r"frame (-?\d+)/(-?\d+)")
 _TEARS = re.compile(r"(\d+) tears?\b")
 _BAKED = re.compile(r"baked frames (-?\d+)-(-?\d+): (\d+) tears?, (\d+) vertices, ([\d.]+) s.*-> (.+)$")
 _RENDERED = re.compile(r"^rendered (.+)$")
+_KEPT = re.compile(r"interrupted; frames (-?\d+)-(-?\d+) kept")
 EXIT_USAGE, EXIT_INTERRUPTED = 2, 130
 
 
@@ -44,10 +45,13 @@ class TaskFailed(RuntimeError):
     """A bake that ended badly: Dask retries it."""
 
 
-def _die_with_parent():  # runs in the child between fork and exec: no Python objects, one libc call
+def _child_setup():  # runs in the child between fork and exec
     import ctypes
 
     ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    # a local cluster's workers ignore SIGINT (see run.py) and an ignored signal stays ignored
+    # across exec: the bake must hear the cancel's SIGINT
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def _env(folder: Path) -> dict:
@@ -94,7 +98,7 @@ def _cancelled(name: str | None) -> bool:
 
 def _run(cmd: list, env: dict, cancel: str | None, on_stderr=None, on_stdout=None) -> tuple[int, list, list]:
     """Run cmd; feed its lines to the callbacks; SIGINT it once the cancel event is set."""
-    kw = dict(preexec_fn=_die_with_parent) if sys.platform.startswith("linux") else {}
+    kw = dict(preexec_fn=_child_setup) if sys.platform.startswith("linux") else {}
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, bufsize=1,
                             start_new_session=True, **kw)  # a Ctrl-C at the farm's terminal is the farm's to pass on
     out, err = [], []
@@ -161,6 +165,9 @@ def run_task(task: dict, options: dict) -> dict:
         cmd += ["--resolution-percent", str(options["resolution_percent"])]
 
     def on_stderr(line):
+        kept = _KEPT.search(line)
+        if kept:
+            result["frames"] = [int(kept.group(1)), int(kept.group(2))]
         m = _FRAME.search(line)
         if m:
             tears = _TEARS.search(line)
