@@ -39,6 +39,16 @@ def _farm(*args, timeout=300, **kw):
     return proc, time.perf_counter() - t0
 
 
+def _farm_inline(capsys, *args) -> tuple[int, list]:
+    """`tearcloth farm` in this process (bad input never gets as far as a cluster): (status,
+    stderr lines)."""
+    from tearcloth import cli
+
+    capsys.readouterr()
+    code = cli.main(["farm", *map(str, args)])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
 def _manifest(out: Path) -> dict:
     return json.loads((out / "manifest.json").read_text())
 
@@ -91,32 +101,29 @@ bpy.ops.wm.save_as_mainfile(filepath={str(folder / 'plain.blend')!r})
     (["--set", "thickness=0.001"], "ambiguous, say which: material.thickness, collision.thickness"),
     (["--set", "time_step=0.001"], "cannot be wedged"),
 ])
-def test_bad_settings_are_one_line_and_start_nothing(tmp_path, args, expected):
+def test_bad_settings_are_one_line_and_start_nothing(tmp_path, capsys, args, expected):
     out = tmp_path / "never"
-    proc, _ = _farm(SQUARE, *args, "--out", out, timeout=60)
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("tearcloth farm: error: ") and expected in lines[0], proc.stderr
+    code, lines = _farm_inline(capsys, SQUARE, *args, "--out", out)
+    assert code == 2
+    assert len(lines) == 1 and lines[0].startswith("tearcloth farm: error: ") and expected in lines[0], lines
     assert not out.exists()
 
 
-def test_unreachable_scheduler_is_one_line(tmp_path):
+def test_unreachable_scheduler_is_one_line(tmp_path, capsys):
     out = tmp_path / "never"
-    proc, wall = _farm(SQUARE, "--scheduler", f"tcp://127.0.0.1:{_free_port()}", "--out", out, timeout=60)
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and "cannot reach a scheduler there" in lines[0], proc.stderr
+    code, lines = _farm_inline(capsys, SQUARE, "--scheduler", f"tcp://127.0.0.1:{_free_port()}", "--out", out)
+    assert code == 2
+    assert len(lines) == 1 and "cannot reach a scheduler there" in lines[0], lines
     assert not out.exists()
 
 
-def test_a_file_without_tear_cloth_objects_is_one_line(tmp_path, blends):
+def test_a_file_without_tear_cloth_objects_is_one_line(tmp_path, capsys, blends):
     folder, _ = blends
     out = tmp_path / "never"
-    proc, _ = _farm(SQUARE, folder / "plain.blend", "--out", out, timeout=120)
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
+    code, lines = _farm_inline(capsys, SQUARE, folder / "plain.blend", "--out", out)
+    assert code == 2
     assert lines == ["tearcloth farm: error: plain.blend has no Tear Cloth object in scene 'Scene' "
-                     "(enable it on a mesh: Properties > Physics > Tear Cloth)"], proc.stderr
+                     "(enable it on a mesh: Properties > Physics > Tear Cloth)"], lines
     assert not out.exists()
 
 
