@@ -59,6 +59,17 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _stop(procs: list) -> None:
+    """Workers first, then the scheduler; a process that does not stop in 20 s is killed."""
+    for p in reversed(procs):
+        p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+
+
 @pytest.fixture(scope="module")
 def local_two(tmp_path_factory):
     out = tmp_path_factory.mktemp("local2")
@@ -259,13 +270,7 @@ def dask_cluster(tmp_path):
     finally:
         if client is not None:
             client.close()
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        _stop(procs)
 
 
 def test_a_wedge_on_a_separate_scheduler_survives_a_killed_worker(dask_cluster, tmp_path):
@@ -423,13 +428,7 @@ def test_a_tls_scheduler_is_reached_with_the_certificates(tmp_path):
         assert m["scheduler"] == address and m["tasks"][0]["status"] == "done"
         assert m["tasks"][0]["worker"].startswith("tls://127.0.0.1:")
     finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
+        _stop(procs)
 
 
 def test_ctrl_c_cancels_the_bakes_and_keeps_their_frames(tmp_path):
