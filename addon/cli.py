@@ -96,7 +96,7 @@ def _int_arg(option: str, lo: int | None = None, hi: int | None = None):
 def parser() -> _Parser:
     """The one argparse tree of `tearcloth`."""
     p = _Parser(prog="tearcloth", description="Tear Cloth: tearing cloth for Blender and haptics")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{bake,demo,bench,clusters,farm}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="{bake,demo,bench,clusters}")
     k = sub.add_parser("bake", help="bake the Tear Cloth objects of a .blend headless",
                        description="Bake the Tear Cloth objects of a .blend file headless and save a copy that "
                                    "plays the bakes.")

@@ -156,7 +156,24 @@ def test_a_2x2_wedge_bakes_four_variations_into_four_caches(local_two):
         assert t["frames"] == [1, 6] and t["object"] == OBJECT and t["auto_execute"] is False
         assert Path(t["cache"]).is_relative_to(t["folder"]) and Path(t["folder"]).name == t["label"].replace(", ", ",")
         assert t["seconds"] > 0 and t["vertices"] > 0 and t["attempts"] == 1
-    # the variation really carries its settings: the baked copy stores them on the object
+        assert t["worker"].startswith("tcp://127.0.0.1:")  # the local cluster listens on the loopback only
+    assert m["scheduler_address"].startswith("tcp://127.0.0.1:")
+    # each baked copy carries its own variation's settings on the object
+    script = ("import bpy, json, sys\nfrom tearcloth.blender import register\nregister()\nout = {}\n"
+              "for path in sys.argv[1:]:\n"
+              "    bpy.ops.wm.open_mainfile(filepath=path, load_ui=False)\n"
+              f"    s = bpy.data.objects[{OBJECT!r}].tearcloth\n"
+              "    out[path] = [s.tear_stress, s.bending, bpy.context.scene.render.engine]\n"
+              "print(json.dumps(out))\n")
+    read = subprocess.run([sys.executable, "-c", script, *[t["blend"] for t in tasks]], capture_output=True,
+                          text=True, timeout=120)
+    assert read.returncode == 0, read.stderr[-2000:]
+    stored = json.loads(read.stdout.strip().splitlines()[-1])
+    for t in tasks:
+        tear, bending, engine = stored[t["blend"]]
+        assert tear == pytest.approx(t["settings"]["material.tear_stress"], rel=1e-6)
+        assert bending == pytest.approx(t["settings"]["material.bending"], rel=1e-6)
+        assert engine == "BLENDER_WORKBENCH"
     print(f"\n2x2 wedge on a LocalCluster of 2 workers: {wall:.1f} s wall (command), "
           f"{m['wall_seconds']:.1f} s in the run; per task {[round(t['seconds'], 1) for t in tasks]} s")
 

@@ -211,6 +211,7 @@ def run(prepared: Prepared, workers: int = 2, retries: int = 2, stream=None) -> 
     progress = Progress(prepared.tasks, stream)
     results = {}
     interrupted = False
+    n_workers = workers
     try:
         n_workers = len(client.scheduler_info(n_workers=-1)["workers"]) if cluster is None else workers
         where = prepared.scheduler.address or f"a local cluster of {workers} workers on 127.0.0.1"
@@ -249,6 +250,7 @@ def run(prepared: Prepared, workers: int = 2, retries: int = 2, stream=None) -> 
         if index in results:
             results[index]["attempts"] = count
     manifest = {"run": prepared.run_id, "scheduler": prepared.scheduler.address or "local", "workers": n_workers,
+                "scheduler_address": cluster.scheduler_address if cluster is not None else prepared.scheduler.address,
                 "dashboard": dashboard, "wall_seconds": time.perf_counter() - t0, "interrupted": interrupted,
                 "options": {k: v for k, v in prepared.options.items() if k not in ("topic", "cancel")},
                 "tasks": [results[t.index] for t in prepared.tasks]}
