@@ -140,7 +140,34 @@ def parser() -> _Parser:
     c.add_argument("--scenario", default="tshirt", choices=("cloth", "banknote", "tshirt"))
     size = int(settings.default("collision", "cluster_size"))
     c.add_argument("--cluster-size", type=int, default=size, help=f"vertices per cluster (default {size})")
+    _farm_parser(sub)
     return p
+
+
+def _farm_parser(sub) -> None:
+    """`tearcloth farm`: the sub-command of tearcloth.farm (bakes as Dask tasks)."""
+    f = sub.add_parser("farm", help="bake files x objects x wedges of settings as tasks on Dask",
+                       description="Bake many .blend files, objects and wedges of settings as Dask tasks, each in "
+                                   "a fresh subprocess; write a manifest and a contact sheet.")
+    f.add_argument("files", nargs="+", metavar="FILE.blend", help="the .blend files to bake")
+    f.add_argument("--objects", metavar="NAMES", help="comma-separated object names (default: every Tear Cloth object)")
+    f.add_argument("--set", action="append", metavar="NAME=V1,V2",
+                   help="wedge a parameter of the settings table over these values (SI; repeat for a product)")
+    f.add_argument("--frames", metavar="A-B", help="bake frames A to B (default: each object's own range)")
+    f.add_argument("--out", default="tearcloth_farm", metavar="DIR", help="output folder (default ./tearcloth_farm)")
+    f.add_argument("--workers", type=_int_arg("--workers", 1, 256), metavar="N",
+                   help="worker processes of the local cluster (default 2)")
+    f.add_argument("--scheduler", metavar="tcp://HOST:PORT", help="an existing Dask scheduler instead of a local cluster")
+    f.add_argument("--tls-ca", metavar="PEM", help="CA certificate of the remote scheduler (TLS)")
+    f.add_argument("--tls-cert", metavar="PEM", help="this client's certificate (TLS)")
+    f.add_argument("--tls-key", metavar="PEM", help="this client's private key (TLS)")
+    f.add_argument("--retries", type=_int_arg("--retries", 0, 100), default=2, help="retries of a failed bake (default 2)")
+    f.add_argument("--render-frame", type=_int_arg("--render-frame"), metavar="N",
+                   help="frame of each variation on the contact sheet (default: the last baked frame)")
+    f.add_argument("--resolution-percent", type=_int_arg("--resolution-percent", 1, 1000), default=50, metavar="P",
+                   help="render the contact sheet's frames at this percentage of the scene's resolution (default 50)")
+    f.add_argument("--keep-engine", action="store_true",
+                   help="render with the scene's own engine instead of Workbench")
 
 
 def _parse(argv: list) -> argparse.Namespace:
@@ -459,6 +486,8 @@ def _bench(name: str):
 def _run(args) -> int:
     if args.command == "bake":
         return _bake(args)
+    if args.command == "farm":
+        return _farm(args)
     if args.command == "demo":
         demo(args.out)
     elif args.command == "bench":
@@ -474,6 +503,37 @@ def _run(args) -> int:
         cluster_picture = _bench("cluster_picture")
         print(f"wrote {cluster_picture(args.out, args.scenario, args.cluster_size)}")
     return EXIT_OK
+
+
+def _farm(args) -> int:
+    """`tearcloth farm`: the command line's own checks here, the rest in tearcloth.farm."""
+    prog = "tearcloth farm"
+    try:
+        files = list(dict.fromkeys(str(Path(f).expanduser().resolve()) for f in args.files))
+        for path in files:
+            check_blend(Path(path))
+        frames = parse_frames(args.frames)
+    except UsageError as exc:
+        raise UsageError(str(exc), prog) from None
+    try:
+        from .farm import run
+        from .farm.plan import FarmError
+    except ImportError as exc:
+        raise UsageError(f"needs Dask ({exc}); install it with: pip install 'tearcloth[farm]'", prog) from None
+    try:
+        prepared = run.prepare(args, files, frames)
+        check_folder(prepared.out, "output folder")
+    except (FarmError, UsageError) as exc:
+        raise UsageError(str(exc), prog) from None
+    manifest = run.run(prepared, workers=args.workers or 2, retries=args.retries)
+    done = [r for r in manifest["tasks"] if r["status"] == "done"]
+    stopped = "; interrupted" if manifest["interrupted"] else ""
+    print(f"{len(done)}/{len(manifest['tasks'])} bakes done{stopped} in {manifest['wall_seconds']:.1f} s; "
+          f"wrote {prepared.out / 'manifest.json'}" + (f" and {manifest['contact_sheet']}" if "contact_sheet" in manifest else ""))
+    for r in manifest["tasks"]:
+        if r["status"] != "done":
+            print(f"{prog}: {r['label']}: {r['status']}: {r.get('message', '')}", file=sys.stderr)
+    return run.exit_status(manifest)
 
 
 def main(argv=None) -> int:
