@@ -1,5 +1,5 @@
-"""The `tearcloth` command: one argparse tree with the sub-commands ``bake``, ``demo``, ``bench`` and
-``clusters``.
+"""The `tearcloth` command: one argparse tree with the sub-commands ``bake``, ``demo``, ``bench``,
+``clusters`` and ``farm``.
 
 What this file owns: the tree (``parser``), every check of a command's input that needs no
 Blender, the ``bake`` run plan (``FilePlan``), the printed summary of a bake, and ``demo``.
@@ -103,7 +103,7 @@ def _int_arg(option: str, lo: int | None = None, hi: int | None = None):
 def parser() -> _Parser:
     """The one argparse tree of `tearcloth`."""
     p = _Parser(prog="tearcloth", description="Tear Cloth: tearing cloth for Blender and haptics")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{bake,demo,bench,clusters}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="{bake,demo,bench,clusters,farm}")
     k = sub.add_parser("bake", help="bake the Tear Cloth objects of a .blend headless",
                        description="Bake the Tear Cloth objects of a .blend file headless and save a copy that "
                                    "plays the bakes.")

@@ -147,7 +147,7 @@ def test_one_tree_one_error_line_before_blender(tmp_path, capsys):
                    "tearcloth clusters: error: --cluster-size must be at least 4",
                    f"tearcloth bake: error: {tmp_path / 'nowhere.blend'}: no such file",
                    "tearcloth bake: error: unrecognized arguments: --fast",
-                   "tearcloth: error: the following arguments are required: {bake,demo,bench,clusters}"]
+                   "tearcloth: error: the following arguments are required: {bake,demo,bench,clusters,farm}"]
     # a refused bake never starts Blender
     code = ("import sys; from tearcloth.cli import main; rc = main(['bake', sys.argv[1], '--frames', '9-1']); "
             "assert rc == 2 and 'bpy' not in sys.modules, (rc, 'bpy' in sys.modules)")

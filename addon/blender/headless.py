@@ -111,7 +111,8 @@ def bake_file(plan, progress: ProgressLine | None = None, on_event=None) -> dict
     logger.propagate = False  # Blender's root handlers would print the same lines again
     try:
         try:
-            bpy.ops.wm.open_mainfile(filepath=str(plan.source), load_ui=False)
+            # never run code embedded in a scene on a farm, whatever the file or the preferences ask
+            bpy.ops.wm.open_mainfile(filepath=str(plan.source), load_ui=False, use_scripts=False)
         except RuntimeError as exc:
             raise InputError(f"{plan.source}: Blender could not open it ({one_line(exc)})") from None
         register()  # no-op if still registered; a file load never unregisters Python classes
