@@ -301,7 +301,7 @@ def test_a_wedge_on_a_separate_scheduler_survives_a_killed_worker(dask_cluster, 
         # mid-task: once the second frame of some variation is on disk, kill a worker that is baking
         deadline = time.monotonic() + 120
         while killed is None and time.monotonic() < deadline and farm.poll() is None:
-            if list(out.glob("*/*/*/tearcloth_cache/*_frames/frame_000002.usdc")):
+            if list(out.glob("*/*/*/tearcloth_cache/**/*_frames/frame_000002.usdc")):
                 busy = [addr for addr, keys in client.processing().items() if keys]
                 if busy:
                     pids = client.run(os.getpid, workers=[busy[0]])
@@ -456,7 +456,7 @@ def test_ctrl_c_cancels_the_bakes_and_keeps_their_frames(tmp_path):
                             start_new_session=True)
     try:
         deadline = time.monotonic() + 120
-        while not list(out.glob("*/*/*/tearcloth_cache/*_frames/frame_000004.usdc")):
+        while not list(out.glob("*/*/*/tearcloth_cache/**/*_frames/frame_000004.usdc")):
             assert time.monotonic() < deadline and farm.poll() is None, "the bake never reached frame 4"
             time.sleep(0.1)
         os.killpg(farm.pid, signal.SIGINT)
@@ -470,6 +470,6 @@ def test_ctrl_c_cancels_the_bakes_and_keeps_their_frames(tmp_path):
     assert m["interrupted"] and task["status"] == "cancelled"
     first, last = task["frames"]
     assert first == 1 and 4 <= last < 40
-    frames = sorted(Path(task["folder"]).glob("tearcloth_cache/*_frames/frame_*.usdc"))
+    frames = sorted(Path(task["folder"]).glob("tearcloth_cache/**/*_frames/frame_*.usdc"))
     assert len(frames) == last  # every finished frame is kept on disk
     assert Path(task["blend"]).is_file()  # and the baked copy was saved

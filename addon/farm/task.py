@@ -37,7 +37,9 @@ _FRAME = re.compile(r"frame (-?\d+)/(-?\d+)")
 _TEARS = re.compile(r"(\d+) tears?\b")
 _BAKED = re.compile(r"baked frames (-?\d+)-(-?\d+): (\d+) tears?, (\d+) vertices, ([\d.]+) s.*-> (.+)$")
 _RENDERED = re.compile(r"^rendered (.+)$")
-_KEPT = re.compile(r"interrupted; frames (-?\d+)-(-?\d+) kept")
+# what a stopped bake kept: "<object>: interrupted; frames A-B kept" (cancelled), or the one line
+# of a bake stopped by a signal, "stopped by SIGINT: <object> frames A-B kept; ..." (one object a task)
+_KEPT = re.compile(r"(?:interrupted; frames|stopped by SIG\w+: .*? frames) (-?\d+)-(-?\d+)(?:,| kept)")
 EXIT_USAGE, EXIT_INTERRUPTED = 2, 130
 
 
