@@ -290,6 +290,9 @@ static double matvec_scalar(const rows_view *m, const double *restrict p, double
 #if defined(__x86_64__) || defined(_M_X64)
 #define TC_X86_64 1
 #include <immintrin.h>
+#if defined(__GNUC__) || defined(__clang__)
+#include <cpuid.h>
+#endif
 
 static double matvec_sse2(const rows_view *m, const double *restrict p, double *restrict y)
 {
@@ -372,11 +375,23 @@ TC_TARGET_AVX2 static double matvec_avx2(const rows_view *m, const double *restr
     return dot;
 }
 
+/* CPUID and XGETBV read directly: __builtin_cpu_supports relies on the runtime filling a CPU
+ * model at load time, which some targets (mingw through zig: Windows) never do, so there the AVX2
+ * kernel would silently never run. */
 static int cpu_has_avx2_fma(void)
 {
 #if defined(__GNUC__) || defined(__clang__)
-    __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+    unsigned a, b, c, d;
+    if (!__get_cpuid(1, &a, &b, &c, &d)) return 0;
+    const unsigned fma = (c >> 12) & 1, osxsave = (c >> 27) & 1, avx = (c >> 28) & 1;
+    if (!(fma && osxsave && avx)) return 0;
+    unsigned lo, hi;
+    __asm__ volatile("xgetbv" : "=a"(lo), "=d"(hi) : "c"(0));
+    (void)hi;
+    if ((lo & 6) != 6) return 0;  /* the OS saves the XMM and YMM state */
+    if (__get_cpuid_max(0, 0) < 7) return 0;
+    __cpuid_count(7, 0, a, b, c, d);
+    return (b >> 5) & 1;
 #elif defined(_MSC_VER)
     int r[4];
     __cpuid(r, 1);

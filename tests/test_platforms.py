@@ -203,3 +203,23 @@ def test_the_stable_abi_read_from_the_headers_is_plausible(stable_abi):
     # not in the limited API 3.11 (added to it in 3.12 / 3.13, or never limited)
     for name in ("PyType_FromMetaclass", "PyLong_AsInt", "_PyObject_GetDictPtr", "PyFrame_GetBack"):
         assert name not in stable_abi
+
+
+@pytest.mark.skipif(not __import__("shutil").which("llvm-objdump"), reason="needs llvm-objdump to disassemble")
+@pytest.mark.parametrize("platform", [p for p in PLATFORMS if EXPECTED[p][1] == "x86-64"])
+def test_x86_binaries_carry_the_avx2_product_and_choose_it_by_cpuid(binaries, platform, tmp_path):
+    """The solver's AVX2/FMA product is compiled into every x86-64 build, and the build asks the
+    CPU itself (CPUID, XGETBV) whether to run it: a runtime's CPU-model table is not filled on
+    every target (mingw), where the fast kernel would otherwise never run."""
+    import subprocess
+
+    name, _ = binaries[(platform, "_native")]
+    zip_path = packages()["zips"][platform]
+    with zipfile.ZipFile(io.BytesIO(_own_wheel(zip_path)[1])) as wheel:
+        (entry,) = [n for n in wheel.namelist() if n.endswith("/" + name)]
+        target = tmp_path / name
+        target.write_bytes(wheel.read(entry))
+    text = subprocess.run(["llvm-objdump", "-d", "--no-show-raw-insn", str(target)], capture_output=True, text=True,
+                          check=True).stdout
+    assert len(re.findall(r"vfmadd\w*pd\s.*%ymm", text)) >= 6, "no AVX2/FMA product in the build"
+    assert re.search(r"\bcpuid\b", text) and re.search(r"\bxgetbv\b", text), "the build never asks the CPU"
