@@ -251,8 +251,11 @@ SETTINGS: tuple[Setting, ...] = (
        "(tests/test_solver.py; 1e-3 let a late tear start or not)",
        _B(0.0, 1.0, lo_open=True, hi_open=True), _B(1.0e-14, 0.1),
        native="cg_tolerance", block="solver.cg", ui=dict(precision=6)),
-    _i("solver", "cg_max_iterations", "1", 200, "CG Iterations", "Most conjugate-gradient iterations per step",
-       _CORE + " (tc_solver_default)", _B(1, 100000), _B(10, 10000), native="cg_max_iterations",
+    _i("solver", "cg_max_iterations", "1", 1000, "CG Iterations", "Most conjugate-gradient iterations per step",
+       _CORE + " (tc_solver_default): a safety net, not a speed knob: the T-shirt on the walking body at "
+       "10 sub-steps per 24 fps frame converges in about 270 iterations at the default tolerance, and a cap "
+       "of 200 split its sub-steps (the failed solve wasted): 0.27 s/frame at 200, 0.135 at 1000",
+       _B(1, 100000), _B(10, 10000), native="cg_max_iterations",
        block="solver.cg"),
     _f("solver", "max_stretch", "1", 20.0, "Max Stretch",
        "A principal stretch above this counts as an explosion: the step is rolled back and retried in sub-steps",

@@ -24,7 +24,7 @@ tc_material tc_material_default(void)
 
 tc_solver_settings tc_solver_default(void)
 {
-    tc_solver_settings s = {.gravity = {0.0, 0.0, -9.81}, .cg_tolerance = 1e-4, .cg_max_iterations = 200,
+    tc_solver_settings s = {.gravity = {0.0, 0.0, -9.81}, .cg_tolerance = 1e-4, .cg_max_iterations = 1000,
                             .max_stretch = 20.0, .contact_max_push = 0.1,
                             .contact_correction = 0.2};
     return s;
