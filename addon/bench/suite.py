@@ -98,7 +98,9 @@ def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"),
                 old = json.loads(path.read_text())
             except (OSError, ValueError):
                 old = {}
-        old.update(results)
+        # merged part by part: a run of some parts keeps the figures of the others (an empty
+        # table1 of a run without it must not wipe the last one)
+        old.update({k: v for k, v in results.items() if v != {}})
         path.write_text(json.dumps(old, indent=2, sort_keys=True, default=str))
         out(f"wrote {path}")
     if markdown:
