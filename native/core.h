@@ -143,7 +143,6 @@ struct tc_cloth {
     tc_vec tips;             /* int32 vertex ids of running tear tips */
     tc_vec tipdir;           /* double x3 preferred direction of each tip */
     int32_t scan_cursor;
-    bool tearing_running;
     tc_vec tipadv;           /* double per tip: advance (m of rest length) earned and not yet cut */
     tc_vec tstamp, vstamp;   /* int32 per triangle / 3 per vertex: visit marks of the tearing walks */
     tc_vec tqueue, vqueue;   /* int32: the walks' queues of triangles / vertices (vsa: ratio memo) */

@@ -95,7 +95,6 @@ BLENDER_STIFFNESS_MAX = 10000.0  # RNA limits of ClothSettings
 BLENDER_DAMPING_MAX = 50.0
 BLENDER_AIR_DAMPING_MAX = 10.0
 BLENDER_MIN_DISTANCE = 0.001
-_EVENT_FIELDS = ("new_vertices", "parents", "weights", "changed_triangles", "new_triangles", "tips")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -201,42 +200,6 @@ def _translation(offset) -> np.ndarray:
 # ------------------------------------------------------------------------------------------------
 
 
-def _follow_topology(session: Session) -> list[str]:
-    """Shims for two gaps between the core's tear events and the collision detector, applied
-    only when present (they become no-ops once fixed where they belong):
-    - ``TopologyEvents`` has no ``.get`` while ``CollisionDetector.on_topology`` and
-      ``Clustering.update`` read events with ``events.get(...)``: pass them a dict;
-    - ``on_topology`` leaves the self-collision ring table at the old vertex count, so the next
-      full detection indexes past it: rebuild it when its size no longer matches.
-    Returns the names of the shims applied."""
-    det = session.detector
-    if det is None:
-        return []
-    from ..cloth import TopologyEvents
-    from ..collision.narrow import ring_table
-
-    applied = []
-    need_dict = not hasattr(TopologyEvents, "get")
-    if need_dict:
-        applied.append("events_as_dict")
-    applied.append("ring_table_resize")
-    original = det.on_topology
-
-    def on_topology(events, positions, triangles):
-        if need_dict and not hasattr(events, "get"):
-            events = {k: getattr(events, k) for k in _EVENT_FIELDS}
-        dirty = original(events, positions, triangles)
-        cloth = getattr(det, "cloth", None)
-        ring = getattr(cloth, "ring", None)
-        n = len(positions)
-        if ring is not None and ring.shape[0] != n:
-            cloth.ring = ring_table(triangles, n)
-        return dirty
-
-    det.on_topology = on_topology
-    return applied
-
-
 class _Ours:
     """Our side of the race: one frame at a time."""
 
@@ -249,7 +212,6 @@ class _Ours:
         self.hands = (self.cloth.add_handle("hem_left"), self.cloth.add_handle("hem_right"))
         self.cloth.set_tearing(True)
         self.session = Session(self.cloth, collision)
-        self.shims = _follow_topology(self.session)
         self.session.add_body("body", examples.body_pose(body, start_time), body.triangles)
         for h, off in zip(self.hands, hand_offsets(0.0, pull_speed)):
             self.session.set_handle_keyframe(h, _translation(off), 0.0)
@@ -403,7 +365,6 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
         "ours_cg_iterations_median": statistics.median(ours.cg_iterations) if ours.cg_iterations else 0,
         "ours_contacts_median": statistics.median(ours.contacts) if ours.contacts else 0,
         "ours_error": error,
-        "ours_shims": ours.shims,
         "blender_cg_iterations_mean": statistics.fmean(bl_iters) if bl_iters else None,
         "blender_cg_iterations_max": max((m for _a, m in got["iterations"][:raced]), default=None),
         "blender_shirt_moved_m": moved,
