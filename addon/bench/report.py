@@ -63,6 +63,10 @@ def benchmarks_markdown(r: dict) -> str:
                       f"{x['p50_ms']:.3f} ms, p99 {x['p99_ms']:.3f} ms, max {x['max_ms']:.2f} ms."
                       + (f" The same load with the servo threads in the simulating process: {s['loaded_threads']['rate_hz']:.1f} Hz, "
                          f"p99 {s['loaded_threads']['p99_ms']:.2f} ms, max {s['loaded_threads']['max_ms']:.2f} ms." if "loaded_threads" in s else ""), ""]
+        if "kill_zero_ms" in s:
+            k = s["kill_zero_ms"]
+            lines += [f"SIGKILL of the simulating process to zero force on both emulated Falcons (the servo process's "
+                      f"peer check): median {k['median_ms']:.2f} ms, max {k['max_ms']:.2f} ms over {k['runs']} kills.", ""]
     if "blender_cloth" in r:
         b = r["blender_cloth"]
         lines += ["## Against Blender's cloth (T-shirt, same body, 10 sub-steps per frame)", "",
@@ -103,6 +107,9 @@ def targets_markdown(r: dict) -> list:
         s = r["servo"]
         add("servo rate", f"{s['rate_hz']:.1f} Hz", ">= 995 Hz", s["rate_hz"] >= 995)
         add("servo period p99", f"{s['p99_ms']:.2f} ms", "<= 1.5 ms", s["p99_ms"] <= 1.5)
+        if "kill_zero_ms" in s:
+            k = s["kill_zero_ms"]
+            add("SIGKILL of the simulation to zero force, median", f"{k['median_ms']:.2f} ms", "<= 10 ms", k["median_ms"] <= 10.0)
         if "loaded" in s:
             x = s["loaded"]
             add("servo rate, loaded", f"{x['rate_hz']:.1f} Hz", ">= 999 Hz", x["rate_hz"] >= 999)

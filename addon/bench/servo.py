@@ -294,3 +294,89 @@ def measure_loaded_servo(
     out.update(scenario=scenario, servo=servo, collision=bool(collision), gil_loop=bool(gil_loop), cpu_hog=bool(cpu_hog),
                gil_loop_iterations=loops, duration_s=float(duration_s), error=None if live.error is None else repr(live.error))
     return out
+
+
+# The simulating process of ``kill_simulating_process``: the square cloth held by two emulated
+# Falcons in a servo process, the simulation on its own thread; it prints what the killer needs
+# once both devices feel a force, then waits to be killed.
+_SIMULATOR = r"""
+import json, sys, time
+from tearcloth.bench.servo import emulated_session
+live, emus = emulated_session("cloth", servo="process", tear_stress=2e6, hold_s=0.05, pull_s=3.0, pull_distance=0.015,
+                              servo_priority=None, stall_timeout_s=float(sys.argv[1]))
+live.start()
+deadline = time.perf_counter() + 30.0
+while time.perf_counter() < deadline and not all(any(e.efforts) for e in emus.values()):
+    time.sleep(0.01)
+print(json.dumps({"shm": live.servo_process.shm_name, "servo_pid": live.servo_process.pid, "steps": live.steps}), flush=True)
+time.sleep(600)
+"""
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            return "State:\tZ" not in fh.read()  # a zombie has exited
+    except FileNotFoundError:
+        return False
+
+
+def kill_simulating_process(stall_timeout_s: float = 0.5, wait_s: float = 10.0) -> Dict[str, object]:
+    """SIGKILL a simulating process whose two emulated Falcons (in its servo process) push with a
+    force, and watch the devices from outside through the servo's shared memory (what each
+    emulator was last sent and when it first got a zero, on CLOCK_MONOTONIC, which every process
+    shares). Returns ``zero_s`` (kill to the later of the two devices' zero; inf if one never
+    got it within ``wait_s``), ``efforts`` (what each device was left with), ``servo_alive``
+    (the servo process after the wait) and ``stall_timeout_s``. Linux only (the peer check)."""
+    import math
+    import os
+    import signal
+
+    from ..haptics.servo_process import _P_EFF, _P_ZERO, _read, _Shared
+
+    sim = subprocess.Popen([sys.executable, "-c", _SIMULATOR, repr(float(stall_timeout_s))], stdout=subprocess.PIPE, text=True)
+    shared = None
+    servo_pid = None
+    try:
+        line = sim.stdout.readline()
+        if not line:
+            raise RuntimeError("the simulating process died before its session ran")
+        info = json.loads(line)
+        servo_pid = int(info["servo_pid"])
+        shared = _Shared(2, info["shm"])
+        before = [_read(p) for p in shared.prox]
+        if not all(np.any(b[_P_EFF : _P_EFF + 3]) and math.isnan(b[_P_ZERO]) for b in before):
+            raise RuntimeError(f"the devices did not feel a force before the kill: {before}")
+        t_kill = time.perf_counter()  # CLOCK_MONOTONIC, as the servo's stamps
+        os.kill(sim.pid, signal.SIGKILL)
+        sim.wait(5.0)
+        deadline = time.perf_counter() + wait_s
+        while True:
+            blocks = [_read(p) for p in shared.prox]
+            done = all(not math.isnan(b[_P_ZERO]) for b in blocks) and not _pid_alive(servo_pid)
+            if done or time.perf_counter() > deadline:
+                break
+            time.sleep(0.002)
+        zeros = [b[_P_ZERO] for b in blocks]
+        return {
+            "zero_s": max(z - t_kill for z in zeros) if not any(math.isnan(z) for z in zeros) else math.inf,
+            "efforts": [[int(e) for e in b[_P_EFF : _P_EFF + 3]] for b in blocks],
+            "servo_alive": _pid_alive(servo_pid),
+            "stall_timeout_s": float(stall_timeout_s),
+        }
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+            sim.wait()
+        if servo_pid is not None and _pid_alive(servo_pid):
+            os.kill(servo_pid, signal.SIGKILL)
+        if shared is not None:
+            shared.close()
+
+
+def measure_kill_zero(runs: int = 5) -> Dict[str, float]:
+    """What ``servo.kill_zero_ms`` reports: SIGKILL of the simulating process to zero force on
+    both emulated Falcons, over ``runs`` kills (median and max, ms), with the stall watchdog far
+    out of the way (20 s) so that only the servo's peer check can be what zeroed them."""
+    lat = [kill_simulating_process(stall_timeout_s=20.0)["zero_s"] * 1e3 for _ in range(runs)]
+    return {"median_ms": float(np.median(lat)), "max_ms": float(np.max(lat)), "runs": runs}

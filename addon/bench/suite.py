@@ -19,7 +19,7 @@ from .machine import loadavg
 from .race import race_blender_cloth
 from .report import benchmarks_markdown
 from .scaling import format_scaling, plot_scaling, scaling
-from .servo import measure_live_servo, measure_loaded_servo
+from .servo import measure_kill_zero, measure_live_servo, measure_loaded_servo
 from .table1 import DT, format_table, measure_scenario, tearing_convergence
 
 __all__ = ["PARTS", "run"]
@@ -62,6 +62,10 @@ def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"),
         results["servo"] = {k: sv[k] for k in ("rate_hz", "p50_ms", "p99_ms")}
         results["servo"]["detail"] = {k: v for k, v in sv.items() if isinstance(v, (int, float, str))}
         out(f"servo: {sv['rate_hz']:.1f} Hz, period p50 {sv['p50_ms']:.3f} ms, p99 {sv['p99_ms']:.3f} ms")
+        kz = measure_kill_zero(5)
+        results["servo"]["kill_zero_ms"] = kz
+        out(f"servo: SIGKILL of the simulating process to zero force on both Falcons: median {kz['median_ms']:.2f} ms, "
+            f"max {kz['max_ms']:.2f} ms over {kz['runs']} kills")
         keys = ("rate_hz", "p50_ms", "p99_ms", "max_ms")
         for name, mode in (("loaded", "process"), ("loaded_threads", "thread")):
             out(f"... servo loop loaded ({mode}: T-shirt with collision, GIL-heavy main thread, CPU hog, no RT priority, 10 s)")
