@@ -19,7 +19,7 @@ from bpy.types import Menu, Panel, UIList
 from .. import cache
 from .. import settings as table
 from ..materials import MATERIALS
-from . import bake, haptic_session, modifier
+from . import bake, fray, haptic_session, modifier
 from .ops import PRESET_SUBDIR
 
 
@@ -232,6 +232,19 @@ class TEARCLOTH_PT_collision(TearClothPanel, Panel):
         col.operator("tearcloth.preview_clusters", icon="GROUP_VERTEX")
 
 
+def _draw_fray(layout, obj):
+    """The frayed-edge button, or the modifier's switches once it is there (its inputs are in the
+    modifier stack, where Blender draws a node group's inputs)."""
+    md = fray.find_modifier(obj)
+    row = layout.row(align=True)
+    if md is None:
+        row.operator("tearcloth.add_frayed_edges", icon="STRANDS")
+        return
+    row.label(text="Frayed Edges", icon="STRANDS")
+    row.prop(md, "show_viewport", text="")
+    row.prop(md, "show_render", text="")
+
+
 class TEARCLOTH_PT_cache(TearClothPanel, Panel):
     bl_label = "Cache"
     bl_parent_id = "TEARCLOTH_PT_main"
@@ -260,6 +273,7 @@ class TEARCLOTH_PT_cache(TearClothPanel, Panel):
         row.operator("tearcloth.bake", text="Resume").resume = True
         row = layout.row(align=True)
         row.operator("tearcloth.free_bake", text="Free Bake")
+        _draw_fray(layout, obj)
         row = layout.row(align=True)
         row.operator("tearcloth.bake_all", text="Bake All")
         row.operator("tearcloth.export_alembic", text="Export Alembic")
