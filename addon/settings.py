@@ -98,7 +98,10 @@ class Setting:
     Blender property); ``native``: the C struct field it sets (None = Python only);
     ``native_default``: the core's own default where it deliberately differs (see the row);
     ``scene``: a length in the scene (shown in scene units in Blender) rather than in a device's
-    frame; ``block``: the panel block it is drawn in; ``ui``: display hints for Blender only."""
+    frame; ``block``: the panel block it is drawn in (in a block, a bool row is the switch of the
+    rows after it; a block that starts with one is a sub-panel: ``blender/ui.py``); ``ui``: display
+    hints for Blender only (``when``: the name, or names, of the group's bool rows that must be on
+    for the row to be drawn)."""
 
     group: str
     name: str
