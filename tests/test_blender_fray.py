@@ -23,6 +23,7 @@ import pytest
 pytest.importorskip("bpy")
 from test_blender_bake import run_blender  # noqa: E402
 
+DISTANCE = 0.4  # m from the camera to the sheet
 WARP = (math.sin(math.radians(30.0)), 0.0, math.cos(math.radians(30.0)))
 
 SLIT_SHEET = '''
@@ -159,7 +160,7 @@ def _load(path):
 
 def test_frayed_edges_render_in_blender_without_the_add_on(tmp_path):
     pytest.importorskip("PIL")
-    run_blender(tmp_path, textwrap.dedent(SLIT_SHEET) + textwrap.dedent('''
+    run_blender(tmp_path, textwrap.dedent(SLIT_SHEET) + f"DISTANCE = {DISTANCE}\n" + textwrap.dedent('''
         obj, torn = slit_sheet()
         assert op("add_frayed_edges", obj) == {"FINISHED"}
         red = bpy.data.materials.new("Threads")
@@ -169,12 +170,12 @@ def test_frayed_edges_render_in_blender_without_the_add_on(tmp_path):
         scene = bpy.context.scene
         cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
         scene.collection.objects.link(cam)
-        cam.location = (0.0, -0.55, 1.0)
+        cam.location = (0.0, -DISTANCE, 1.05)
         cam.rotation_euler = (math.pi / 2, 0.0, 0.0)
         scene.camera = cam
         render = scene.render
         render.engine = "BLENDER_WORKBENCH"
-        render.resolution_x, render.resolution_y, render.resolution_percentage = 320, 240, 100
+        render.resolution_x, render.resolution_y, render.resolution_percentage = 400, 300, 100
         scene.display.shading.light = "STUDIO"
         scene.display.shading.color_type = "MATERIAL"
         scene.display.render_aa = "OFF"
@@ -197,7 +198,7 @@ def test_frayed_edges_render_in_blender_without_the_add_on(tmp_path):
     rows, cols = np.nonzero(changed)
     pixels = np.stack([cols + 0.5, rows + 0.5], axis=1)
     distance = np.min(np.linalg.norm(pixels[:, None] - lips[None], axis=2), axis=1)
-    px_per_m = w / 2 / (0.55 * math.tan(math.radians(39.6) / 2))  # 50 mm lens, 36 mm sensor
+    px_per_m = w / 2 / (DISTANCE * math.tan(math.radians(39.6) / 2))  # 50 mm lens, 36 mm sensor
     reach = 0.012 * 1.3 * px_per_m + 2  # the longest thread, jittered, plus a pixel of edge
     # the threads show (hundreds of pixels), all of them near the tear, all along it
     assert changed.sum() > 300, changed.sum()
