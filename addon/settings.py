@@ -427,16 +427,16 @@ SETTINGS: tuple[Setting, ...] = (
     # Not Blender properties: they are the group's input sockets (default, bounds, description), so
     # the values live on the modifier and render without the add-on.
     _f("fray", "length", "m", 0.006, "Length", "Length of a loose thread end at a torn edge",
-       "the loose yarn ends of torn woven cotton and denim: a few millimetres (about two to four picks, at "
-       "16-28 yarns per cm)", _B(0.0, 1.0), _B(0.0005, 0.05), rna=None, ui=dict(precision=4)),
+       "our estimate: the loose yarn ends of a torn woven cotton or denim are a few millimetres long (two to four "
+       "picks at 16-28 yarns per cm)", _B(0.0, 1.0), _B(0.0005, 0.05), rna=None, ui=dict(precision=4)),
     _f("fray", "density", "1/m", 1000.0, "Density", "Loose thread ends per metre of torn edge",
-       "about half the 20 picks per cm of a denim weft (50 per inch) left hanging, the other half pulled out "
-       "with the other lip", _B(0.0, 1.0e5), _B(10.0, 1.0e4), rna=None, ui=dict(precision=0)),
+       "our estimate: about half the ~20 picks per cm of a denim weft (50 per inch) left hanging, the other half "
+       "pulled out with the other lip", _B(0.0, 1.0e5), _B(10.0, 1.0e4), rna=None, ui=dict(precision=0)),
     _f("fray", "jitter", "1", 0.5, "Jitter",
        "How much each thread's direction and length vary (0: every thread straight along its yarn, at the "
        "full length)", _UI, _B(0.0, 1.0), rna=None, ui=dict(precision=2)),
     _f("fray", "thread_radius", "m", 1.5e-4, "Thread Radius", "Radius of a loose thread",
-       "a cotton yarn of 0.2-0.4 mm diameter (Ne 10-30)", _B(0.0, 0.01, lo_open=True), _B(1.0e-5, 0.002),
+       "a typical cotton yarn of 0.2-0.4 mm diameter (Ne 10-30)", _B(0.0, 0.01, lo_open=True), _B(1.0e-5, 0.002),
        rna=None, ui=dict(precision=5)),
     _i("fray", "seed", "1", 0, "Seed", "Another seed gives another pattern of threads", _UI, _B(0, 2**31 - 1),
        rna=None),

@@ -84,9 +84,14 @@ SLIT_SHEET = '''
 def test_threads_run_along_warp_and_weft_out_of_the_tear(tmp_path):
     got = run_blender(tmp_path, textwrap.dedent(SLIT_SHEET) + textwrap.dedent('''
         obj, torn = slit_sheet(warp=json.loads(sys.argv[1]))
+        bpy.context.scene.unit_settings.scale_length = 0.01  # 1 Blender unit = 1 cm: the defaults convert
         assert op("add_frayed_edges", obj) == {"FINISHED"}
         assert op("add_frayed_edges", obj) == {"CANCELLED"}  # once is enough
         md = fray.find_modifier(obj)
+        defaults = {item.name: md[item.identifier] for item in md.node_group.interface.items_tree
+                    if item.item_type == "SOCKET" and item.in_out == "INPUT" and item.name not in ("Geometry",
+                                                                                                "Material")}
+        material = md[fray.socket_identifier(md.node_group, "Material")]
         order = [m.name for m in obj.modifiers]
         set_inputs(md, Jitter=0.0, **{"Thread Radius": 1e-6, "Length": 0.01, "Density": 200.0})
         n_cloth = len(obj.data.vertices)
@@ -97,10 +102,14 @@ def test_threads_run_along_warp_and_weft_out_of_the_tear(tmp_path):
         from scipy.spatial import cKDTree
         far = cKDTree(cloth).query(co)[0] > 1e-7
         rings = co[far].reshape(-1, 2, 6, 3).mean(axis=2)
-        result(dict(order=order, cloth=n_cloth, total=len(co), start=rings[:, 0].tolist(),
+        result(dict(defaults=defaults, material=material.name, order=order, cloth=n_cloth, total=len(co), start=rings[:, 0].tolist(),
                     end=rings[:, 1].tolist(), lips=cloth[torn].tolist()))
     '''), json.dumps(list(WARP)))
     assert got["order"] == ["Tear Cloth", "Tear Cloth Frayed Edges"]
+    # the table's defaults in a centimetre scene (lengths in Blender units, density per unit)
+    assert got["defaults"] == pytest.approx({"Length": 0.6, "Density": 10.0, "Jitter": 0.5, "Thread Radius": 0.015,
+                                             "Seed": 0}, rel=1e-6)
+    assert got["material"] == "Cloth"  # the cloth's own material
     start, end = np.array(got["start"]), np.array(got["end"])
     d = end - start
     length = np.linalg.norm(d, axis=1)

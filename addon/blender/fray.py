@@ -146,10 +146,9 @@ def _interface(tree):
             socket.min_value = cast(row.hard.lo)
         if row.hard is not None and row.hard.hi is not None:
             socket.max_value = cast(row.hard.hi)
-        if row.unit == "m":
-            socket.subtype = "DISTANCE"  # shown in the scene's units; the values are Blender units
-        elif row.unit == "1" and row.kind == "float":
-            socket.subtype = "FACTOR"
+        subtype = {"m": "DISTANCE", "1": "FACTOR" if row.kind == "float" else None}.get(row.unit)
+        if subtype and hasattr(socket, "subtype"):  # a length shows in the scene's units (values: Blender units)
+            socket.subtype = subtype
     material = tree.interface.new_socket("Material", in_out="INPUT", socket_type="NodeSocketMaterial")
     material.description = "Material of the threads (Add Frayed Edges picks the cloth's own)"
 
@@ -300,8 +299,10 @@ def add_modifier(obj, scene, material=None):
     tree = group()
     md = obj.modifiers.new(MODIFIER_NAME, "NODES")
     md.node_group = tree
+    # The group works in Blender units: lengths, and the density per length, in the scene's.
+    per_unit = {"m": 1.0 / convert.scale_length(scene), "1/m": convert.scale_length(scene)}
     for row in table.rows("fray"):
-        value = convert.length_from_si(scene, row.default) if row.unit == "m" else row.default
+        value = row.default * per_unit.get(row.unit, 1.0)
         md[socket_identifier(tree, row.label)] = int(value) if row.kind == "int" else float(value)
     if material is not None:
         md[socket_identifier(tree, "Material")] = material
