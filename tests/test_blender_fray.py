@@ -5,7 +5,8 @@ never imports the add-on.
 The torn frame is made by hand until the cache carries the attributes itself: a 30 x 30 cm sheet
 (31 x 31 vertices, normal -Y) slit from its middle to its top edge, the two lips separate vertices
 pulled 7.5 mm apart at the top, with the point attributes a cache carries: ``torn`` = 1 on both lips,
-``torn_time`` and ``warp`` = 30 degrees off vertical in the sheet's plane. About 4 s for both tests.
+``torn_time`` and ``warp`` = 30 degrees off vertical in the sheet's plane (in world space: the
+first test turns the object, the threads must follow the warp in the object's space). About 4 s for both tests.
 """
 from __future__ import annotations
 
@@ -83,7 +84,10 @@ SLIT_SHEET = '''
 
 def test_threads_run_along_warp_and_weft_out_of_the_tear(tmp_path):
     got = run_blender(tmp_path, textwrap.dedent(SLIT_SHEET) + textwrap.dedent('''
-        obj, torn = slit_sheet(warp=json.loads(sys.argv[1]))
+        # the object turned 90 degrees about Z: the cache's warp is in world space, the threads in the object's
+        warp = json.loads(sys.argv[1])
+        obj, torn = slit_sheet(warp=[-warp[1], warp[0], warp[2]])
+        obj.rotation_euler = (0.0, 0.0, math.pi / 2)
         bpy.context.scene.unit_settings.scale_length = 0.01  # 1 Blender unit = 1 cm: the defaults convert
         assert op("add_frayed_edges", obj) == {"FINISHED"}
         assert op("add_frayed_edges", obj) == {"CANCELLED"}  # once is enough
@@ -97,7 +101,7 @@ def test_threads_run_along_warp_and_weft_out_of_the_tear(tmp_path):
         n_cloth = len(obj.data.vertices)
         with evaluated_mesh(obj) as m:
             co = positions(m).reshape(-1, 3)
-        cloth = np.array([v.co for v in obj.data.vertices])
+        cloth = np.array([v.co for v in obj.data.vertices])  # object space, as the evaluated mesh
         # thread vertices: those that are not the cloth's (12 per thread: a ring of 6 at each end)
         from scipy.spatial import cKDTree
         far = cKDTree(cloth).query(co)[0] > 1e-7

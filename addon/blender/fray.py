@@ -13,7 +13,7 @@ What this file owns
 
 What the group reads (point attributes the cache carries, readable in stock Blender):
 ``torn`` (1.0 on a point of a torn edge), ``warp`` (the unit world-space warp direction at the
-point). ``torn_time`` (s) is in the cache too; the group does not need it (a frame shows only
+point; the group turns it into the object's space, where the cache's points are). ``torn_time`` (s) is in the cache too; the group does not need it (a frame shows only
 tears that happened up to it).
 
 How the threads are made: the torn boundary (edges with one face whose two points are torn) is
@@ -23,7 +23,8 @@ from the faces around the point), its direction and length varied by the jitter,
 thin tube of the thread radius with the given material, and joined to the cloth. Without a
 ``warp`` attribute (a cache baked before it was carried) the threads point straight out of the
 edge. The random choices follow the sample's index along the edge, so a tear that grows between
-frames may reshuffle the threads near its tip.
+frames may reshuffle the threads near its tip. Blender 4.2's Mesh Sequence Cache reads no
+attributes (``modifier.read_data``): there the group finds no torn point and adds nothing.
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ MODIFIER_NAME = "Tear Cloth Frayed Edges"
 # Stored on the group (an ID property, saved in the .blend): a group made by an older version of
 # this file is rebuilt rather than reused.
 VERSION_KEY = "tearcloth_fray_version"
-VERSION = 1
+VERSION = 2
 TORN, WARP = "torn", "warp"  # the cache's point attributes
 
 
@@ -204,9 +205,19 @@ def build_group():
     index = _node(tree, "GeometryNodeInputIndex", -1000, -600).outputs[0]
     seed = gin("seed")
     n = _vec(tree, -800, -200, "NORMALIZE", capture.outputs[1])
-    warp_attr = _node(tree, "GeometryNodeInputNamedAttribute", -1000, -350, data_type="FLOAT_VECTOR")
+    warp_attr = _node(tree, "GeometryNodeInputNamedAttribute", -1400, -350, data_type="FLOAT_VECTOR")
     _in(warp_attr, "Name").default_value = WARP
-    warp = _out(warp_attr, "Attribute")
+    warp_world = _out(warp_attr, "Attribute")
+    # the cache's warp is in world space, the geometry in the object's: turn it by the inverse
+    # of the object's own transform
+    own = _node(tree, "GeometryNodeObjectInfo", -1400, -500, transform_space="ORIGINAL")
+    link(_node(tree, "GeometryNodeSelfObject", -1600, -500).outputs[0], _in(own, "Object"))
+    inverse = _node(tree, "FunctionNodeInvertMatrix", -1200, -500)
+    link(_out(own, "Transform"), _in(inverse, "Matrix"))
+    to_local = _node(tree, "FunctionNodeTransformDirection", -1000, -350)
+    link(warp_world, _in(to_local, "Direction"))
+    link(_out(inverse, "Matrix"), _in(to_local, "Transform"))
+    warp = _out(to_local, "Direction")
     warp_t = _vec(tree, -600, -350, "NORMALIZE", _vec(tree, -800, -350, "SUBTRACT", warp,
                                                       _vec(tree, -1000, -450, "PROJECT", warp, n)))
     weft = _vec(tree, -400, -450, "CROSS_PRODUCT", n, warp_t)
@@ -216,7 +227,7 @@ def build_group():
     pick_warp = _random(tree, -400, -200, "BOOLEAN", seed, 0, index, Probability=0.5)
     thread = _switch(tree, -200, -300, "VECTOR", pick_warp, weft, warp_t)
     has_warp = _node(tree, "FunctionNodeCompare", -200, -650, data_type="FLOAT", operation="GREATER_THAN")
-    link(_vec(tree, -400, -700, "LENGTH", warp), _in(has_warp, "A", "VALUE"))
+    link(_vec(tree, -400, -700, "LENGTH", warp_world), _in(has_warp, "A", "VALUE"))
     _in(has_warp, "B", "VALUE").default_value = 0.5  # a unit vector, or zeros where none is carried
     thread = _switch(tree, 0, -400, "VECTOR", _out(has_warp, "Result"), outward, thread)
     # to the outside of the cloth: the sign of thread . outward (+1 when along the edge)
