@@ -90,6 +90,8 @@ class BakePlan:
     # The user's polygon of each triangle and vertex of each vertex (messages name those)
     triangle_polygons: np.ndarray | None = None         # (m,)
     vertex_ids: np.ndarray | None = None                # (n,)
+    # The user's grain override, radians per triangle (None: the material's own grain)
+    grain_angles: np.ndarray | None = None              # (m,)
 
     @property
     def settings_fingerprint(self) -> str:
@@ -100,6 +102,8 @@ class BakePlan:
         key = repr((sorted(vars(self.material).items()), sorted(self.solver.items()), sorted(self.tearing.items()),
                     collision, self.steps_per_frame, self.fps, self.frame_start, self.scale, self.pin_group,
                     list(self.handle_groups), self.seam_group, self.seam_factor, sorted(self.body_triangles)))
+        if self.grain_angles is not None:  # (only then: fingerprints of bakes without one stay as they were)
+            key += repr(np.round(np.asarray(self.grain_angles, dtype=np.float64), 9).tobytes())
         return hashlib.sha256(key.encode("utf-8")).hexdigest()[:16]
 
     @property
@@ -407,6 +411,14 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
     cloth.set_solver(**plan.solver)
     cloth.set_tearing(plan.tearing.get("enabled", True),
                       **{k: v for k, v in plan.tearing.items() if k != "enabled"})
+    # the grain override per triangle (a resumed bake's triangles are the state's, torn since)
+    grain = plan.grain_angles if state is None else state.get("grain_angles")
+    if grain is not None and hasattr(cloth, "set_grain_angles"):
+        cloth.set_grain_angles(grain)
+    elif state is not None and plan.grain_angles is not None:
+        logging.getLogger("tearcloth").warning(
+            "%s: the resume state holds no grain angles (this core cannot read them back); the resumed frames "
+            "use the material's own grain", plan.object_name)
     if state is not None:
         cloth.set_tear_strength(state["tear_strength"])
     elif plan.seam_group:
@@ -449,6 +461,8 @@ def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: 
         tear_strength=np.array(cloth.tear_strength),
         tears=np.int64(tears),
     )
+    if plan.grain_angles is not None and hasattr(cloth, "grain_angles"):
+        data["grain_angles"] = np.array(cloth.grain_angles)  # per triangle, carried through tears by the core
     folder, name = os.path.split(path)
     tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
     with open(tmp, "wb") as f:

@@ -3,8 +3,8 @@
 What this file owns
 -------------------
 One row (``Setting``) per user parameter, grouped as the product is: ``material``, ``solver``,
-``tearing``, ``pins``, ``collision``, ``cache``, ``export``, ``haptics`` (the live session) and
-``hand`` (one hand of it). A row says the parameter's name (one name per concept, the paper's
+``tearing``, ``pins``, ``collision``, ``cache``, ``export``, ``haptics`` (the live session),
+``hand`` (one hand of it) and ``fray`` (the inputs of the frayed-edge node group). A row says the parameter's name (one name per concept, the paper's
 word where it has one), its SI unit, its default, its hard bounds (physically impossible or
 refused by the core outside them: a ValueError), its soft bounds (possible but suspicious outside
 them: a warning, and the drag range in Blender), what it means and where its value comes from.
@@ -47,6 +47,7 @@ UNITS = {
     "N m": "newton metre", "1/s": "per second", "s": "second", "m/s": "metre per second",
     "m/s^2": "metre per second squared", "deg": "degree", "N": "newton", "N/m": "newton per metre",
     "N s/m": "newton second per metre", "frame": "frame number", "-": "not a quantity",
+    "1/m": "per metre",
 }
 KINDS = ("float", "int", "bool", "enum", "str", "file", "dir", "vector")
 NUMERIC = ("float", "int", "vector")
@@ -97,7 +98,10 @@ class Setting:
     Blender property); ``native``: the C struct field it sets (None = Python only);
     ``native_default``: the core's own default where it deliberately differs (see the row);
     ``scene``: a length in the scene (shown in scene units in Blender) rather than in a device's
-    frame; ``block``: the panel block it is drawn in; ``ui``: display hints for Blender only."""
+    frame; ``block``: the panel block it is drawn in (in a block, a bool row is the switch of the
+    rows after it; a block that starts with one is a sub-panel: ``blender/ui.py``); ``ui``: display
+    hints for Blender only (``when``: the name, or names, of the group's bool rows that must be on
+    for the row to be drawn)."""
 
     group: str
     name: str
@@ -418,6 +422,24 @@ SETTINGS: tuple[Setting, ...] = (
        "Largest force sent to the device, in N (a Falcon renders at most 8 N)",
        "the Novint Falcon's rated peak force (falcon.FALCON_MAX_FORCE)", _B(0.0, None), _B(0.0, 8.0),
        block="hand.force", ui=dict(precision=2)),
+
+    # -- fray: the inputs of the frayed-edge Geometry Nodes group (blender/fray.py) ---------------
+    # Not Blender properties: they are the group's input sockets (default, bounds, description), so
+    # the values live on the modifier and render without the add-on.
+    _f("fray", "length", "m", 0.006, "Length", "Length of a loose thread end at a torn edge",
+       "our estimate: the loose yarn ends of a torn woven cotton or denim are a few millimetres long (two to four "
+       "picks at 16-28 yarns per cm)", _B(0.0, 1.0), _B(0.0005, 0.05), rna=None, ui=dict(precision=4)),
+    _f("fray", "density", "1/m", 1000.0, "Density", "Loose thread ends per metre of torn edge",
+       "our estimate: about half the ~20 picks per cm of a denim weft (50 per inch) left hanging, the other half "
+       "pulled out with the other lip", _B(0.0, 1.0e5), _B(10.0, 1.0e4), rna=None, ui=dict(precision=0)),
+    _f("fray", "jitter", "1", 0.5, "Jitter",
+       "How much each thread's direction and length vary (0: every thread straight along its yarn, at the "
+       "full length)", _UI, _B(0.0, 1.0), rna=None, ui=dict(precision=2)),
+    _f("fray", "thread_radius", "m", 1.5e-4, "Thread Radius", "Radius of a loose thread",
+       "a typical cotton yarn of 0.2-0.4 mm diameter (Ne 10-30)", _B(0.0, 0.01, lo_open=True), _B(1.0e-5, 0.002),
+       rna=None, ui=dict(precision=5)),
+    _i("fray", "seed", "1", 0, "Seed", "Another seed gives another pattern of threads", _UI, _B(0, 2**31 - 1),
+       rna=None),
 )
 _BY_KEY = {s.key: s for s in SETTINGS}
 GROUPS = tuple(dict.fromkeys(s.group for s in SETTINGS))

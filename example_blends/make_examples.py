@@ -1,6 +1,6 @@
 """Generate the example scenes of Tear Cloth as .blend files, ready to bake and render headless.
 
-    /work/venv/bin/python example_blends/make_examples.py                 # all three, next to this file
+    /work/venv/bin/python example_blends/make_examples.py                 # all four, next to this file
     /work/venv/bin/python example_blends/make_examples.py --only banknote --out /tmp/blends
     /work/venv/bin/python example_blends/make_examples.py --pictures out/examples   # bake + render
 
@@ -28,6 +28,14 @@ along +Y at sheets that face -Y):
   along (the hips barely move in the walk). The body is the shirt's collider (3 mm contact
   distance, 1.5 mm displacement threshold: see ``SHIRT_CONTACT_DISTANCE``); no self-collision
   (the body keeps the front and back panels apart). ~1 ms steps. The grid repeats twice per panel.
+* ``denim_knee.blend``: the front panel of a jeans leg (``examples.denim_knee``: a half cylinder
+  12 mm outside the leg, ~1.6K triangles, the "denim" preset, warp along the leg in UV) over a
+  leg of two capsules (``examples.capsule``: "Thigh", still, and "Shin", keyed to bend 100
+  degrees at the knee from frame 6 to 48). The panel's top edge is pinned, its hem follows an
+  empty parented to the shin, and the patch over the kneecap is worn (vertex group "knee" as a
+  weak seam, factor ``DENIM_WORN``): the bend stretches the panel over the knee until it tears
+  there. Both capsules are colliders (3 mm); no self-collision. ~2 ms steps. Frayed edges on
+  (``tearcloth.blender.fray``: the node group is saved in the file).
 
 Every file: a camera, a sun (for Eevee; Workbench uses studio light), Workbench render settings
 that work headless (PyPI ``bpy``), "Standard" colour management, a dark world so holes in the
@@ -92,6 +100,18 @@ SHIRT_STEPS = 42
 SHIRT_UV_REPEAT = 2.0
 SHIRT_CONTACT_DISTANCE = 0.003
 SHIRT_DISPLACEMENT_THRESHOLD = 0.0015
+
+# Denim knee
+DENIM_HOLD = 6  # frames the leg stands still (the panel settles on it)
+DENIM_END = 36
+DENIM_BEND = 75.0  # degrees of knee flexion at DENIM_END (a deep squat is ~130)
+DENIM_STEPS = 42  # ~1 ms
+# Jeans tear at the knee because the denim there is worn thin: the "knee" patch tears at this
+# fraction of denim's tear stress (the 100-degree bend stretches the panel ~15 % over the knee,
+# short of what new denim takes).
+DENIM_WORN = 0.5
+DENIM_CONTACT_DISTANCE = 0.003
+DENIM_SNAP = 0.45  # as the banknote's: fewer tiny triangles at the tips, which blew the sheet up
 
 
 def _bpy():
@@ -516,10 +536,55 @@ def build_tshirt(check: bool = True):
     return scene
 
 
+def build_denim_knee():
+    from tearcloth import examples
+    from tearcloth.blender import fray
+
+    bpy = _bpy()
+    scene = new_scene(DENIM_END)
+    leg = examples.LEG
+    knee = np.array([0.0, 0.0, leg["knee"]])
+    v, t = examples.capsule((0.0, 0.0, leg["knee"]), (0.0, 0.0, leg["hip"]), leg["radius"])
+    thigh = mesh_object("Thigh", v, t, smooth=True)
+    thigh.data.materials.append(plain_material("Skin", (0.78, 0.74, 0.70)))
+    v, t = examples.capsule((0.0, 0.0, leg["ankle"]), (0.0, 0.0, leg["knee"]), leg["radius"])
+    shin = mesh_object("Shin", v - knee, t, smooth=True)  # its origin at the knee: it turns there
+    shin.data.materials.append(thigh.data.materials[0])
+    shin.location = tuple(knee)
+    shin.rotation_mode = "XYZ"
+    for frame, degrees in ((1, 0.0), (DENIM_HOLD, 0.0), (DENIM_END, DENIM_BEND)):
+        shin.rotation_euler = (math.radians(degrees), 0.0, 0.0)  # +X: the foot goes back (+Y)
+        shin.keyframe_insert("rotation_euler", frame=frame)
+    panel = examples.denim_knee()
+    cloth = mesh_object("DenimKnee", panel.vertices, panel.triangles, panel.loop_uv(), panel.groups,
+                        smooth=True)
+    cloth.data.materials.append(grid_material("Denim"))
+    settings = enable_tear_cloth(cloth, "denim", steps_per_frame=DENIM_STEPS, use_collision=True,
+                                 use_self_collision=False, collision_thickness=DENIM_CONTACT_DISTANCE,
+                                 pin_group="pin_top", seam_group="knee", seam_factor=DENIM_WORN,
+                                 snap_tolerance=DENIM_SNAP,
+                                 frame_start=1, frame_end=DENIM_END)
+    for body in (thigh, shin):
+        settings.colliders.add().object = body
+    hold = empty("hem_hold", group_centroid(panel, "hem") - knee, 0.02, display="CUBE")
+    hold.parent = shin  # the parent's origin is the knee: the empty rides on the shin exactly
+    add_handle(cloth, "hem", hold)
+    with bpy.context.temp_override(object=cloth, active_object=cloth, selected_objects=[cloth]):
+        if bpy.ops.tearcloth.add_frayed_edges() != {"FINISHED"}:
+            raise RuntimeError("could not add frayed edges to the denim")
+    md = fray.find_modifier(cloth)
+    md[fray.socket_identifier(md.node_group, "Material")] = plain_material("Threads", (0.86, 0.84, 0.78))
+    camera((0.5, -0.62, 0.68), (0.02, 0.08, 0.56), lens=50.0)
+    sun((0.0, 0.0, 0.55), location=(1.5, -2.5, 3.0))
+    scene.frame_set(1)
+    return scene
+
+
 EXAMPLES = {
     "square_cloth": build_square_cloth,
     "banknote": build_banknote,
     "tshirt": build_tshirt,
+    "denim_knee": build_denim_knee,
 }
 
 
@@ -537,7 +602,7 @@ def generate(names, out: Path) -> list[Path]:
 # Pictures for the README: bake with `tearcloth bake`, then render
 
 
-TORN_FRAME = {"square_cloth": SQUARE_END, "banknote": BANKNOTE_END, "tshirt": SHIRT_END}
+TORN_FRAME = {"square_cloth": SQUARE_END, "banknote": BANKNOTE_END, "tshirt": SHIRT_END, "denim_knee": DENIM_END}
 STRIP_FRAMES = (1, 12, 22, 32, 40, 48)
 
 

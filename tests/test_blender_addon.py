@@ -20,7 +20,7 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
                "TEARCLOTH_MT_material_presets", "TEARCLOTH_UL_handles", "TEARCLOTH_UL_colliders"]
         ops = ["enable", "disable", "bake", "bake_all", "bake_cancel", "free_bake", "material_preset",
                "handle_add", "handle_remove", "collider_add", "collider_remove", "preview_clusters",
-               "export_alembic"]
+               "export_alembic", "add_frayed_edges"]
         def present():
             return dict(types=[hasattr(bpy.types, i) for i in ids],
                         ops=[hasattr(bpy.types, "TEARCLOTH_OT_" + o) for o in ops],

@@ -14,6 +14,7 @@ same way, gains 1 % (the row where the two hands rise above the sheet); torn, it
 from __future__ import annotations
 
 import json
+import math
 import re
 import shutil
 import subprocess
@@ -213,8 +214,37 @@ def test_tshirt_bakes_and_stays_outside_the_walking_body(tmp_path):
     assert silhouette(png).mean() > 0.05  # the render shows the mannequin in its shirt
 
 
+def test_denim_knee_tears_at_the_knee_and_keeps_its_frayed_edges(tmp_path):
+    """Frames 1-20 (the knee bent ~45 degrees): the panel tears, and where: the new boundary (torn
+    edges: in the cache, boundary points whose UV is inside the flat panel, not on its outline)
+    lies around the knee. The baked copy still carries the frayed-edge modifier, after the cache's."""
+    baked = bake(EXAMPLES / "denim_knee.blend", tmp_path, "--frames", "1-20")
+    assert baked["DenimKnee"]["tears"] >= 1
+    root = find_cache(tmp_path / "tearcloth_cache", "DenimKnee", "denim_knee")
+    check_cache_torn(root, 1, 20)
+    v, t, uv = cache.read_frame(root, 20)
+    corner = uv.reshape(-1, 2)
+    edges = np.sort(np.stack([t, np.roll(t, -1, axis=1)], axis=2).reshape(-1, 2), axis=1)
+    keys, counts = np.unique(edges[:, 0] * len(v) + edges[:, 1], return_counts=True)
+    boundary = np.unique(np.r_[keys[counts == 1] // len(v), keys[counts == 1] % len(v)])
+    point_uv = np.zeros((len(v), 2))
+    point_uv[t.reshape(-1)] = corner
+    panel = point_uv[boundary] * 0.25  # metres on the flat panel
+    width, height = math.pi * (examples.LEG["radius"] + 0.012), 0.85 - 0.27
+    inside = ((panel[:, 0] > 1e-4) & (panel[:, 0] < width - 1e-4) & (panel[:, 1] > 1e-4)
+              & (panel[:, 1] < height - 1e-4))
+    assert inside.sum() >= 10, "no torn edge inside the panel"
+    knee = examples.LEG["knee"] - 0.27
+    assert np.median(np.abs(panel[inside, 1] - knee)) < 0.05  # torn at the knee
+    code = ("import sys, bpy\nbpy.ops.wm.open_mainfile(filepath=sys.argv[1])\n"
+            "print('MODS', [m.name for m in bpy.data.objects['DenimKnee'].modifiers])\n")
+    proc = subprocess.run([sys.executable, "-c", code, str(tmp_path / "denim_knee.blend")], capture_output=True,
+                          text=True, timeout=120)
+    assert "MODS ['Tear Cloth', 'Tear Cloth Frayed Edges']" in proc.stdout, proc.stdout + proc.stderr
+
+
 def test_the_committed_examples_are_what_the_generator_makes(tmp_path):
-    """Regenerate all three files and compare every object, mesh (at rest and as posed by the rig),
+    """Regenerate all four files and compare every object, mesh (at rest and as posed by the rig),
     Tear Cloth setting and animated position with the committed ones: a change to the generator or
     to ``tearcloth.examples`` fails here until the examples are generated again. (The bytes of two
     saves differ anyway: Blender writes memory addresses.)"""
@@ -262,7 +292,7 @@ def test_the_committed_examples_are_what_the_generator_makes(tmp_path):
     assert proc.returncode == 0, (proc.stdout + proc.stderr)[-4000:]
     script = tmp_path / "dump.py"
     script.write_text(dump)
-    names = ("square_cloth", "banknote", "tshirt")
+    names = ("square_cloth", "banknote", "tshirt", "denim_knee")
     files = [folder / f"{name}.blend" for name in names for folder in (EXAMPLES, tmp_path)]
     proc = subprocess.run([sys.executable, str(script), str(tmp_path / "dump.json"), *map(str, files)],
                           capture_output=True, text=True, timeout=240)

@@ -210,6 +210,34 @@ def test_banknote_notch_cuts_a_v_into_the_top_edge():
     assert not np.any(v[:, 2] > top - depth + np.abs(v[:, 0]) * depth / half + 1e-9)
 
 
+def test_denim_knee_wraps_the_front_of_the_leg_with_the_warp_along_it():
+    m = examples.denim_knee()
+    facts = assert_sheet(m, loops=1)
+    assert facts["min_angle_deg"] >= 20.0 and 1500 <= m.n_triangles <= 1700
+    v, leg = m.vertices, examples.LEG
+    radius = leg["radius"] + 0.012
+    assert np.allclose(np.hypot(v[:, 0], v[:, 1]), radius)  # 12 mm outside the leg, everywhere
+    assert v[:, 1].max() <= 1e-9 and v[:, 2].min() == pytest.approx(0.27) and v[:, 2].max() == pytest.approx(0.85)
+    t = m.triangles
+    n = np.cross(v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]])
+    centre = v[t].mean(axis=1) * [1.0, 1.0, 0.0]
+    assert np.all(np.einsum("ij,ij->i", n, centre) > 0)  # facing out, away from the leg
+    # UV is the flat panel (metres / 0.25): v runs along the leg (the warp), u around it
+    assert np.allclose(m.uv[:, 1] * 0.25, v[:, 2] - 0.27)
+    assert m.uv[:, 0].max() * 0.25 == pytest.approx(math.pi * radius)
+    g = m.groups
+    assert np.array_equal(g["pin_top"] > 0, np.isclose(v[:, 2], 0.85))
+    assert np.array_equal(g["hem"] > 0, np.isclose(v[:, 2], 0.27))
+    worn = v[g["knee"] >= 1.0]
+    assert len(worn) >= 10 and np.all(np.abs(worn[:, 2] - leg["knee"]) <= 0.03 + 1e-9)
+    assert np.all(worn[:, 1] < -0.04)  # over the kneecap, the front
+    bv, bt = examples.capsule((0.0, 0.0, 0.1), (0.0, 0.0, 0.55), 0.06)
+    closed = examples.validate_mesh(bv, bt)
+    assert closed["is_closed"] and closed["is_consistently_wound"] and closed["n_components"] == 1
+    with pytest.raises(ValueError, match="cover the knee"):
+        examples.denim_knee(bottom=0.6)
+
+
 @settings(max_examples=4)
 @given(st.integers(0, 2**31 - 1), st.integers(200, 800), st.sampled_from(["square", "banknote"]))
 def test_flat_scenes_keep_their_invariants_for_any_seed(seed, target, which):

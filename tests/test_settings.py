@@ -76,7 +76,8 @@ def test_every_row_is_complete_and_consistent():
 
 def test_blender_names_are_unique_per_property_group_and_blocks_are_known():
     owners = {"material": "object", "solver": "object", "tearing": "object", "pins": "object",
-              "collision": "object", "cache": "object", "export": "scene", "haptics": "haptics", "hand": "hand"}
+              "collision": "object", "cache": "object", "export": "scene", "haptics": "haptics", "hand": "hand",
+              "fray": "node group"}
     assert set(table.GROUPS) == set(owners)
     names = {}
     for row in table.SETTINGS:

@@ -5,6 +5,8 @@ What each file owns:
 * ``props``     settings stored in the .blend (``Object.tearcloth``, ``Scene.tearcloth``)
 * ``convert``   scene units -> SI, meshes -> triangle arrays, world/local spaces (the one boundary)
 * ``modifier``  the "Tear Cloth" modifier (a stock Mesh Sequence Cache) and cache paths
+* ``fray``      the frayed-edge Geometry Nodes group (stock nodes, renders without the add-on)
+                and its modifier after "Tear Cloth"
 * ``jobs``      the one registry of running jobs (bakes and live sessions, by object name)
 * ``inputs``    validation (object + scene -> ``tearcloth.bake.BakePlan``) and per-frame inputs,
                 on the main thread, for the bake and the live session alike

@@ -19,7 +19,9 @@ What this file owns
   the active UV map, vertex groups become weight arrays, and vertices that belong to no face
   (loose vertices, wire edges) are dropped because a membrane solver has nothing to do with them;
   ``MeshArrays.kept`` maps back to the mesh's own vertex indices and ``MeshArrays.polygons``
-  each triangle back to the polygon it came from, so messages name the user's elements.
+  each triangle back to the polygon it came from, so messages name the user's elements. A Face
+  Float attribute ``tearcloth_grain_angle`` (radians; ``GRAIN_ATTRIBUTE``) is the user's per-face
+  override of the grain direction, carried to every triangle of its polygon.
 * Colliders are read from the EVALUATED object (modifiers and armatures applied) at the current
   frame, in world space, metres.
 """
@@ -158,6 +160,8 @@ def matrix_array(matrix) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 # Meshes
 
+GRAIN_ATTRIBUTE = "tearcloth_grain_angle"
+
 
 @dataclass
 class MeshArrays:
@@ -179,6 +183,8 @@ class MeshArrays:
     polygons: np.ndarray | None = None  # (m,) the mesh's polygon index of every triangle
     uv_name: str | None = None          # the name of the UV map corner_uv comes from (the active one)
     other_uv: list = field(default_factory=list)  # names of the UV maps that are not carried
+    grain_angles: np.ndarray | None = None  # (m,) radians: the GRAIN_ATTRIBUTE of each triangle's polygon
+    grain_problem: str | None = None        # why GRAIN_ATTRIBUTE cannot be read (wrong domain or type)
 
 
 def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> MeshArrays:
@@ -231,6 +237,8 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
                 if name is not None:
                     groups[name][v.index] = g.weight
 
+    grain_angles, grain_problem = _grain_angles(mesh, tri_polygons)
+
     used = np.zeros(n, dtype=bool)
     used[tri_verts.reshape(-1)] = True
     kept = np.flatnonzero(used).astype(np.int64)
@@ -252,7 +260,22 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
         polygons=tri_polygons,
         uv_name=uv_name,
         other_uv=other_uv,
+        grain_angles=grain_angles,
+        grain_problem=grain_problem,
     )
+
+
+def _grain_angles(mesh, tri_polygons):
+    """(per-triangle grain angles or None, problem text or None) from the mesh's GRAIN_ATTRIBUTE."""
+    attr = mesh.attributes.get(GRAIN_ATTRIBUTE)
+    if attr is None:
+        return None, None
+    if attr.domain != "FACE" or attr.data_type != "FLOAT":
+        return None, (f"the attribute {GRAIN_ATTRIBUTE!r} is {attr.data_type} on the {attr.domain} domain; the grain "
+                      "override must be a Float attribute on the Face domain (the grain angle in radians)")
+    per_face = np.empty(len(mesh.polygons), dtype=np.float64)
+    attr.data.foreach_get("value", per_face)
+    return per_face[tri_polygons], None
 
 
 def evaluated_mesh_arrays(obj, depsgraph, **kwargs) -> MeshArrays:

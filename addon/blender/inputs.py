@@ -19,6 +19,7 @@ import numpy as np
 
 from .. import cache, spaces
 from ..bake import BakePlan, FrameInputs
+from ..cloth import Cloth
 from . import convert, modifier
 from .props import COLLIDER_TYPES
 from .report import BakeError, Reports, not_a_mesh, object_kind
@@ -203,6 +204,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         reports.warning(f"{obj.name}: only the active UV map ({mesh.uv_name!r}) is carried through tears into the "
                         f"cache; {', '.join(repr(n) for n in mesh.other_uv)} "
                         f"{'is' if len(mesh.other_uv) == 1 else 'are'} not in the baked mesh")
+    grain_angles = _grain_angles(obj, mesh, reports)
     if mesh.loose:
         reports.warning(f"{obj.name}: {mesh.loose} loose {'vertices' if mesh.loose != 1 else 'vertex'} (in no face) "
                         "left out of the simulation")
@@ -266,9 +268,34 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         blend=bpy.data.filepath,
         triangle_polygons=mesh.polygons,
         vertex_ids=mesh.kept,
+        grain_angles=grain_angles,
     )
     sources = Sources(obj.name, follow, list(body_triangles))
     return plan, sources
+
+
+def _grain_angles(obj, mesh: convert.MeshArrays, reports: Reports):
+    """The per-triangle grain override the plan carries (None: the material's own grain), with
+    its problems in ``reports``: a wrong attribute or a value that is not a number is an error,
+    a core without grain directions a warning (the override is then not used)."""
+    name = convert.GRAIN_ATTRIBUTE
+    if mesh.grain_problem is not None:
+        reports.error(f"{obj.name}: {mesh.grain_problem}")
+        return None
+    angles = mesh.grain_angles
+    if angles is None:
+        return None
+    bad = np.flatnonzero(~np.isfinite(angles))
+    if bad.size:
+        polygons = sorted({int(mesh.polygons[i]) for i in bad})
+        shown = ", ".join(map(str, polygons[:10])) + (", ..." if len(polygons) > 10 else "")
+        reports.error(f"{obj.name}: {name!r} is not a number on polygon{'s' if len(polygons) > 1 else ''} {shown}")
+        return None
+    if not hasattr(Cloth, "set_grain_angles"):
+        reports.warning(f"{obj.name}: the mesh has a {name!r} attribute, but this build of Tear Cloth has no grain "
+                        "directions; it is not used")
+        return None
+    return angles
 
 
 def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> None:

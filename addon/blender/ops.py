@@ -1,5 +1,5 @@
 """Tear Cloth operators: enable/disable, bake (modal with a worker thread, or inline from a
-script), bake all, cancel, free, material presets, handle and collider lists, cluster preview,
+script), bake all, cancel, free, frayed edges, material presets, handle and collider lists, cluster preview,
 Alembic export, and the live haptic session (start - modal -, stop, device discovery, device
 assignment, force log).
 
@@ -21,7 +21,7 @@ from bpy.types import Operator
 from .. import settings as table
 from .. import spaces
 from ..materials import MATERIALS
-from . import bake, convert, haptic_session, jobs, modifier
+from . import bake, convert, fray, haptic_session, jobs, modifier
 from .report import BakeError, Reports, not_a_mesh
 
 CLUSTER_ATTRIBUTE = "tearcloth_clusters"
@@ -272,6 +272,26 @@ class TEARCLOTH_OT_free_bake(_OnTearCloth, Operator):
         ok = bake.free_bake(context.object, reports)
         reports.to_operator(self)
         return {"FINISHED"} if ok else {"CANCELLED"}
+
+
+class TEARCLOTH_OT_add_frayed_edges(_OnTearCloth, Operator):
+    """Grow short loose threads along the warp and weft at the torn edges of the bake (a Geometry Nodes modifier after "Tear Cloth" that renders without the add-on)"""
+
+    bl_idname = "tearcloth.add_frayed_edges"
+    bl_label = "Add Frayed Edges"
+
+    def execute(self, context):
+        obj = context.object
+        reports = Reports()
+        if fray.find_modifier(obj) is not None:
+            reports.info(f"{obj.name}: it has frayed edges already (modifier {fray.MODIFIER_NAME!r})")
+            reports.to_operator(self)
+            return {"CANCELLED"}
+        fray.add_modifier(obj, context.scene, obj.active_material)
+        if modifier.attached_path(obj) is None:
+            reports.info(f"{obj.name}: frayed edges added; threads appear along the tears once it is baked")
+        reports.to_operator(self)
+        return {"FINISHED"}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -786,6 +806,7 @@ classes = (
     TEARCLOTH_OT_bake_all,
     TEARCLOTH_OT_bake_cancel,
     TEARCLOTH_OT_free_bake,
+    TEARCLOTH_OT_add_frayed_edges,
     TEARCLOTH_OT_material_preset,
     TEARCLOTH_OT_material_preset_save,
     TEARCLOTH_OT_handle_add,

@@ -61,12 +61,15 @@ def blender_property(row):
     soft_min/soft_max = soft bounds, scene lengths with unit LENGTH (shown in scene units)."""
     common = dict(name=row.label, description=row.description)
     hints = dict(row.ui)
+    hints.pop("when", None)  # a layout rule for ui.py, not a property option
     options = _BLEND_RELATIVE if hints.pop("blend_relative", False) else {}
     if row.kind in ("float", "vector"):
         kw = dict(common, **_bounds(row, row.hard, "min", "max", float), **_bounds(row, row.soft, "soft_min",
                                                                                   "soft_max", float), **hints)
         if row.is_scene_length:
             kw.update(unit="LENGTH", subtype="TRANSLATION" if row.kind == "vector" else "DISTANCE")
+        elif row.unit == "rad":  # stored in radians (SI), shown in the scene's rotation units
+            kw.update(unit="ROTATION", subtype="ANGLE")
         if row.kind == "vector":
             return FloatVectorProperty(size=len(row.default), default=row.default, **kw)
         return FloatProperty(default=row.default, **kw)

@@ -19,14 +19,41 @@ from bpy.types import Menu, Panel, UIList
 from .. import cache
 from .. import settings as table
 from ..materials import MATERIALS
-from . import bake, haptic_session, modifier
+from . import bake, fray, haptic_session, modifier
 from .ops import PRESET_SUBDIR
 
 
-def _rows(layout, data, block):
-    """The rows of a settings block, in table order (the block names the panel's grouping)."""
-    for row in table.block(block):
-        layout.prop(data, row.blender_name)
+def _shown(row, data) -> bool:
+    """Whether a row is drawn: every switch its ``ui["when"]`` names is on (a value that only
+    means something under another block's switch, e.g. a weft value under the orthotropic one)."""
+    when = row.ui.get("when", ())
+    return all(getattr(data, table.setting(row.group, name).blender_name) for name in
+               ((when,) if isinstance(when, str) else when))
+
+
+def _rows(layout, data, block, rows=None):
+    """The rows of a settings block, in table order (the block names the panel's grouping). The
+    layout rule: a bool row is the switch of the rows after it in its block, which are drawn only
+    while it is on."""
+    switch = None
+    for row in table.block(block) if rows is None else rows:
+        if switch is not None and not getattr(data, switch.blender_name):
+            continue
+        if _shown(row, data):
+            layout.prop(data, row.blender_name)
+        if row.kind == "bool":
+            switch = row
+
+
+def _blocks(group: str) -> list:
+    """The blocks of a group, in table order."""
+    return list(dict.fromkeys(row.block for row in table.rows(group) if row.block))
+
+
+def _switched(block: str) -> bool:
+    """A block whose first row is a bool is a switched block: a sub-panel with the switch in its
+    header and the other rows inside (drawn only while the switch is on)."""
+    return table.block(block)[0].kind == "bool"
 
 
 def _cache_state(obj):
@@ -137,8 +164,33 @@ class TEARCLOTH_PT_material(TearClothPanel, Panel):
     def draw(self, context):
         layout, settings = _settings_layout(self, context)
         flow = layout.grid_flow(row_major=False, columns=0, even_columns=True, even_rows=False, align=True)
-        for block in ("material.elastic", "material.tearing", "material.damping"):
-            _rows(flow.column(), settings, block)
+        for block in _blocks("material"):
+            if not _switched(block):
+                _rows(flow.column(), settings, block)
+
+
+def _switched_panel(block: str, parent: str):
+    """The sub-panel of a switched block (see ``_switched``), e.g. the orthotropic and the plastic
+    rows of the material."""
+    switch, *rows = table.block(block)
+
+    def draw_header(self, context):
+        self.layout.active = not _baked(context.object)
+        self.layout.prop(context.object.tearcloth, switch.blender_name, text="")
+
+    def draw(self, context):
+        layout, settings = _settings_layout(self, context)
+        if getattr(settings, switch.blender_name):
+            _rows(layout.column(), settings, block, rows)
+
+    return type(f"TEARCLOTH_PT_{block.replace('.', '_')}", (TearClothPanel, Panel), {
+        "bl_label": switch.label, "bl_parent_id": parent, "bl_options": {"DEFAULT_CLOSED"},
+        "draw_header": draw_header, "draw": draw, "__doc__": switch.description})
+
+
+# Made from the table at import: a switched block added to the material rows gets its sub-panel.
+MATERIAL_SUBPANELS = tuple(_switched_panel(block, "TEARCLOTH_PT_material") for block in _blocks("material")
+                           if _switched(block))
 
 
 class TEARCLOTH_PT_quality(TearClothPanel, Panel):
@@ -232,6 +284,19 @@ class TEARCLOTH_PT_collision(TearClothPanel, Panel):
         col.operator("tearcloth.preview_clusters", icon="GROUP_VERTEX")
 
 
+def _draw_fray(layout, obj):
+    """The frayed-edge button, or the modifier's switches once it is there (its inputs are in the
+    modifier stack, where Blender draws a node group's inputs)."""
+    md = fray.find_modifier(obj)
+    row = layout.row(align=True)
+    if md is None:
+        row.operator("tearcloth.add_frayed_edges", icon="STRANDS")
+        return
+    row.label(text="Frayed Edges", icon="STRANDS")
+    row.prop(md, "show_viewport", text="")
+    row.prop(md, "show_render", text="")
+
+
 class TEARCLOTH_PT_cache(TearClothPanel, Panel):
     bl_label = "Cache"
     bl_parent_id = "TEARCLOTH_PT_main"
@@ -260,6 +325,7 @@ class TEARCLOTH_PT_cache(TearClothPanel, Panel):
         row.operator("tearcloth.bake", text="Resume").resume = True
         row = layout.row(align=True)
         row.operator("tearcloth.free_bake", text="Free Bake")
+        _draw_fray(layout, obj)
         row = layout.row(align=True)
         row.operator("tearcloth.bake_all", text="Bake All")
         row.operator("tearcloth.export_alembic", text="Export Alembic")
@@ -395,6 +461,7 @@ classes = (
     TEARCLOTH_UL_colliders,
     TEARCLOTH_PT_main,
     TEARCLOTH_PT_material,
+    *MATERIAL_SUBPANELS,
     TEARCLOTH_PT_quality,
     TEARCLOTH_PT_pins,
     TEARCLOTH_PT_seams,

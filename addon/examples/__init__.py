@@ -10,7 +10,8 @@ One file per thing:
   * ``walk``       ``bone_matrices``, ``body_pose``, ``WALK_END``: the walk, then the reach
   * ``distance``   ``closest_points`` and the per-part distances of the shirt fit
   * ``shirt``      the T-shirt's pattern, sewing, wrap, fit and clean-up
-  * ``scenes``     ``square_cloth``, ``banknote``, ``tshirt``: the scenes, assembled
+  * ``scenes``     ``square_cloth``, ``banknote``, ``tshirt``, ``denim_knee`` (and the leg's
+                   ``capsule``): the scenes, assembled
 
 Everything is in SI units (metres, seconds), Z up, characters and sheets facing -Y.
 """
@@ -26,7 +27,7 @@ from .distance import closest_points
 from .mannequin import Body, mannequin
 from .mesh import MIN_TARGET_TRIANGLES, ClothMesh, refine, validate_mesh
 from .mesher import delaunay_2d, triangulate_polygon
-from .scenes import BANKNOTE_SIZE, banknote, square_cloth, tshirt
+from .scenes import BANKNOTE_SIZE, LEG, banknote, capsule, denim_knee, square_cloth, tshirt
 from .walk import WALK_END, body_pose, bone_matrices
 
 __all__ = [
@@ -46,4 +47,7 @@ __all__ = [
     "bone_matrices",
     "WALK_END",
     "tshirt",
+    "LEG",
+    "capsule",
+    "denim_knee",
 ]

@@ -1,10 +1,11 @@
 """The example scenes of Tear Cloth, assembled from the mesher, the mannequin and the shirt: the
 paper's square cloth, banknote and T-shirt (Le Gouis et al., WHC 2017, Table I: ~1.4K, ~1.9K and
-~3.3K triangles).
+~3.3K triangles), and a denim knee.
 
-This file owns ``square_cloth``, ``banknote`` (with its optional notch) and ``tshirt`` (pattern,
+This file owns ``square_cloth``, ``banknote`` (with its optional notch), ``tshirt`` (pattern,
 wrap, fit and clean-up in order, then UVs and the vertex groups the hands grasp and the pins
-hold). Each is seeded and deterministic: the example .blend files and the benchmarks are made from
+hold), ``denim_knee`` (the front panel of a jeans leg, worn at the knee) and ``capsule`` (the
+leg's thigh and shin). Each is seeded and deterministic: the example .blend files and the benchmarks are made from
 them. SI units, Z up, sheets facing -Y (toward Blender's front view).
 """
 from __future__ import annotations
@@ -247,3 +248,82 @@ def tshirt(
         "shoulders": shoulders,
     }
     return ClothMesh(x, tris.astype(np.int32), uv, groups, "tshirt", corner)
+
+
+# ------------------------------------------------------------------------------------------------
+# Denim knee: the front panel of a jeans leg over a leg that bends at the knee
+
+# The leg, standing, axis along Z at x = y = 0 (metres): hip, knee and ankle heights, its radius.
+LEG = {"hip": 1.0, "knee": 0.55, "ankle": 0.1, "radius": 0.06}
+
+
+def capsule(start, end, radius: float, segments: int = 24, rings: int = 6):
+    """A closed capsule (cylinder with hemispherical ends) from ``start`` to ``end`` (metres):
+    (vertices (n, 3), triangles (m, 3)), wound so the normals point out. The segment must be
+    parallel to Z (the leg's bones at rest)."""
+    start, end = np.asarray(start, dtype=np.float64), np.asarray(end, dtype=np.float64)
+    radius = check_positive("radius", radius)
+    axis = end - start
+    if np.linalg.norm(axis[:2]) > 1e-12 or abs(axis[2]) < 1e-12:
+        raise ValueError("capsule: start and end must differ along Z only")
+    lo, hi = min(start[2], end[2]), max(start[2], end[2])
+    # rings of latitude: the bottom hemisphere, then the top one (the cylinder joins them)
+    lat = np.r_[np.linspace(-math.pi / 2, 0.0, rings + 1)[1:], np.linspace(0.0, math.pi / 2, rings + 1)[:-1]]
+    heights = np.r_[np.full(rings, lo), np.full(rings, hi)]
+    a = np.linspace(0.0, 2.0 * math.pi, segments, endpoint=False)
+    verts = [[start[0], start[1], lo - radius]]
+    for phi, z in zip(lat, heights):
+        r = radius * math.cos(phi)
+        verts += [[start[0] + r * math.cos(t), start[1] + r * math.sin(t), z + radius * math.sin(phi)] for t in a]
+    verts.append([start[0], start[1], hi + radius])
+    tris = []
+    ring = lambda k, i: 1 + k * segments + i % segments  # noqa: E731
+    for i in range(segments):
+        tris.append([0, ring(0, i + 1), ring(0, i)])
+    for k in range(2 * rings - 1):
+        for i in range(segments):
+            tris.append([ring(k, i), ring(k, i + 1), ring(k + 1, i + 1)])
+            tris.append([ring(k, i), ring(k + 1, i + 1), ring(k + 1, i)])
+    top = len(verts) - 1
+    for i in range(segments):
+        tris.append([top, ring(2 * rings - 1, i), ring(2 * rings - 1, i + 1)])
+    return np.array(verts), np.array(tris, dtype=np.int32)
+
+
+def denim_knee(
+    clearance: float = 0.012,
+    top: float = 0.85,
+    bottom: float = 0.27,
+    target_triangles: int = 1600,
+    seed: int = 0,
+    worn_radius: float = 0.03,
+) -> ClothMesh:
+    """The front half of a jeans leg around ``LEG`` standing: a half cylinder of radius leg radius +
+    ``clearance`` from height ``bottom`` to ``top`` (metres), facing -Y (the front), meshed
+    irregularly. UV: u across the leg, v along it, in metres of the flat panel over 0.25 m (the
+    warp of jeans runs along the leg: v).
+
+    Groups: ``pin_top`` (the top edge: where the panel is held on the thigh), ``hem`` (the bottom
+    edge: held on the shin), ``knee`` (the worn patch over the kneecap: 1 within ``worn_radius``
+    of the front of the knee, fading to 0 at twice that, measured on the flat panel).
+    """
+    clearance = check_positive("clearance", clearance)
+    target_triangles = check_count(target_triangles)
+    if not bottom < LEG["knee"] < top:
+        raise ValueError(f"the panel ({bottom}-{top} m) must cover the knee at {LEG['knee']} m")
+    radius = LEG["radius"] + clearance
+    width, height = math.pi * radius, top - bottom
+    rect = np.array([[0.0, 0.0], [width, 0.0], [width, height], [0.0, height]])
+    p, tris, _ = triangulate_polygon(rect, target_triangles=target_triangles, seed=seed, relax_rounds=2)
+    angle = p[:, 0] / radius - math.pi / 2  # -90 deg (the leg's -X side) to +90 deg (+X), 0 at the front
+    verts = np.stack([radius * np.sin(angle), -radius * np.cos(angle), bottom + p[:, 1]], axis=1)
+    # (u, v) counter-clockwise seen from outside: u runs -X -> +X across the front, v up
+    tol = 1e-9
+    knee = np.array([width / 2.0, LEG["knee"] - bottom])
+    d = np.linalg.norm(p - knee, axis=1)
+    groups = {
+        "pin_top": (p[:, 1] >= height - tol).astype(np.float64),
+        "hem": (p[:, 1] <= tol).astype(np.float64),
+        "knee": np.clip(2.0 - d / worn_radius, 0.0, 1.0),
+    }
+    return ClothMesh(verts, tris, p / 0.25, groups, "denim_knee")
