@@ -37,8 +37,9 @@ from .report import BakeError
 MODIFIER_NAME = "Tear Cloth"
 MODIFIER_TYPE = "MESH_SEQUENCE_CACHE"
 DEFAULT_CACHE_FOLDER = settings.default("cache", "cache_folder")
-# What the MSC reads from our USD: positions, faces, UVs and the 'velocity' attribute.
-READ_DATA = {"VERT", "POLY", "UV", "ATTRIBUTES"}
+# What the MSC reads from our USD: positions, faces, UVs, colour attributes (without COLOR the
+# reader leaves them at white) and the other attributes ('velocity', the user's, torn/warp).
+READ_DATA = {"VERT", "POLY", "UV", "COLOR", "ATTRIBUTES"}
 
 
 def read_data(md) -> set:
