@@ -1020,6 +1020,7 @@ class CacheWriter:
         # types) must be declared here or readers do not see 'st' as a primvar at all.
         for name in self._attribute_names():
             self._declare(prim, name)
+        self._order_primvars(prim)
         if self._frames:
             prefix = _relative_asset(self.path, self.frames_dir) + "/"
             prim.SetInfo(
@@ -1035,6 +1036,14 @@ class CacheWriter:
                 },
             )
         self.bytes_written += _export_atomic(layer, self.path, self.durable)
+
+    def _order_primvars(self, prim) -> None:
+        """Blender's USD reader makes the FIRST UV primvar it meets the active (and render) UV map,
+        and it meets them in the prim's property order, alphabetical unless ``propertyOrder`` says
+        otherwise: the active map goes first, or a map named 'Other' would win over 'UVMap'
+        (checked with bpy 5.0.1 and 5.3.0)."""
+        if self._has_uv and self._primvars:
+            prim.propertyOrder = [self._uv_attr] + ["primvars:" + name for name in self._primvars]
 
     def _frame_file_ok(self, frame: int, file: str) -> tuple[bool, bool] | None:
         """(has_uv, has_velocities) of a complete, readable frame file, or None."""
