@@ -1,0 +1,70 @@
+"""The attribute tracker without Blender (tearcloth.attributes): the warp direction and its grain
+angle, the X-axis fallback without UVs, corner/face/point attributes through a scripted tear, and
+torn_time carried over a resumed bake. The Blender round trip is tests/test_blender_attributes.py."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from meshes import sheet
+from tearcloth import attributes as attrs
+from tearcloth.cloth import Cloth
+from tearcloth.materials import material
+
+
+def test_warp_follows_u_turned_by_the_grain_angle_and_falls_back_to_local_x():
+    v, t = sheet(0.1, 0.1, 5, 5)          # in the XY plane
+    uv = v[:, [1, 0]][t] * 10.0           # u grows along +y, v along +x
+    warp = attrs.warp_directions(v, t, uv, np.zeros(len(t)))
+    np.testing.assert_allclose(warp, np.tile([0.0, 1.0, 0.0], (len(v), 1)), atol=1e-6)
+    n = np.cross(v[t[0, 1]] - v[t[0, 0]], v[t[0, 2]] - v[t[0, 0]])
+    turned = attrs.warp_directions(v, t, uv, np.full(len(t), np.pi / 2))
+    np.testing.assert_allclose(turned, np.tile(np.cross(n / np.linalg.norm(n), [0, 1, 0]), (len(v), 1)), atol=1e-6)
+    rot = np.eye(4)
+    rot[:3, :3] = [[0, -1, 0], [1, 0, 0], [0, 0, 1]]  # the object's local X is world +y
+    fallback = attrs.warp_directions(v, t, None, np.zeros(len(t)), rot)
+    np.testing.assert_allclose(fallback, np.tile([0.0, 1.0, 0.0], (len(v), 1)), atol=1e-6)
+
+
+def test_tear_carries_attributes_marks_torn_points_and_resumes_torn_time():
+    v, t = sheet(0.1, 0.1, 11, 11)
+    m = len(t)
+    point = attrs.UserAttribute("p", "POINT", "FLOAT", v[:, :1] * 10.0)   # linear in x
+    face = attrs.UserAttribute("f", "FACE", "INT", np.arange(m, dtype=float)[:, None])
+    # each face's own constant at its corners: sharp across every edge
+    corner = attrs.UserAttribute("c", "CORNER", "FLOAT", np.repeat(np.arange(m, dtype=float)[:, None, None], 3, axis=1))
+    uv = v[:, :2][t] * 10.0
+    groups = attrs.carried_groups(v, [point, face, corner])
+    cloth = Cloth(v, t, material("cotton"), uv=uv, groups=groups)
+    tracker = attrs.AttributeTracker(v, t, [point, face, corner])
+    before = tracker.frame(cloth, 0.0, None, cloth.corner_uv)
+    assert before["torn"][2].sum() == 0 and np.all(before["torn_time"][2] == -1)
+    assert cloth.scripted_tear(60, (0.37, 1.0, 0.0), 0.03) > 0
+    after = tracker.frame(cloth, 0.5, None, cloth.corner_uv)
+    x = cloth.positions[:, 0]
+    np.testing.assert_allclose(after["p"][2], x * 10.0, atol=1e-12)   # interpolated with the split weights
+    tri = cloth.triangles
+    rest_centroid = cloth.rest_positions[tri].mean(axis=1)
+    faces = after["f"][2]
+    np.testing.assert_array_equal(faces[:m], np.arange(m))           # old triangles keep their face
+    # the cut split triangles; each new one lies inside the face it came from
+    assert len(tri) > m and len(cloth.positions) > len(v)
+    assert tracker._bary(rest_centroid, faces).min() > -1e-9
+    np.testing.assert_allclose(after["c"][2].reshape(-1, 3), np.repeat(faces[:, None], 3, axis=1))
+    torn = after["torn"][2]
+    assert torn.sum() >= 4 and np.all(after["torn_time"][2][torn == 1] == 0.5)
+    assert np.all(after["torn_time"][2][torn == 0] == -1)
+    # resume: a new tracker continues from the last frame's torn_time, and earlier tears keep theirs
+    again = attrs.AttributeTracker(v, t, [point, face, corner])
+    again.restore_torn_time(after["torn_time"][2])
+    later = again.frame(cloth, 1.0, None, cloth.corner_uv)
+    np.testing.assert_array_equal(later["torn_time"][2], after["torn_time"][2])
+
+
+def test_unsupported_types_say_why():
+    assert "float colours" in attrs.unsupported("BYTE_COLOR", "POINT")
+    assert "edge" in attrs.unsupported("FLOAT", "EDGE")
+    assert "UV maps" in attrs.unsupported("FLOAT2", "POINT")
+    assert attrs.unsupported("FLOAT_COLOR", "CORNER") is None
+    with pytest.raises(KeyError):
+        attrs.USD_TYPES["STRING"]
