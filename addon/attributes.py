@@ -138,10 +138,9 @@ class AttributeTracker:
         self._area2 = np.linalg.norm(n, axis=1)
         self._normal = n / np.maximum(self._area2, 1e-300)[:, None]
         # an original edge (opposite corner k) on the user's boundary: used by one triangle only
-        edges = np.stack([self.tri0[:, [1, 2]], self.tri0[:, [2, 0]], self.tri0[:, [0, 1]]], axis=1)
-        keys = np.sort(edges.reshape(-1, 2), axis=1)
-        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-        self._boundary0 = (counts[inverse.reshape(-1)] == 1).reshape(m0, 3)
+        self._boundary0 = _single_edges(self.tri0).reshape(m0, 3)
+        pad = 1e-6 * (np.ptp(self.rest0, axis=0).max() if len(self.rest0) else 1.0)
+        self._box_lo, self._box_hi = p.min(axis=1) - pad, p.max(axis=1) + pad
         self._origin = np.arange(m0, dtype=np.int64)  # original triangle of every triangle so far
         self._torn_time = np.zeros(0)
 
@@ -158,23 +157,20 @@ class AttributeTracker:
         return np.stack([1.0 - b1 - b2, b1, b2], axis=1)
 
     def _locate(self, centroids: np.ndarray) -> np.ndarray:
-        """The original triangle each rest centroid lies in: the one it is closest to (inside and
-        in its plane). Brute force over the original triangles, in chunks: only triangles made
-        since the last frame are located."""
-        m0 = len(self.tri0)
+        """The original triangle each rest centroid lies in: of the original triangles whose box
+        holds it, the one it is closest to (inside and in its plane). Only triangles made since the
+        last frame are located, a handful per frame."""
         out = np.empty(len(centroids), dtype=np.int64)
-        chunk = max(1, 2_000_000 // max(m0, 1))
-        all_tris = np.arange(m0)
-        for s in range(0, len(centroids), chunk):
-            c = centroids[s:s + chunk]
-            k = len(c)
-            pts = np.repeat(c, m0, axis=0)
-            tris = np.tile(all_tris, k)
-            b = self._bary(pts, tris).reshape(k, m0, 3)
-            outside = np.maximum(-b.min(axis=2), 0.0)
-            off_plane = np.abs(((pts - self._a[tris]) * self._normal[tris]).sum(1)).reshape(k, m0)
-            size = np.sqrt(np.maximum(self._area2, 1e-300))[None, :]
-            out[s:s + chunk] = np.argmin(outside + off_plane / size, axis=1)
+        size = np.sqrt(np.maximum(self._area2, 1e-300))
+        for i, c in enumerate(centroids):
+            near = np.flatnonzero(np.all((self._box_lo <= c) & (c <= self._box_hi), axis=1))
+            if not len(near):
+                near = np.arange(len(self.tri0))
+            pts = np.broadcast_to(c, (len(near), 3))
+            b = self._bary(pts, near)
+            outside = np.maximum(-b.min(axis=1), 0.0)
+            off_plane = np.abs(((pts - self._a[near]) * self._normal[near]).sum(1))
+            out[i] = near[np.argmin(outside + off_plane / size[near])]
         return out
 
     def origins(self, triangles: np.ndarray, rest0: np.ndarray) -> np.ndarray:
@@ -222,9 +218,7 @@ class AttributeTracker:
 
     def _torn_points(self, tris, rest0, origin, n) -> np.ndarray:
         edges = np.stack([tris[:, [1, 2]], tris[:, [2, 0]], tris[:, [0, 1]]], axis=1).reshape(-1, 2)
-        keys = np.sort(edges, axis=1)
-        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-        boundary = np.flatnonzero(counts[inverse.reshape(-1)] == 1)
+        boundary = np.flatnonzero(_single_edges(tris))
         torn = np.zeros(n, dtype=bool)
         if len(boundary):
             e = edges[boundary]
@@ -243,19 +237,30 @@ class AttributeTracker:
         tt[:keep] = self._torn_time[:keep]
         fresh = torn & (tt < 0)
         if fresh.any():
-            # a duplicate made by the separation is the same material point as its twin
-            _, twin = np.unique(rest0, axis=0, return_inverse=True)
-            twin = twin.reshape(-1)
-            earliest = np.full(twin.max() + 1, np.inf)
-            np.minimum.at(earliest, twin[tt >= 0], tt[tt >= 0])
-            inherited = earliest[twin[fresh]]
-            tt[fresh] = np.where(np.isfinite(inherited), inherited, time)
+            # a duplicate made by the separation is the same material point as its twin (the same
+            # carried rest position, bit for bit): it tore when its twin did
+            earliest: dict = {}
+            for v in np.flatnonzero(tt >= 0):
+                key = rest0[v].tobytes()
+                earliest[key] = min(earliest.get(key, np.inf), tt[v])
+            for v in np.flatnonzero(fresh):
+                tt[v] = earliest.get(rest0[v].tobytes(), time)
         self._torn_time = tt
         return tt.astype(np.float32)
 
     def restore_torn_time(self, values) -> None:
         """Continue a resumed bake: the ``torn_time`` of the cache's last frame."""
         self._torn_time = np.asarray(values, dtype=np.float64).reshape(-1).copy()
+
+
+def _single_edges(tris: np.ndarray) -> np.ndarray:
+    """(3m,) True where the edge opposite each corner (order 12, 20, 01) has no other triangle."""
+    t = np.asarray(tris, dtype=np.int64)
+    e = np.stack([t[:, [1, 2]], t[:, [2, 0]], t[:, [0, 1]]], axis=1).reshape(-1, 2)
+    lo, hi = e.min(axis=1), e.max(axis=1)
+    key = lo * (int(t.max(initial=0)) + 1) + hi  # one integer per edge: a 1-D unique is fast
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    return counts[inverse.reshape(-1)] == 1
 
 
 def warp_directions(positions, triangles, corner_uv, grain, object_matrix=None) -> np.ndarray:
