@@ -36,11 +36,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Blender attribute type -> (USD value type, components). Left out because Blender's USD reader
-# does not give them back under their name and type: BYTE_COLOR (it fills only float colours and
-# skips an existing byte layer of that name), FLOAT2 outside the corner domain (it makes them UV
-# maps), double/float4 (not converted), 2D ints, matrices, strings, and the EDGE domain (no USD
-# interpolation). QUATERNION is read back but its component order is not checked yet.
+# Blender attribute type -> (USD value type, components). A BYTE_COLOR plays back as a float
+# colour of its name: Blender's USD reader fills float colours only and skips an existing byte
+# layer of that name, so the played object gets a modifier that removes the byte layer from the
+# reader's input (blender/modifier.py, set_float_colours). Left out because Blender's USD reader
+# does not give them back under their name and type: FLOAT2 outside the corner domain (it makes
+# them UV maps), double/float4 (not converted), 2D ints, matrices, strings, and the EDGE domain (no
+# USD interpolation). QUATERNION is read back but its component order is not checked yet.
 USD_TYPES = {
     "FLOAT": ("FloatArray", 1),
     "INT": ("IntArray", 1),
@@ -48,6 +50,7 @@ USD_TYPES = {
     "INT8": ("UCharArray", 1),      # read back as INT8: the byte's two's complement
     "FLOAT_VECTOR": ("Vector3fArray", 3),
     "FLOAT_COLOR": ("Color4fArray", 4),
+    "BYTE_COLOR": ("Color4fArray", 4),
     "FLOAT2": ("TexCoord2fArray", 2),  # corner domain only: a UV map
 }
 INTERPOLATION = {"POINT": "vertex", "CORNER": "faceVarying", "FACE": "uniform"}
@@ -86,9 +89,6 @@ def unsupported(data_type: str, domain: str) -> str | None:
     """Why an attribute of that type and domain cannot be carried (None: it can)."""
     if domain not in INTERPOLATION:
         return f"{domain.lower()} attributes have no USD primvar Blender reads back"
-    if data_type == "BYTE_COLOR":
-        return ("Blender's USD reader fills float colours only; convert it to a float colour "
-                "(Color Attributes > Convert Color Attribute) to carry it")
     if data_type == "FLOAT2" and domain != "CORNER":
         return "Blender reads 2D vectors back as UV maps (corners) only"
     if data_type not in USD_TYPES:

@@ -62,7 +62,7 @@ def test_tear_carries_attributes_marks_torn_points_and_resumes_torn_time():
 
 
 def test_unsupported_types_say_why():
-    assert "float colours" in attrs.unsupported("BYTE_COLOR", "POINT")
+    assert attrs.unsupported("BYTE_COLOR", "POINT") is None  # plays as a float colour
     assert "edge" in attrs.unsupported("FLOAT", "EDGE")
     assert "UV maps" in attrs.unsupported("FLOAT2", "POINT")
     assert attrs.unsupported("FLOAT_COLOR", "CORNER") is None

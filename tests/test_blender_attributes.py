@@ -8,7 +8,10 @@ The sheet of test_blender_bake (20 x 20 vertices, pinned, pulled until it tears)
   weights keeps it equal to ``Second`` at every corner, new vertices included;
 * ``ccol``: a float corner colour (u, v, polygon parity, 1): sharp across every edge;
 * ``face_id``: a float face attribute, the polygon index: a new triangle must lie inside it;
-* ``bcol``: a byte colour, which Blender's USD reader cannot fill: reported by name.
+* ``bcol``: a byte point colour (u, v, 0.25, 1): plays as a float colour of its name (a stock
+  Geometry Nodes modifier removes the byte layer from the reader's input);
+* ``ccol`` is the active colour: it stays active and becomes the render colour;
+* ``edge_w``: an edge attribute, which USD cannot carry: reported once, by name.
 
 Baked by the operator and by ``tearcloth bake``, then played in a fresh Blender without the add-on
 (Mesh Sequence Cache) and checked attribute by attribute, on untorn parts and across the tear.
@@ -56,7 +59,10 @@ DECORATE = '''
                                                   np.ones(len(corner))], 1).ravel())
         face = me.attributes.new("face_id", "FLOAT", "FACE")
         face.data.foreach_set("value", np.arange(len(me.polygons), dtype=float))
-        me.color_attributes.new("bcol", "BYTE_COLOR", "POINT")
+        bcol = me.color_attributes.new("bcol", "BYTE_COLOR", "POINT")
+        bcol.data.foreach_set("color", np.stack([u, v, np.full_like(u, 0.25), np.ones_like(u)], 1).ravel())
+        me.color_attributes.active_color_name = "ccol"
+        me.attributes.new("edge_w", "FLOAT", "EDGE")
 '''
 
 # Plays a baked .blend with stock Blender only (the add-on is never imported here).
@@ -70,7 +76,10 @@ PLAY = '''
     for frame in range(1, 21):
         scene.frame_set(frame)
         with evaluated_mesh(obj) as m:
-            got = dict(co=positions(m).tolist(), uv=[(u.name, u.active, u.active_render) for u in m.uv_layers])
+            got = dict(co=positions(m).tolist(), uv=[(u.name, u.active, u.active_render) for u in m.uv_layers],
+                       active_colour=m.color_attributes.active_color_name,
+                       render_colour=m.color_attributes[m.color_attributes.render_color_index].name,
+                       stack=[md.name for md in obj.modifiers])
             cv = np.empty(len(m.loops), np.int32); m.loops.foreach_get("vertex_index", cv)
             got["corner_vert"] = cv.tolist()
             attrs = {}
@@ -118,7 +127,7 @@ def check_playback(path: str, played: dict) -> dict:
     info = cache.cache_info(path)
     assert info["frames"] == list(range(1, FRAMES + 1))
     assert {"UVMap", "pcol", "ccol", "face_id", "torn", "torn_time", "warp"} <= set(info["primvars"])
-    assert "bcol" not in info["primvars"]
+    assert "bcol" in info["primvars"] and "edge_w" not in info["primvars"]
     first_torn = {}
     torn_counts = []
     for frame in info["frames"]:
@@ -130,11 +139,14 @@ def check_playback(path: str, played: dict) -> dict:
         # the active UV map stays active and render-active; the other one is there by its name
         uv_state = {name: (active, render) for name, active, render in got["uv"]}
         assert uv_state["Second"] == (True, True) and "UVMap" in uv_state, got["uv"]
-        for name in ("UVMap", "Second", "pcol", "ccol", "face_id", "torn", "torn_time", "warp"):
+        for name in ("UVMap", "Second", "pcol", "ccol", "bcol", "face_id", "torn", "torn_time", "warp"):
             assert name in attrs, f"frame {frame}: {name} missing from {sorted(attrs)}"
+        assert got["active_colour"] == got["render_colour"] == "ccol"
+        assert got["stack"] == ["Tear Cloth Colours", "Tear Cloth"], got["stack"]
+        assert attrs["bcol"]["type"] == "FLOAT_COLOR" and attrs["bcol"]["domain"] == "POINT"
         # Blender shows exactly what the cache holds
         stored = cache.read_primvars(path, frame)
-        for name in ("UVMap", "pcol", "ccol", "face_id", "torn", "torn_time", "warp"):
+        for name in ("UVMap", "pcol", "ccol", "bcol", "face_id", "torn", "torn_time", "warp"):
             np.testing.assert_array_equal(np.array(attrs[name]["values"], np.float32),
                                           np.asarray(stored[name], np.float32).ravel(), err_msg=f"{frame} {name}")
         assert attrs["pcol"]["domain"] == "POINT" and attrs["ccol"]["domain"] == "CORNER"
@@ -148,6 +160,10 @@ def check_playback(path: str, played: dict) -> dict:
         # point colour: interpolated with the tear's weights, so still (u, v) of Second everywhere
         np.testing.assert_allclose(pcol[tris][..., :2], second, atol=2e-5, err_msg=f"frame {frame}: pcol")
         np.testing.assert_allclose(pcol[:, 2:], np.tile([0.5, 1.0], (n, 1)), atol=1e-6)
+        # the byte colour likewise, within its 8-bit sRGB steps (at most 0.009 in linear)
+        bcol = np.array(attrs["bcol"]["values"]).reshape(n, 4)
+        np.testing.assert_allclose(bcol[tris][..., :2], second, atol=0.01, err_msg=f"frame {frame}: bcol")
+        np.testing.assert_allclose(bcol[:, 2], 0.25, atol=0.01)
         # face attribute: each triangle lies in the polygon it came from (in the seamless UV)
         i, j = face // (N - 1), face % (N - 1)
         centre = second.mean(axis=1) * (N - 1)
@@ -207,8 +223,9 @@ def test_operator_bake_carries_every_attribute_into_stock_playback(tmp_path):
     ''', blend, name="bake.py", timeout=300)
     assert baked["state"] == ["FINISHED"]
     warned = [m for level, m in baked["log"] if level == "WARNING"]
-    about_bcol = [m for m in warned if "'bcol'" in m]
-    assert len(about_bcol) == 1 and "float colour" in about_bcol[0], warned
+    about = [m for m in warned if "'edge_w'" in m]
+    assert len(about) == 1 and "edge attributes" in about[0], warned
+    assert not [m for m in warned if "'bcol'" in m or "'pcol'" in m or "'ccol'" in m], warned
     assert not [m for m in warned if "UV map" in m and "only the active" in m]
     path = find_cache(tmp_path / "tearcloth_cache", "Sheet", "scene")
     seen = check_playback(path, _played(tmp_path, blend))
@@ -222,7 +239,8 @@ def test_cli_bake_carries_every_attribute_into_stock_playback(tmp_path):
                           capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     # the headless log names the attribute that is not carried, once
-    assert proc.stderr.count("'bcol'") == 1 and "float colour" in proc.stderr, proc.stderr[-3000:]
+    assert proc.stderr.count("'edge_w'") == 1 and "edge attributes" in proc.stderr, proc.stderr[-3000:]
+    assert "'bcol'" not in proc.stderr
     path = find_cache(out / "tearcloth_cache", "Sheet", "scene")
     seen = check_playback(path, _played(tmp_path, out / "scene.blend"))
     print(f"CLI bake: {seen['torn_points']} torn points of {seen['vertices']}")

@@ -269,7 +269,7 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=(), attr
 # Blender attribute type -> (foreach_get key, numpy dtype of the buffer)
 _FOREACH = {"FLOAT": ("value", np.float32), "INT": ("value", np.int32), "INT8": ("value", np.int32),
             "BOOLEAN": ("value", bool), "FLOAT_VECTOR": ("vector", np.float32), "FLOAT2": ("vector", np.float32),
-            "FLOAT_COLOR": ("color", np.float32)}
+            "FLOAT_COLOR": ("color", np.float32), "BYTE_COLOR": ("color", np.float32)}
 # Blender's own per-element data the cache writes or rebuilds itself: never carried, never reported
 _BUILTIN = ("position", "sharp_face", "sharp_edge", ".")
 

@@ -71,7 +71,9 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
     md = modifier.find_modifier(obj)
     mods = list(obj.modifiers)
     index = mods.index(md)
-    above = [m for m in mods[:index] if m.show_viewport]
+    # the colour modifier a bake puts above Tear Cloth is playback's, not part of the rest mesh
+    colours = [m for m in mods[:index] if m.name == modifier.COLOUR_MODIFIER and m.show_viewport]
+    above = [m for m in mods[:index] if m.show_viewport and m not in colours]
     try:
         # Shape keys are evaluated like modifiers: their mix, not the basis, is the rest shape.
         # In Edit Mode the original mesh's corner data (UVs) reads as empty: take the evaluated
@@ -79,7 +81,7 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
         if not above and obj.data.shape_keys is None and not editing:
             return convert.read_mesh(obj.data, vertex_groups=obj.vertex_groups, group_names=group_names,
                                      attributes=True)
-        switched = [m for m in mods[index:] if m.show_viewport]
+        switched = colours + [m for m in mods[index:] if m.show_viewport]
         try:
             for m in switched:
                 m.show_viewport = False
@@ -280,7 +282,10 @@ def _carried_attributes(obj, mesh, uv_name: str, reports: Reports) -> list:
     """The attributes the cache carries, under USD names; each one it cannot carry is reported
     once, by name (the played mesh would show Blender's defaults for it once the topology changes)."""
     carried, taken = [], {uv_name}
-    for attr in mesh.attributes:
+    # Blender's USD reader makes the first colour primvar it meets the active and render colour:
+    # the user's active colour goes first (the cache keeps this order, cache._order_primvars)
+    active = obj.data.color_attributes.active_color_name
+    for attr in sorted(mesh.attributes, key=lambda a: a.name != active):
         name = _usd_name(obj, attr.name, "the attribute", reports)
         if name in taken:
             reports.warning(f"{obj.name}: attribute {attr.name!r} is not carried into the cache: its USD name "
