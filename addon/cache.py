@@ -3,7 +3,9 @@
 What this module owns
 ---------------------
 Everything on disk about a baked tear: the file layout, writing one frame (positions, triangles,
-per-corner UVs, velocities) whose vertex and triangle counts differ from the previous one,
+per-corner UVs, velocities, and extra primvars: the user's other UV maps, colours and attributes
+and the torn-edge attributes, made by ``tearcloth.attributes``) whose vertex and triangle counts
+differ from the previous one,
 reopening an interrupted bake to continue it, deleting a cache, and reading it back for tests and
 tools. The Blender layer only attaches the stock Mesh Sequence Cache modifier to the root file;
 playback then needs neither this add-on nor ``pxr`` (a render-farm node with stock Blender can
@@ -421,7 +423,9 @@ def repair_root(path, object_name: str, fingerprint: str | None = None, owner: d
         raise CacheError(f"{first}: cannot rebuild from it (no mesh prim)")
     root = layer.pseudoRoot
     prim = layer.GetPrimAtPath("/" + str(layer.defaultPrim))
-    uv_names = [a.name[len("primvars:"):] for a in (prim.attributes if prim else []) if a.name.startswith("primvars:")]
+    # the active UV map is the first texCoord2f primvar a frame writes (the others are extra primvars)
+    uv_names = [a.name[len("primvars:"):] for a in (prim.attributes if prim else [])
+                if a.name.startswith("primvars:") and a.typeName == Sdf.ValueTypeNames.TexCoord2fArray]
     settings = (str(layer.defaultPrim), float(layer.timeCodesPerSecond) or 24.0,
                 str(root.GetInfo("upAxis")) if root.HasInfo("upAxis") else "Z",
                 float(root.GetInfo("metersPerUnit")) if root.HasInfo("metersPerUnit") else 1.0)
@@ -557,6 +561,25 @@ def _primvar_values(primvars: dict) -> dict:
         data = np.ascontiguousarray(arr, dtype=dtype)
         out["primvars:" + name] = vt(data.tolist()) if usd_type == "BoolArray" else vt.FromNumpy(data)
     return out
+
+
+def _frame_primvars(file: str, prim_path: str, uv_attr: str) -> dict:
+    """The extra primvars a frame file declares (name -> (USD value type, interpolation))."""
+    _, Sdf, Tf, _, _ = _pxr()
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(file)
+    except Tf.ErrorException:
+        return {}
+    prim = layer.GetPrimAtPath(prim_path) if layer else None
+    found = {}
+    for spec in prim.properties if prim else ():
+        if not spec.name.startswith("primvars:") or spec.name == uv_attr:
+            continue
+        usd_type = next((t for t in PRIMVAR_TYPES if getattr(Sdf.ValueTypeNames, t) == spec.typeName), None)
+        interp = spec.GetInfo("interpolation") if spec.HasInfo("interpolation") else None
+        if usd_type is not None and interp in _PRIMVAR_SIZES:
+            found[spec.name[len("primvars:"):]] = (usd_type, str(interp))
+    return found
 
 
 def read_primvars(path, frame: int) -> dict:
@@ -1041,9 +1064,10 @@ class CacheWriter:
         """Blender's USD reader makes the FIRST UV primvar it meets the active (and render) UV map,
         and it meets them in the prim's property order, alphabetical unless ``propertyOrder`` says
         otherwise: the active map goes first, or a map named 'Other' would win over 'UVMap'
-        (checked with bpy 5.0.1 and 5.3.0)."""
-        if self._has_uv and self._primvars:
-            prim.propertyOrder = [self._uv_attr] + ["primvars:" + name for name in self._primvars]
+        (checked with bpy 5.0.1 and 5.3.0). The first colour primvar likewise becomes the active and
+        render colour: the extra primvars keep the order they were given in."""
+        if self._primvars:
+            prim.propertyOrder = ([self._uv_attr] if self._has_uv else []) + ["primvars:" + n for n in self._primvars]
 
     def _frame_file_ok(self, frame: int, file: str) -> tuple[bool, bool] | None:
         """(has_uv, has_velocities) of a complete, readable frame file, or None."""
@@ -1111,6 +1135,8 @@ class CacheWriter:
         if not kept:
             self._has_uv = self._has_vel = None
             self._primvars = {}
+        elif not self._primvars:  # a rebuilt root (repair_root) lost them: the frames declare them
+            self._primvars = _frame_primvars(on_disk[kept[0]], self.prim_path, self._uv_attr)
 
         # Remove what is not kept, so that the folder and the root agree again.
         os.makedirs(self.frames_dir, exist_ok=True)

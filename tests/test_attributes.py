@@ -68,3 +68,26 @@ def test_unsupported_types_say_why():
     assert attrs.unsupported("FLOAT_COLOR", "CORNER") is None
     with pytest.raises(KeyError):
         attrs.USD_TYPES["STRING"]
+
+
+def test_primvars_survive_a_rebuilt_root(tmp_path):
+    """A truncated root rebuilt from its frame files (issue 12 defect 7) still declares the extra
+    primvars, so Blender keeps seeing them and a resumed bake keeps writing them."""
+    pytest.importorskip("pxr")
+    from tearcloth import cache
+    v, t = sheet(0.1, 0.1, 3, 3)
+    path = str(tmp_path / "c.usda")
+    pv = {"torn": ("FloatArray", "vertex", np.zeros(len(v))),
+          "ccol": ("Color4fArray", "faceVarying", np.ones((3 * len(t), 4))),
+          "UV2": ("TexCoord2fArray", "faceVarying", np.zeros((3 * len(t), 2)))}
+    with cache.CacheWriter(path, "M", 24.0, object_name="M", uv_name="UVMap") as w:
+        for f in (1, 2):
+            w.write_frame(f, v, t, corner_uv=v[:, :2][t], primvars=pv)
+    declared = cache.cache_info(path)["primvars"]
+    with open(path, "r+") as f:
+        f.truncate(40)
+    assert cache.damaged_root(path)
+    assert cache.repair_root(path, "M") == [1, 2]
+    info = cache.cache_info(path)
+    assert info["primvars"] == declared and info["uv_name"] == "UVMap" and info["has_uv"]
+    np.testing.assert_array_equal(cache.read_primvars(path, 2)["ccol"], np.ones((3 * len(t), 4)))

@@ -296,6 +296,9 @@ def read_attributes(mesh, tri_loops, tri_polygons, kept, active_uv):
         buf = np.empty(len(attr.data) * k, dtype=dtype)
         attr.data.foreach_get(key, buf)
         values = buf.reshape(len(attr.data), k).astype(np.float64)
+        if not np.isfinite(values).all():  # the cache refuses NaN: say so now, not mid-bake
+            not_carried.append((name, "it holds NaN or infinite values"))
+            continue
         if domain == "POINT":
             values = values[kept]
         elif domain == "CORNER":
