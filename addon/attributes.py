@@ -193,10 +193,7 @@ class AttributeTracker:
         groups = cloth.groups
         rest0 = groups[:, [names.index(g) for g in REST_GROUPS]]
         origin = self.origins(tris, rest0)
-        corner_bary = self._bary(rest0[tris].reshape(-1, 3), np.repeat(origin, 3))
-        corner_bary = np.clip(corner_bary, 0.0, 1.0)
-        corner_bary /= np.maximum(corner_bary.sum(1, keepdims=True), 1e-300)
-        corner_bary = corner_bary.reshape(-1, 3, 3)   # (m, corner, original corner)
+        corner_bary = self._corner_bary(tris, rest0, origin)   # (m, corner, original corner)
         out = {}
         for a in self.attributes:
             if a.domain == "POINT":
@@ -215,6 +212,20 @@ class AttributeTracker:
         out["warp"] = ("Vector3fArray", "vertex", warp_directions(positions, tris, uv, self.grain0[origin],
                                                                   object_matrix))
         return out
+
+    def _corner_bary(self, tris, rest0, origin) -> np.ndarray:
+        """Each corner's barycentric coordinates in its original triangle: the identity for the
+        user's triangles a tear left alone (most of them), computed for the others only."""
+        m, m0 = len(tris), len(self.tri0)
+        bary = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
+        moved = np.ones(m, dtype=bool)
+        moved[:m0] = ~np.all(rest0[tris[:m0]] == self.rest0[self.tri0], axis=(1, 2))
+        idx = np.flatnonzero(moved)
+        if len(idx):
+            b = np.clip(self._bary(rest0[tris[idx]].reshape(-1, 3), np.repeat(origin[idx], 3)), 0.0, 1.0)
+            b /= np.maximum(b.sum(1, keepdims=True), 1e-300)
+            bary[idx] = b.reshape(-1, 3, 3)
+        return bary
 
     def _torn_points(self, tris, rest0, origin, n) -> np.ndarray:
         edges = np.stack([tris[:, [1, 2]], tris[:, [2, 0]], tris[:, [0, 1]]], axis=1).reshape(-1, 2)
