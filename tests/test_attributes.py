@@ -91,3 +91,54 @@ def test_primvars_survive_a_rebuilt_root(tmp_path):
     info = cache.cache_info(path)
     assert info["primvars"] == declared and info["uv_name"] == "UVMap" and info["has_uv"]
     np.testing.assert_array_equal(cache.read_primvars(path, 2)["ccol"], np.ones((3 * len(t), 4)))
+
+
+def test_a_resumed_bake_keeps_when_each_point_tore(tmp_path):
+    """Bake frames 1-3 with a weak cloth that tears at once, resume to 5: the points torn before the
+    resume keep their torn_time, the cache keeps one set of primvars, and the carried face
+    attribute still names each triangle's face."""
+    pytest.importorskip("pxr")
+    import dataclasses
+
+    from tearcloth import cache
+    from tearcloth.bake import BakeJob
+    from test_bake_job import bake, inputs, plan_for
+
+    def weak(frames, resume=False):
+        plan = plan_for(tmp_path, frames)
+        plan.material = dataclasses.replace(plan.material, tear_stress=2e4)
+        plan.attributes = [attrs.UserAttribute("face", "FACE", "INT", np.arange(len(plan.triangles), dtype=float)[:, None])]
+        plan.resume = resume
+        return plan
+
+    bake(weak((1, 3)))
+    path = str(tmp_path / "Sheet.usda")
+    before = cache.read_primvars(path, 3)
+    assert before["torn"].sum() > 0, "the weak sheet should have torn by frame 3"
+    job = BakeJob(weak((1, 5), resume=True))
+    assert job.start_frame == 3
+    job.begin(inputs(3, job.plan))
+    while not job.done:
+        job.advance(inputs(job.next_frame, job.plan))
+    job.close()
+    assert cache.cache_info(path)["frames"] == [1, 2, 3, 4, 5]
+    after = cache.read_primvars(path, 5)
+    torn_before = np.flatnonzero(before["torn_time"] >= 0)
+    np.testing.assert_array_equal(after["torn_time"][torn_before], before["torn_time"][torn_before])
+    assert np.all(after["torn_time"][after["torn"] == 1] <= 4 / 24 + 1e-6)
+    m0 = len(job.plan.triangles)
+    np.testing.assert_array_equal(after["face"][:m0], np.arange(m0))
+
+
+def test_grain_angle_face_attribute_overrides_the_material():
+    """``tearcloth_grain_angle`` (FACE, radians) replaces the material's grain angle where set."""
+    v, t = sheet(0.1, 0.1, 4, 4)
+    uv = v[:, :2][t] * 10.0                              # u along +x
+    grain = attrs.UserAttribute(attrs.GRAIN_ATTRIBUTE, "FACE", "FLOAT", np.full((len(t), 1), np.pi / 2))
+    cloth = Cloth(v, t, material("cotton"), uv=uv, groups=attrs.carried_groups(v, [grain]))
+    plain = attrs.AttributeTracker(v, t, [], grain_angle=0.0).frame(cloth, 0.0, None, cloth.corner_uv)
+    override = attrs.AttributeTracker(v, t, [grain], grain_angle=0.0).frame(cloth, 0.0, None, cloth.corner_uv)
+    np.testing.assert_allclose(plain["warp"][2], np.tile([1.0, 0.0, 0.0], (len(v), 1)), atol=1e-6)
+    normal = np.cross(v[t[0, 1]] - v[t[0, 0]], v[t[0, 2]] - v[t[0, 0]])
+    turned = np.cross(normal / np.linalg.norm(normal), [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(override["warp"][2], np.tile(turned, (len(v), 1)), atol=1e-6)
