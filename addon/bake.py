@@ -47,8 +47,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import attributes as attrs
 from . import spaces
-from .cache import CacheWriter, _remove_quietly, staging_path_for
+from .cache import CacheWriter, _remove_quietly, read_primvars, staging_path_for
 from .cloth import Cloth, SimulationError
 from .materials import Material
 from .session import CollisionSettings, Session, StepReport
@@ -92,6 +93,8 @@ class BakePlan:
     vertex_ids: np.ndarray | None = None                # (n,)
     # The user's grain override, radians per triangle (None: the material's own grain)
     grain_angles: np.ndarray | None = None              # (m,)
+    # The user's attributes the cache carries through tears (attributes.UserAttribute)
+    attributes: list = field(default_factory=list)
 
     @property
     def settings_fingerprint(self) -> str:
@@ -293,12 +296,27 @@ class BakeJob:
         session, self._handles = make_session(plan, inputs.bodies, plan.time_of(self.start_frame), state)
         self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
         self.session = session
+        self._tracker = self._attribute_tracker()
         if self.on_event is not None:
             session.add_step_listener(self._stepped)
             self.on_event(BakeEvent("begin", self, self.start_frame))
         if self.writer.last_frame is None or self.writer.last_frame < self.start_frame:
             self._write(inputs, save_state=state is None)
         self.progress.vertices = session.cloth.num_vertices
+
+    def _attribute_tracker(self) -> "attrs.AttributeTracker | None":
+        """The per-frame attributes (``attributes.py``), or None when this cloth cannot have them:
+        a resumed bake started before the cache carried attributes (its frames have none; every
+        frame of a cache must match)."""
+        plan, cloth, writer = self.plan, self.session.cloth, self.writer
+        if not set(attrs.REST_GROUPS) <= set(cloth.group_names) or (writer.frames and not writer.primvars):
+            return None
+        tracker = attrs.AttributeTracker(plan.vertices, plan.triangles, plan.attributes,
+                                         float(getattr(plan.material, "grain_angle", 0.0) or 0.0))
+        if writer.frames and "torn_time" in writer.primvars:
+            # resume: when each point tore lives in the cache's last frame
+            tracker.restore_torn_time(read_primvars(writer.path, writer.last_frame)["torn_time"])
+        return tracker
 
     @property
     def handles(self) -> list:
@@ -353,10 +371,14 @@ class BakeJob:
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
+        primvars = None
+        if self._tracker is not None:
+            primvars = self._tracker.frame(cloth, plan.time_of(inputs.frame), inputs.object_matrix,
+                                           cloth.corner_uv if self._has_uv else None)
         # The writer takes metres with meters_per_unit = scale, so the file holds local BU:
         # exactly what the Mesh Sequence Cache modifier (which ignores metersPerUnit) shows.
         writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
-                           cloth.corner_uv if self._has_uv else None, velocity * plan.scale)
+                           cloth.corner_uv if self._has_uv else None, velocity * plan.scale, primvars=primvars)
         if writer.staged and inputs.frame > self.start_frame:
             self._promote()
         self.progress.frame_done(inputs.frame)
@@ -401,8 +423,10 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
     The bake and the live haptic session both build their scene here, so a live session tears the
     same cloth a bake would."""
     if state is None:
+        # the attributes the cache carries ride along as vertex-group columns (attributes.py)
+        groups = {**plan.groups, **attrs.carried_groups(plan.vertices, plan.attributes)}
         cloth = Cloth(plan.vertices, plan.triangles, plan.material, uv=plan.corner_uv,
-                      groups=plan.groups or None, gravity=plan.solver["gravity"])
+                      groups=groups, gravity=plan.solver["gravity"])
     else:
         cloth = Cloth(state["positions"], state["triangles"], plan.material, rest=state["rest"],
                       uv=state["corner_uv"], groups=dict(zip(state["group_names"], state["groups"].T))

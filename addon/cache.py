@@ -3,7 +3,9 @@
 What this module owns
 ---------------------
 Everything on disk about a baked tear: the file layout, writing one frame (positions, triangles,
-per-corner UVs, velocities) whose vertex and triangle counts differ from the previous one,
+per-corner UVs, velocities, and extra primvars: the user's other UV maps, colours and attributes
+and the torn-edge attributes, made by ``tearcloth.attributes``) whose vertex and triangle counts
+differ from the previous one,
 reopening an interrupted bake to continue it, deleting a cache, and reading it back for tests and
 tools. The Blender layer only attaches the stock Mesh Sequence Cache modifier to the root file;
 playback then needs neither this add-on nor ``pxr`` (a render-farm node with stock Blender can
@@ -85,6 +87,7 @@ __all__ = [
     "CacheWriter",
     "read_frame",
     "read_velocities",
+    "read_primvars",
     "cache_info",
     "check_owner",
     "owner_of",
@@ -319,6 +322,7 @@ def _read_root(path, check_frames: bool = True) -> dict:
         "has_uv": bool(meta.get("has_uv", False)),
         "uv_name": str(meta.get("uv_name", "st")),
         "has_velocities": bool(meta.get("has_velocities", False)),
+        "primvars": _primvar_meta(meta),
         "complete": bool(meta.get("complete", False)),
         "format": int(meta["format"]),
     }
@@ -419,7 +423,9 @@ def repair_root(path, object_name: str, fingerprint: str | None = None, owner: d
         raise CacheError(f"{first}: cannot rebuild from it (no mesh prim)")
     root = layer.pseudoRoot
     prim = layer.GetPrimAtPath("/" + str(layer.defaultPrim))
-    uv_names = [a.name[len("primvars:"):] for a in (prim.attributes if prim else []) if a.name.startswith("primvars:")]
+    # the active UV map is the first texCoord2f primvar a frame writes (the others are extra primvars)
+    uv_names = [a.name[len("primvars:"):] for a in (prim.attributes if prim else [])
+                if a.name.startswith("primvars:") and a.typeName == Sdf.ValueTypeNames.TexCoord2fArray]
     settings = (str(layer.defaultPrim), float(layer.timeCodesPerSecond) or 24.0,
                 str(root.GetInfo("upAxis")) if root.HasInfo("upAxis") else "Z",
                 float(root.GetInfo("metersPerUnit")) if root.HasInfo("metersPerUnit") else 1.0)
@@ -517,6 +523,79 @@ def read_velocities(path, frame: int):
     prim = stage.GetPrimAtPath(info["prim_path"])
     value = _get(prim, "velocities", info["frames"][i], info, info["frame_files"][i], True)
     return _from_stage(value, info["up_axis"], info["meters_per_unit"])
+
+
+# ---------------------------------------------------------------------------------------------
+# Extra primvars: the user's attributes and the torn-edge attributes (tearcloth.attributes)
+
+# USD value type -> (numpy dtype written, components). Only types Blender's USD reader gives back.
+PRIMVAR_TYPES = {
+    "FloatArray": (np.float32, 1),
+    "IntArray": (np.int32, 1),
+    "BoolArray": (np.bool_, 1),
+    "UCharArray": (np.uint8, 1),
+    "Vector3fArray": (np.float32, 3),
+    "Color4fArray": (np.float32, 4),
+    "TexCoord2fArray": (np.float32, 2),
+}
+_PRIMVAR_SIZES = ("vertex", "uniform", "faceVarying")
+_VT_ARRAY = {"FloatArray": "FloatArray", "IntArray": "IntArray", "BoolArray": "BoolArray",
+             "UCharArray": "UCharArray", "Vector3fArray": "Vec3fArray", "Color4fArray": "Vec4fArray",
+             "TexCoord2fArray": "Vec2fArray"}
+
+
+def _primvar_meta(meta) -> dict:
+    """The root's record of the extra primvars: name -> (USD value type, interpolation)."""
+    return {str(name): tuple(str(v).split(" ", 1)) for name, v in dict(meta.get("primvars", {}) or {}).items()}
+
+
+def _primvar_values(primvars: dict) -> dict:
+    """Checked primvars -> {'primvars:<name>': Vt array}."""
+    _, _, _, _, Vt = _pxr()
+    out = {}
+    for name, (usd_type, _, arr) in primvars.items():
+        dtype, _ = PRIMVAR_TYPES[usd_type]
+        if usd_type == "UCharArray":  # an INT8 attribute: Blender reads the byte as signed
+            arr = np.asarray(arr, dtype=np.int64) & 0xFF
+        vt = getattr(Vt, _VT_ARRAY[usd_type])
+        data = np.ascontiguousarray(arr, dtype=dtype)
+        out["primvars:" + name] = vt(data.tolist()) if usd_type == "BoolArray" else vt.FromNumpy(data)
+    return out
+
+
+def _frame_primvars(file: str, prim_path: str, uv_attr: str) -> dict:
+    """The extra primvars a frame file declares (name -> (USD value type, interpolation))."""
+    _, Sdf, Tf, _, _ = _pxr()
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(file)
+    except Tf.ErrorException:
+        return {}
+    prim = layer.GetPrimAtPath(prim_path) if layer else None
+    found = {}
+    for spec in prim.properties if prim else ():
+        if not spec.name.startswith("primvars:") or spec.name == uv_attr:
+            continue
+        usd_type = next((t for t in PRIMVAR_TYPES if getattr(Sdf.ValueTypeNames, t) == spec.typeName), None)
+        interp = spec.GetInfo("interpolation") if spec.HasInfo("interpolation") else None
+        if usd_type is not None and interp in _PRIMVAR_SIZES:
+            found[spec.name[len("primvars:"):]] = (usd_type, str(interp))
+    return found
+
+
+def read_primvars(path, frame: int) -> dict:
+    """The extra primvars of one frame: ``{name: numpy array}`` ((count,) or (count, k), count
+    per point, face or corner as declared; ``cache_info()['primvars']`` has the declarations)."""
+    info = cache_info(path)
+    i = _frame_index(info, frame)
+    if not info["primvars"]:
+        return {}
+    stage = _open_stage(info["path"])
+    prim = stage.GetPrimAtPath(info["prim_path"])
+    out = {}
+    for name in info["primvars"]:
+        value = _get(prim, "primvars:" + name, info["frames"][i], info, info["frame_files"][i], True)
+        out[name] = np.array(value)
+    return out
 
 
 def _scan_frames(frames_dir: str) -> dict[int, str]:
@@ -651,6 +730,7 @@ class CacheWriter:
         self._frames: list[int] = []
         self._has_uv: bool | None = None  # fixed by the first frame: every frame has UVs or none
         self._has_vel: bool | None = None
+        self._primvars: dict = {}  # name -> (USD value type, interpolation), fixed by the first frame
         self._closed = False
         self._counts_cache = np.empty(0, dtype=np.int32)
 
@@ -693,6 +773,11 @@ class CacheWriter:
         return self._frames[-1] if self._frames else None
 
     @property
+    def primvars(self) -> dict:
+        """The extra primvars every frame holds: name -> (USD value type, interpolation)."""
+        return dict(self._primvars)
+
+    @property
     def closed(self) -> bool:
         return self._closed
 
@@ -732,11 +817,12 @@ class CacheWriter:
 
     # -- writing -------------------------------------------------------------------------------
 
-    def write_frame(self, frame: int, positions, triangles, corner_uv=None, velocities=None) -> None:
+    def write_frame(self, frame: int, positions, triangles, corner_uv=None, velocities=None, primvars=None) -> None:
         """Add one frame: positions (n, 3) metres, triangles (m, 3) indices into them, optional
-        corner_uv (m, 3, 2) (one UV per triangle corner, in triangle order) and velocities
-        (n, 3) m/s. Frames must increase. When this returns, the frame is on disk and the root
-        names it."""
+        corner_uv (m, 3, 2) (one UV per triangle corner, in triangle order), velocities
+        (n, 3) m/s and ``primvars`` ``{name: (USD value type, interpolation, values)}`` (see
+        ``_checked_primvars``; the first frame fixes their set). Frames must increase. When this
+        returns, the frame is on disk and the root names it."""
         Gf, Sdf, Tf, Usd, Vt = _pxr()
         if self._closed:
             raise CacheError(f"{self.path}: the writer is closed")
@@ -746,6 +832,7 @@ class CacheWriter:
         if self._frames and frame <= self._frames[-1]:
             raise ValueError(f"frame {frame} must come after the last frame written, {self._frames[-1]}")
         pos, tris, uv, vel = self._checked(frame, positions, triangles, corner_uv, velocities)
+        extra = self._checked_primvars(frame, primvars, len(pos), len(tris))
 
         layer = Sdf.Layer.CreateAnonymous("frame.usdc")
         self._stage_metadata(layer)
@@ -768,11 +855,14 @@ class CacheWriter:
             values[self._uv_attr] = Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(uv.reshape(-1, 2), dtype=np.float32))
         if vel is not None:
             values["velocities"] = Vt.Vec3fArray.FromNumpy(_to_stage(vel, self.up_axis, self.meters_per_unit))
+        values.update(_primvar_values(extra))
+        first = not self._frames
+        if first:
+            self._primvars = {name: (t, interp) for name, (t, interp, _) in extra.items()}
         for name, value in values.items():
             spec = self._declare(prim, name)
             layer.SetTimeSample(spec.path, float(frame), value)
 
-        first = not self._frames
         fingerprint = self.fingerprint
         try:
             if first:
@@ -786,6 +876,7 @@ class CacheWriter:
         except BaseException:
             if first:  # nothing was added: the next first frame decides again
                 self._has_uv = self._has_vel = None
+                self._primvars = {}
                 self.fingerprint = fingerprint
             raise
         self._frames.append(frame)
@@ -851,17 +942,51 @@ class CacheWriter:
             )
         return pos, tris, uv, vel
 
+    def _checked_primvars(self, frame, primvars, n: int, m: int) -> dict:
+        """Validated extra primvars: a value type of ``PRIMVAR_TYPES``, an interpolation of
+        ``_PRIMVAR_SIZES`` with one value per point, face or corner, finite numbers, and the same
+        names, types and interpolations as the first frame (a value clip without a sample would
+        show another frame's values)."""
+        _, Sdf, _, _, _ = _pxr()
+        out = {}
+        for name, (usd_type, interp, values) in (primvars or {}).items():
+            if not Sdf.Path.IsValidIdentifier(name):
+                raise ValueError(f"frame {frame}: primvar name {name!r} is not a USD identifier")
+            if usd_type not in PRIMVAR_TYPES or interp not in _PRIMVAR_SIZES:
+                raise ValueError(f"frame {frame}: primvar {name!r}: type {usd_type!r} / interpolation {interp!r} "
+                                 f"not among {sorted(PRIMVAR_TYPES)} / {sorted(_PRIMVAR_SIZES)}")
+            dtype, k = PRIMVAR_TYPES[usd_type]
+            count = {"vertex": n, "uniform": m, "faceVarying": 3 * m}[interp]
+            arr = np.asarray(values)
+            if arr.size != count * k:
+                raise ValueError(f"frame {frame}: primvar {name!r} ({interp}) needs {count} values of {k}, "
+                                 f"not shape {arr.shape}")
+            if arr.dtype.kind == "f" and not np.isfinite(arr).all():
+                raise ValueError(f"frame {frame}: primvar {name!r} contains NaN or infinity")
+            out[name] = (usd_type, interp, arr.reshape(count, k) if k > 1 else arr.reshape(count))
+        if self._frames:
+            declared = {name: (t, i) for name, (t, i, _) in out.items()}
+            if declared != self._primvars:
+                raise ValueError(f"frame {frame}: the primvars {sorted(declared)} differ from the cache's "
+                                 f"{sorted(self._primvars)}; every frame must match")
+        return out
+
     def _attribute_names(self) -> list[str]:
         names = ["points", "faceVertexCounts", "faceVertexIndices", "extent"]
         if self._has_uv:
             names.append(self._uv_attr)
         if self._has_vel:
             names.append("velocities")
+        names += ["primvars:" + name for name in self._primvars]
         return names
 
-    @staticmethod
-    def _declare(prim, name: str):
+    def _declare(self, prim, name: str):
         _, Sdf, _, _, _ = _pxr()
+        extra = self._primvars.get(name[len("primvars:"):]) if name.startswith("primvars:") else None
+        if extra is not None:  # a carried attribute or a torn-edge attribute
+            spec = Sdf.AttributeSpec(prim, name, getattr(Sdf.ValueTypeNames, extra[0]))
+            spec.SetInfo("interpolation", extra[1])
+            return spec
         uv = name.startswith("primvars:")  # the UV map, under its own name
         spec = Sdf.AttributeSpec(prim, name, getattr(Sdf.ValueTypeNames, _VARYING["primvars:st" if uv else name]))
         if uv:
@@ -899,6 +1024,7 @@ class CacheWriter:
             meta["has_uv"] = bool(self._has_uv)
             meta["uv_name"] = self.uv_name
             meta["has_velocities"] = bool(self._has_vel)
+            meta["primvars"] = {name: f"{t} {interp}" for name, (t, interp) in self._primvars.items()}
         layer.customLayerData = {"tearcloth": meta}
 
         prim = Sdf.CreatePrimInLayer(layer, self.prim_path)
@@ -917,6 +1043,7 @@ class CacheWriter:
         # types) must be declared here or readers do not see 'st' as a primvar at all.
         for name in self._attribute_names():
             self._declare(prim, name)
+        self._order_primvars(prim)
         if self._frames:
             prefix = _relative_asset(self.path, self.frames_dir) + "/"
             prim.SetInfo(
@@ -932,6 +1059,15 @@ class CacheWriter:
                 },
             )
         self.bytes_written += _export_atomic(layer, self.path, self.durable)
+
+    def _order_primvars(self, prim) -> None:
+        """Blender's USD reader makes the FIRST UV primvar it meets the active (and render) UV map,
+        and it meets them in the prim's property order, alphabetical unless ``propertyOrder`` says
+        otherwise: the active map goes first, or a map named 'Other' would win over 'UVMap'
+        (checked with bpy 5.0.1 and 5.3.0). The first colour primvar likewise becomes the active and
+        render colour: the extra primvars keep the order they were given in."""
+        if self._primvars:
+            prim.propertyOrder = ([self._uv_attr] if self._has_uv else []) + ["primvars:" + n for n in self._primvars]
 
     def _frame_file_ok(self, frame: int, file: str) -> tuple[bool, bool] | None:
         """(has_uv, has_velocities) of a complete, readable frame file, or None."""
@@ -979,6 +1115,7 @@ class CacheWriter:
         self.fingerprint = self.fingerprint or info["fingerprint"] or None
         if info["frames"]:
             self._has_uv, self._has_vel = info["has_uv"], info["has_velocities"]
+            self._primvars = dict(info["primvars"])
 
         # Keep the longest run of frames that are all readable: those the root names, then any
         # written after the root's last rewrite (a crash between the two renames).
@@ -997,6 +1134,9 @@ class CacheWriter:
             kept.append(f)
         if not kept:
             self._has_uv = self._has_vel = None
+            self._primvars = {}
+        elif not self._primvars:  # a rebuilt root (repair_root) lost them: the frames declare them
+            self._primvars = _frame_primvars(on_disk[kept[0]], self.prim_path, self._uv_attr)
 
         # Remove what is not kept, so that the folder and the root agree again.
         os.makedirs(self.frames_dir, exist_ok=True)

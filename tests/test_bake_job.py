@@ -202,4 +202,6 @@ def test_the_saved_state_rebuilds_the_cloth_exactly(tmp_path, groups):
     again, _ = make_session(plan, {}, 0.0, state)
     for name in ("positions", "velocities", "rest_positions", "triangles", "corner_uv", "groups", "tear_strength"):
         assert np.array_equal(getattr(again.cloth, name), getattr(cloth, name)), name
-    assert again.cloth.group_names == cloth.group_names == groups
+    # the user's groups, then the columns the cache's attributes ride in (tearcloth.attributes)
+    from tearcloth.attributes import REST_GROUPS
+    assert again.cloth.group_names == cloth.group_names == groups + list(REST_GROUPS)

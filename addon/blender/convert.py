@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from .. import settings as table
+from ..attributes import RESERVED, USD_TYPES, UserAttribute, unsupported
 from ..materials import MATERIALS, Material
 from ..session import CollisionSettings
 from ..spaces import local_to_world_si  # the space formulas are bpy-free: the bake job needs them too
@@ -182,16 +183,19 @@ class MeshArrays:
     loose: int = 0
     polygons: np.ndarray | None = None  # (m,) the mesh's polygon index of every triangle
     uv_name: str | None = None          # the name of the UV map corner_uv comes from (the active one)
-    other_uv: list = field(default_factory=list)  # names of the UV maps that are not carried
+    other_uv: list = field(default_factory=list)  # names of the UV maps besides the active one
+    attributes: list = field(default_factory=list)  # UserAttribute: what the cache carries besides the UVs
+    not_carried: list = field(default_factory=list)  # (attribute name, why not)
     grain_angles: np.ndarray | None = None  # (m,) radians: the GRAIN_ATTRIBUTE of each triangle's polygon
     grain_problem: str | None = None        # why GRAIN_ATTRIBUTE cannot be read (wrong domain or type)
 
 
-def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> MeshArrays:
+def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=(), attributes: bool = False) -> MeshArrays:
     """Triangulate ``mesh`` (a bpy Mesh, original or evaluated) into arrays without changing it.
 
     ``vertex_groups``: the object's ``vertex_groups`` (names -> indices) when ``group_names``
-    are asked for; a name missing there raises KeyError naming it.
+    are asked for; a name missing there raises KeyError naming it. ``attributes``: also read
+    the mesh's attributes the cache can carry (``read_attributes``).
     """
     n = len(mesh.vertices)
     co = np.empty(3 * n, dtype=np.float64)
@@ -242,6 +246,11 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
     used = np.zeros(n, dtype=bool)
     used[tri_verts.reshape(-1)] = True
     kept = np.flatnonzero(used).astype(np.int64)
+    carried, not_carried = [], []
+    if attributes and m:
+        tri_loops = np.empty(3 * m, dtype=np.int32)
+        tris.foreach_get("loops", tri_loops)
+        carried, not_carried = read_attributes(mesh, tri_loops.reshape(m, 3), tri_polygons, kept, uv_name)
     loose = n - len(kept)
     if loose:
         remap = np.full(n, -1, dtype=np.int32)
@@ -260,6 +269,8 @@ def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=()) -> M
         polygons=tri_polygons,
         uv_name=uv_name,
         other_uv=other_uv,
+        attributes=carried,
+        not_carried=not_carried,
         grain_angles=grain_angles,
         grain_problem=grain_problem,
     )
@@ -276,6 +287,49 @@ def _grain_angles(mesh, tri_polygons):
     per_face = np.empty(len(mesh.polygons), dtype=np.float64)
     attr.data.foreach_get("value", per_face)
     return per_face[tri_polygons], None
+
+
+# Blender attribute type -> (foreach_get key, numpy dtype of the buffer)
+_FOREACH = {"FLOAT": ("value", np.float32), "INT": ("value", np.int32), "INT8": ("value", np.int32),
+            "BOOLEAN": ("value", bool), "FLOAT_VECTOR": ("vector", np.float32), "FLOAT2": ("vector", np.float32),
+            "FLOAT_COLOR": ("color", np.float32), "BYTE_COLOR": ("color", np.float32)}
+# Blender's own per-element data the cache writes or rebuilds itself: never carried, never reported
+_BUILTIN = ("position", "sharp_face", "sharp_edge", ".")
+
+
+def read_attributes(mesh, tri_loops, tri_polygons, kept, active_uv):
+    """The mesh's attributes in solver order (``UserAttribute``s: POINT per kept vertex, CORNER per
+    triangle corner, FACE per triangle), every UV map but the active one (the core carries that
+    one as ``corner_uv``) among them, and ``(name, why)`` for each attribute the cache cannot carry.
+    Colours are read linear, as Blender's USD reader writes them back."""
+    carried, not_carried = [], []
+    for attr in mesh.attributes:
+        name, domain, data_type = attr.name, attr.domain, attr.data_type
+        if name == active_uv or name.startswith(".") or name in _BUILTIN:
+            continue
+        if name in RESERVED:
+            not_carried.append((name, "the cache writes an attribute of that name itself; rename yours"))
+            continue
+        why = unsupported(data_type, domain)
+        if why is not None:
+            not_carried.append((name, why))
+            continue
+        key, dtype = _FOREACH[data_type]
+        k = USD_TYPES[data_type][1]
+        buf = np.empty(len(attr.data) * k, dtype=dtype)
+        attr.data.foreach_get(key, buf)
+        values = buf.reshape(len(attr.data), k).astype(np.float64)
+        if not np.isfinite(values).all():  # the cache refuses NaN: say so now, not mid-bake
+            not_carried.append((name, "it holds NaN or infinite values"))
+            continue
+        if domain == "POINT":
+            values = values[kept]
+        elif domain == "CORNER":
+            values = values[tri_loops]
+        else:
+            values = values[tri_polygons]
+        carried.append(UserAttribute(name, domain, data_type, values))
+    return carried, not_carried
 
 
 def evaluated_mesh_arrays(obj, depsgraph, **kwargs) -> MeshArrays:

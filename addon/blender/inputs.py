@@ -72,20 +72,23 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
     md = modifier.find_modifier(obj)
     mods = list(obj.modifiers)
     index = mods.index(md)
-    above = [m for m in mods[:index] if m.show_viewport]
+    # the colour modifier a bake puts above Tear Cloth is playback's, not part of the rest mesh
+    colours = [m for m in mods[:index] if m.name == modifier.COLOUR_MODIFIER and m.show_viewport]
+    above = [m for m in mods[:index] if m.show_viewport and m not in colours]
     try:
         # Shape keys are evaluated like modifiers: their mix, not the basis, is the rest shape.
         # In Edit Mode the original mesh's corner data (UVs) reads as empty: take the evaluated
         # copy, which has all of it.
         if not above and obj.data.shape_keys is None and not editing:
-            return convert.read_mesh(obj.data, vertex_groups=obj.vertex_groups, group_names=group_names)
-        switched = [m for m in mods[index:] if m.show_viewport]
+            return convert.read_mesh(obj.data, vertex_groups=obj.vertex_groups, group_names=group_names,
+                                     attributes=True)
+        switched = colours + [m for m in mods[index:] if m.show_viewport]
         try:
             for m in switched:
                 m.show_viewport = False
             depsgraph = context.evaluated_depsgraph_get()
             return convert.evaluated_mesh_arrays(obj, depsgraph, vertex_groups=obj.vertex_groups,
-                                                 group_names=group_names)
+                                                 group_names=group_names, attributes=True)
         finally:
             for m in switched:
                 m.show_viewport = True
@@ -194,16 +197,8 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     uv_name = "st"
     if mesh.uv_name is not None:
         # the cache's UVs carry the user's UV map name, so materials that read it by name see them
-        uv_name = re.sub(r"[^A-Za-z0-9_]", "_", mesh.uv_name)
-        if not uv_name or uv_name[0].isdigit():
-            uv_name = "_" + uv_name
-        if uv_name != mesh.uv_name:
-            reports.warning(f"{obj.name}: the UV map {mesh.uv_name!r} is named {uv_name!r} in the cache (USD names "
-                            "allow letters, digits and _ only); rename it to keep the name")
-    if mesh.other_uv:
-        reports.warning(f"{obj.name}: only the active UV map ({mesh.uv_name!r}) is carried through tears into the "
-                        f"cache; {', '.join(repr(n) for n in mesh.other_uv)} "
-                        f"{'is' if len(mesh.other_uv) == 1 else 'are'} not in the baked mesh")
+        uv_name = _usd_name(obj, mesh.uv_name, "the UV map", reports)
+    attributes = _carried_attributes(obj, mesh, uv_name, reports)
     grain_angles = _grain_angles(obj, mesh, reports)
     if mesh.loose:
         reports.warning(f"{obj.name}: {mesh.loose} loose {'vertices' if mesh.loose != 1 else 'vertex'} (in no face) "
@@ -269,6 +264,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         triangle_polygons=mesh.polygons,
         vertex_ids=mesh.kept,
         grain_angles=grain_angles,
+        attributes=attributes,
     )
     sources = Sources(obj.name, follow, list(body_triangles))
     return plan, sources
@@ -296,6 +292,38 @@ def _grain_angles(obj, mesh: convert.MeshArrays, reports: Reports):
                         "directions; it is not used")
         return None
     return angles
+
+
+def _usd_name(obj, name: str, what: str, reports: Reports) -> str:
+    """``name`` as a USD identifier (letters, digits, _), warned about when it had to change."""
+    usd = re.sub(r"[^A-Za-z0-9_]", "_", name)
+    if not usd or usd[0].isdigit():
+        usd = "_" + usd
+    if usd != name:
+        reports.warning(f"{obj.name}: {what} {name!r} is named {usd!r} in the cache (USD names allow letters, "
+                        "digits and _ only); rename it to keep the name")
+    return usd
+
+
+def _carried_attributes(obj, mesh, uv_name: str, reports: Reports) -> list:
+    """The attributes the cache carries, under USD names; each one it cannot carry is reported
+    once, by name (the played mesh would show Blender's defaults for it once the topology changes)."""
+    carried, taken = [], {uv_name}
+    # Blender's USD reader makes the first colour primvar it meets the active and render colour:
+    # the user's active colour goes first (the cache keeps this order, cache._order_primvars)
+    active = obj.data.color_attributes.active_color_name
+    for attr in sorted(mesh.attributes, key=lambda a: a.name != active):
+        name = _usd_name(obj, attr.name, "the attribute", reports)
+        if name in taken:
+            reports.warning(f"{obj.name}: attribute {attr.name!r} is not carried into the cache: its USD name "
+                            f"{name!r} is taken by another attribute")
+            continue
+        taken.add(name)
+        attr.name = name
+        carried.append(attr)
+    for name, why in mesh.not_carried:
+        reports.warning(f"{obj.name}: attribute {name!r} is not carried into the cache ({why})")
+    return carried
 
 
 def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> None:

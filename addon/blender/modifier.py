@@ -37,8 +37,9 @@ from .report import BakeError
 MODIFIER_NAME = "Tear Cloth"
 MODIFIER_TYPE = "MESH_SEQUENCE_CACHE"
 DEFAULT_CACHE_FOLDER = settings.default("cache", "cache_folder")
-# What the MSC reads from our USD: positions, faces, UVs and the 'velocity' attribute.
-READ_DATA = {"VERT", "POLY", "UV", "ATTRIBUTES"}
+# What the MSC reads from our USD: positions, faces, UVs, colour attributes (without COLOR the
+# reader leaves them at white) and the other attributes ('velocity', the user's, torn/warp).
+READ_DATA = {"VERT", "POLY", "UV", "COLOR", "ATTRIBUTES"}
 
 
 def read_data(md) -> set:
@@ -206,6 +207,7 @@ def attach_cache(obj, path: str, prim_name: str) -> None:
     md.cache_file = cache_file
     md.object_path = "/" + prim_name
     md.read_data = read_data(md)
+    set_float_colours(obj, _byte_colours_in(obj, path))
 
 
 def detach_cache(obj) -> None:
@@ -217,5 +219,62 @@ def detach_cache(obj) -> None:
         return
     cache_file = md.cache_file
     md.cache_file = None
+    set_float_colours(obj, [])
     if cache_file.users == 0:
         bpy.data.batch_remove([cache_file])  # cache_files has no remove()
+
+
+# ---------------------------------------------------------------------------------------------
+# Byte colours in playback. Blender's USD reader writes colour primvars into float colour
+# attributes only, and when the mesh it plays onto already has a BYTE colour of that name it
+# leaves that layer as it is (white once the topology changes). So, while a cache that carries a
+# byte colour is attached, a Geometry Nodes modifier right above "Tear Cloth" removes those byte
+# layers from the reader's input and the reader makes them float colours of the same name. It is
+# a stock node group saved in the .blend: playback needs no add-on. The bake never reads through
+# it (blender/inputs.py switches it off with the modifiers below).
+
+COLOUR_MODIFIER = "Tear Cloth Colours"
+
+
+def _byte_colours_in(obj, path: str) -> list:
+    """The object's byte colour attributes the cache at ``path`` carries."""
+    from .. import cache
+    try:
+        carried = cache.cache_info(path)["primvars"]
+    except cache.CacheError:
+        return []
+    return [a.name for a in obj.data.color_attributes if a.data_type == "BYTE_COLOR" and a.name in carried]
+
+
+def set_float_colours(obj, names) -> None:
+    """Make the byte colours ``names`` play as float colours (see above); none: remove the
+    modifier and its node group."""
+    md = obj.modifiers.get(COLOUR_MODIFIER)
+    if not names:
+        if md is not None:
+            group = md.node_group
+            obj.modifiers.remove(md)
+            if group is not None and group.users == 0:
+                bpy.data.node_groups.remove(group)
+        return
+    if md is None:
+        md = obj.modifiers.new(COLOUR_MODIFIER, "NODES")
+    group = md.node_group
+    if group is None:
+        group = bpy.data.node_groups.new(f"{COLOUR_MODIFIER} {obj.name}", "GeometryNodeTree")
+        group.interface.new_socket("Geometry", in_out="INPUT", socket_type="NodeSocketGeometry")
+        group.interface.new_socket("Geometry", in_out="OUTPUT", socket_type="NodeSocketGeometry")
+        md.node_group = group
+    group.nodes.clear()
+    prev = group.nodes.new("NodeGroupInput").outputs[0]
+    for name in names:
+        node = group.nodes.new("GeometryNodeRemoveAttribute")
+        node.inputs["Name"].default_value = name
+        group.links.new(prev, node.inputs["Geometry"])
+        prev = node.outputs["Geometry"]
+    group.links.new(prev, group.nodes.new("NodeGroupOutput").inputs[0])
+    mods = list(obj.modifiers)
+    target = mods.index(find_modifier(obj))
+    here = mods.index(md)
+    if here != target - 1:
+        obj.modifiers.move(here, target if here > target else target - 1)
