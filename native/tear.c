@@ -11,7 +11,8 @@
  * a single triangle left slips out of its grip instead (let_go()).
  *
  * Which way: the direction rule of rank_directions(): stress across the cut over strength ahead,
- * among the orthogonal-to-principal direction and the edges at the tip. A tear from an interior
+ * among the orthogonal-to-principal direction and the edges at the tip (woven sheets: also the
+ * warp and weft, with the strength of each thread family; see "woven sheets" below). A tear from an interior
  * vertex cuts two segments (both ways) before separating; a tip whose target lies on a boundary
  * (the rim, or another tear) ends there.
  *
@@ -184,6 +185,81 @@ static double threshold(const tc_cloth *c, int32_t v)
     return c->mat.tear_stress * ((const double *)tc_vec_ptr(&c->strength))[v];
 }
 
+/* ---------------- woven sheets: strength by direction ----------------
+ *
+ * A woven sheet (material orthotropic) fails by its threads: the warp threads break when the
+ * stress along the warp, s_ww = w^T S w, reaches tear_stress, the weft threads when s_ff reaches
+ * tear_stress_weft (the maximum-stress criterion of fibre composites, R. M. Jones, Mechanics of
+ * Composite Materials, 2nd ed. 1999, sec. 2.9.1; the shear alone breaks no thread: cloth on the
+ * bias shears). The failure index of a vertex is therefore
+ *     r = max(s_ww / tear_stress, s_ff / tear_stress_weft) / strength(v),
+ * (the isotropic r is sigma_1 / tear_stress / strength(v)). The interpolation for a cut at any
+ * angle is netting analysis (the sheet as two families of threads that carry only their own axial
+ * stress; D. Hull, T. W. Clyne, An Introduction to Composite Materials, 2nd ed. 1996, sec. 4.1):
+ * of the normal traction across a cut whose normal m makes angle theta with the warp, the warp
+ * threads carry s_ww cos^2 theta and the weft threads s_ff sin^2 theta, each against its own
+ * strength, so the cut's index is
+ *     r(m) = s_ww cos^2 theta / tear_stress + s_ff sin^2 theta / tear_stress_weft,
+ * a convex combination of the two thread indices: it is largest across one of the thread
+ * families (theta = 0 or 90 degrees), never in between, so a woven sheet tears along its threads
+ * (across the family that fails) whatever the angle of the pull, as denim does; a weak line (a
+ * seam) still steers it through the strength ahead. Paper's machine direction is the warp of a
+ * sheet whose fibres are mostly aligned with it. */
+
+/* The warp w and weft f at vertex v in the plane normal to n: the area-weighted mean over v's fan
+ * of the triangles' current warps (R times the rest-frame axis), sign-aligned to the first. False
+ * when they cancel out (then the isotropic rule is used at v). */
+static bool vertex_axes(const tc_cloth *c, int32_t v, const double *n, double *w, double *f)
+{
+    int32_t fan[TC_FAN_MAX];
+    bool closed;
+    int nf = tc_fan_walk(c, v, ((const int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
+    const double *R = tc_vec_ptr(&c->rot), *AX = tc_vec_ptr(&c->taxis), *A = tc_vec_ptr(&c->area);
+    double acc[3] = {0};
+    for (int i = 0; i < nf; i++) {
+        const double *r = R + 6 * (size_t)fan[i], *ax = AX + 2 * (size_t)fan[i];
+        double d[3];
+        for (int k = 0; k < 3; k++) d[k] = r[k] * ax[0] + r[3 + k] * ax[1];
+        double sg = (i && dot3(d, acc) < 0) ? -A[fan[i]] : A[fan[i]];
+        for (int k = 0; k < 3; k++) acc[k] += sg * d[k];
+    }
+    double dn = dot3(acc, n);
+    for (int k = 0; k < 3; k++) acc[k] -= dn * n[k];
+    double l = sqrt(dot3(acc, acc));
+    if (!(l > 0)) return false;
+    for (int k = 0; k < 3; k++) w[k] = acc[k] / l;
+    cross3(n, w, f);
+    return true;
+}
+
+static double quad(const double *S, const double *a)
+{
+    double Sa[3];
+    for (int r = 0; r < 3; r++) Sa[r] = S[3 * r] * a[0] + S[3 * r + 1] * a[1] + S[3 * r + 2] * a[2];
+    return dot3(a, Sa);
+}
+
+/* Failure index at v over its disc (see above; 0 where v has no stress), with the disc's S, n and
+ * principal direction pd out; w, f: the thread axes at v when woven (else untouched). */
+static double vertex_ratio(tc_cloth *c, int32_t v, double *pd, double *n, double *S, double *w, double *f, bool *woven)
+{
+    double Sl[9] = {0}, nl[3] = {0, 0, 1}, wl[3], fl[3];
+    double s1 = disc_stress(c, v, pd, nl, Sl);
+    bool wv = false;
+    double r = s1 / threshold(c, v);
+    if (c->mat.orthotropic && s1 != 0.0 && vertex_axes(c, v, nl, wl, fl)) {
+        const double st = ((const double *)tc_vec_ptr(&c->strength))[v];
+        double rw = quad(Sl, wl) / c->mat.tear_stress, rf = quad(Sl, fl) / c->mat.tear_stress_weft;
+        r = (rw > rf ? rw : rf) / st;
+        wv = true;
+    }
+    if (n) memcpy(n, nl, sizeof nl);
+    if (S) memcpy(S, Sl, sizeof Sl);
+    if (w && wv) { memcpy(w, wl, sizeof wl); memcpy(f, fl, sizeof fl); }
+    if (woven) *woven = wv;
+    return r;
+}
+
 /* ---------------- which way ---------------- */
 
 /* Strength where direction d (tangent, unit) leads from v: interpolated along the opposite edge of
@@ -235,8 +311,11 @@ static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const 
  * first, so a caller whose best direction cannot be cut (the remesh refuses it) takes the next;
  * returns their count. */
 static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double *n, const double *pd,
-                           const double *fwd, double *out)
+                           const double *fwd, const double *w, const double *f, double *out)
 {
+    /* woven (w, f given): the thread directions are candidates too, and a cut's opening measure is
+       the netting index of the head of this file's strength section instead of m^T S m / tear_stress */
+    const double sww = w ? quad(S, w) / c->mat.tear_stress : 0.0, sff = w ? quad(S, f) / c->mat.tear_stress_weft : 0.0;
     int32_t fan[TC_FAN_MAX];
     bool closed;
     int nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
@@ -246,9 +325,13 @@ static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double
     int count = 0;
     double orth[3];
     cross3(n, pd, orth);
-    for (int i = -2; i < 2 * nf; i++) {
+    for (int i = w ? -6 : -2; i < 2 * nf; i++) {
         double d[3], s_ahead;
-        if (i < 0) {  /* the orthogonal direction, both senses */
+        if (i < -2) {  /* woven: along the weft or the warp, both senses */
+            const double *axis = i < -4 ? f : w, sg = (i & 1) ? -1.0 : 1.0;
+            for (int k = 0; k < 3; k++) d[k] = sg * axis[k];
+            if (!strength_ahead(c, v, d, fan, nf, &s_ahead)) continue;
+        } else if (i < 0) {  /* the orthogonal direction, both senses */
             double sg = i == -2 ? 1.0 : -1.0;
             for (int k = 0; k < 3; k++) d[k] = sg * orth[k];
             if (!strength_ahead(c, v, d, fan, nf, &s_ahead)) continue;
@@ -267,13 +350,15 @@ static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double
             s_ahead = st[w];
         }
         if (fwd && dot3(d, fwd) <= TC_TIP_FORWARD_COS * sqrt(dot3(fwd, fwd))) continue;
-        double m[3], Sm[3];
+        double m[3];
         cross3(d, n, m);
-        for (int r = 0; r < 3; r++) Sm[r] = S[3 * r] * m[0] + S[3 * r + 1] * m[1] + S[3 * r + 2] * m[2];
-        double score = dot3(m, Sm) / s_ahead;
-        /* available only if the stress opens it: the opening stress over the segment's strength
-           (the mean of its two ends') passes the tear stress */
-        if (!(dot3(m, Sm) > c->mat.tear_stress * 0.5 * (st[v] + s_ahead))) continue;
+        double open;  /* the cut's opening index (1 at tear_stress with strength 1) */
+        if (w) { double cw = dot3(m, w), cf = dot3(m, f); open = sww * cw * cw + sff * cf * cf; }
+        else open = quad(S, m) / c->mat.tear_stress;
+        double score = open / s_ahead;
+        /* available only if the stress opens it: the opening index over the segment's strength
+           (the mean of its two ends') passes 1 */
+        if (!(open > 0.5 * (st[v] + s_ahead))) continue;
         if (count == TC_TEAR_DIRECTIONS && !(score > scores[count - 1])) continue;
         int j = count < TC_TEAR_DIRECTIONS ? count++ : count - 1;  /* insertion, best first */
         for (; j > 0 && scores[j - 1] < score; j--) { scores[j] = scores[j - 1]; memcpy(out + 3 * j, out + 3 * (j - 1), 3 * sizeof(double)); }
@@ -420,7 +505,7 @@ static double ratio_memo(tc_cloth *c, int32_t v, int32_t emark)
     double *R = tc_vec_ptr(&c->vsa);
     if (vs[3 * (size_t)v + MARK_EVALUATED] != emark) {
         double pd[3];
-        R[v] = disc_stress(c, v, pd, NULL, NULL) / threshold(c, v);
+        R[v] = vertex_ratio(c, v, pd, NULL, NULL, NULL, NULL, NULL);
         vs[3 * (size_t)v + MARK_EVALUATED] = emark;
     }
     return R[v];
@@ -467,7 +552,10 @@ static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
     const double *pr = tc_vec_ptr(&c->principal), *st = tc_vec_ptr(&c->strength);
     double smin = INFINITY;
     for (int32_t v = 0; v < c->nv; v++) smin = st[v] < smin ? st[v] : smin;
-    const double hot = c->mat.tear_stress * smin;
+    /* woven: no thread index exceeds sigma_1 over the weaker thread's strength */
+    const double weakest = c->mat.orthotropic && c->mat.tear_stress_weft < c->mat.tear_stress ? c->mat.tear_stress_weft
+                                                                                             : c->mat.tear_stress;
+    const double hot = weakest * smin;
     int32_t vmark = 0, *vs = tc_vec_ptr(&c->vstamp);
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *X = tc_vec_ptr(&c->rest);
@@ -561,13 +649,16 @@ static int run_tip(tc_cloth *c, size_t i, double earned, bool checked, double *S
     *adv += earned;
     for (int first = 1; *adv > 0; first = 0) {
         int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[i];
-        if ((!first || !checked) && !(disc_stress(c, v, pd, n, S) / threshold(c, v) > 1.0)) {
+        double w[3], f[3];
+        bool woven = false;
+        double r = vertex_ratio(c, v, pd, n, S, w, f, &woven);
+        if ((!first || !checked) && !(r > 1.0)) {
             if (*adv > earned) *adv = earned;
             break;
         }
         double dirs[3 * TC_TEAR_DIRECTIONS];
         const double *prev = (const double *)tc_vec_ptr(&c->tipdir) + 3 * i;
-        int nd = rank_directions(c, v, S, n, pd, prev, dirs);
+        int nd = rank_directions(c, v, S, n, pd, prev, woven ? w : NULL, f, dirs);
         size_t before = c->tips.len;
         double len = 0.0;
         for (int k = 0; k < nd && len == 0.0; k++) {
@@ -589,7 +680,7 @@ static int advance_tips(tc_cloth *c, double dt)
     for (size_t i = 0; i < c->tips.len;) {
         int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[i];
         double pd[3], n[3], S[9];
-        double r = disc_stress(c, v, pd, n, S) / threshold(c, v);
+        double r = vertex_ratio(c, v, pd, n, S, NULL, NULL, NULL);
         if (!(r > 1.0)) { tip_remove(c, i); c->stats.tips_retired++; continue; }
         int rc = run_tip(c, i, crack_speed(c, r) * dt, true, S, n, pd);
         if (rc < 0) return TC_ERR_NOMEM;
@@ -637,9 +728,10 @@ static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
         bool region_done = false;
         for (int k = 0; k < ndone; k++) region_done |= done[k] == cs[i].region;
         if (region_done || ndone == TC_TEAR_CANDIDATES) continue;
-        double pd[3], nrm[3], S[9], dirs[3 * TC_TEAR_DIRECTIONS];
-        if (!(disc_stress(c, v, pd, nrm, S) > 0)) continue;
-        int nd = rank_directions(c, v, S, nrm, pd, NULL, dirs);
+        double pd[3], nrm[3], S[9], dirs[3 * TC_TEAR_DIRECTIONS], w[3], f[3];
+        bool woven = false;
+        if (!(vertex_ratio(c, v, pd, nrm, S, w, f, &woven) > 0)) continue;
+        int nd = rank_directions(c, v, S, nrm, pd, NULL, woven ? w : NULL, f, dirs);
         size_t before = c->tips.len;
         int rc = 0;
         for (int k = 0; k < nd && rc == 0; k++) {
