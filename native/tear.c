@@ -206,29 +206,39 @@ static double threshold(const tc_cloth *c, int32_t v)
  * seam) still steers it through the strength ahead. Paper's machine direction is the warp of a
  * sheet whose fibres are mostly aligned with it. */
 
-/* The warp w and weft f at vertex v in the plane normal to n: the area-weighted mean over v's fan
- * of the triangles' current warps (R times the rest-frame axis), sign-aligned to the first. False
- * when they cancel out (then the isotropic rule is used at v). */
+/* The warp w and weft f at vertex v, unit, in the plane normal to n: the threads are material
+ * lines, so each fan triangle carries its rest axes forward by its deformation gradient F (not by
+ * its rotation R: a sheared sheet turns its threads apart, and a cut that follows a thread in the
+ * current shape must follow it in the rest shape too); area-weighted means over v's fan,
+ * sign-aligned to the first. w and f are not orthogonal in a sheared sheet. False when they
+ * cancel out (the isotropic rule is then used at v). */
 static bool vertex_axes(const tc_cloth *c, int32_t v, const double *n, double *w, double *f)
 {
     int32_t fan[TC_FAN_MAX];
     bool closed;
     int nf = tc_fan_walk(c, v, ((const int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
-    const double *R = tc_vec_ptr(&c->rot), *AX = tc_vec_ptr(&c->taxis), *A = tc_vec_ptr(&c->area);
-    double acc[3] = {0};
+    const double *x = tc_vec_ptr(&c->x), *G = tc_vec_ptr(&c->grad), *AX = tc_vec_ptr(&c->taxis), *A = tc_vec_ptr(&c->area);
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    double aw[3] = {0}, af[3] = {0};
     for (int i = 0; i < nf; i++) {
-        const double *r = R + 6 * (size_t)fan[i], *ax = AX + 2 * (size_t)fan[i];
-        double d[3];
-        for (int k = 0; k < 3; k++) d[k] = r[k] * ax[0] + r[3 + k] * ax[1];
-        double sg = (i && dot3(d, acc) < 0) ? -A[fan[i]] : A[fan[i]];
-        for (int k = 0; k < 3; k++) acc[k] += sg * d[k];
+        const int32_t t = fan[i], *tt = T + 3 * (size_t)t;
+        const double *g = G + 4 * (size_t)t, *ax = AX + 2 * (size_t)t;
+        double e1[3], e2[3], dw[3], df[3];
+        sub3(x + 3 * tt[1], x + 3 * tt[0], e1);
+        sub3(x + 3 * tt[2], x + 3 * tt[0], e2);
+        for (int k = 0; k < 3; k++) {
+            const double F0 = e1[k] * g[0] + e2[k] * g[2], F1 = e1[k] * g[1] + e2[k] * g[3];
+            dw[k] = F0 * ax[0] + F1 * ax[1];
+            df[k] = -F0 * ax[1] + F1 * ax[0];
+        }
+        const double sw = (i && dot3(dw, aw) < 0) ? -A[t] : A[t], sf = (i && dot3(df, af) < 0) ? -A[t] : A[t];
+        for (int k = 0; k < 3; k++) { aw[k] += sw * dw[k]; af[k] += sf * df[k]; }
     }
-    double dn = dot3(acc, n);
-    for (int k = 0; k < 3; k++) acc[k] -= dn * n[k];
-    double l = sqrt(dot3(acc, acc));
-    if (!(l > 0)) return false;
-    for (int k = 0; k < 3; k++) w[k] = acc[k] / l;
-    cross3(n, w, f);
+    const double pw = dot3(aw, n), pf = dot3(af, n);
+    for (int k = 0; k < 3; k++) { aw[k] -= pw * n[k]; af[k] -= pf * n[k]; }
+    const double lw = sqrt(dot3(aw, aw)), lf = sqrt(dot3(af, af));
+    if (!(lw > 0 && lf > 0)) return false;
+    for (int k = 0; k < 3; k++) { w[k] = aw[k] / lw; f[k] = af[k] / lf; }
     return true;
 }
 
@@ -265,7 +275,8 @@ static double vertex_ratio(tc_cloth *c, int32_t v, double *pd, double *n, double
 /* Strength where direction d (tangent, unit) leads from v: interpolated along the opposite edge of
  * the corner of v's fan that holds d, where d meets it. False when no corner holds d (it points
  * out of the cloth). */
-static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const int32_t *fan, int nf, double *out)
+static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const int32_t *fan, int nf, double *out,
+                           double *rest_at)
 {
     const double *x = tc_vec_ptr(&c->x), *st = tc_vec_ptr(&c->strength);
     for (int i = 0; i < nf; i++) {
@@ -291,9 +302,38 @@ static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const 
         /* d = alpha ea + beta eb in the corner; it meets ab at s = beta / (alpha + beta) */
         double s = sa / (sa + sb + TC_TINY);
         *out = (1.0 - s) * st[a] + s * st[b];
+        if (rest_at) {  /* where d meets ab, in the rest space */
+            const double *X = tc_vec_ptr(&c->rest);
+            for (int k = 0; k < 3; k++) rest_at[k] = (1.0 - s) * X[3 * a + k] + s * X[3 * b + k];
+        }
         return true;
     }
     return false;
+}
+
+/* Mean stress (world 3x3) over the disc of radius tear_radius around the rest point half the
+ * tear radius from v towards `lead` (at lead if that is nearer), through uncut edges from v's fan.
+ * False when the disc holds no area. */
+static bool stress_ahead(tc_cloth *c, int32_t v, const double *lead, const int32_t *fan, int nf, double *S)
+{
+    const double *X = (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)v;
+    double e[3], P[3];
+    sub3(lead, X, e);
+    double l = sqrt(dot3(e, e)), r = 0.5 * c->mat.tear_radius, t = l > r ? r / l : 1.0;
+    for (int k = 0; k < 3; k++) P[k] = X[k] + t * e[k];
+    int32_t m = disc_walk(c, P, c->mat.tear_radius, fan, nf, BY_CENTROID);
+    const int32_t *Q = tc_vec_ptr(&c->tqueue);
+    const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
+    double wsum = 0.0;
+    memset(S, 0, 9 * sizeof(double));
+    for (int32_t i = 0; i < m; i++) {
+        const double wt = A[Q[i]], *st = S3 + 9 * (size_t)Q[i];
+        for (int q = 0; q < 9; q++) S[q] += wt * st[q];
+        wsum += wt;
+    }
+    if (!(wsum > 0)) return false;
+    for (int q = 0; q < 9; q++) S[q] /= wsum;
+    return true;
 }
 
 /* THE DIRECTION RULE. Among the directions available at v - the one orthogonal to the principal
@@ -326,15 +366,15 @@ static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double
     double orth[3];
     cross3(n, pd, orth);
     for (int i = w ? -6 : -2; i < 2 * nf; i++) {
-        double d[3], s_ahead;
+        double d[3], s_ahead, lead[3];  /* lead: a rest point the direction leads through */
         if (i < -2) {  /* woven: along the weft or the warp, both senses */
             const double *axis = i < -4 ? f : w, sg = (i & 1) ? -1.0 : 1.0;
             for (int k = 0; k < 3; k++) d[k] = sg * axis[k];
-            if (!strength_ahead(c, v, d, fan, nf, &s_ahead)) continue;
+            if (!strength_ahead(c, v, d, fan, nf, &s_ahead, lead)) continue;
         } else if (i < 0) {  /* the orthogonal direction, both senses */
             double sg = i == -2 ? 1.0 : -1.0;
             for (int k = 0; k < 3; k++) d[k] = sg * orth[k];
-            if (!strength_ahead(c, v, d, fan, nf, &s_ahead)) continue;
+            if (!strength_ahead(c, v, d, fan, nf, &s_ahead, lead)) continue;
         } else {  /* the two edges of each fan triangle at v (closed fans list each edge twice) */
             const int32_t *T = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)fan[i / 2];
             int32_t w = T[(tc_tri_local(c, fan[i / 2], v) + 1 + i % 2) % 3];
@@ -348,12 +388,24 @@ static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double
             if (!(l > 0)) continue;
             for (int k = 0; k < 3; k++) d[k] /= l;
             s_ahead = st[w];
+            memcpy(lead, (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)w, sizeof lead);
         }
         if (fwd && dot3(d, fwd) <= TC_TIP_FORWARD_COS * sqrt(dot3(fwd, fwd))) continue;
         double m[3];
         cross3(d, n, m);
         double open;  /* the cut's opening index (1 at tear_stress with strength 1) */
-        if (w) { double cw = dot3(m, w), cf = dot3(m, f); open = sww * cw * cw + sff * cf * cf; }
+        if (w) {
+            /* the thread stresses ahead, at half the critical distance along the direction (the
+               point method of the theory of critical distances, Taylor 2007): the crossing threads
+               a cut must break are those ahead of the tip, and the tip's own disc mixes in the
+               stress of the threads parallel to the crack beside it, which a net does not feel */
+            double Sa[9], cw = dot3(m, w), cf = dot3(m, f), aw = sww, af = sff;
+            if (stress_ahead(c, v, lead, fan, nf, Sa)) { aw = quad(Sa, w) / c->mat.tear_stress; af = quad(Sa, f) / c->mat.tear_stress_weft; }
+            /* normalised: w and f need not be orthogonal in a sheared sheet, and a cut along a
+               thread (m normal to it) must weigh only the other family */
+            const double q = cw * cw + cf * cf;
+            open = q > 0 ? (aw * cw * cw + af * cf * cf) / q : 0.0;
+        }
         else open = quad(S, m) / c->mat.tear_stress;
         double score = open / s_ahead;
         /* available only if the stress opens it: the opening index over the segment's strength
