@@ -53,8 +53,7 @@ typedef struct tc_material {
     double tear_radius;       /* l (m): the material length over which the stress that starts, drives and
                                  arrests a tear is averaged (theory of critical distances, see tear.c) */
     double crack_speed_ratio; /* fastest a tear runs, as a fraction of the Rayleigh wave speed c_R, in (0, 1] */
-    /* Orthotropy (see ortho.c). When set, young, poisson and tear_stress are the warp's values. */
-    int orthotropic;          /* 0: isotropic (young, poisson); 1: warp/weft axes per triangle */
+    /* Orthotropy (see ortho.c). When orthotropic, young, poisson and tear_stress are the warp's. */
     double young_weft;        /* E along the weft (Pa) */
     double shear_modulus;     /* G of the warp-weft axes, the bias stiffness (Pa) */
     double grain_angle;       /* rad: the warp's angle from the UV map's u direction (triangles without
@@ -62,10 +61,12 @@ typedef struct tc_material {
     double tear_stress_weft;  /* strength along the weft (Pa) */
     /* Plasticity (ortho.c): Hill 1948 yield with linear proportional hardening, rest metric updated
        additively in the co-rotated frame. */
-    int plastic;              /* 0: elastic up to the tear; 1: yield and keep the stretch */
     double yield_stress;      /* along the warp (isotropic: any direction) (Pa) */
     double yield_stress_weft; /* along the weft (Pa); used when orthotropic */
     double hardening;         /* H / E_warp: the yield stress grows by H per unit plastic strain (1) */
+    /* the two switches last and together: no padding, so a material compares by its bytes */
+    int orthotropic;          /* 0: isotropic (young, poisson); 1: warp/weft axes per triangle */
+    int plastic;              /* 0: elastic up to the tear; 1: yield and keep the stretch */
 } tc_material;
 
 tc_material tc_material_default(void);  /* the "cotton" preset of addon/materials.py */
