@@ -26,7 +26,9 @@
  * plastic strain then changes only the rest metric the stress is measured from (the rest metric
  * is (I + eps_p)^2 to first order); the rest gradients and areas stay untouched, so the lumped
  * masses (density h area / 3) are exactly conserved and nothing the remesh or the tearing reads
- * about the rest shape moves. eps_p lives in the warp/weft axes (tplast), so a split hands it on.
+ * about the rest shape moves. eps_p lives in the warp/weft axes (tplast), so a split hands it on
+ * (and a change of grain angle turns the set with the threads). Turning plasticity off ignores the
+ * set (the original rest shape returns); turning it on again restores it.
  * Yield: Hill's 1948 quadratic criterion in plane stress (R. Hill, Proc. R. Soc. A 193, 281, 1948)
  * with warp and weft yield stresses X, Y and the warp-equivalent stress
  *     sbar^2 = X^2 (s_w^2 / X^2 - s_w s_f / (X Y) + s_f^2 / Y^2 + 3 t^2 / (X Y)),
