@@ -703,10 +703,13 @@ static int run_tip(tc_cloth *c, size_t i, double earned, bool checked, double *S
         int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[i];
         double w[3], f[3];
         bool woven = false;
-        double r = vertex_ratio(c, v, pd, n, S, w, f, &woven);
-        if ((!first || !checked) && !(r > 1.0)) {
-            if (*adv > earned) *adv = earned;
-            break;
+        if (!first || !checked) {
+            if (!(vertex_ratio(c, v, pd, n, S, w, f, &woven) > 1.0)) {
+                if (*adv > earned) *adv = earned;
+                break;
+            }
+        } else if (c->mat.orthotropic) {
+            woven = vertex_axes(c, v, n, w, f);  /* S, n, pd: the caller's, of this step */
         }
         double dirs[3 * TC_TEAR_DIRECTIONS];
         const double *prev = (const double *)tc_vec_ptr(&c->tipdir) + 3 * i;
