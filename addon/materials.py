@@ -47,15 +47,18 @@ Sources of the presets (values rounded; fabrics vary by weave and direction, the
   * silk habotai: nearly balanced plain weave, weft 0.8 of the warp in strength and stiffness.
   * Bias shear: Kawabata KES-FB1 shear rigidity G h of 30-300 N/m for shirting to denim (S.
     Kawabata, The Standardization and Analysis of Hand Evaluation, 2nd ed. 1980), G = G h / h.
-  * Yield (plastic presets): woven cotton keeps a permanent set past ~3-5 % strain (knee bagging of
-    denim, cyclic strip tests), silk past ~10 %: yield stresses ~5 % of E; the post-yield slope
-    (hardening) 5-10 % of the initial one. These are our reading of published curves, estimates.
+  * Yield (plastic presets): at half the tear stress in each direction, hardening H = 2 E, so the
+    set left at the tear is a quarter of the elastic strain there (4-5 % for cotton and denim, 15 %
+    for jersey), as the 2-6 % residual strain of worn denim knees ("bagging") and the larger set of
+    knits. The membrane's E is the strip test's secant to the break, so the flat post-yield slopes
+    of the measured curves' knees (5-20 % of the initial one) would put the tear at strains of
+    order 1; H = 2 E is chosen to keep it within reach. Estimates, not one fabric's measurement.
 - Paper's machine direction (MD = warp) and cross direction (CD = weft), ISO 1924-2 tensile tests:
   office paper has MD/CD tensile strength and stiffness ratios of about 2 (tensile index ~60 vs
   ~30 N m/g; E ~4 vs ~2 GPa); banknote rag paper is squarer (~1.4). In-plane shear modulus by
   Baum's approximation G = 0.387 sqrt(E_MD E_CD) (G. A. Baum, D. C. Brennan, C. C. Habeger,
   Orthotropic elastic constants of paper, Tappi 64(8), 97, 1981). Paper's yield (the knee of the
-  MD curve near 60 % of the strength) is set, but plasticity is off in its presets.
+  MD and CD curves near 60 % of the strength) is set, but plasticity is off in its presets.
 - Damping: the mass-proportional term stands in for air drag, which dominates how a light sheet
   moves: with linear drag a sheet falls at a terminal speed of g / damping_mass, and flat cloth or
   paper falls at 1-4 m/s, hence 3 /s. The stiffness-proportional term is the fibres' internal
@@ -132,23 +135,23 @@ _WOVEN = dict(orthotropic=True, plastic=True)
 MATERIALS: dict[str, Material] = {
     "cotton": Material(),
     "denim": Material(name="denim", young=8.0e7, thickness=8.0e-4, density=500.0, bending=4.0e-5, tear_stress=1.5e7,
-                      young_weft=4.5e7, shear_modulus=3.0e5, tear_stress_weft=9.0e6, yield_stress=4.0e6,
-                      yield_stress_weft=2.5e6, hardening=0.1, **_WOVEN),
+                      young_weft=4.5e7, shear_modulus=3.0e5, tear_stress_weft=9.0e6, yield_stress=7.5e6,
+                      yield_stress_weft=4.5e6, hardening=2.0, **_WOVEN),
     "silk": Material(name="silk", young=3.0e7, thickness=1.0e-4, density=400.0, bending=2.0e-6, tear_stress=1.0e7,
                      tear_radius=0.005, young_weft=2.4e7, shear_modulus=2.0e5, tear_stress_weft=8.0e6,
-                     yield_stress=3.0e6, yield_stress_weft=2.4e6, hardening=0.1, **_WOVEN),
+                     yield_stress=5.0e6, yield_stress_weft=4.0e6, hardening=2.0, **_WOVEN),
     "paper": Material(name="paper", young=4.0e9, thickness=1.0e-4, density=800.0, tear_stress=2.0e7, **_PAPER_LIKE,
                       orthotropic=True, young_weft=2.0e9, shear_modulus=1.1e9, tear_stress_weft=1.1e7,
-                      yield_stress=1.2e7, yield_stress_weft=6.0e6, hardening=0.05),
+                      yield_stress=1.2e7, yield_stress_weft=6.6e6, hardening=2.0),
     "banknote": Material(name="banknote", young=3.0e9, thickness=1.1e-4, density=820.0, tear_stress=3.0e7,
                          **_PAPER_LIKE, orthotropic=True, young_weft=2.2e9, shear_modulus=1.0e9,
-                         tear_stress_weft=2.2e7, yield_stress=1.8e7, yield_stress_weft=1.3e7, hardening=0.05),
+                         tear_stress_weft=2.2e7, yield_stress=1.8e7, yield_stress_weft=1.3e7, hardening=2.0),
     "poplin": Material(name="poplin", young=6.0e7, thickness=2.5e-4, density=480.0, bending=2.0e-6,
                        tear_stress=1.2e7, young_weft=3.5e7, shear_modulus=4.0e5, tear_stress_weft=6.0e6,
-                       yield_stress=2.5e6, yield_stress_weft=1.5e6, hardening=0.1, **_WOVEN),
+                       yield_stress=6.0e6, yield_stress_weft=3.0e6, hardening=2.0, **_WOVEN),
     "jersey": Material(name="jersey", young=5.0e6, thickness=6.0e-4, density=300.0, bending=2.0e-6,
                        tear_stress=3.0e6, young_weft=2.0e6, shear_modulus=3.0e5, tear_stress_weft=2.5e6,
-                       yield_stress=6.0e5, yield_stress_weft=3.0e5, hardening=0.05, **_WOVEN),
+                       yield_stress=1.5e6, yield_stress_weft=1.25e6, hardening=2.0, **_WOVEN),
 }
 
 

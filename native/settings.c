@@ -19,7 +19,7 @@ tc_material tc_material_default(void)
         .bending = 5.0e-6, .damping_mass = 3.0, .damping_stiffness = 2.0e-5,
         .tear_stress = 8.0e6, .snap_tolerance = 0.3, .tear_radius = 0.01, .crack_speed_ratio = 0.2,
         .orthotropic = 0, .young_weft = 4.0e7, .shear_modulus = 5.0e5, .grain_angle = 0.0, .tear_stress_weft = 6.5e6,
-        .plastic = 0, .yield_stress = 2.0e6, .yield_stress_weft = 1.6e6, .hardening = 0.1,
+        .plastic = 0, .yield_stress = 4.0e6, .yield_stress_weft = 3.25e6, .hardening = 2.0,
     };
     return m;
 }
