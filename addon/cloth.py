@@ -203,6 +203,11 @@ class Cloth:
     principal_stress = property(lambda self: self._array(_native.PRINCIPAL), doc="(m, 2) Pa, largest first")
     principal_direction = property(lambda self: self._array(_native.PRINCIPAL_DIR), doc="(m, 3) unit")
     tear_strength = property(lambda self: self._array(_native.TEAR_STRENGTH), doc="(n,) factor on tear_stress")
+    grain_angles = property(lambda self: self._array(_native.GRAIN_ANGLES),
+                            doc="(m,) rad: each triangle's own grain angle, NaN where the material's applies")
+    warp = property(lambda self: self._array(_native.WARP), doc="(m, 3) unit warp direction in the rest space")
+    plastic_strain = property(lambda self: self._array(_native.PLASTIC_STRAIN),
+                              doc="(m, 4): plastic strain in warp/weft axes (ww, ff, wf) and the equivalent kappa")
 
     def group(self, name: str) -> np.ndarray:
         """Weights of a vertex group (carried through tears)."""
@@ -229,6 +234,12 @@ class Cloth:
 
     def set_tear_strength(self, factor) -> None:
         self._c.set_tear_strength(np.ascontiguousarray(factor, dtype=np.float64).reshape(-1))
+
+    def set_grain_angles(self, angles_rad) -> None:
+        """Each triangle's grain angle (rad, the warp's angle from the UV map's u direction), overriding
+        the material's grain_angle; NaN entries keep the material's. One value per current triangle
+        (the Blender side reads them from the face attribute ``tearcloth_grain_angle``)."""
+        self._c.set_grain_angles(np.ascontiguousarray(angles_rad, dtype=np.float64).reshape(-1))
 
     # ---- constraints ----
     def _indices(self, sel, threshold: float = 0.5) -> np.ndarray:

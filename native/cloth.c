@@ -25,7 +25,7 @@
     X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
     X(ev_chg, int32_t) X(ev_newt, int32_t) X(rptr, int32_t) X(rcol, int32_t) X(rblk, double) X(fptr, int32_t)  \
     X(fcol, int32_t) X(fval, double) X(pslot, int32_t) X(tipadv, double) X(tstamp, int32_t) X(vstamp, int32_t)     \
-    X(tqueue, int32_t) X(vqueue, int32_t)
+    X(tqueue, int32_t) X(vqueue, int32_t) X(tgrain, double) X(twarp, double) X(taxis, double) X(tplast, double)
 
 void tc_cloth_destroy(tc_cloth *c)
 {
@@ -114,9 +114,10 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
 int tc_cloth_set_material(tc_cloth *c, const tc_material *m)
 {
     if (tc_material_check(m, c->err, sizeof c->err)) return TC_ERR_INPUT;
-    double rho_h = c->mat.density * c->mat.thickness;
+    double rho_h = c->mat.density * c->mat.thickness, grain = c->mat.grain_angle;
     c->mat = *m;
     if (rho_h != m->density * m->thickness) tc_masses_update(c);
+    if (grain != m->grain_angle) tc_axes_refresh(c);
     c->dirty = true;
     return TC_OK;
 }
@@ -192,6 +193,9 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
     case TC_FORCES: v = &c->force; break;
     case TC_GROUPS: v = &c->groups; k = (size_t)c->ng; break;
     case TC_TEAR_STRENGTH: v = &c->strength; k = 1; break;
+    case TC_GRAIN_ANGLES: v = &c->tgrain; r = (size_t)c->nt; k = 1; break;
+    case TC_WARP: v = &c->twarp; r = (size_t)c->nt; k = 3; break;
+    case TC_PLASTIC_STRAIN: v = &c->tplast; r = (size_t)c->nt; k = 4; break;
     case TC_TRIANGLES: v = &c->tri; r = (size_t)c->nt; *item = sizeof(int32_t); break;
     case TC_CORNER_UV: v = &c->uv; r = (size_t)c->nt; k = 6; break;
     case TC_STRESS: v = &c->stress; r = (size_t)c->nt; k = 9; break;

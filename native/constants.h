@@ -98,4 +98,22 @@
 /* Zeros after the last edge block: the AVX2 product loads a block's last column 4 wide. (doubles) */
 #define TC_ROW_SLACK 4
 
+/* ---- woven sheets: axes and plasticity (ortho.c) ---- */
+/* UVs whose Jacobian determinant is below this fraction of |grad u|^2 + |grad v|^2 carry no
+ * direction (no UV map, or a triangle collapsed in UV space): the rest X axis is taken. (1) */
+#define TC_UV_DEGENERATE 1e-9
+/* Without UVs, a triangle whose rest normal has |n_x| above this (its plane nearly normal to X)
+ * takes the rest Y axis instead of X. (1) */
+#define TC_AXIS_FALLBACK_NX 0.9
+/* Largest |grain angle| accepted per triangle (rad): any angle is meaningful modulo pi, this only
+ * refuses garbage (an angle in degrees is below it, but a value of 1e6 is not an angle). */
+#define TC_GRAIN_ANGLE_MAX 100.0
+/* A triangle yields when its Hill stress passes the current yield stress by more than this
+ * fraction of the warp yield stress (so a state just returned to the surface stays there). (1) */
+#define TC_YIELD_TOLERANCE 1e-12
+/* The return mapping's scalar equation is solved to this fraction of the warp yield stress, in at
+ * most this many steps; a mapping stopped at the cap is counted (tc_stats.plastic_unconverged). */
+#define TC_RETURN_TOLERANCE 1e-12
+#define TC_RETURN_MAX_ITERATIONS 100
+
 #endif

@@ -10,6 +10,7 @@
  *   util.c        clock, error text
  *   buf.c         reference-counted blocks, growable arrays
  *   settings.c    defaults and checks of the material, solver and tearing settings
+ *   ortho.c       woven sheets: warp/weft axes per triangle, orthotropic moduli, plasticity
  *   mesh.c        pairs (edges, bending flaps), adjacency, rest elements, masses, stencils
  *   events.c      topology events of one step
  *   fem.c         element pass (rotations, stresses, forces), assembly, matrix-vector product, energies
@@ -108,6 +109,10 @@ struct tc_cloth {
     tc_vec principal;        /* double x2 */
     tc_vec pdir;             /* double x3 */
     tc_vec uv;               /* double x6 corner uv */
+    tc_vec tgrain;           /* double: the triangle's own grain angle (rad), NaN: the material's */
+    tc_vec twarp;            /* double x3: unit warp direction in the rest space (ortho.c) */
+    tc_vec taxis;            /* double x2: the warp as (cos, sin) in the triangle's 2-D rest frame */
+    tc_vec tplast;           /* double x4: plastic strain in warp/weft axes (ww, ff, wf), kappa */
 
     /* pairs (off-diagonal blocks) */
     tc_vec pi, pj;           /* int32 endpoints, pi < pj; -1 when free */
@@ -191,6 +196,13 @@ void tc_set_err(tc_cloth *c, const char *fmt, ...);   /* the message of tc_cloth
 /* ---------------- settings.c ---------------- */
 int tc_solver_check(const tc_solver_settings *s, char *msg, size_t msz);
 int tc_tear_check(const tc_tear_settings *s, char *msg, size_t msz);
+
+/* ---------------- ortho.c ---------------- */
+bool tc_material_general(const tc_material *m);     /* orthotropic or plastic: fem.c's general element */
+void tc_ortho_moduli(const tc_material *m, double Q[4]);  /* Q11, Q22, Q12, Q66 in warp/weft axes (Pa) */
+void tc_axes_set(tc_cloth *c, int32_t t, bool from_uv);  /* taxis from twarp (from the UVs if from_uv or unset) */
+void tc_axes_refresh(tc_cloth *c);                  /* every triangle's warp again from its UVs and grain */
+int32_t tc_plastic_commit(tc_cloth *c);             /* after a kept sub-step: triangles that yielded */
 
 /* ---------------- mesh.c ---------------- */
 int tc_mesh_build(tc_cloth *c, char *msg, size_t msz);

@@ -20,6 +20,40 @@ static inline void lame(const tc_material *m, double *lambda, double *mu)
     *mu = m->young / (2.0 * (1.0 + m->poisson));
 }
 
+/* The general element (orthotropic or plastic, see ortho.c): the co-rotated strain eps (xx, yy,
+ * xy tensor) of a triangle whose warp is (cs, sn) in its rest frame, less the plastic strain pl
+ * (warp/weft axes; NULL: none), to the stress (xx, yy, xy) in the rest frame, through the warp/weft
+ * axes. Returns the elastic energy density 0.5 sigma : eps_e (J/m^3). */
+static inline double ortho_stress(const double Q[4], double cs, double sn, const double *pl, const double eps[3],
+                                  double *sxx, double *syy, double *sxy)
+{
+    const double cc = cs * cs, ss = sn * sn, cn = cs * sn;
+    double ew = cc * eps[0] + ss * eps[1] + 2.0 * cn * eps[2];
+    double ef = ss * eps[0] + cc * eps[1] - 2.0 * cn * eps[2];
+    double ewf = cn * (eps[1] - eps[0]) + (cc - ss) * eps[2];
+    if (pl) { ew -= pl[0]; ef -= pl[1]; ewf -= pl[2]; }
+    const double sw = Q[0] * ew + Q[2] * ef, sf = Q[2] * ew + Q[1] * ef, tau = 2.0 * Q[3] * ewf;
+    *sxx = cc * sw + ss * sf - 2.0 * cn * tau;
+    *syy = ss * sw + cc * sf + 2.0 * cn * tau;
+    *sxy = cn * (sw - sf) + (cc - ss) * tau;
+    return 0.5 * (sw * ew + sf * ef + 2.0 * tau * ewf);
+}
+
+/* The orthotropic moduli in the rest frame of a triangle whose warp is (cs, sn) there: the
+ * transformed reduced stiffness (Jones 1999, eq. 2.85) on (eps_xx, eps_yy, gamma_xy), as
+ * C11, C22, C12, C16, C26, C66. */
+static inline void ortho_rest_moduli(const double Q[4], double cs, double sn, double C[6])
+{
+    const double c2 = cs * cs, s2 = sn * sn, c4 = c2 * c2, s4 = s2 * s2, cs2 = c2 * s2;
+    const double a = Q[0] - Q[2] - 2.0 * Q[3], b = Q[2] - Q[1] + 2.0 * Q[3];
+    C[0] = Q[0] * c4 + 2.0 * (Q[2] + 2.0 * Q[3]) * cs2 + Q[1] * s4;
+    C[1] = Q[0] * s4 + 2.0 * (Q[2] + 2.0 * Q[3]) * cs2 + Q[1] * c4;
+    C[2] = (Q[0] + Q[1] - 4.0 * Q[3]) * cs2 + Q[2] * (s4 + c4);
+    C[3] = a * sn * c2 * cs + b * s2 * sn * cs;
+    C[4] = a * s2 * sn * cs + b * sn * c2 * cs;
+    C[5] = (Q[0] + Q[1] - 2.0 * Q[2] - 2.0 * Q[3]) * cs2 + Q[3] * (s4 + c4);
+}
+
 /* Rotation of one element from its deformation gradient columns F0, F1; returns the 2x2 strain. */
 static void corotate(const double *F0, const double *F1, double *R, double eps[3])
 {
@@ -56,11 +90,22 @@ static void corotate(const double *F0, const double *F1, double *R, double eps[3
 
 /* Rotations, stresses and elastic forces of every element at positions x. Returns the largest
  * principal stretch seen (for the explosion test), or NAN if any value is not finite. */
-TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
+/* Both element loops are specialised by `general` (a constant at each call), so the isotropic one
+ * compiles to what it was before the general element existed, to the last rounding. */
+#if defined(__GNUC__) || defined(__clang__)
+#define TC_INLINE static inline __attribute__((always_inline))
+#else
+#define TC_INLINE static inline
+#endif
+
+TC_INLINE double element_pass(tc_cloth *c, const double *x, const bool general)
 {
     double worst2 = 0.0;
-    double lambda, mu;
+    double lambda, mu, Q[4];
     lame(&c->mat, &lambda, &mu);
+    tc_ortho_moduli(&c->mat, Q);
+    const bool plastic = c->mat.plastic;
+    const double *AX = tc_vec_ptr(&c->taxis), *PL = tc_vec_ptr(&c->tplast);
     const double h = c->mat.thickness;
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
@@ -87,8 +132,13 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
             if (!(s2 <= worst2)) worst2 = s2;  /* also takes NaN */
         }
         corotate(F0, F1, R, eps);
-        double tr = eps[0] + eps[1];
-        double sxx = lambda * tr + 2.0 * mu * eps[0], syy = lambda * tr + 2.0 * mu * eps[1], sxy = 2.0 * mu * eps[2];
+        double sxx, syy, sxy;
+        if (!general) {
+            double tr = eps[0] + eps[1];
+            sxx = lambda * tr + 2.0 * mu * eps[0]; syy = lambda * tr + 2.0 * mu * eps[1]; sxy = 2.0 * mu * eps[2];
+        } else {
+            ortho_stress(Q, AX[2 * t], AX[2 * t + 1], plastic ? PL + 4 * (size_t)t : NULL, eps, &sxx, &syy, &sxy);
+        }
         sig[3 * t] = sxx; sig[3 * t + 1] = syy; sig[3 * t + 2] = sxy;
         double P0[3], P1[3];
         for (int k = 0; k < 3; k++) {
@@ -122,6 +172,11 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
     return isfinite(worst2) ? sqrt(worst2) : NAN;
 }
 
+TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
+{
+    return tc_material_general(&c->mat) ? element_pass(c, x, true) : element_pass(c, x, false);
+}
+
 TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
 {
     const double k = c->mat.bending;
@@ -144,11 +199,12 @@ TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
 }
 
 /* System matrix A = (1 + dt alpha) M + (dt^2 + dt beta) (K + B), into the rows of core.h. */
-TC_HOT int tc_assemble(tc_cloth *c, double dt)
+TC_INLINE void assemble(tc_cloth *c, double dt, const bool general)
 {
-    if (tc_rows_update(c)) { tc_set_err(c, "out of memory building the rows of the system matrix"); return TC_ERR_NOMEM; }
-    double lambda, mu;
+    double lambda, mu, Q[4];
     lame(&c->mat, &lambda, &mu);
+    tc_ortho_moduli(&c->mat, Q);
+    const double *AX = tc_vec_ptr(&c->taxis);
     const double h = c->mat.thickness, kb = c->mat.bending;
     const double ks = dt * dt + dt * c->mat.damping_stiffness, ms = 1.0 + dt * c->mat.damping_mass;
     c->mass_scale = ms;
@@ -208,15 +264,33 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
         const double wg = ks * A[t] * h;
         for (int i = 0; i < 3; i++)
             for (int l = 0; l < 3; l++) P[3 * i + l] = R[i] * R[l] + R[3 + i] * R[3 + l];
+        /* the general element: K0_ab = A h B_a^T C B_b with C the moduli in the rest frame on
+           (eps_xx, eps_yy, gamma_xy) and B_b = [[g_b0, 0], [0, g_b1], [g_b1, g_b0]], then R K0 R^T
+           (the plastic strain shifts the stress, not the stiffness) */
+        double C[6] = {0};
+        if (general) ortho_rest_moduli(Q, AX[2 * t], AX[2 * t + 1], C);
         for (int a = 0; a < 3; a++) {
             for (int b = a; b < 3; b++) {
                 const double dab = gg[a][0] * gg[b][0] + gg[a][1] * gg[b][1];
                 const double kg = wg * (gg[a][0] * (sp00 * gg[b][0] + sp01 * gg[b][1]) +
                                         gg[a][1] * (sp01 * gg[b][0] + sp11 * gg[b][1]));
                 double B[9];
-                for (int i = 0; i < 3; i++)
-                    for (int l = 0; l < 3; l++)
-                        B[3 * i + l] = wm * (dab * P[3 * i + l] + r[b][i] * r[a][l]) + wl * r[a][i] * r[b][l];
+                if (!general) {
+                    for (int i = 0; i < 3; i++)
+                        for (int l = 0; l < 3; l++)
+                            B[3 * i + l] = wm * (dab * P[3 * i + l] + r[b][i] * r[a][l]) + wl * r[a][i] * r[b][l];
+                } else {
+                    const double a0 = gg[a][0], a1 = gg[a][1], b0 = gg[b][0], b1 = gg[b][1];
+                    /* C B_b, its two columns (xx, yy, xy rows) */
+                    const double u0 = C[0] * b0 + C[3] * b1, u1 = C[2] * b0 + C[4] * b1, u2 = C[3] * b0 + C[5] * b1;
+                    const double v0 = C[2] * b1 + C[3] * b0, v1 = C[1] * b1 + C[4] * b0, v2 = C[4] * b1 + C[5] * b0;
+                    const double k00 = w * (a0 * u0 + a1 * u2), k01 = w * (a0 * v0 + a1 * v2);
+                    const double k10 = w * (a1 * u1 + a0 * u2), k11 = w * (a1 * v1 + a0 * v2);
+                    for (int i = 0; i < 3; i++) {
+                        const double p0 = k00 * R[i] + k10 * R[3 + i], p1 = k01 * R[i] + k11 * R[3 + i];
+                        for (int l = 0; l < 3; l++) B[3 * i + l] = p0 * R[l] + p1 * R[3 + l];
+                    }
+                }
                 B[0] += kg; B[4] += kg; B[8] += kg;
                 const int32_t va = T[3 * t + a];
                 /* B is A_{va,vb}, row-major; a row slot holds its block column by column (core.h):
@@ -239,6 +313,13 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
             }
         }
     }
+}
+
+TC_HOT int tc_assemble(tc_cloth *c, double dt)
+{
+    if (tc_rows_update(c)) { tc_set_err(c, "out of memory building the rows of the system matrix"); return TC_ERR_NOMEM; }
+    if (tc_material_general(&c->mat)) assemble(c, dt, true);
+    else assemble(c, dt, false);
     return TC_OK;
 }
 
@@ -473,8 +554,11 @@ double tc_matvec(const tc_cloth *c, const double *restrict p, double *restrict y
 
 static double tc_elastic_energy(const tc_cloth *c, const double *x)
 {
-    double lambda, mu;
+    double lambda, mu, Q[4];
     lame(&c->mat, &lambda, &mu);
+    tc_ortho_moduli(&c->mat, Q);
+    const bool general = tc_material_general(&c->mat);
+    const double *AX = tc_vec_ptr(&c->taxis), *PL = tc_vec_ptr(&c->tplast);
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
     double e = 0.0;
@@ -488,6 +572,12 @@ static double tc_elastic_energy(const tc_cloth *c, const double *x)
             F1[k] = e1[k] * g[1] + e2[k] * g[3];
         }
         corotate(F0, F1, R, eps);
+        if (general) {
+            double sxx, syy, sxy;
+            e += A[t] * c->mat.thickness *
+                 ortho_stress(Q, AX[2 * t], AX[2 * t + 1], c->mat.plastic ? PL + 4 * (size_t)t : NULL, eps, &sxx, &syy, &sxy);
+            continue;
+        }
         double tr = eps[0] + eps[1];
         e += A[t] * c->mat.thickness *
              (mu * (eps[0] * eps[0] + eps[1] * eps[1] + 2.0 * eps[2] * eps[2]) + 0.5 * lambda * tr * tr);

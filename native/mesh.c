@@ -137,6 +137,12 @@ int tc_reserve_triangles(tc_cloth *c, int32_t m)
         tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->stress, 9 * M) || tc_vec_resize(&c->principal, 2 * M) ||
         tc_vec_resize(&c->pdir, 3 * M) || tc_vec_resize(&c->uv, 6 * M))
         return TC_ERR_NOMEM;
+    size_t old = c->tgrain.len;
+    if (tc_vec_resize(&c->tgrain, M) || tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M) ||
+        tc_vec_resize(&c->tplast, 4 * M))
+        return TC_ERR_NOMEM;
+    /* a new triangle has no grain angle of its own until told (the remesh copies its parent's) */
+    for (size_t t = old; t < M; t++) ((double *)tc_vec_ptr(&c->tgrain))[t] = NAN;
     return TC_OK;
 }
 
@@ -229,6 +235,7 @@ int tc_tri_rest(tc_cloth *c, int32_t t, char *msg, size_t msz)
     /* rotation starts as the rest frame so a cloth created in place has no spurious stress */
     double *R = (double *)tc_vec_ptr(&c->rot) + 6 * (size_t)t;
     R[0] = t1[0]; R[1] = t1[1]; R[2] = t1[2]; R[3] = t2[0]; R[4] = t2[1]; R[5] = t2[2];
+    tc_axes_set(c, t, false);  /* the warp in this (possibly new) rest frame */
     return TC_OK;
 }
 

@@ -199,10 +199,14 @@ static PyObject *Cloth_set_material(PyObject *o, PyObject *args, PyObject *kw)
     if (!ready(self)) return NULL;
     tc_material m = tc_cloth_material(self->c);
     static char *kwl[] = {"young", "poisson", "thickness", "density", "bending", "damping_mass",
-                          "damping_stiffness", "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$ddddddddddd", kwl, &m.young, &m.poisson, &m.thickness, &m.density,
-                                     &m.bending, &m.damping_mass, &m.damping_stiffness, &m.tear_stress, &m.snap_tolerance,
-                                     &m.tear_radius, &m.crack_speed_ratio))
+                          "damping_stiffness", "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio",
+                          "orthotropic", "young_weft", "shear_modulus", "grain_angle", "tear_stress_weft", "plastic",
+                          "yield_stress", "yield_stress_weft", "hardening", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$dddddddddddpddddpddd", kwl, &m.young, &m.poisson, &m.thickness,
+                                     &m.density, &m.bending, &m.damping_mass, &m.damping_stiffness, &m.tear_stress,
+                                     &m.snap_tolerance, &m.tear_radius, &m.crack_speed_ratio, &m.orthotropic,
+                                     &m.young_weft, &m.shear_modulus, &m.grain_angle, &m.tear_stress_weft, &m.plastic,
+                                     &m.yield_stress, &m.yield_stress_weft, &m.hardening))
         return NULL;
     int rc = tc_cloth_set_material(self->c, &m);
     if (rc) return raise_core(self, rc);
@@ -288,6 +292,20 @@ static PyObject *vertex_array_call(ClothObject *self, PyObject *arr, int which)
     }
     arg_release(&A);
     if (rc) return raise_core(self, rc);
+    Py_RETURN_NONE;
+}
+
+/* set_grain_angles(angles): one float64 per triangle (rad), NaN for the material's grain_angle. */
+static PyObject *Cloth_set_grain_angles(PyObject *o, PyObject *arr)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    Arg A = {0};
+    Py_ssize_t n;
+    if (arg_get(arr, "grain angles", 'd', 0, &A, &n)) return NULL;
+    int rc = n > INT32_MAX ? TC_ERR_INPUT : tc_cloth_set_grain_angles(self->c, A.view.buf, (int32_t)n);
+    arg_release(&A);
+    if (rc) return n > INT32_MAX ? pyarg_error(InvalidInputError, "too many grain angles (%zd)", n) : raise_core(self, rc);
     Py_RETURN_NONE;
 }
 
@@ -434,7 +452,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
@@ -442,7 +460,8 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
                          "cg_force_scale", s.cg_force_scale, "substep_splits", (int)s.substep_splits,
                          "unconverged_substeps", (int)s.unconverged_substeps, "unconverged_steps",
                          (long long)s.unconverged_steps, "matrix_bytes", (long long)s.matrix_bytes, "tips_retired",
-                         (int)s.tips_retired, "grips_released", (int)s.grips_released);
+                         (int)s.tips_retired, "grips_released", (int)s.grips_released, "plastic_triangles",
+                         (int)s.plastic_triangles, "plastic_unconverged", (int)s.plastic_unconverged);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the
@@ -544,6 +563,7 @@ static PyMethodDef Cloth_methods[] = {
     {"set_positions", Cloth_set_positions, METH_O, "Replace positions (N, 3) float64."},
     {"set_velocities", Cloth_set_velocities, METH_O, "Replace velocities (N, 3) float64."},
     {"set_tear_strength", Cloth_set_tear_strength, METH_O, "Per-vertex factor on the tear stress (N,) float64."},
+    {"set_grain_angles", Cloth_set_grain_angles, METH_O, "Per-triangle grain angle (M,) float64 in radians; NaN: the material's."},
     {"pin", (PyCFunction)(void (*)(void))Cloth_pin, METH_VARARGS | METH_KEYWORDS, "Pin (or unpin) vertices."},
     {"add_handle", Cloth_add_handle, METH_O, "Create a handle from vertex indices; returns its id."},
     {"set_handle_target", Cloth_set_handle_target, METH_VARARGS, "Set a handle's 3x4 affine target."},
@@ -578,11 +598,15 @@ static PyType_Spec Cloth_spec = {"tearcloth._native.Cloth", sizeof(ClothObject),
  * Python side's presets: {"material": {...}, "solver": {...}, "tearing": {...}}. */
 static PyObject *material_dict(const tc_material *m)
 {
-    return Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d}", "young", m->young, "poisson", m->poisson,
-                         "thickness", m->thickness, "density", m->density, "bending", m->bending, "damping_mass",
-                         m->damping_mass, "damping_stiffness", m->damping_stiffness, "tear_stress", m->tear_stress,
-                         "snap_tolerance", m->snap_tolerance, "tear_radius", m->tear_radius, "crack_speed_ratio",
-                         m->crack_speed_ratio);
+    return Py_BuildValue("{s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:d,s:N,s:d,s:d,s:d,s:d,s:N,s:d,s:d,s:d}", "young",
+                         m->young, "poisson", m->poisson, "thickness", m->thickness, "density", m->density, "bending",
+                         m->bending, "damping_mass", m->damping_mass, "damping_stiffness", m->damping_stiffness,
+                         "tear_stress", m->tear_stress, "snap_tolerance", m->snap_tolerance, "tear_radius",
+                         m->tear_radius, "crack_speed_ratio", m->crack_speed_ratio, "orthotropic",
+                         PyBool_FromLong(m->orthotropic), "young_weft", m->young_weft, "shear_modulus", m->shear_modulus,
+                         "grain_angle", m->grain_angle, "tear_stress_weft", m->tear_stress_weft, "plastic",
+                         PyBool_FromLong(m->plastic), "yield_stress", m->yield_stress, "yield_stress_weft",
+                         m->yield_stress_weft, "hardening", m->hardening);
 }
 
 static PyObject *solver_dict(const tc_solver_settings *s)
@@ -662,7 +686,8 @@ PyMODINIT_FUNC PyInit__native(void)
     Py_INCREF(InvalidInputError); PyModule_AddObject(m, "InvalidInputError", InvalidInputError);
     Py_INCREF(SimulationError); PyModule_AddObject(m, "SimulationError", SimulationError);
     static const char *names[] = {"POSITIONS", "VELOCITIES", "REST", "MASSES", "FORCES", "GROUPS", "TRIANGLES",
-                                  "CORNER_UV", "STRESS", "PRINCIPAL", "PRINCIPAL_DIR", "TEAR_STRENGTH"};
+                                  "CORNER_UV", "STRESS", "PRINCIPAL", "PRINCIPAL_DIR", "TEAR_STRENGTH", "GRAIN_ANGLES",
+                                  "WARP", "PLASTIC_STRAIN"};
     for (int i = 0; i < TC_ARRAY_COUNT; i++) PyModule_AddIntConstant(m, names[i], i);
     return m;
 }

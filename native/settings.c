@@ -18,6 +18,8 @@ tc_material tc_material_default(void)
         .young = 5.0e7, .poisson = 0.3, .thickness = 4.0e-4, .density = 375.0,
         .bending = 5.0e-6, .damping_mass = 3.0, .damping_stiffness = 2.0e-5,
         .tear_stress = 8.0e6, .snap_tolerance = 0.3, .tear_radius = 0.01, .crack_speed_ratio = 0.2,
+        .orthotropic = 0, .young_weft = 4.0e7, .shear_modulus = 5.0e5, .grain_angle = 0.0, .tear_stress_weft = 6.5e6,
+        .plastic = 0, .yield_stress = 4.0e6, .yield_stress_weft = 3.25e6, .hardening = 2.0,
     };
     return m;
 }
@@ -52,6 +54,24 @@ int tc_material_check(const tc_material *m, char *msg, size_t msz)
     if (!(m->tear_radius >= 0 && m->tear_radius <= 1.0)) BAD("tear_radius must lie in [0, 1] m (got %g)", m->tear_radius);
     if (!(m->crack_speed_ratio > 0 && m->crack_speed_ratio <= 1.0))
         BAD("crack_speed_ratio (fastest tear / Rayleigh wave speed) must lie in (0, 1] (got %g)", m->crack_speed_ratio);
+    if (!(isfinite(m->young_weft) && m->young_weft > 0 && m->young_weft <= 1e13))
+        BAD("young_weft (Young's modulus along the weft) must lie in (0, 1e13] Pa (got %g)", m->young_weft);
+    if (!(isfinite(m->shear_modulus) && m->shear_modulus > 0 && m->shear_modulus <= 1e13))
+        BAD("shear_modulus (warp-weft shear modulus G) must lie in (0, 1e13] Pa (got %g)", m->shear_modulus);
+    if (m->orthotropic) {
+        /* positive definite plane-stress compliance: nu12^2 < E1 / E2 */
+        double r = m->young / m->young_weft;
+        if (!(m->poisson * m->poisson < r))
+            BAD("poisson = %g with young / young_weft = %g: an orthotropic sheet needs poisson^2 < young / young_weft "
+                "(else a stretch could release energy)", m->poisson, r);
+    }
+    if (!(isfinite(m->grain_angle) && fabs(m->grain_angle) <= 100.0)) BAD("grain_angle must be finite radians within +-100 (got %g)", m->grain_angle);
+    if (!(m->tear_stress_weft > 0 && isfinite(m->tear_stress_weft))) BAD("tear_stress_weft must be > 0 Pa (got %g)", m->tear_stress_weft);
+    if (!(m->yield_stress > 0 && isfinite(m->yield_stress))) BAD("yield_stress must be > 0 Pa (got %g)", m->yield_stress);
+    if (!(m->yield_stress_weft > 0 && isfinite(m->yield_stress_weft))) BAD("yield_stress_weft must be > 0 Pa (got %g)", m->yield_stress_weft);
+    if (!(m->hardening >= 0 && m->hardening <= 100.0)) BAD("hardening (H / young) must lie in [0, 100] (got %g)", m->hardening);
+    if (m->orthotropic != 0 && m->orthotropic != 1) BAD("orthotropic must be 0 or 1 (got %d)", m->orthotropic);
+    if (m->plastic != 0 && m->plastic != 1) BAD("plastic must be 0 or 1 (got %d)", m->plastic);
     if (m->young > 1e13) BAD("young = %g Pa is beyond any sheet material (diamond is ~1e12)", m->young);
     if (m->density > 1e5) BAD("density = %g kg/m^3 is beyond any material", m->density);
     if (m->thickness > 1.0) BAD("thickness = %g m is not a thin sheet", m->thickness);

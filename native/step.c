@@ -126,11 +126,13 @@ static void report_kept(tc_cloth *c)
 static int span(tc_cloth *c, double dt, double a0, double a1, int depth)
 {
     int rc = substep(c, dt, a1);
-    if (rc == TC_OK) report_kept(c);
+    /* plastic flow from the stresses of a kept sub-step only: a rolled-back one leaves no set */
+    if (rc == TC_OK) { report_kept(c); c->stats.plastic_triangles += tc_plastic_commit(c); }
     if (rc != TC_UNCONVERGED) return rc;
     if (depth >= TC_SPLIT_DEPTH) {
         report_kept(c);
         c->stats.unconverged_substeps++;
+        c->stats.plastic_triangles += tc_plastic_commit(c);
         return TC_OK;
     }
     const size_t n3 = 3 * (size_t)c->nv;
@@ -159,6 +161,7 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     c->stats.cg_force_scale = 0.0;
     c->stats.substep_splits = 0;
     c->stats.unconverged_substeps = 0;
+    c->stats.plastic_triangles = 0;
     double h = dt / substeps;
     int rc = TC_OK;
     for (int s = 0; s < substeps && rc == TC_OK; s++) rc = span(c, h, (double)s / substeps, (double)(s + 1) / substeps, 0);

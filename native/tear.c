@@ -11,7 +11,8 @@
  * a single triangle left slips out of its grip instead (let_go()).
  *
  * Which way: the direction rule of rank_directions(): stress across the cut over strength ahead,
- * among the orthogonal-to-principal direction and the edges at the tip. A tear from an interior
+ * among the orthogonal-to-principal direction and the edges at the tip (woven sheets: also the
+ * warp and weft, with the strength of each thread family; see "woven sheets" below). A tear from an interior
  * vertex cuts two segments (both ways) before separating; a tip whose target lies on a boundary
  * (the rim, or another tear) ends there.
  *
@@ -184,12 +185,98 @@ static double threshold(const tc_cloth *c, int32_t v)
     return c->mat.tear_stress * ((const double *)tc_vec_ptr(&c->strength))[v];
 }
 
+/* ---------------- woven sheets: strength by direction ----------------
+ *
+ * A woven sheet (material orthotropic) fails by its threads: the warp threads break when the
+ * stress along the warp, s_ww = w^T S w, reaches tear_stress, the weft threads when s_ff reaches
+ * tear_stress_weft (the maximum-stress criterion of fibre composites, R. M. Jones, Mechanics of
+ * Composite Materials, 2nd ed. 1999, sec. 2.9.1; the shear alone breaks no thread: cloth on the
+ * bias shears). The failure index of a vertex is therefore
+ *     r = max(s_ww / tear_stress, s_ff / tear_stress_weft) / strength(v),
+ * (the isotropic r is sigma_1 / tear_stress / strength(v)). The interpolation for a cut at any
+ * angle is netting analysis (the sheet as two families of threads that carry only their own axial
+ * stress; D. Hull, T. W. Clyne, An Introduction to Composite Materials, 2nd ed. 1996, sec. 4.1):
+ * of the normal traction across a cut whose normal m makes angle theta with the warp, the warp
+ * threads carry s_ww cos^2 theta and the weft threads s_ff sin^2 theta, each against its own
+ * strength, so the cut's index is
+ *     r(m) = s_ww cos^2 theta / tear_stress + s_ff sin^2 theta / tear_stress_weft,
+ * a convex combination of the two thread indices: it is largest across one of the thread
+ * families (theta = 0 or 90 degrees), never in between, so a woven sheet tears along its threads
+ * (across the family that fails) whatever the angle of the pull, as denim does; a weak line (a
+ * seam) still steers it through the strength ahead. Paper's machine direction is the warp of a
+ * sheet whose fibres are mostly aligned with it. */
+
+/* The warp w and weft f at vertex v, unit, in the plane normal to n: the threads are material
+ * lines, so each fan triangle carries its rest axes forward by its deformation gradient F (not by
+ * its rotation R: a sheared sheet turns its threads apart, and a cut that follows a thread in the
+ * current shape must follow it in the rest shape too); area-weighted means over v's fan,
+ * sign-aligned to the first. w and f are not orthogonal in a sheared sheet. False when they
+ * cancel out (the isotropic rule is then used at v). */
+static bool vertex_axes(const tc_cloth *c, int32_t v, const double *n, double *w, double *f)
+{
+    int32_t fan[TC_FAN_MAX];
+    bool closed;
+    int nf = tc_fan_walk(c, v, ((const int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
+    const double *x = tc_vec_ptr(&c->x), *G = tc_vec_ptr(&c->grad), *AX = tc_vec_ptr(&c->taxis), *A = tc_vec_ptr(&c->area);
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    double aw[3] = {0}, af[3] = {0};
+    for (int i = 0; i < nf; i++) {
+        const int32_t t = fan[i], *tt = T + 3 * (size_t)t;
+        const double *g = G + 4 * (size_t)t, *ax = AX + 2 * (size_t)t;
+        double e1[3], e2[3], dw[3], df[3];
+        sub3(x + 3 * tt[1], x + 3 * tt[0], e1);
+        sub3(x + 3 * tt[2], x + 3 * tt[0], e2);
+        for (int k = 0; k < 3; k++) {
+            const double F0 = e1[k] * g[0] + e2[k] * g[2], F1 = e1[k] * g[1] + e2[k] * g[3];
+            dw[k] = F0 * ax[0] + F1 * ax[1];
+            df[k] = -F0 * ax[1] + F1 * ax[0];
+        }
+        const double sw = (i && dot3(dw, aw) < 0) ? -A[t] : A[t], sf = (i && dot3(df, af) < 0) ? -A[t] : A[t];
+        for (int k = 0; k < 3; k++) { aw[k] += sw * dw[k]; af[k] += sf * df[k]; }
+    }
+    const double pw = dot3(aw, n), pf = dot3(af, n);
+    for (int k = 0; k < 3; k++) { aw[k] -= pw * n[k]; af[k] -= pf * n[k]; }
+    const double lw = sqrt(dot3(aw, aw)), lf = sqrt(dot3(af, af));
+    if (!(lw > 0 && lf > 0)) return false;
+    for (int k = 0; k < 3; k++) { w[k] = aw[k] / lw; f[k] = af[k] / lf; }
+    return true;
+}
+
+static double quad(const double *S, const double *a)
+{
+    double Sa[3];
+    for (int r = 0; r < 3; r++) Sa[r] = S[3 * r] * a[0] + S[3 * r + 1] * a[1] + S[3 * r + 2] * a[2];
+    return dot3(a, Sa);
+}
+
+/* Failure index at v over its disc (see above; 0 where v has no stress), with the disc's S, n and
+ * principal direction pd out; w, f: the thread axes at v when woven (else untouched). */
+static double vertex_ratio(tc_cloth *c, int32_t v, double *pd, double *n, double *S, double *w, double *f, bool *woven)
+{
+    double Sl[9] = {0}, nl[3] = {0, 0, 1}, wl[3], fl[3];
+    double s1 = disc_stress(c, v, pd, nl, Sl);
+    bool wv = false;
+    double r = s1 / threshold(c, v);
+    if (c->mat.orthotropic && s1 != 0.0 && vertex_axes(c, v, nl, wl, fl)) {
+        const double st = ((const double *)tc_vec_ptr(&c->strength))[v];
+        double rw = quad(Sl, wl) / c->mat.tear_stress, rf = quad(Sl, fl) / c->mat.tear_stress_weft;
+        r = (rw > rf ? rw : rf) / st;
+        wv = true;
+    }
+    if (n) memcpy(n, nl, sizeof nl);
+    if (S) memcpy(S, Sl, sizeof Sl);
+    if (w && wv) { memcpy(w, wl, sizeof wl); memcpy(f, fl, sizeof fl); }
+    if (woven) *woven = wv;
+    return r;
+}
+
 /* ---------------- which way ---------------- */
 
 /* Strength where direction d (tangent, unit) leads from v: interpolated along the opposite edge of
  * the corner of v's fan that holds d, where d meets it. False when no corner holds d (it points
  * out of the cloth). */
-static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const int32_t *fan, int nf, double *out)
+static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const int32_t *fan, int nf, double *out,
+                           double *rest_at)
 {
     const double *x = tc_vec_ptr(&c->x), *st = tc_vec_ptr(&c->strength);
     for (int i = 0; i < nf; i++) {
@@ -215,9 +302,38 @@ static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const 
         /* d = alpha ea + beta eb in the corner; it meets ab at s = beta / (alpha + beta) */
         double s = sa / (sa + sb + TC_TINY);
         *out = (1.0 - s) * st[a] + s * st[b];
+        if (rest_at) {  /* where d meets ab, in the rest space */
+            const double *X = tc_vec_ptr(&c->rest);
+            for (int k = 0; k < 3; k++) rest_at[k] = (1.0 - s) * X[3 * a + k] + s * X[3 * b + k];
+        }
         return true;
     }
     return false;
+}
+
+/* Mean stress (world 3x3) over the disc of radius tear_radius around the rest point half the
+ * tear radius from v towards `lead` (at lead if that is nearer), through uncut edges from v's fan.
+ * False when the disc holds no area. */
+static bool stress_ahead(tc_cloth *c, int32_t v, const double *lead, const int32_t *fan, int nf, double *S)
+{
+    const double *X = (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)v;
+    double e[3], P[3];
+    sub3(lead, X, e);
+    double l = sqrt(dot3(e, e)), r = 0.5 * c->mat.tear_radius, t = l > r ? r / l : 1.0;
+    for (int k = 0; k < 3; k++) P[k] = X[k] + t * e[k];
+    int32_t m = disc_walk(c, P, c->mat.tear_radius, fan, nf, BY_CENTROID);
+    const int32_t *Q = tc_vec_ptr(&c->tqueue);
+    const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
+    double wsum = 0.0;
+    memset(S, 0, 9 * sizeof(double));
+    for (int32_t i = 0; i < m; i++) {
+        const double wt = A[Q[i]], *st = S3 + 9 * (size_t)Q[i];
+        for (int q = 0; q < 9; q++) S[q] += wt * st[q];
+        wsum += wt;
+    }
+    if (!(wsum > 0)) return false;
+    for (int q = 0; q < 9; q++) S[q] /= wsum;
+    return true;
 }
 
 /* THE DIRECTION RULE. Among the directions available at v - the one orthogonal to the principal
@@ -235,8 +351,11 @@ static bool strength_ahead(const tc_cloth *c, int32_t v, const double *d, const 
  * first, so a caller whose best direction cannot be cut (the remesh refuses it) takes the next;
  * returns their count. */
 static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double *n, const double *pd,
-                           const double *fwd, double *out)
+                           const double *fwd, const double *w, const double *f, double *out)
 {
+    /* woven (w, f given): the thread directions are candidates too, and a cut's opening measure is
+       the netting index of the head of this file's strength section instead of m^T S m / tear_stress */
+    const double sww = w ? quad(S, w) / c->mat.tear_stress : 0.0, sff = w ? quad(S, f) / c->mat.tear_stress_weft : 0.0;
     int32_t fan[TC_FAN_MAX];
     bool closed;
     int nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
@@ -246,12 +365,16 @@ static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double
     int count = 0;
     double orth[3];
     cross3(n, pd, orth);
-    for (int i = -2; i < 2 * nf; i++) {
-        double d[3], s_ahead;
-        if (i < 0) {  /* the orthogonal direction, both senses */
+    for (int i = w ? -6 : -2; i < 2 * nf; i++) {
+        double d[3], s_ahead, lead[3];  /* lead: a rest point the direction leads through */
+        if (i < -2) {  /* woven: along the weft or the warp, both senses */
+            const double *axis = i < -4 ? f : w, sg = (i & 1) ? -1.0 : 1.0;
+            for (int k = 0; k < 3; k++) d[k] = sg * axis[k];
+            if (!strength_ahead(c, v, d, fan, nf, &s_ahead, lead)) continue;
+        } else if (i < 0) {  /* the orthogonal direction, both senses */
             double sg = i == -2 ? 1.0 : -1.0;
             for (int k = 0; k < 3; k++) d[k] = sg * orth[k];
-            if (!strength_ahead(c, v, d, fan, nf, &s_ahead)) continue;
+            if (!strength_ahead(c, v, d, fan, nf, &s_ahead, lead)) continue;
         } else {  /* the two edges of each fan triangle at v (closed fans list each edge twice) */
             const int32_t *T = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)fan[i / 2];
             int32_t w = T[(tc_tri_local(c, fan[i / 2], v) + 1 + i % 2) % 3];
@@ -265,15 +388,29 @@ static int rank_directions(tc_cloth *c, int32_t v, const double *S, const double
             if (!(l > 0)) continue;
             for (int k = 0; k < 3; k++) d[k] /= l;
             s_ahead = st[w];
+            memcpy(lead, (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)w, sizeof lead);
         }
         if (fwd && dot3(d, fwd) <= TC_TIP_FORWARD_COS * sqrt(dot3(fwd, fwd))) continue;
-        double m[3], Sm[3];
+        double m[3];
         cross3(d, n, m);
-        for (int r = 0; r < 3; r++) Sm[r] = S[3 * r] * m[0] + S[3 * r + 1] * m[1] + S[3 * r + 2] * m[2];
-        double score = dot3(m, Sm) / s_ahead;
-        /* available only if the stress opens it: the opening stress over the segment's strength
-           (the mean of its two ends') passes the tear stress */
-        if (!(dot3(m, Sm) > c->mat.tear_stress * 0.5 * (st[v] + s_ahead))) continue;
+        double open;  /* the cut's opening index (1 at tear_stress with strength 1) */
+        if (w) {
+            /* the thread stresses ahead, at half the critical distance along the direction (the
+               point method of the theory of critical distances, Taylor 2007): the crossing threads
+               a cut must break are those ahead of the tip, and the tip's own disc mixes in the
+               stress of the threads parallel to the crack beside it, which a net does not feel */
+            double Sa[9], cw = dot3(m, w), cf = dot3(m, f), aw = sww, af = sff;
+            if (stress_ahead(c, v, lead, fan, nf, Sa)) { aw = quad(Sa, w) / c->mat.tear_stress; af = quad(Sa, f) / c->mat.tear_stress_weft; }
+            /* normalised: w and f need not be orthogonal in a sheared sheet, and a cut along a
+               thread (m normal to it) must weigh only the other family */
+            const double q = cw * cw + cf * cf;
+            open = q > 0 ? (aw * cw * cw + af * cf * cf) / q : 0.0;
+        }
+        else open = quad(S, m) / c->mat.tear_stress;
+        double score = open / s_ahead;
+        /* available only if the stress opens it: the opening index over the segment's strength
+           (the mean of its two ends') passes 1 */
+        if (!(open > 0.5 * (st[v] + s_ahead))) continue;
         if (count == TC_TEAR_DIRECTIONS && !(score > scores[count - 1])) continue;
         int j = count < TC_TEAR_DIRECTIONS ? count++ : count - 1;  /* insertion, best first */
         for (; j > 0 && scores[j - 1] < score; j--) { scores[j] = scores[j - 1]; memcpy(out + 3 * j, out + 3 * (j - 1), 3 * sizeof(double)); }
@@ -420,7 +557,7 @@ static double ratio_memo(tc_cloth *c, int32_t v, int32_t emark)
     double *R = tc_vec_ptr(&c->vsa);
     if (vs[3 * (size_t)v + MARK_EVALUATED] != emark) {
         double pd[3];
-        R[v] = disc_stress(c, v, pd, NULL, NULL) / threshold(c, v);
+        R[v] = vertex_ratio(c, v, pd, NULL, NULL, NULL, NULL, NULL);
         vs[3 * (size_t)v + MARK_EVALUATED] = emark;
     }
     return R[v];
@@ -467,7 +604,10 @@ static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
     const double *pr = tc_vec_ptr(&c->principal), *st = tc_vec_ptr(&c->strength);
     double smin = INFINITY;
     for (int32_t v = 0; v < c->nv; v++) smin = st[v] < smin ? st[v] : smin;
-    const double hot = c->mat.tear_stress * smin;
+    /* woven: no thread index exceeds sigma_1 over the weaker thread's strength */
+    const double weakest = c->mat.orthotropic && c->mat.tear_stress_weft < c->mat.tear_stress ? c->mat.tear_stress_weft
+                                                                                             : c->mat.tear_stress;
+    const double hot = weakest * smin;
     int32_t vmark = 0, *vs = tc_vec_ptr(&c->vstamp);
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *X = tc_vec_ptr(&c->rest);
@@ -561,13 +701,19 @@ static int run_tip(tc_cloth *c, size_t i, double earned, bool checked, double *S
     *adv += earned;
     for (int first = 1; *adv > 0; first = 0) {
         int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[i];
-        if ((!first || !checked) && !(disc_stress(c, v, pd, n, S) / threshold(c, v) > 1.0)) {
-            if (*adv > earned) *adv = earned;
-            break;
+        double w[3], f[3];
+        bool woven = false;
+        if (!first || !checked) {
+            if (!(vertex_ratio(c, v, pd, n, S, w, f, &woven) > 1.0)) {
+                if (*adv > earned) *adv = earned;
+                break;
+            }
+        } else if (c->mat.orthotropic) {
+            woven = vertex_axes(c, v, n, w, f);  /* S, n, pd: the caller's, of this step */
         }
         double dirs[3 * TC_TEAR_DIRECTIONS];
         const double *prev = (const double *)tc_vec_ptr(&c->tipdir) + 3 * i;
-        int nd = rank_directions(c, v, S, n, pd, prev, dirs);
+        int nd = rank_directions(c, v, S, n, pd, prev, woven ? w : NULL, f, dirs);
         size_t before = c->tips.len;
         double len = 0.0;
         for (int k = 0; k < nd && len == 0.0; k++) {
@@ -589,7 +735,7 @@ static int advance_tips(tc_cloth *c, double dt)
     for (size_t i = 0; i < c->tips.len;) {
         int32_t v = ((int32_t *)tc_vec_ptr(&c->tips))[i];
         double pd[3], n[3], S[9];
-        double r = disc_stress(c, v, pd, n, S) / threshold(c, v);
+        double r = vertex_ratio(c, v, pd, n, S, NULL, NULL, NULL);
         if (!(r > 1.0)) { tip_remove(c, i); c->stats.tips_retired++; continue; }
         int rc = run_tip(c, i, crack_speed(c, r) * dt, true, S, n, pd);
         if (rc < 0) return TC_ERR_NOMEM;
@@ -637,9 +783,10 @@ static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
         bool region_done = false;
         for (int k = 0; k < ndone; k++) region_done |= done[k] == cs[i].region;
         if (region_done || ndone == TC_TEAR_CANDIDATES) continue;
-        double pd[3], nrm[3], S[9], dirs[3 * TC_TEAR_DIRECTIONS];
-        if (!(disc_stress(c, v, pd, nrm, S) > 0)) continue;
-        int nd = rank_directions(c, v, S, nrm, pd, NULL, dirs);
+        double pd[3], nrm[3], S[9], dirs[3 * TC_TEAR_DIRECTIONS], w[3], f[3];
+        bool woven = false;
+        if (!(vertex_ratio(c, v, pd, nrm, S, w, f, &woven) > 0)) continue;
+        int nd = rank_directions(c, v, S, nrm, pd, NULL, woven ? w : NULL, f, dirs);
         size_t before = c->tips.len;
         int rc = 0;
         for (int k = 0; k < nd && rc == 0; k++) {

@@ -53,6 +53,20 @@ typedef struct tc_material {
     double tear_radius;       /* l (m): the material length over which the stress that starts, drives and
                                  arrests a tear is averaged (theory of critical distances, see tear.c) */
     double crack_speed_ratio; /* fastest a tear runs, as a fraction of the Rayleigh wave speed c_R, in (0, 1] */
+    /* Orthotropy (see ortho.c). When orthotropic, young, poisson and tear_stress are the warp's. */
+    double young_weft;        /* E along the weft (Pa) */
+    double shear_modulus;     /* G of the warp-weft axes, the bias stiffness (Pa) */
+    double grain_angle;       /* rad: the warp's angle from the UV map's u direction (triangles without
+                                 their own, see tc_cloth_set_grain_angles) */
+    double tear_stress_weft;  /* strength along the weft (Pa) */
+    /* Plasticity (ortho.c): Hill 1948 yield with linear proportional hardening, rest metric updated
+       additively in the co-rotated frame. */
+    double yield_stress;      /* along the warp (isotropic: any direction) (Pa) */
+    double yield_stress_weft; /* along the weft (Pa); used when orthotropic */
+    double hardening;         /* H / E_warp: the yield stress grows by H per unit plastic strain (1) */
+    /* the two switches last and together: no padding, so a material compares by its bytes */
+    int orthotropic;          /* 0: isotropic (young, poisson); 1: warp/weft axes per triangle */
+    int plastic;              /* 0: elastic up to the tear; 1: yield and keep the stretch */
 } tc_material;
 
 tc_material tc_material_default(void);  /* the "cotton" preset of addon/materials.py */
@@ -154,6 +168,8 @@ typedef struct tc_stats {
     int64_t matrix_bytes;     /* bytes of the system matrix one product reads (rows, blocks, indices) */
     int32_t tips_retired;     /* tips whose driving stress fell below the threshold, so far */
     int32_t grips_released;   /* held vertices let go: over threshold with one triangle left (tear.c) */
+    int32_t plastic_triangles;    /* yield events of the last step: triangles that yielded, summed over its sub-steps (ortho.c) */
+    int32_t plastic_unconverged;  /* return mappings stopped at their iteration cap, so far (ortho.c) */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
@@ -181,6 +197,10 @@ typedef enum tc_array_id {
     TC_PRINCIPAL,        /* m x 2 float64: principal stresses, largest first */
     TC_PRINCIPAL_DIR,    /* m x 3 float64: unit direction of the largest principal stress */
     TC_TEAR_STRENGTH,    /* n float64: per-vertex factor on tear_stress */
+    TC_GRAIN_ANGLES,     /* m float64: each triangle's own grain angle (rad), NaN: the material's */
+    TC_WARP,             /* m x 3 float64: unit warp direction of each triangle in the rest space */
+    TC_PLASTIC_STRAIN,   /* m x 4 float64: plastic strain in the warp/weft axes (ww, ff, wf) and the
+                            equivalent plastic strain kappa (ortho.c) */
     TC_ARRAY_COUNT
 } tc_array_id;
 tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, size_t *item_size);
@@ -197,6 +217,9 @@ int tc_cloth_set_tearing(tc_cloth *c, const tc_tear_settings *s);
 tc_tear_settings tc_cloth_tearing(const tc_cloth *c);
 /* Per-vertex factor on the tear stress (1 = the material's, 0.5 = weak seam, large = unbreakable). */
 int tc_cloth_set_tear_strength(tc_cloth *c, const double *factor, int32_t n);
+/* Per-triangle grain angle (rad) from the UV map's u direction, overriding the material's
+ * grain_angle; NaN: the material's. m must be the current triangle count. */
+int tc_cloth_set_grain_angles(tc_cloth *c, const double *angles, int32_t m);
 /* Tears from vertex `start` along `direction` (projected on the surface) for `length` metres,
  * whatever the stress. Returns the number of cut segments in *cuts. */
 int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3], double length,

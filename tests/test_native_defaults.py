@@ -14,7 +14,9 @@ from tearcloth.cloth import InvalidInputError
 from tearcloth.materials import MATERIALS, Material
 
 MATERIAL_FIELDS = ["young", "poisson", "thickness", "density", "bending", "damping_mass", "damping_stiffness",
-                   "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio"]
+                   "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio", "orthotropic", "young_weft",
+                   "shear_modulus", "grain_angle", "tear_stress_weft", "plastic", "yield_stress", "yield_stress_weft",
+                   "hardening"]
 SOLVER_FIELDS = ["gravity", "cg_tolerance", "cg_max_iterations", "max_stretch", "contact_max_push",
                  "contact_correction"]
 TEARING_FIELDS = ["enabled", "scan_period", "min_angle_deg"]

@@ -127,6 +127,8 @@ PRESETS = {
     "silk": (3.0e7, 0.3, 1.0e-4, 400.0, 2.0e-6, 3.0, 2.0e-5, 1.0e7, 0.3, 0.005, 0.2),
     "paper": (4.0e9, 0.3, 1.0e-4, 800.0, 3.6e-4, 3.0, 1.0e-5, 2.0e7, 0.3, 0.005, 0.5),
     "banknote": (3.0e9, 0.3, 1.1e-4, 820.0, 3.6e-4, 3.0, 1.0e-5, 3.0e7, 0.3, 0.005, 0.5),
+    "poplin": (6.0e7, 0.3, 2.5e-4, 480.0, 2.0e-6, 3.0, 2.0e-5, 1.2e7, 0.3, 0.01, 0.2),
+    "jersey": (5.0e6, 0.3, 6.0e-4, 300.0, 2.0e-6, 3.0, 2.0e-5, 3.0e6, 0.3, 0.01, 0.2),
 }
 FIELDS = ("young", "poisson", "thickness", "density", "bending", "damping_mass", "damping_stiffness",
           "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio")

@@ -77,6 +77,19 @@ def benchmarks_markdown(r: dict) -> str:
         lines += ["## Scaling", "", f"Fitted time exponent (square, no tearing, no collision): {sc['exponent']:.2f}; "
                   f"peak memory of the 100K-triangle run: {sc['peak_mb_100k']:.0f} MB.", "",
                   "![scaling](docs/images/scaling.png)", ""]
+    if "materials" in r:
+        x, d = r["materials"], r["materials"]["denim_bias"]
+        lines += ["## Woven materials (issue 19)", "",
+                  f"Denim pulled {d['grain_deg']:.0f} degrees off its warp tore along {d['tear_angle_deg']:.1f} degrees "
+                  f"from the pull, {d['tear_angle_error_deg']:.2f} degrees from the weft ({d['tears_started']} tears, "
+                  f"{d['cut_m']:.3f} m cut); isotropic cotton under the same load along {d['cotton_tear_angle_deg']:.1f} "
+                  f"degrees ({d['cotton_error_deg']:.2f} from the perpendicular to the pull). Scenario: "
+                  "`addon/bench/materials.py`.", "",
+                  f"FEM step of the T-shirt ({x['triangles']} triangles), orthotropic + plastic against isotropic "
+                  f"elastic with the same moduli, stepped alternately: {x['fem_ms']['general']:.3f} / "
+                  f"{x['fem_ms']['isotropic']:.3f} ms = {x['cost_ratio']:.3f}; with triangles yielding every step "
+                  f"({x['yield_events_per_step_median']:.0f} yield events per step) {x['cost_ratio_yielding']:.3f}. "
+                  f"Per CG iteration: {x['cost_ratio_per_cg_iteration']:.3f} / {x['cost_ratio_yielding_per_cg_iteration']:.3f}.", ""]
     lines += targets_markdown(r)
     return "\n".join(lines) + "\n"
 
@@ -122,6 +135,11 @@ def targets_markdown(r: dict) -> list:
         sc = r["scaling"]
         add("scaling exponent", f"{sc['exponent']:.2f}", "<= 1.1", sc["exponent"] <= 1.1)
         add("peak memory at 100K triangles", f"{sc['peak_mb_100k']:.0f} MB", "<= 300 MB", sc["peak_mb_100k"] <= 300)
+    if "materials" in r:
+        x = r["materials"]
+        err = x["denim_bias"]["tear_angle_error_deg"]
+        add("denim 30 deg off the warp: tear from a thread", f"{err:.2f} deg", "<= 5 deg", err <= 5.0)
+        add("FEM step, orthotropic + plastic / isotropic", f"{x['cost_ratio']:.3f}", "<= 1.15", x["cost_ratio"] <= 1.15)
     if not rows:
         return []
     return ["## Targets", "", "| figure | this run | target | |", "|---|---|---|---|", *rows, "",

@@ -1,9 +1,9 @@
 """`tearcloth bench`: the speed of every part, measured on this machine, as medians and ratios.
 
 This file owns ``run``: one run of the parts ``PARTS`` picks (Table I, the collision experiment,
-the servo loop, the race against Blender's cloth, scaling), printed as tables, merged into a JSON
+the servo loop, the race against Blender's cloth, scaling, woven materials), printed as tables, merged into a JSON
 file keyed as the issues ask (``table1.<scenario>.<figure>``, ``collision``, ``servo``,
-``blender_cloth``, ``scaling``, ``machine``) and optionally written as BENCHMARKS.md. Each figure
+``blender_cloth``, ``scaling``, ``materials``, ``machine``) and optionally written as BENCHMARKS.md. Each figure
 is a median over many steps of that run; nothing here asserts a speed. Dev-only (not in the
 extension zip).
 """
@@ -16,6 +16,7 @@ from pathlib import Path
 
 from .collision import collision_figures, format_collision
 from .machine import loadavg
+from .materials import format_materials, materials_figures
 from .race import race_blender_cloth
 from .report import benchmarks_markdown
 from .scaling import format_scaling, plot_scaling, scaling
@@ -24,7 +25,7 @@ from .table1 import DT, format_table, measure_scenario, tearing_convergence
 
 __all__ = ["PARTS", "run"]
 
-PARTS = ("table1", "collision", "servo", "blender", "scaling")
+PARTS = ("table1", "collision", "servo", "blender", "scaling", "materials")
 
 
 def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"), steps: int = 200,
@@ -94,6 +95,10 @@ def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"),
         if plots_dir:
             Path(plots_dir).mkdir(parents=True, exist_ok=True)
             plot_scaling(sc, Path(plots_dir) / "scaling.png")
+    if "materials" in parts:
+        out("... materials (denim pulled 30 degrees off its warp; orthotropic + plastic step cost)")
+        results["materials"] = materials_figures(steps)
+        out(format_materials(results["materials"]))
     if json_path:
         path = Path(json_path)
         old = {}

@@ -61,14 +61,25 @@ static void test_bad_input(void)
     CHECK(!c && strstr(msg, "poisson"), "poisson: %s", msg);
 }
 
-static void test_strip_and_tear(void)
+/* material NULL: the default (isotropic, elastic); else e.g. a woven plastic sheet, whose
+ * per-triangle state the tears must carry (no UVs: the fallback axes, then per-triangle angles) */
+static void strip_and_tear(const tc_material *material)
 {
     double *V; int32_t *T, n, m;
     grid(31, 11, 0.3, 0.1, &V, &T, &n, &m);
     char msg[512];
-    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, material, msg, sizeof msg);
     CHECK(c != NULL, "create: %s", msg);
     if (!c) return;
+    if (material && material->orthotropic) {
+        double *ang = malloc((size_t)m * sizeof *ang);
+        for (int32_t t = 0; t < m; t++) ang[t] = t % 3 ? NAN : 0.3 * (t % 10);
+        CHECK(tc_cloth_set_grain_angles(c, ang, m) == TC_OK, "grain angles: %s", tc_cloth_error(c));
+        CHECK(tc_cloth_set_grain_angles(c, ang, m - 1) == TC_ERR_INPUT, "grain angles of the wrong count accepted");
+        ang[1] = INFINITY;
+        CHECK(tc_cloth_set_grain_angles(c, ang, m) == TC_ERR_INPUT, "an infinite grain angle accepted");
+        free(ang);
+    }
     tc_solver_settings s = tc_solver_default();
     s.gravity[2] = 0.0;
     tc_cloth_set_solver(c, &s);
@@ -108,8 +119,32 @@ static void test_strip_and_tear(void)
     double zero[3] = {0, 0, 0};
     CHECK(tc_cloth_scripted_tear(c, 0, zero, 0.05, &cuts) == TC_ERR_INPUT, "scripted zero dir");
     for (int i = 0; i < 20; i++) tc_cloth_step(c, 1e-3, 2);
+    if (material && material->plastic) {
+        st = tc_cloth_stats(c);
+        size_t rows, cols, item;
+        tc_buf *b = tc_cloth_array(c, TC_PLASTIC_STRAIN, &rows, &cols, &item);
+        const double *p = tc_buf_data(b);
+        int finite = 1;
+        double kmax = 0.0;
+        for (size_t k = 0; k < rows * cols; k++) finite &= isfinite(p[k]);
+        for (size_t t = 0; t < rows; t++) kmax = p[4 * t + 3] > kmax ? p[4 * t + 3] : kmax;
+        CHECK(rows == (size_t)tc_cloth_num_triangles(c) && cols == 4, "plastic strain array %zu x %zu", rows, cols);
+        CHECK(finite && kmax > 0, "plastic strain finite and some yield (kappa max %g)", kmax);
+        CHECK(st.plastic_unconverged == 0, "return mappings at their cap: %d", st.plastic_unconverged);
+        tc_buf_decref(b);
+    }
     tc_cloth_destroy(c);
     free(V); free(T);
+}
+
+static void test_strip_and_tear(void)
+{
+    strip_and_tear(NULL);
+    tc_material w = tc_material_default();
+    w.orthotropic = 1; w.plastic = 1;
+    w.young_weft = 0.5 * w.young; w.shear_modulus = 0.1 * w.young;
+    w.yield_stress = 2e5; w.yield_stress_weft = 1.5e5;
+    strip_and_tear(&w);
 }
 
 /* A sheet dropped on a plane through contacts, with friction, then arrays and events read back. */
