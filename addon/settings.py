@@ -244,29 +244,29 @@ SETTINGS: tuple[Setting, ...] = (
        "Different stiffness and strength along the warp and the weft, a soft bias, and tears that run along "
        "the threads; the warp follows the UV map's U direction, turned by the grain angle",
        "isotropic by default: cotton's preset is the plain isotropic sheet the add-on always simulated",
-       native="orthotropic", block="material.weave"),
+       native="orthotropic", block="material.orthotropic"),
     _f("material", "young_weft", "Pa", 4.0e7, "Young's Modulus (Weft)",
        "In-plane stiffness along the weft threads, in pascals (Young's Modulus is the warp's when woven)",
        _COTTON + "; plain-weave shirting stretches 10-30 % more along the weft than the warp in strip tests "
        "(ISO 13934-1), hence 0.8 of the warp's", _B(0.0, 1.0e13, lo_open=True), _B(1.0e4, 1.0e10),
-       native="young_weft", block="material.weave", ui=dict(precision=0, step=1e6)),
+       native="young_weft", block="material.orthotropic", ui=dict(precision=0, step=1e6)),
     _f("material", "shear_modulus", "Pa", 5.0e5, "Shear Modulus (Bias)",
        "In-plane shear stiffness G of the warp-weft axes, in pascals: how much the cloth resists being pulled "
        "on the bias (45 degrees); woven cloth is far softer there than along its threads",
        _COTTON + "; Kawabata KES-FB1 shear rigidity of cotton shirting 0.5-3 gf/cm/deg (S. Kawabata, The "
        "Standardization and Analysis of Hand Evaluation, 1980) is G h = 30-170 N/m, so G = 1-4e5 Pa at 0.4 mm; "
        "5e5 allows for the initial, pre-slip stiffness", _B(0.0, 1.0e13, lo_open=True), _B(1.0e3, 1.0e10),
-       native="shear_modulus", block="material.weave", ui=dict(precision=0, step=1e5)),
+       native="shear_modulus", block="material.orthotropic", ui=dict(precision=0, step=1e5)),
     _f("material", "grain_angle", "rad", 0.0, "Grain Angle",
        "Angle of the warp from the UV map's U direction (counter-clockwise seen from the front), in radians; a "
        "face attribute tearcloth_grain_angle overrides it per face. Without UVs the warp starts along the rest X axis",
        "garment patterns cut on the straight grain (0); a bias cut is 45 degrees", _B(-100.0, 100.0),
-       _B(-math.pi, math.pi), native="grain_angle", block="material.weave", ui=dict(precision=3)),
+       _B(-math.pi, math.pi), native="grain_angle", block="material.orthotropic", ui=dict(precision=3)),
     _f("material", "tear_stress_weft", "Pa", 6.5e6, "Tear Stress (Weft)",
        "Stress along the weft at which the weft threads break, in pascals (Tear Stress is the warp's when "
        "woven); a woven tear runs across the threads that break, along the others",
        _COTTON + "; strip tests (ISO 13934-1) of cotton shirting break the weft at about 0.8 of the warp's force",
-       _B(0.0, None, lo_open=True), _B(1.0e3, 1.0e9), native="tear_stress_weft", block="material.weave",
+       _B(0.0, None, lo_open=True), _B(1.0e3, 1.0e9), native="tear_stress_weft", block="material.orthotropic",
        ui=dict(precision=0, step=1e5)),
     _b("material", "plastic", False, "Plastic Stretch",
        "Cloth pulled past its yield stress keeps part of the stretch (the rest shape follows the plastic "
@@ -281,7 +281,7 @@ SETTINGS: tuple[Setting, ...] = (
     _f("material", "yield_stress_weft", "Pa", 3.25e6, "Yield Stress (Weft)",
        "Yield stress along the weft, in pascals (used when woven; Hill's 1948 criterion between the two)",
        _COTTON + "; half the weft's tear stress, as along the warp", _B(0.0, None, lo_open=True),
-       _B(1.0e3, 1.0e9), native="yield_stress_weft", block="material.plastic", ui=dict(precision=0, step=1e5)),
+       _B(1.0e3, 1.0e9), native="yield_stress_weft", block="material.plastic", ui=dict(precision=0, step=1e5, when="orthotropic")),
     _f("material", "hardening", "1", 2.0, "Hardening",
        "Linear hardening as a fraction of Young's modulus (H / E): the yield stress rises by H per unit of "
        "plastic strain (the slope past yield is E H / (E + H)); 0 is perfectly plastic",

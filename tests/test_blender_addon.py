@@ -9,6 +9,7 @@ import pytest
 pytest.importorskip("bpy")
 pytest.importorskip("pxr")
 from test_blender_bake import run_blender  # noqa: E402  (tests/ is on sys.path, see conftest.py)
+from tearcloth.materials import MATERIALS  # noqa: E402
 
 
 def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
@@ -109,7 +110,8 @@ def test_register_unregister_repeatedly_panels_and_operators(tmp_path):
     assert "operator" in drawn["TEARCLOTH_PT_haptics"]  # Start Haptic Session, Discover, ...
     assert drawn["TEARCLOTH_PT_material"].count("prop") == 11  # nine + tear radius, crack speed
     assert "template_list" in drawn["TEARCLOTH_PT_pins"] and "template_list" in drawn["TEARCLOTH_PT_collision"]
-    assert drawn["menu+button"].count("operator") == 5 + 1 + 1  # five presets, Save Preset..., the disable button
+    # one per preset, Save Preset..., the disable button
+    assert drawn["menu+button"].count("operator") == len(MATERIALS) + 1 + 1
     assert drawn["running"] == ["progress", "operator"]  # the bar and Cancel
     assert drawn["status"] == ["progress"]
     assert "operator" in drawn["cache_running"] and "tearcloth.bake" not in drawn["cache_running"]

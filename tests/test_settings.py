@@ -295,6 +295,8 @@ def test_blender_properties_are_the_table_rows(tmp_path):
             assert _same(p["soft_max"], soft.hi if soft.hi is not None else p["max"]), key
             if row.is_scene_length:
                 assert p["unit"] == "LENGTH" and p["subtype"] in ("DISTANCE", "TRANSLATION"), key
+            elif row.unit == "rad":  # an angle: stored in radians, shown in the scene's rotation unit
+                assert p["unit"] == "ROTATION", key
             else:
                 assert p["unit"] in (None, "NONE"), key
             continue
