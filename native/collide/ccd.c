@@ -97,6 +97,48 @@ static double dist2_at(const double *const A[4], const double *const B[4], doubl
 
 static double cubic(const double c[4], double s) { return ((c[3] * s + c[2]) * s + c[1]) * s + c[0]; }
 
+/* Candidate times in increasing order where a cubic c0 + c1 s + c2 s^2 + c3 s^3 may vanish on
+ * [0, 1]: 0, its extrema inside (a touch without a sign change), a root (bisection, 2^-40 of the
+ * interval) in each monotone piece with a sign change, and 1. Returns their count (<= 7). */
+static int cubic_candidates(const double c[4], double cand[8])
+{
+    int nc = 0;
+    cand[nc++] = 0.0;
+    double split[4] = {0.0, 0.0, 0.0, 1.0};
+    int ns = 1;
+    double qa = 3 * c[3], qb = 2 * c[2], qc = c[1];
+    double r[2];
+    int nr = 0;
+    if (fabs(qa) > 0) {
+        double disc = qb * qb - 4 * qa * qc;
+        if (disc >= 0) {
+            double sq = sqrt(disc);
+            double t1 = (-qb - sq) / (2 * qa), t2 = (-qb + sq) / (2 * qa);
+            r[nr++] = t1 < t2 ? t1 : t2;
+            r[nr++] = t1 < t2 ? t2 : t1;
+        }
+    } else if (fabs(qb) > 0) {
+        r[nr++] = -qc / qb;
+    }
+    for (int i = 0; i < nr; i++)
+        if (r[i] > 0 && r[i] < 1 && r[i] > split[ns - 1]) split[ns++] = r[i];
+    split[ns++] = 1.0;
+    for (int i = 0; i + 1 < ns; i++) {
+        double lo = split[i], hi = split[i + 1];
+        double flo = cubic(c, lo), fhi = cubic(c, hi);
+        if (i > 0) cand[nc++] = lo;
+        if (flo == 0.0 || (flo < 0) != (fhi < 0)) {
+            for (int it = 0; it < 40; it++) {
+                double mid = 0.5 * (lo + hi), fm = cubic(c, mid);
+                if ((fm < 0) == (flo < 0) && fm != 0.0) { lo = mid; flo = fm; } else hi = mid;
+            }
+            cand[nc++] = hi;
+        }
+    }
+    cand[nc++] = 1.0;
+    return nc;
+}
+
 int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const tcc_idx *tri, tcc_idx nt,
                             const tcc_idx *pv, const tcc_idx *pt, tcc_idx k, double gap_all, const double *pair_gap,
                             double *toi, double *w, int8_t *side, tcc_idx *nhit, tcc_error *err)
@@ -135,42 +177,7 @@ int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const
         double c[4] = {dot3(d, Ac), dot3(d, Bc) + dot3(dd, Ac), dot3(d, Cc) + dot3(dd, Bc), dot3(dd, Cc)};
         /* candidate times in increasing order: 0, the cubic's roots and extrema in (0, 1), 1 */
         double cand[8];
-        int nc = 0;
-        cand[nc++] = 0.0;
-        double split[4] = {0.0, 0.0, 0.0, 1.0};
-        int ns = 1;
-        {
-            double qa = 3 * c[3], qb = 2 * c[2], qc = c[1];
-            double r[2];
-            int nr = 0;
-            if (fabs(qa) > 0) {
-                double disc = qb * qb - 4 * qa * qc;
-                if (disc >= 0) {
-                    double sq = sqrt(disc);
-                    double t1 = (-qb - sq) / (2 * qa), t2 = (-qb + sq) / (2 * qa);
-                    r[nr++] = t1 < t2 ? t1 : t2;
-                    r[nr++] = t1 < t2 ? t2 : t1;
-                }
-            } else if (fabs(qb) > 0) {
-                r[nr++] = -qc / qb;
-            }
-            for (int i = 0; i < nr; i++)
-                if (r[i] > 0 && r[i] < 1 && r[i] > split[ns - 1]) split[ns++] = r[i];
-            split[ns++] = 1.0;
-        }
-        for (int i = 0; i + 1 < ns; i++) {
-            double lo = split[i], hi = split[i + 1];
-            double flo = cubic(c, lo), fhi = cubic(c, hi);
-            if (i > 0) cand[nc++] = lo;  /* an extremum: a touch without a sign change */
-            if (flo == 0.0 || (flo < 0) != (fhi < 0)) {
-                for (int it = 0; it < 40; it++) {  /* bisection: 2^-40 of the step */
-                    double mid = 0.5 * (lo + hi), fm = cubic(c, mid);
-                    if ((fm < 0) == (flo < 0) && fm != 0.0) { lo = mid; flo = fm; } else hi = mid;
-                }
-                cand[nc++] = hi;
-            }
-        }
-        cand[nc++] = 1.0;
+        int nc = cubic_candidates(c, cand);
         for (int i = 0; i < nc; i++) {
             double s = cand[i];
             if (i > 0 && s < cand[i - 1]) continue;
@@ -291,42 +298,7 @@ int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_i
         cross3(du, dv, Cc);
         double c[4] = {dot3(r0, Ac), dot3(r0, Bc) + dot3(dr, Ac), dot3(r0, Cc) + dot3(dr, Bc), dot3(dr, Cc)};
         double cand[8];
-        int nc = 0;
-        cand[nc++] = 0.0;
-        double split[4] = {0.0, 0.0, 0.0, 1.0};
-        int ns = 1;
-        {
-            double qa = 3 * c[3], qb = 2 * c[2], qc = c[1];
-            double r[2];
-            int nr = 0;
-            if (fabs(qa) > 0) {
-                double disc = qb * qb - 4 * qa * qc;
-                if (disc >= 0) {
-                    double sq = sqrt(disc);
-                    double t1 = (-qb - sq) / (2 * qa), t2 = (-qb + sq) / (2 * qa);
-                    r[nr++] = t1 < t2 ? t1 : t2;
-                    r[nr++] = t1 < t2 ? t2 : t1;
-                }
-            } else if (fabs(qb) > 0) {
-                r[nr++] = -qc / qb;
-            }
-            for (int i = 0; i < nr; i++)
-                if (r[i] > 0 && r[i] < 1 && r[i] > split[ns - 1]) split[ns++] = r[i];
-            split[ns++] = 1.0;
-        }
-        for (int i = 0; i + 1 < ns; i++) {
-            double lo = split[i], hi = split[i + 1];
-            double flo = cubic(c, lo), fhi = cubic(c, hi);
-            if (i > 0) cand[nc++] = lo;
-            if (flo == 0.0 || (flo < 0) != (fhi < 0)) {
-                for (int it = 0; it < 40; it++) {
-                    double mid = 0.5 * (lo + hi), fm = cubic(c, mid);
-                    if ((fm < 0) == (flo < 0) && fm != 0.0) { lo = mid; flo = fm; } else hi = mid;
-                }
-                cand[nc++] = hi;
-            }
-        }
-        cand[nc++] = 1.0;
+        int nc = cubic_candidates(c, cand);
         for (int i = 0; i < nc; i++) {
             double s = cand[i];
             if (i > 0 && s < cand[i - 1]) continue;
