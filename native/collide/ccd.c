@@ -97,6 +97,22 @@ static double dist2_at(const double *const A[4], const double *const B[4], doubl
 
 static double cubic(const double c[4], double s) { return ((c[3] * s + c[2]) * s + c[1]) * s + c[0]; }
 
+/* The triple product (r0 + s dr) . ((u0 + s du) x (v0 + s dv)) as a cubic c0 + c1 s + c2 s^2 +
+ * c3 s^3, and u0 x v0 (its scale at s = 0). */
+static void triple_cubic(const double r0[3], const double dr[3], const double u0[3], const double du[3],
+                         const double v0[3], const double dv[3], double c[4], double A[3])
+{
+    double B1[3], B2[3], B[3], C[3];
+    cross3(u0, v0, A);
+    cross3(u0, dv, B1); cross3(du, v0, B2);
+    for (int i = 0; i < 3; i++) B[i] = B1[i] + B2[i];
+    cross3(du, dv, C);
+    c[0] = dot3(r0, A);
+    c[1] = dot3(r0, B) + dot3(dr, A);
+    c[2] = dot3(r0, C) + dot3(dr, B);
+    c[3] = dot3(dr, C);
+}
+
 /* Candidate times in increasing order where a cubic c0 + c1 s + c2 s^2 + c3 s^3 may vanish on
  * [0, 1]: 0, its extrema inside (a touch without a sign change), a root (bisection, 2^-40 of the
  * interval) in each monotone piece with a sign change, and 1. Returns their count (<= 7). */
@@ -169,12 +185,8 @@ int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const
         double d[3], e1[3], e2[3], dd[3], de1[3], de2[3];
         sub3(A[0], A[1], d); sub3(A[2], A[1], e1); sub3(A[3], A[1], e2);
         sub3(D[0], D[1], dd); sub3(D[2], D[1], de1); sub3(D[3], D[1], de2);
-        double Ac[3], B1[3], B2[3], Bc[3], Cc[3];
-        cross3(e1, e2, Ac);
-        cross3(e1, de2, B1); cross3(de1, e2, B2);
-        for (int i = 0; i < 3; i++) Bc[i] = B1[i] + B2[i];
-        cross3(de1, de2, Cc);
-        double c[4] = {dot3(d, Ac), dot3(d, Bc) + dot3(dd, Ac), dot3(d, Cc) + dot3(dd, Bc), dot3(dd, Cc)};
+        double c[4], Ac[3];
+        triple_cubic(d, dd, e1, de1, e2, de2, c, Ac);
         /* candidate times in increasing order: 0, the cubic's roots and extrema in (0, 1), 1 */
         double cand[8];
         int nc = cubic_candidates(c, cand);
@@ -291,12 +303,8 @@ int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_i
         double r0[3], u0[3], v0[3], dr[3], du[3], dv[3];
         sub3(A[2], A[0], r0); sub3(A[1], A[0], u0); sub3(A[3], A[2], v0);
         sub3(D[2], D[0], dr); sub3(D[1], D[0], du); sub3(D[3], D[2], dv);
-        double Ac[3], B1[3], B2[3], Bc[3], Cc[3];
-        cross3(u0, v0, Ac);
-        cross3(u0, dv, B1); cross3(du, v0, B2);
-        for (int i = 0; i < 3; i++) Bc[i] = B1[i] + B2[i];
-        cross3(du, dv, Cc);
-        double c[4] = {dot3(r0, Ac), dot3(r0, Bc) + dot3(dr, Ac), dot3(r0, Cc) + dot3(dr, Bc), dot3(dr, Cc)};
+        double c[4], Ac[3];
+        triple_cubic(r0, dr, u0, du, v0, dv, c, Ac);
         double cand[8];
         int nc = cubic_candidates(c, cand);
         for (int i = 0; i < nc; i++) {
