@@ -252,4 +252,39 @@ int tcc_assemble(const tcc_idx *seg, tcc_idx c, const tcc_idx *v, const double *
                  double *all_normal, double *all_depth, double *all_velocity, double *all_friction, tcc_idx *nall,
                  tcc_error *err);
 
+/* ---------------------------------------------------------------- ccd.c */
+
+/* Swept vertex-triangle test: every point moves linearly from x0 to x1 ((n, 3) each) over s in
+ * [0, 1]. For each pair (pv[q], pt[q]) (the vertex must not be a corner of the triangle): toi[q]
+ * the earliest s at which the vertex is within gap of the triangle (+inf if never), w[q] the
+ * barycentrics of its closest point then, side[q] the side it came from (+1: the side the face
+ * normal (b - a) x (c - a) points to; its side at s = 0, or, on the plane at s = 0, the side it
+ * moves away from; 0 without a hit). A pair farther apart at s = 0 than gap plus the vertex's
+ * largest motion relative to a corner is rejected before any root search. *nhit = hits. The gap of
+ * pair q is the smaller of gap_all and pair_gap[q] (pair_gap may be NULL). */
+int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const tcc_idx *tri, tcc_idx nt,
+                            const tcc_idx *pv, const tcc_idx *pt, tcc_idx k, double gap_all, const double *pair_gap,
+                            double *toi, double *w, int8_t *side, tcc_idx *nhit, tcc_error *err);
+
+/* Vertex-triangle pairs at positions x: sd[q] the signed distance of the vertex to the triangle's
+ * plane along its unit normal normal[q], dist[q] the distance to the triangle, w[q] the
+ * barycentrics of the closest point. */
+int tcc_vertex_triangle_state(const double *x, tcc_idx n, const tcc_idx *tri, tcc_idx nt, const tcc_idx *pv,
+                              const tcc_idx *pt, tcc_idx k, double *sd, double *dist, double *w, double *normal,
+                              tcc_error *err);
+
+/* Swept edge-edge test, the dual of the vertex-triangle one: edges ea[q] = (a, b) and eb[q] =
+ * (c, d) (no shared vertex) moving linearly from x0 to x1. toi[q] the earliest s in [0, 1] at which
+ * the segments come within gap (+inf if never), st[q] the closest points' parameters along ab and
+ * cd then, side[q] the side of ab from cd along n = (b - a) x (d - c) before (+1 or -1, 0 without a
+ * hit); the same rejection before any root search. */
+int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_idx *ea, const tcc_idx *eb, tcc_idx k,
+                      double gap_all, const double *pair_gap, double *toi, double *st, int8_t *side, tcc_idx *nhit,
+                      tcc_error *err);
+
+/* Edge pairs at positions x: sd[q] = (a - c) . n with n[q] the unit (b - a) x (d - c), dist[q] the
+ * segments' distance, st[q] their closest points' parameters. */
+int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc_idx *eb, tcc_idx k, double *sd,
+                        double *dist, double *st, double *normal, tcc_error *err);
+
 #endif

@@ -837,6 +837,152 @@ fail:
     return NULL;
 }
 
+static const pyarg_spec CCD_VERTEX_TRIANGLE[] = {
+    ARR("start", PA_F64, 0, 2, 3, 0),
+    ARR("end", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("vertex", PA_I64, 0, 1, 0, 0),
+    ARR("triangle", PA_I64, 0, 1, 0, 0),
+    VAL("gap", PA_DOUBLE),
+    ARR("toi", PA_F64, OUT, 1, 0, 0),
+    ARR("weights", PA_F64, OUT, 2, 3, 0),
+    ARR("side", PA_I8, OUT, 1, 0, 0),
+    ARR("pair_gap", PA_F64, OPT, 1, 0, 0),
+};
+enum { CC_X0, CC_X1, CC_T, CC_V, CC_TRI, CC_GAP, CC_TOI, CC_W, CC_SIDE, CC_PG, CC_N };
+
+static PyObject *py_ccd_vertex_triangle(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("ccd_vertex_triangle", CCD_VERTEX_TRIANGLE, CC_N);
+    double gap = s.v[CC_GAP].d;
+    if (finite_param(gap, "gap", 1)) goto fail;
+    Py_ssize_t n = ROWS(CC_X0), k = ROWS(CC_V);
+    CHECK_ROWS(CC_X1, n);
+    CHECK_ROWS(CC_TRI, k);
+    CHECK_ROWS(CC_TOI, k);
+    CHECK_ROWS(CC_W, k);
+    CHECK_ROWS(CC_SIDE, k);
+    CHECK_ROWS(CC_PG, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    tcc_idx hits = 0;
+    int rc;
+    RUN(tcc_ccd_vertex_triangle(D(CC_X0), D(CC_X1), n, D(CC_T), ROWS(CC_T), D(CC_V), D(CC_TRI), k, gap, D(CC_PG), D(CC_TOI),
+                                D(CC_W), D(CC_SIDE), &hits, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return PyLong_FromLongLong(hits);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec VERTEX_TRIANGLE_STATE[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("vertex", PA_I64, 0, 1, 0, 0),
+    ARR("triangle", PA_I64, 0, 1, 0, 0),
+    ARR("sd", PA_F64, OUT, 1, 0, 0),
+    ARR("dist", PA_F64, OUT, 1, 0, 0),
+    ARR("weights", PA_F64, OUT, 2, 3, 0),
+    ARR("normal", PA_F64, OUT, 2, 3, 0),
+};
+enum { VS_X, VS_T, VS_V, VS_TRI, VS_SD, VS_DIST, VS_W, VS_NRM, VS_N };
+
+static PyObject *py_vertex_triangle_state(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("vertex_triangle_state", VERTEX_TRIANGLE_STATE, VS_N);
+    Py_ssize_t k = ROWS(VS_V);
+    CHECK_ROWS(VS_TRI, k);
+    CHECK_ROWS(VS_SD, k);
+    CHECK_ROWS(VS_DIST, k);
+    CHECK_ROWS(VS_W, k);
+    CHECK_ROWS(VS_NRM, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_vertex_triangle_state(D(VS_X), ROWS(VS_X), D(VS_T), ROWS(VS_T), D(VS_V), D(VS_TRI), k, D(VS_SD),
+                                  D(VS_DIST), D(VS_W), D(VS_NRM), &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec CCD_EDGE_EDGE[] = {
+    ARR("start", PA_F64, 0, 2, 3, 0),
+    ARR("end", PA_F64, 0, 2, 3, 0),
+    ARR("edge_a", PA_I64, 0, 2, 2, 0),
+    ARR("edge_b", PA_I64, 0, 2, 2, 0),
+    VAL("gap", PA_DOUBLE),
+    ARR("toi", PA_F64, OUT, 1, 0, 0),
+    ARR("params", PA_F64, OUT, 2, 2, 0),
+    ARR("side", PA_I8, OUT, 1, 0, 0),
+    ARR("pair_gap", PA_F64, OPT, 1, 0, 0),
+};
+enum { CE_X0, CE_X1, CE_EA, CE_EB, CE_GAP, CE_TOI, CE_ST, CE_SIDE, CE_PG, CE_N };
+
+static PyObject *py_ccd_edge_edge(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("ccd_edge_edge", CCD_EDGE_EDGE, CE_N);
+    double gap = s.v[CE_GAP].d;
+    if (finite_param(gap, "gap", 1)) goto fail;
+    Py_ssize_t n = ROWS(CE_X0), k = ROWS(CE_EA);
+    CHECK_ROWS(CE_X1, n);
+    CHECK_ROWS(CE_EB, k);
+    CHECK_ROWS(CE_TOI, k);
+    CHECK_ROWS(CE_ST, k);
+    CHECK_ROWS(CE_SIDE, k);
+    CHECK_ROWS(CE_PG, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    tcc_idx hits = 0;
+    int rc;
+    RUN(tcc_ccd_edge_edge(D(CE_X0), D(CE_X1), n, D(CE_EA), D(CE_EB), k, gap, D(CE_PG), D(CE_TOI), D(CE_ST), D(CE_SIDE), &hits,
+                          &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return PyLong_FromLongLong(hits);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec EDGE_EDGE_STATE[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("edge_a", PA_I64, 0, 2, 2, 0),
+    ARR("edge_b", PA_I64, 0, 2, 2, 0),
+    ARR("sd", PA_F64, OUT, 1, 0, 0),
+    ARR("dist", PA_F64, OUT, 1, 0, 0),
+    ARR("params", PA_F64, OUT, 2, 2, 0),
+    ARR("normal", PA_F64, OUT, 2, 3, 0),
+};
+enum { ES_X, ES_EA, ES_EB, ES_SD, ES_DIST, ES_ST, ES_NRM, ES_N };
+
+static PyObject *py_edge_edge_state(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("edge_edge_state", EDGE_EDGE_STATE, ES_N);
+    Py_ssize_t k = ROWS(ES_EA);
+    CHECK_ROWS(ES_EB, k);
+    CHECK_ROWS(ES_SD, k);
+    CHECK_ROWS(ES_DIST, k);
+    CHECK_ROWS(ES_ST, k);
+    CHECK_ROWS(ES_NRM, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_edge_edge_state(D(ES_X), ROWS(ES_X), D(ES_EA), D(ES_EB), k, D(ES_SD), D(ES_DIST), D(ES_ST), D(ES_NRM),
+                            &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
 #define KERNEL(name, doc) {#name, (PyCFunction)(void (*)(void))py_##name, METH_VARARGS | METH_KEYWORDS, doc}
 
 static PyMethodDef methods[] = {
@@ -891,6 +1037,21 @@ static PyMethodDef methods[] = {
            "assemble(segments, vertex, depth, normal, velocity, friction, n, deep_vertex, deep_normal, deep_depth, "
            "deep_velocity, deep_friction, all_vertex, all_normal, all_depth, all_velocity, all_friction) -> "
            "(deep count, all count)."),
+    KERNEL(ccd_vertex_triangle,
+           "ccd_vertex_triangle(start, end, triangles, vertex, triangle, gap, toi, weights, side, pair_gap=None) -> "
+           "hits: the "
+           "earliest time in [0, 1] of linear motion start -> end at which each vertex comes within gap of its "
+           "triangle (inf if never), the closest point's barycentrics and the side the vertex came from."),
+    KERNEL(vertex_triangle_state,
+           "vertex_triangle_state(positions, triangles, vertex, triangle, sd, dist, weights, normal): signed plane "
+           "distance, distance, closest-point barycentrics and unit normal of each vertex-triangle pair."),
+    KERNEL(ccd_edge_edge,
+           "ccd_edge_edge(start, end, edge_a, edge_b, gap, toi, params, side, pair_gap=None) -> hits: the earliest time in [0, 1] "
+           "at which each pair of moving edges comes within gap, the closest points' parameters and the side of "
+           "edge a from edge b before."),
+    KERNEL(edge_edge_state,
+           "edge_edge_state(positions, edge_a, edge_b, sd, dist, params, normal): signed distance along the unit "
+           "common normal, distance and closest-point parameters of each edge pair."),
     {NULL, NULL, 0, NULL},
 };
 

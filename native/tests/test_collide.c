@@ -210,10 +210,96 @@ static void tear(mesh *m)
     m->nv += NY;
 }
 
+/* The swept kernels (ccd.c) on the grid: vertex 0 is driven through the middle of a far triangle,
+ * every other point at rest; among all its pairs exactly that triangle is hit, half way, from
+ * above; one edge is driven through another; bad pairs are errors, not reads out of bounds. */
+static void test_ccd(const mesh *m)
+{
+    size_t nx = 3 * (size_t)m->nv;
+    double *x0 = malloc(sizeof(double) * nx), *x1 = malloc(sizeof(double) * nx);
+    memcpy(x0, m->x, sizeof(double) * nx);
+    memcpy(x1, m->x, sizeof(double) * nx);
+    tcc_idx far = m->nt / 2;
+    double c[3] = {0, 0, 0};
+    for (int k = 0; k < 3; k++)
+        for (int i = 0; i < 3; i++) c[i] += m->x[3 * m->tri[3 * far + k] + i] / 3.0;
+    /* the far triangle's unit normal (the grid was deformed by the detection steps) */
+    const double *ta = m->x + 3 * m->tri[3 * far], *tb = m->x + 3 * m->tri[3 * far + 1], *tc = m->x + 3 * m->tri[3 * far + 2];
+    double e1[3], e2[3], nh[3];
+    for (int i = 0; i < 3; i++) { e1[i] = tb[i] - ta[i]; e2[i] = tc[i] - ta[i]; }
+    nh[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    nh[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    nh[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    double ln = sqrt(nh[0] * nh[0] + nh[1] * nh[1] + nh[2] * nh[2]);
+    for (int i = 0; i < 3; i++) nh[i] /= ln;
+    for (int i = 0; i < 3; i++) { x0[i] = c[i] + 0.01 * nh[i]; x1[i] = c[i] - 0.01 * nh[i]; }
+    tcc_idx *pv = malloc(sizeof(tcc_idx) * (size_t)m->nt), *pt = malloc(sizeof(tcc_idx) * (size_t)m->nt);
+    tcc_idx k = 0;
+    for (tcc_idx t = 0; t < m->nt; t++) {
+        const tcc_idx *q = m->tri + 3 * t;
+        if (q[0] == 0 || q[1] == 0 || q[2] == 0) continue;
+        pv[k] = 0; pt[k] = t; k++;
+    }
+    double *toi = malloc(sizeof(double) * (size_t)k), *w = malloc(sizeof(double) * 3 * (size_t)k);
+    int8_t *side = malloc((size_t)k);
+    tcc_idx hits = -1;
+    tcc_error err = {0};
+    int rc = tcc_ccd_vertex_triangle(x0, x1, m->nv, m->tri, m->nt, pv, pt, k, 0.0, NULL, toi, w, side, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 1, "vertex through a triangle: rc %d, %lld hits", rc, (long long)hits);
+    for (tcc_idx q = 0; q < k; q++)
+        if (pt[q] == far) {
+            CHECK(fabs(toi[q] - 0.5) < 1e-9, "time of impact %g, not 0.5", toi[q]);
+            CHECK(side[q] == 1, "side %d of a vertex coming from the normal's side", side[q]);
+            CHECK(fabs(w[3 * q] - 1.0 / 3) < 1e-9 && fabs(w[3 * q + 1] - 1.0 / 3) < 1e-9, "weights %g %g", w[3 * q], w[3 * q + 1]);
+        }
+    /* edge (0, 1), across an edge of the far triangle, driven along the normal through it */
+    tcc_idx ea[2] = {0, 1}, eb[2] = {m->tri[3 * far], m->tri[3 * far + 2]};
+    const double *pa = m->x + 3 * eb[0], *pb = m->x + 3 * eb[1];
+    double mid[3], d[3];
+    for (int i = 0; i < 3; i++) mid[i] = 0.5 * (pa[i] + pb[i]);
+    d[0] = nh[1] * e2[2] - nh[2] * e2[1];
+    d[1] = nh[2] * e2[0] - nh[0] * e2[2];
+    d[2] = nh[0] * e2[1] - nh[1] * e2[0];
+    double ld = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    for (int i = 0; i < 3; i++) {
+        d[i] *= 0.01 / ld;
+        x0[i] = mid[i] - d[i] + 0.01 * nh[i]; x0[3 + i] = mid[i] + d[i] + 0.01 * nh[i];
+        x1[i] = mid[i] - d[i] - 0.03 * nh[i]; x1[3 + i] = mid[i] + d[i] - 0.03 * nh[i];
+    }
+    double st[2];
+    int8_t es;
+    double et;
+    rc = tcc_ccd_edge_edge(x0, x1, m->nv, ea, eb, 1, 0.0, NULL, &et, st, &es, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 1 && fabs(et - 0.25) < 1e-9 && fabs(st[0] - 0.5) < 1e-9 && fabs(st[1] - 0.5) < 1e-9,
+          "edge through an edge: rc %d, %lld hits, toi %g, params %g %g", rc, (long long)hits, et, st[0], st[1]);
+    double sd, dist, nrm[3];
+    rc = tcc_edge_edge_state(x1, m->nv, ea, eb, 1, &sd, &dist, st, nrm, &err);
+    CHECK(rc == TCC_OK && (sd > 0 ? 1 : -1) == -es && fabs(dist - 0.03) < 1e-9, "edge state: sd %g (side %d), dist %g", sd, es, dist);
+    /* bad pairs */
+    tcc_idx badt = m->nt, badv = m->nv;
+    tcc_error ex = {0};
+    CHECK(tcc_ccd_vertex_triangle(x0, x1, m->nv, m->tri, m->nt, pv, &badt, 1, 0.0, NULL, toi, w, side, &hits, &ex) == TCC_ERR_INDEX,
+          "a triangle out of range is an index error");
+    tcc_error e3 = {0};
+    CHECK(tcc_ccd_vertex_triangle(x0, x1, m->nv, m->tri, m->nt, &badv, pt, 1, 0.0, NULL, toi, w, side, &hits, &e3) == TCC_ERR_INDEX,
+          "a vertex out of range is an index error");
+    tcc_idx own = m->tri[0];
+    tcc_idx t0 = 0;
+    tcc_error e4 = {0};
+    CHECK(tcc_ccd_vertex_triangle(x0, x1, m->nv, m->tri, m->nt, &own, &t0, 1, 0.0, NULL, toi, w, side, &hits, &e4) == TCC_ERR_VALUE,
+          "a vertex of its own triangle is a value error");
+    tcc_idx shared[2] = {1, 2};
+    tcc_error e5 = {0};
+    CHECK(tcc_ccd_edge_edge(x0, x1, m->nv, ea, shared, 1, 0.0, NULL, &et, st, &es, &hits, &e5) == TCC_ERR_VALUE,
+          "edges sharing a vertex are a value error");
+    free(x0); free(x1); free(pv); free(pt); free(toi); free(w); free(side);
+}
+
 int main(void)
 {
     mesh m = grid();
     test_measure_and_detection_steps(&m);
+    test_ccd(&m);
     tear(&m);
     test_measure_and_detection_steps(&m);
     free(m.x);

@@ -1,0 +1,119 @@
+"""The swept (continuous) kernels of native/collide/ccd.c against a dense-sampling oracle: a
+vertex driven through a triangle, and an edge driven through an edge, are found with the right
+side and time; pairs that stay apart are not."""
+import numpy as np
+
+from tearcloth import _collide
+
+
+def _closest_on_triangle(p, a, b, c, m=60):
+    # oracle: dense barycentric grid (fine enough for the margins below)
+    u, v = np.meshgrid(np.linspace(0, 1, m), np.linspace(0, 1, m))
+    keep = u + v <= 1
+    u, v = u[keep], v[keep]
+    q = a + u[:, None] * (b - a) + v[:, None] * (c - a)
+    return np.linalg.norm(q - p, axis=1).min()
+
+
+def test_vertex_driven_through_a_triangle_is_found_with_its_side_and_time():
+    rng = np.random.default_rng(0)
+    tri = np.array([[1, 2, 3]], np.int64)
+    found = 0
+    for _ in range(200):
+        a, b, c = rng.normal(size=(3, 3)) * 0.01
+        n = np.cross(b - a, c - a)
+        n /= np.linalg.norm(n)
+        w = rng.dirichlet([2, 2, 2])
+        foot = w[0] * a + w[1] * b + w[2] * c
+        side = rng.choice([-1, 1])
+        s_hit = rng.uniform(0.1, 0.9)
+        speed = rng.uniform(0.002, 0.02)  # m over the interval: up to 5x the gap
+        p0 = foot + side * n * speed * s_hit
+        p1 = foot - side * n * speed * (1 - s_hit)
+        drift = rng.normal(size=3) * 0.001  # the whole pair moves too
+        x0 = np.array([p0, a, b, c])
+        x1 = np.array([p1, a, b, c]) + drift
+        toi, wt, sd = np.empty(1), np.empty((1, 3)), np.empty(1, np.int8)
+        hits = _collide.ccd_vertex_triangle(start=x0, end=x1, triangles=tri, vertex=np.array([0]),
+                                            triangle=np.array([0]), gap=0.0, toi=toi, weights=wt, side=sd)
+        assert hits == 1
+        assert abs(toi[0] - s_hit) < 1e-6
+        assert sd[0] == side
+        assert np.allclose(wt[0], w, atol=1e-6)
+        found += 1
+    assert found == 200
+
+
+def test_vertex_passing_beside_or_staying_away_is_not_a_hit():
+    rng = np.random.default_rng(1)
+    tri = np.array([[1, 2, 3]], np.int64)
+    gap = 0.001
+    checked = 0
+    for _ in range(300):
+        x0 = rng.normal(size=(4, 3)) * 0.01
+        x1 = x0 + rng.normal(size=(4, 3)) * 0.005
+        toi, wt, sd = np.empty(1), np.empty((1, 3)), np.empty(1, np.int8)
+        _collide.ccd_vertex_triangle(start=x0, end=x1, triangles=tri, vertex=np.array([0]), triangle=np.array([0]),
+                                     gap=gap, toi=toi, weights=wt, side=sd)
+        s = np.linspace(0, 1, 201)
+        d = np.array([_closest_on_triangle(*(x0 + t * (x1 - x0))) for t in s])
+        if d.min() > 1.2 * gap:
+            assert not np.isfinite(toi[0]), "a hit where the vertex never came within the gap"
+            checked += 1
+        # a crossing of the plane inside the triangle must be found, at the oracle's time
+        f = np.array([np.dot(P[0] - P[1], np.cross(P[2] - P[1], P[3] - P[1])) for P in (x0 + t * (x1 - x0) for t in s)])
+        through = (np.sign(f[1:]) != np.sign(f[:-1])) & (np.minimum(d[1:], d[:-1]) < 0.2 * gap)
+        if through.any():
+            assert np.isfinite(toi[0]) and toi[0] <= s[np.argmax(through) + 1] + 1e-9
+    assert checked > 100
+
+
+def test_edge_driven_through_an_edge_is_found_with_its_side():
+    rng = np.random.default_rng(2)
+    for _ in range(200):
+        mid = rng.normal(size=3) * 0.01
+        u = rng.normal(size=3); u /= np.linalg.norm(u)
+        v = np.cross(u, rng.normal(size=3)); v /= np.linalg.norm(v)
+        n = np.cross(u, v); n /= np.linalg.norm(n)
+        sa, tb = rng.uniform(0.2, 0.8, 2)
+        la, lb = rng.uniform(0.005, 0.02, 2)
+        side = rng.choice([-1, 1])
+        s_hit = rng.uniform(0.1, 0.9)
+        speed = rng.uniform(0.002, 0.02)
+        a0 = mid - sa * la * u + side * n * speed * s_hit
+        b0 = a0 + la * u
+        c0 = mid - tb * lb * v
+        d0 = c0 + lb * v
+        x0 = np.array([a0, b0, c0, d0])
+        x1 = x0.copy()
+        x1[:2] -= side * n * speed  # edge ab crosses edge cd at s_hit
+        toi, st, sd = np.empty(1), np.empty((1, 2)), np.empty(1, np.int8)
+        hits = _collide.ccd_edge_edge(start=x0, end=x1, edge_a=np.array([[0, 1]]), edge_b=np.array([[2, 3]]), gap=0.0,
+                                      toi=toi, params=st, side=sd)
+        assert hits == 1
+        assert abs(toi[0] - s_hit) < 1e-6
+        assert sd[0] == side
+        assert np.allclose(st[0], [sa, tb], atol=1e-6)
+        # the state now agrees: ab is on the other side of cd
+        sdist, dist, par, nrm = np.empty(1), np.empty(1), np.empty((1, 2)), np.empty((1, 3))
+        _collide.edge_edge_state(positions=x1, edge_a=np.array([[0, 1]]), edge_b=np.array([[2, 3]]), sd=sdist,
+                                 dist=dist, params=par, normal=nrm)
+        assert np.sign(sdist[0]) == -side
+
+
+def test_bad_pairs_raise():
+    x = np.zeros((4, 3))
+    out = dict(toi=np.empty(1), weights=np.empty((1, 3)), side=np.empty(1, np.int8))
+    import pytest
+    with pytest.raises(IndexError, match="triangle 5"):
+        _collide.ccd_vertex_triangle(start=x, end=x, triangles=np.array([[1, 2, 3]]), vertex=np.array([0]),
+                                     triangle=np.array([5]), gap=0.0, **out)
+    with pytest.raises(ValueError, match="corner"):
+        _collide.ccd_vertex_triangle(start=x, end=x, triangles=np.array([[0, 2, 3]]), vertex=np.array([0]),
+                                     triangle=np.array([0]), gap=0.0, **out)
+    with pytest.raises(ValueError, match="share a vertex"):
+        _collide.ccd_edge_edge(start=x, end=x, edge_a=np.array([[0, 1]]), edge_b=np.array([[1, 2]]), gap=0.0,
+                               toi=np.empty(1), params=np.empty((1, 2)), side=np.empty(1, np.int8))
+    with pytest.raises(ValueError, match="gap"):
+        _collide.ccd_edge_edge(start=x, end=x, edge_a=np.array([[0, 1]]), edge_b=np.array([[2, 3]]), gap=-1.0,
+                               toi=np.empty(1), params=np.empty((1, 2)), side=np.empty(1, np.int8))
