@@ -98,4 +98,18 @@
 /* Zeros after the last edge block: the AVX2 product loads a block's last column 4 wide. (doubles) */
 #define TC_ROW_SLACK 4
 
+/* ---- the multigrid preconditioner (amg.c, solver.c) ---- */
+#define TC_AMG_MAX_LEVELS 10
+/* strength of connection: a block is strong when |A_ij|_F > theta sqrt(|A_ii|_F |A_jj|_F); small,
+ * so aggregates are the vertex and its ring (the bending flaps are weak) */
+#define TC_AMG_THETA 0.02
+#define TC_AMG_COARSEST 120         /* unknowns at or below which a level is the coarsest */
+#define TC_AMG_DENSE_MAX 1500       /* the coarsest level is factored when at most this big */
+#define TC_AMG_COARSE_SWEEPS 4      /* else: this many damped Jacobi steps there */
+#define TC_AMG_MIN_COARSENING 0.8   /* stop when a level keeps more than this fraction of rows */
+#define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the Jacobi damping */
+#define TC_AMG_REAGGREGATE 100      /* numeric refreshes before the aggregates are built again */
+#define TC_AMG_REFRESH 1            /* sub-steps between numeric refreshes (solver.c) */
+#define TC_AMG_AUTO_VERTICES 10000  /* preconditioner "auto": multigrid from this many vertices */
+
 #endif

@@ -16,7 +16,7 @@ from tearcloth.materials import MATERIALS, Material
 MATERIAL_FIELDS = ["young", "poisson", "thickness", "density", "bending", "damping_mass", "damping_stiffness",
                    "tear_stress", "snap_tolerance", "tear_radius", "crack_speed_ratio"]
 SOLVER_FIELDS = ["gravity", "cg_tolerance", "cg_max_iterations", "max_stretch", "contact_max_push",
-                 "contact_correction"]
+                 "contact_correction", "preconditioner"]
 TEARING_FIELDS = ["enabled", "scan_period", "min_angle_deg"]
 
 
