@@ -33,7 +33,6 @@
 #include "core.h"
 
 #include <math.h>
-#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -310,8 +309,8 @@ static int scratch(tc_amg *h, int32_t m, size_t acc)
  * Instantiated for the block shapes the hierarchy has (3x3 . 3x6 on the finest level, 6x3 . 3x6 for
  * its Galerkin product, 6x6 . 6x6 below), so the compiler unrolls the block products: the generic
  * loop ran at 0.4 GFlop/s. */
-#define BSR_MUL_NUMERIC(NAME, BR, BK, BC)                                                               \
-    static void NAME(const bsr *X, const bsr *Y, bsr *C, int32_t *mark, double *acc)                 \
+#define BSR_MUL_NUMERIC(NAME, BR, BK, BC, SYM)                                                          \
+    TC_HOT static void NAME(const bsr *X, const bsr *Y, bsr *C, int32_t *mark, double *acc)          \
     {                                                                                                 \
         enum { BS = BR * BC };                                                                        \
         for (int32_t i = 0; i < X->n; i++) {                                                          \
@@ -322,6 +321,7 @@ static int scratch(tc_amg *h, int32_t m, size_t acc)
                 const int32_t k = X->col[a];                                                          \
                 for (int32_t b = Y->ptr[k]; b < Y->ptr[k + 1]; b++) {                                 \
                     const int32_t j = Y->col[b];                                                      \
+                    if (SYM && j < i) continue;                                                       \
                     if (mark[j] < s0) {                                                               \
                         mark[j] = s;                                                                  \
                         C->col[s] = j;                                                                \
@@ -340,18 +340,21 @@ static int scratch(tc_amg *h, int32_t m, size_t acc)
             memcpy(C->val + (size_t)s0 * BS, acc, (size_t)(s - s0) * BS * sizeof(double));            \
         }                                                                                             \
     }
-BSR_MUL_NUMERIC(mul_336, 3, 3, 6)
-BSR_MUL_NUMERIC(mul_636, 6, 3, 6)
-BSR_MUL_NUMERIC(mul_666, 6, 6, 6)
+BSR_MUL_NUMERIC(mul_336, 3, 3, 6, 0)
+BSR_MUL_NUMERIC(mul_636_sym, 6, 3, 6, 1)
+BSR_MUL_NUMERIC(mul_666, 6, 6, 6, 0)
+BSR_MUL_NUMERIC(mul_666_sym, 6, 6, 6, 1)
 #undef BSR_MUL_NUMERIC
 
-/* C = X Y (X: n x k blocks br x bk, Y: k x m blocks bk x bc), with a dense accumulator per row */
-static int bsr_mul(tc_amg *h, const bsr *X, const bsr *Y, bsr *C)
+/* C = X Y (X: n x k blocks br x bk, Y: k x m blocks bk x bc), with a dense accumulator per row.
+ * `symmetric`: C is known to be symmetric (a Galerkin product P^T (A P)), so only the blocks on
+ * and above the diagonal are computed and the others are their transposes: half the work. */
+static int bsr_mul(tc_amg *h, const bsr *X, const bsr *Y, bsr *C, bool symmetric)
 {
     const int br = X->br, bk = X->bc, bc = Y->bc, bs = br * bc;
     C->n = X->n; C->m = Y->m; C->br = br; C->bc = bc;
     if (scratch(h, Y->m, (size_t)Y->m * bs)) return -1;
-    /* symbolic: count */
+    /* symbolic: count (the upper part first when symmetric: the numeric pass fills rows that way) */
     size_t nnz = 0;
     int32_t *mark = h->mark;
     if (grow((void **)&C->ptr, &C->cap_rows, (size_t)X->n + 1, sizeof(int32_t))) return -1;
@@ -366,10 +369,45 @@ static int bsr_mul(tc_amg *h, const bsr *X, const bsr *Y, bsr *C)
     C->ptr[X->n] = (int32_t)nnz;
     for (int32_t j = 0; j < Y->m; j++) mark[j] = -1;
     if (bsr_reserve(C, C->n, nnz)) return -1;
+    symmetric = symmetric && br == bc && X->n == Y->m;
     if (br == 3 && bk == 3 && bc == 6) mul_336(X, Y, C, mark, h->acc);
-    else if (br == 6 && bk == 3 && bc == 6) mul_636(X, Y, C, mark, h->acc);
+    else if (br == 6 && bk == 3 && bc == 6 && symmetric) mul_636_sym(X, Y, C, mark, h->acc);
+    else if (symmetric) mul_666_sym(X, Y, C, mark, h->acc);
     else mul_666(X, Y, C, mark, h->acc);
     for (int32_t j = 0; j < Y->m; j++) mark[j] = -1;
+    if (!symmetric) return 0;
+    /* Row i holds its upper blocks (j >= i) in its first slots; its lower blocks follow, each the
+     * transpose of the upper block (j, i) of row j. */
+    int32_t *upper = malloc(((size_t)C->n + 1) * sizeof(int32_t));
+    if (!upper) return -1;
+    /* how many upper blocks each row got: the first slots up to the first column left unset */
+    for (int32_t i = 0; i < C->n; i++) {
+        int32_t u = 0;
+        for (int32_t a = X->ptr[i]; a < X->ptr[i + 1]; a++) {
+            const int32_t k = X->col[a];
+            for (int32_t b = Y->ptr[k]; b < Y->ptr[k + 1]; b++) {
+                const int32_t j = Y->col[b];
+                if (j >= i && mark[j] != i) { mark[j] = i; u++; }
+            }
+        }
+        upper[i] = u;
+    }
+    for (int32_t j = 0; j < Y->m; j++) mark[j] = -1;
+    int32_t *fill = malloc(((size_t)C->n + 1) * sizeof(int32_t));
+    if (!fill) { free(upper); return -1; }
+    for (int32_t i = 0; i < C->n; i++) fill[i] = C->ptr[i] + upper[i];
+    for (int32_t j = 0; j < C->n; j++)
+        for (int32_t a = C->ptr[j]; a < C->ptr[j] + upper[j]; a++) {
+            const int32_t i = C->col[a];
+            if (i == j) continue;
+            const int32_t s = fill[i]++;
+            C->col[s] = j;
+            const double *u = C->val + (size_t)a * bs;
+            double *t = C->val + (size_t)s * bs;
+            for (int r = 0; r < br; r++)
+                for (int q = 0; q < bc; q++) t[q * br + r] = u[r * bc + q];
+        }
+    free(upper); free(fill);
     return 0;
 }
 
@@ -399,7 +437,7 @@ static int bsr_transpose(const bsr *X, bsr *T)
 
 /* y = A x, instantiated per block shape as the products above */
 #define BSR_APPLY(NAME, BR, BC)                                                                          \
-    static void NAME(const bsr *A, const double *x, double *y)                                        \
+    TC_HOT static void NAME(const bsr *A, const double *x, double *y)                                        \
     {                                                                                                 \
         for (int32_t i = 0; i < A->n; i++) {                                                          \
             double acc[BR] = {0};                                                                     \
@@ -773,11 +811,11 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         N->B = Bc;
         if (tentative(h, L, B, &T, Bc, dead)) goto out;
         /* smoothed prolongator, its transpose, the Galerkin operator */
-        if (bsr_mul(h, &L->A, &T, &L->P)) goto out;
+        if (bsr_mul(h, &L->A, &T, &L->P, false)) goto out;
         smooth_prolongator(c, L, l, &T, &L->P);
         if (bsr_transpose(&L->P, &L->R)) goto out;
         bsr AP = {0};
-        if (bsr_mul(h, &L->A, &L->P, &AP) || bsr_mul(h, &L->R, &AP, &N->A)) { bsr_free(&AP); goto out; }
+        if (bsr_mul(h, &L->A, &L->P, &AP, false) || bsr_mul(h, &L->R, &AP, &N->A, true)) { bsr_free(&AP); goto out; }
         bsr_free(&AP);
         N->n = na; N->b = NS;
         if (coarse_diagonal(N, dead) || level_vectors(N)) goto out;
@@ -803,11 +841,6 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         }
         h->nc = nlev > 1 && m <= TC_AMG_DENSE_MAX ? m : 0;
     }
-    if (getenv("TEARCLOTH_AMG_DEBUG"))
-        for (int l = 0; l < nlev; l++)
-            fprintf(stderr, "amg level %d: n %d b %d nnz(A) %d nagg %d nnz(P) %d omega %g\n", l, h->lev[l].n, h->lev[l].b,
-                    h->lev[l].A.ptr ? h->lev[l].A.ptr[h->lev[l].n] : -1, h->lev[l].nagg,
-                    l + 1 < nlev ? h->lev[l].P.ptr[h->lev[l].n] : 0, h->lev[l].omega);
     /* the finest level's copy is needed only to build the coarse operators */
     bsr_free(&L0->A);
     h->nlev = nlev;
