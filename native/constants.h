@@ -113,6 +113,10 @@
  * sheet: every sub-step 36-38 ms (5.5 iterations; aggregates too: 39.5 ms), every 4th 17.4 ms (6.0),
  * every 8th 12.6 ms (6.7), every 16th 15.7 ms (8.9); block Jacobi 19.2 ms (152 iterations). */
 #define TC_AMG_REFRESH 8
+/* ... or sooner, when a solve needs more than this factor (+2) times the iterations of the first
+ * solve after the refresh: a held sheet pulled at 1 m/s went from 13 to 50 iterations one sub-step
+ * after a refresh at rest (the tension it then carries changes the matrix most). */
+#define TC_AMG_STALE_FACTOR 1.5
 /* preconditioner "auto": multigrid from this many vertices. Same sheets, refresh 8: 1,681 vertices
  * 3.7 ms vs Jacobi 3.1 ms (68 iterations), 2,911 vertices 7.7 vs 10.4 ms (110 iterations). */
 #define TC_AMG_AUTO_VERTICES 2500

@@ -182,6 +182,8 @@ struct tc_cloth {
      * until a solve uses it */
     tc_amg *amg;
     int amg_age;              /* sub-steps since its numeric refresh */
+    int amg_fresh_iterations; /* iterations of the first solve after it (-1: none yet) */
+    bool amg_stale;           /* a later solve needed many more: refresh at the next sub-step */
 };
 
 /* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel

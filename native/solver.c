@@ -44,9 +44,12 @@ static void amg_prepare(tc_cloth *c)
     if (!c->amg) c->amg = tc_amg_new();
     if (!c->amg) { c->stats.amg_fallbacks++; return; }
     const int every = amg_refresh();
-    if (tc_amg_levels(c->amg) == 0 || tc_amg_needs_aggregation(c->amg, c) || c->amg_age + 1 >= (every ? every : 1)) {
+    if (tc_amg_levels(c->amg) == 0 || tc_amg_needs_aggregation(c->amg, c) || c->amg_age + 1 >= (every ? every : 1) ||
+        c->amg_stale) {
         if (tc_amg_build(c->amg, c, every == 0)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
+        c->amg_stale = false;
+        c->amg_fresh_iterations = -1;
     } else {
         c->amg_age++;
     }
@@ -180,7 +183,14 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     double rr = dotn(r, r, n3);
     if (use_amg(c) && c->amg && tc_amg_levels(c->amg) > 0) {
         it = pcg_amg(c, v, stop2, &rr);
-        if (it >= 0) { *rr_out = rr; return it; }
+        if (it >= 0) {
+            /* a kept hierarchy whose cycle lost much of its strength (the tension or the contacts
+               changed a lot since) is refreshed at the next sub-step */
+            if (c->amg_fresh_iterations < 0) c->amg_fresh_iterations = it;
+            else if (it > TC_AMG_STALE_FACTOR * c->amg_fresh_iterations + 2) c->amg_stale = true;
+            *rr_out = rr;
+            return it;
+        }
         /* broke down: block Jacobi goes on from where the cycle left v and r, counted */
         it = -1 - it;
         c->stats.amg_fallbacks++;
