@@ -49,7 +49,7 @@ typedef struct bsr {
 typedef struct level {
     int32_t n, b;          /* block rows and block size (3 on the finest level, NS below) */
     bsr A;                 /* the operator (level 0: A' while the hierarchy is built) */
-    bsr P, R;              /* prolongator from the next level, and its transpose */
+    bsr P;                 /* prolongator from the next level (restriction: its transpose) */
     double *dinv;          /* inverse diagonal blocks, b*b each (level 0: c->pinv is used) */
     double omega;          /* damping of the Jacobi step */
     int32_t *agg;          /* aggregate of each block row, -1 none */
@@ -113,7 +113,7 @@ void tc_amg_free(tc_amg *h)
     if (!h) return;
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) {
         level *L = &h->lev[l];
-        bsr_free(&L->A); bsr_free(&L->P); bsr_free(&L->R);
+        bsr_free(&L->A); bsr_free(&L->P);
         free(L->dinv); free(L->agg); free(L->B); free(L->x); free(L->rhs); free(L->res); free(L->tmp);
     }
     free(h->chol); free(h->mark); free(h->acc);
@@ -126,8 +126,8 @@ size_t tc_amg_bytes(const tc_amg *h)
     size_t s = sizeof *h;
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) {
         const level *L = &h->lev[l];
-        const bsr *m[3] = {&L->A, &L->P, &L->R};
-        for (int k = 0; k < 3; k++)
+        const bsr *m[2] = {&L->A, &L->P};
+        for (int k = 0; k < 2; k++)
             s += m[k]->cap_rows * 4 + m[k]->cap_nnz * (4 + 8 * (size_t)m[k]->br * (size_t)m[k]->bc);
         const size_t n = L->agg || L->dinv ? (size_t)L->n : 0;
         s += n * (4 + 8 * (size_t)L->b * (L->b + NS)) + 4 * L->cap_vec * 8;
@@ -450,14 +450,37 @@ static int bsr_transpose(const bsr *X, bsr *T)
         }                                                                                             \
     }
 BSR_APPLY(apply_36, 3, 6)
-BSR_APPLY(apply_63, 6, 3)
 BSR_APPLY(apply_66, 6, 6)
 #undef BSR_APPLY
+
+/* y = P^T x without storing P^T (a scatter over P's rows: the restriction of the V-cycle) */
+#define BSR_APPLY_T(NAME, BR, BC)                                                                        \
+    TC_HOT static void NAME(const bsr *P, const double *x, double *y)                                 \
+    {                                                                                                 \
+        memset(y, 0, (size_t)P->m * BC * sizeof(double));                                             \
+        for (int32_t i = 0; i < P->n; i++) {                                                          \
+            const double *xi = x + (size_t)i * BR;                                                    \
+            for (int32_t a = P->ptr[i]; a < P->ptr[i + 1]; a++) {                                     \
+                const double *v = P->val + (size_t)a * BR * BC;                                       \
+                double *yj = y + (size_t)P->col[a] * BC;                                              \
+                for (int r = 0; r < BR; r++)                                                          \
+                    for (int q = 0; q < BC; q++) yj[q] += v[r * BC + q] * xi[r];                      \
+            }                                                                                         \
+        }                                                                                             \
+    }
+BSR_APPLY_T(apply_t_36, 3, 6)
+BSR_APPLY_T(apply_t_66, 6, 6)
+#undef BSR_APPLY_T
+
+static void bsr_apply_transposed(const bsr *P, const double *x, double *y)
+{
+    if (P->br == 3) apply_t_36(P, x, y);
+    else apply_t_66(P, x, y);
+}
 
 static void bsr_apply(const bsr *A, const double *x, double *y)
 {
     if (A->br == 3) apply_36(A, x, y);
-    else if (A->bc == 3) apply_63(A, x, y);
     else apply_66(A, x, y);
 }
 
@@ -759,6 +782,12 @@ tc_amg *tc_amg_new(void)
 
 int tc_amg_levels(const tc_amg *h) { return h ? h->nlev : 0; }
 
+bool tc_amg_valid(const tc_amg *h, const tc_cloth *c)
+{
+    /* built for this mesh: its vectors have this many vertices and its aggregates these pairs */
+    return h && h->nlev > 0 && h->nv == c->nv && h->pair_version == c->pair_version;
+}
+
 bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c)
 {
     return !h || h->nlev == 0 || h->pair_version != c->pair_version || h->nv != c->nv ||
@@ -813,10 +842,13 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         /* smoothed prolongator, its transpose, the Galerkin operator */
         if (bsr_mul(h, &L->A, &T, &L->P, false)) goto out;
         smooth_prolongator(c, L, l, &T, &L->P);
-        if (bsr_transpose(&L->P, &L->R)) goto out;
-        bsr AP = {0};
-        if (bsr_mul(h, &L->A, &L->P, &AP, false) || bsr_mul(h, &L->R, &AP, &N->A, true)) { bsr_free(&AP); goto out; }
-        bsr_free(&AP);
+        bsr_free(&T);
+        /* A P, then the finest copy goes before P^T and A_c need room (the peak of the build) */
+        bsr AP = {0}, R = {0};
+        if (bsr_mul(h, &L->A, &L->P, &AP, false)) { bsr_free(&AP); goto out; }
+        if (l == 0) bsr_free(&L0->A);
+        if (bsr_transpose(&L->P, &R) || bsr_mul(h, &R, &AP, &N->A, true)) { bsr_free(&AP); bsr_free(&R); goto out; }
+        bsr_free(&AP); bsr_free(&R);
         N->n = na; N->b = NS;
         if (coarse_diagonal(N, dead) || level_vectors(N)) goto out;
         N->omega = 4.0 / (3.0 * spectral_radius(c, N, l + 1));
@@ -884,7 +916,7 @@ static void vcycle(const tc_cloth *c, tc_amg *h, int l, const double *b, double 
     level_apply(c, L, l, x, r);
     for (size_t k = 0; k < nb; k++) r[k] = b[k] - r[k];
     level *N = &h->lev[l + 1];
-    bsr_apply(&L->R, r, N->rhs);
+    bsr_apply_transposed(&L->P, r, N->rhs);
     vcycle(c, h, l + 1, N->rhs, N->x);
     bsr_apply(&L->P, N->x, t);
     if (l == 0) tc_constraint_filter(c, t);  /* P's range is S's when the contacts changed since */

@@ -265,6 +265,7 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again);
 bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c);
 void tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r */
 int tc_amg_levels(const tc_amg *h);
+bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
 size_t tc_amg_bytes(const tc_amg *h);
 
 /* ---------------- solver.c ---------------- */

@@ -181,7 +181,7 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     tc_constraint_filter(c, r);
     int it = 0;
     double rr = dotn(r, r, n3);
-    if (use_amg(c) && c->amg && tc_amg_levels(c->amg) > 0) {
+    if (use_amg(c) && tc_amg_valid(c->amg, c)) {
         it = pcg_amg(c, v, stop2, &rr);
         if (it >= 0) {
             /* a kept hierarchy whose cycle lost much of its strength (the tension or the contacts
