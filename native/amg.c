@@ -226,6 +226,13 @@ static inline bool fully_constrained(const tc_cloth *c, int32_t i)
 
 /* ---------------- the finest level's explicit operator A' ---------------- */
 
+/* a 3x3 block stored column by column, each column `stride` doubles apart, row-major */
+static void from_columns(const double *src, int stride, double a[9])
+{
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++) a[3 * r + q] = src[stride * q + r];
+}
+
 /* A' = S A S + (I - S) d_i, 3x3 blocks row-major, from fem.c's rows (diagonal padded column-major,
  * edge blocks column-major, flaps scalars). */
 static int fine_matrix(const tc_cloth *c, bsr *A)
@@ -243,10 +250,8 @@ static int fine_matrix(const tc_cloth *c, bsr *A)
         const bool free_i = ((const int8_t *)tc_vec_ptr(&c->vflag))[i] == VC_FREE;
         /* diagonal */
         {
-            const double *d = D + 12 * (size_t)i;
             double a[9];
-            for (int r = 0; r < 3; r++)
-                for (int s = 0; s < 3; s++) a[3 * r + s] = d[4 * s + r];
+            from_columns(D + 12 * (size_t)i, 4, a);
             double *o = A->val + 9 * (size_t)k;
             A->col[k++] = i;
             if (free_i) { memcpy(o, a, sizeof a); }
@@ -260,10 +265,8 @@ static int fine_matrix(const tc_cloth *c, bsr *A)
         }
         for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
             const int32_t j = rc[s];
-            const double *b = RB + 9 * (size_t)s;
             double a[9];
-            for (int r = 0; r < 3; r++)
-                for (int q = 0; q < 3; q++) a[3 * r + q] = b[3 * q + r];
+            from_columns(RB + 9 * (size_t)s, 3, a);
             double *o = A->val + 9 * (size_t)k;
             A->col[k++] = j;
             const bool free_j = ((const int8_t *)tc_vec_ptr(&c->vflag))[j] == VC_FREE;
