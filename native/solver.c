@@ -39,7 +39,13 @@ static int amg_refresh(void)
 
 static void amg_prepare(tc_cloth *c)
 {
-    if (!use_amg(c)) { c->stats.amg_levels = 0; return; }
+    if (!use_amg(c)) {
+        /* switched to block Jacobi: the hierarchy's memory goes back (a switch back rebuilds it) */
+        tc_amg_free(c->amg);
+        c->amg = NULL;
+        c->stats.amg_levels = 0;
+        return;
+    }
     const double t0 = tc_now();
     if (!c->amg) c->amg = tc_amg_new();
     if (!c->amg) { c->stats.amg_fallbacks++; return; }

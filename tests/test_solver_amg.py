@@ -69,3 +69,9 @@ def test_preconditioner_row_chooses_by_size_and_refuses_unknown_names():
     with pytest.raises(ValueError, match="preconditioner"):
         small._c.set_solver(preconditioner="ilu")  # the core's own check, past the table's
     assert small.solver["preconditioner"] == "auto"
+    big.set_solver(preconditioner="jacobi")
+    big.step(1e-3)
+    assert big.stats()["amg_levels"] == 0 and big.solver["preconditioner"] == "jacobi"
+    big.set_solver(preconditioner="amg")
+    big.step(1e-3)
+    assert big.stats()["amg_levels"] >= 2 and big.stats()["amg_fallbacks"] == 0

@@ -337,6 +337,14 @@ static void test_amg(void)
     CHECK(fabs(qy - pz) <= 1e-10 * sqrt(fabs(py) * fabs(pz)) + 1e-300, "V-cycle symmetric: %.17g vs %.17g", qy, pz);
     CHECK(py > 0, "V-cycle positive: %g", py);
     CHECK(tc_amg_bytes(c->amg) > 0, "hierarchy bytes");
+    /* switching to block Jacobi frees the hierarchy; switching back builds it again */
+    tc_solver_settings sw = tc_cloth_solver(c);
+    sw.preconditioner = TC_PRECOND_JACOBI;
+    tc_cloth_set_solver(c, &sw);
+    CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK && c->amg == NULL && tc_cloth_stats(c).amg_levels == 0, "to jacobi");
+    sw.preconditioner = TC_PRECOND_AMG;
+    tc_cloth_set_solver(c, &sw);
+    CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK && tc_cloth_stats(c).amg_levels >= 2, "back to amg");
     free(p); free(q); free(y); free(z); free(V); free(T);
     tc_cloth_destroy(cl[0]); tc_cloth_destroy(cl[1]);
 }
