@@ -155,6 +155,11 @@ class Progress:
         self.step_seconds = 0.0
         self.tears = 0
         self.vertices = 0
+        # this run's sub-steps whose solve stopped at the iteration cap even after the core split
+        # them (Session's StepReport), and the steps that had any: said in the log and the panel
+        self.unconverged_substeps = 0
+        self.unconverged_steps = 0
+        self.cg_max_iterations: int | None = None
         self._clock = clock
         self.started = clock()
         self.state = "running"              # running, done, cancelled, error
@@ -193,12 +198,26 @@ class Progress:
         frame = "-" if self.frame is None else str(self.frame)
         parts = [f"{self.object_name}: frame {frame}/{self.frame_end}", f"{self.steps_per_second:.0f} steps/s",
                  f"{self.tears} tear{'s' if self.tears != 1 else ''}"]
+        if self.unconverged_substeps:
+            parts.append(f"{self.unconverged_substeps} sub-step{'s' if self.unconverged_substeps != 1 else ''} "
+                         "unconverged")
         eta = self.eta_seconds
         if elapsed:
             parts += [duration(self._clock() - self.started), f"ETA {duration(eta)}"]
         elif eta is not None:
             parts.append(f"ETA {duration(eta)}")
         return ", ".join(parts)
+
+    def convergence_text(self) -> str | None:
+        """The sentence for the end of a bake when some solves stopped at the iteration cap even
+        after the core halved their sub-steps (None when every solve converged)."""
+        n = self.unconverged_substeps
+        if not n:
+            return None
+        cap = f" ({self.cg_max_iterations})" if self.cg_max_iterations else ""
+        return (f"{n} sub-step{'s' if n != 1 else ''} in {self.unconverged_steps} step"
+                f"{'s' if self.unconverged_steps != 1 else ''} stopped at the CG iteration cap{cap} even after "
+                "splitting: the motion there is less accurate; raise CG Iterations")
 
 
 def duration(seconds: float | None) -> str:
@@ -297,6 +316,7 @@ class BakeJob:
         self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
         self.session = session
         self._tracker = self._attribute_tracker()
+        self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
         if self.on_event is not None:
             session.add_step_listener(self._stepped)
             self.on_event(BakeEvent("begin", self, self.start_frame))
@@ -349,7 +369,7 @@ class BakeJob:
                 return False
             start = time.perf_counter()
             try:
-                session.step(plan.dt)
+                report = session.step(plan.dt)
             except SimulationError as exc:
                 raise SimulationError(
                     f"the simulation blew up between frames {inputs.frame - 1} and {inputs.frame} ({exc}); "
@@ -357,6 +377,9 @@ class BakeJob:
                 ) from None
             self.progress.step_seconds += time.perf_counter() - start
             self.progress.steps += 1
+            if report.unconverged_substeps:
+                self.progress.unconverged_substeps += report.unconverged_substeps
+                self.progress.unconverged_steps += 1
         self._write(inputs)
         self.next_frame += 1
         return True

@@ -323,6 +323,18 @@ SETTINGS: tuple[Setting, ...] = (
     _f("solver", "contact_correction", "1", 0.2, "Contact Correction",
        "Fraction of a contact's depth removed from the position per step",
        _CORE + " (tc_solver_default)", _B(0.0, 1.0), _B(0.01, 1.0), rna=None, native="contact_correction"),
+    _e("solver", "preconditioner", "auto", "Preconditioner",
+       "How the conjugate-gradient solve is preconditioned: the same answer within the tolerance, at "
+       "different cost",
+       _CORE + " (tc_solver_default): auto takes multigrid from TC_AMG_AUTO_VERTICES vertices (native/"
+       "constants.h), the crossover measured by the bench's scaling part (BENCHMARKS.md)",
+       [("auto", "Auto", "Block Jacobi on small cloths, multigrid on large ones (by vertex count)"),
+        ("jacobi", "Block Jacobi", "The inverse 3x3 diagonal blocks: cheap iterations, more of them as "
+                                   "the mesh grows"),
+        ("amg", "Multigrid", "Smoothed-aggregation multigrid with the rigid-body modes: about ten "
+                             "iterations whatever the mesh, each costing several products, plus a "
+                             "set-up per sub-step")],
+       native="preconditioner", block="solver.cg"),
 
     # -- tearing --------------------------------------------------------------------------------
     _b("tearing", "enabled", True, "Tearing", "Let the sheet tear where its stress exceeds the tear stress",

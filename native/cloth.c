@@ -36,6 +36,7 @@ void tc_cloth_destroy(tc_cloth *c)
     free(c->hkeys_i); free(c->hkeys_j); free(c->hvals);
     for (int32_t h = 0; h < c->nh; h++) { free(c->handles[h].verts); free(c->handles[h].grasp); }
     free(c->handles);
+    tc_amg_free(c->amg);
     free(c);
 }
 

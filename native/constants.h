@@ -116,4 +116,27 @@
 #define TC_RETURN_TOLERANCE 1e-12
 #define TC_RETURN_MAX_ITERATIONS 100
 
+/* ---- the multigrid preconditioner (amg.c, solver.c) ---- */
+#define TC_AMG_MAX_LEVELS 10
+/* strength of connection: a block is strong when |A_ij|_F > theta sqrt(|A_ii|_F |A_jj|_F); small,
+ * so aggregates are the vertex and its ring (the bending flaps are weak) */
+#define TC_AMG_THETA 0.02
+#define TC_AMG_COARSEST 120         /* unknowns at or below which a level is the coarsest */
+#define TC_AMG_DENSE_MAX 1500       /* the coarsest level is factored when at most this big */
+#define TC_AMG_COARSE_SWEEPS 4      /* else: this many damped Jacobi steps there */
+#define TC_AMG_MIN_COARSENING 0.8   /* stop when a level keeps more than this fraction of rows */
+#define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the Jacobi damping */
+#define TC_AMG_REAGGREGATE 100      /* numeric refreshes before the aggregates are built again */
+/* Sub-steps between numeric refreshes (solver.c). Mean CPU per 1 ms step of a pinned 5,151-vertex
+ * sheet: every sub-step 36-38 ms (5.5 iterations; aggregates too: 39.5 ms), every 4th 17.4 ms (6.0),
+ * every 8th 12.6 ms (6.7), every 16th 15.7 ms (8.9); block Jacobi 19.2 ms (152 iterations). */
+#define TC_AMG_REFRESH 8
+/* ... or sooner, when a solve needs more than this factor (+2) times the iterations of the first
+ * solve after the refresh: a held sheet pulled at 1 m/s went from 13 to 50 iterations one sub-step
+ * after a refresh at rest (the tension it then carries changes the matrix most). */
+#define TC_AMG_STALE_FACTOR 1.5
+/* preconditioner "auto": multigrid from this many vertices. Same sheets, refresh 8: 1,681 vertices
+ * 3.7 ms vs Jacobi 3.1 ms (68 iterations), 2,911 vertices 7.7 vs 10.4 ms (110 iterations). */
+#define TC_AMG_AUTO_VERTICES 2500
+
 #endif

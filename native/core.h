@@ -15,7 +15,8 @@
  *   events.c      topology events of one step
  *   fem.c         element pass (rotations, stresses, forces), assembly, matrix-vector product, energies
  *   constraints.c pins, handles, contacts: the velocity filter of Baraff & Witkin and its basis
- *   solver.c      block-Jacobi preconditioned CG on the constraint manifold
+ *   amg.c         smoothed-aggregation multigrid: the preconditioner of large cloths
+ *   solver.c      preconditioned CG on the constraint manifold (block Jacobi or amg.c)
  *   remesh.c      the local remesh of a cut: fans, segments, edge splits, separation
  *   tear.c        tearing: where a tear starts, which way it runs, its tips
  *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
@@ -73,6 +74,8 @@ typedef struct tc_handle {
     double prev[12], target[12]; /* affine maps: start and end of the current step */
     double force[3];
 } tc_handle;
+
+typedef struct tc_amg tc_amg;
 
 typedef struct tc_stencil {
     int32_t v[4];            /* shared edge v0-v1, opposite vertices v2, v3 */
@@ -179,6 +182,13 @@ struct tc_cloth {
     uint64_t rows_version;    /* the pair_version the pattern was built for */
     int32_t rows_nv;          /* and the vertex count */
     bool rows_built;
+
+    /* the multigrid hierarchy (amg.c): derived from the matrix, never part of a snapshot; NULL
+     * until a solve uses it */
+    tc_amg *amg;
+    int amg_age;              /* sub-steps since its numeric refresh */
+    int amg_fresh_iterations; /* iterations of the first solve after it (-1: none yet) */
+    bool amg_stale;           /* a later solve needed many more: refresh at the next sub-step */
 };
 
 /* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel
@@ -257,6 +267,18 @@ int tc_contacts_release(tc_cloth *c, const double *J, const double *b);   /* pul
 int32_t tc_contacts_friction(tc_cloth *c, double *v, const double *J, const double *b);
 void tc_contacts_take_back_push(const tc_cloth *c, double *v, double dt);
 void tc_handle_forces(tc_cloth *c);
+
+/* ---------------- amg.c ---------------- */
+tc_amg *tc_amg_new(void);
+void tc_amg_free(tc_amg *h);
+/* the hierarchy of the current matrix (after tc_assemble and tc_precondition_build); the kept
+ * aggregates unless `aggregate_again` or the mesh changed. 0, or -1 when out of memory. */
+int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again);
+bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c);
+void tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r */
+int tc_amg_levels(const tc_amg *h);
+bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
+size_t tc_amg_bytes(const tc_amg *h);
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);

@@ -231,11 +231,19 @@ static PyObject *Cloth_set_solver(PyObject *o, PyObject *args, PyObject *kw)
     if (!ready(self)) return NULL;
     tc_solver_settings s = tc_cloth_solver(self->c);
     static char *kwl[] = {"gravity", "cg_tolerance", "cg_max_iterations", "max_stretch", "contact_max_push",
-                          "contact_correction", NULL};
+                          "contact_correction", "preconditioner", NULL};
     PyObject *g = NULL;
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$Odiddd", kwl, &g, &s.cg_tolerance, &s.cg_max_iterations,
-                                     &s.max_stretch, &s.contact_max_push, &s.contact_correction))
+    const char *pre = NULL;
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$Odiddds", kwl, &g, &s.cg_tolerance, &s.cg_max_iterations,
+                                     &s.max_stretch, &s.contact_max_push, &s.contact_correction, &pre))
         return NULL;
+    if (pre) {
+        s.preconditioner = tc_precond_from_name(pre);
+        if (s.preconditioner < 0) {
+            PyErr_Format(PyExc_ValueError, "preconditioner must be 'auto', 'jacobi' or 'amg' (got '%s')", pre);
+            return NULL;
+        }
+    }
     if (g && !PyArg_ParseTuple(g, "ddd", &s.gravity[0], &s.gravity[1], &s.gravity[2])) return NULL;
     int rc = tc_cloth_set_solver(self->c, &s);
     if (rc) return raise_core(self, rc);
@@ -452,7 +460,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
@@ -461,7 +469,9 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
                          "unconverged_substeps", (int)s.unconverged_substeps, "unconverged_steps",
                          (long long)s.unconverged_steps, "matrix_bytes", (long long)s.matrix_bytes, "tips_retired",
                          (int)s.tips_retired, "grips_released", (int)s.grips_released, "plastic_triangles",
-                         (int)s.plastic_triangles, "plastic_unconverged", (int)s.plastic_unconverged);
+                         (int)s.plastic_triangles, "plastic_unconverged", (int)s.plastic_unconverged, "amg_levels",
+                         (int)s.amg_levels, "amg_setup_seconds", s.amg_setup_seconds, "amg_fallbacks",
+                         (long long)s.amg_fallbacks);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the
@@ -611,10 +621,10 @@ static PyObject *material_dict(const tc_material *m)
 
 static PyObject *solver_dict(const tc_solver_settings *s)
 {
-    return Py_BuildValue("{s:(ddd),s:d,s:i,s:d,s:d,s:d}", "gravity", s->gravity[0], s->gravity[1], s->gravity[2],
+    return Py_BuildValue("{s:(ddd),s:d,s:i,s:d,s:d,s:d,s:s}", "gravity", s->gravity[0], s->gravity[1], s->gravity[2],
                          "cg_tolerance", s->cg_tolerance, "cg_max_iterations", s->cg_max_iterations, "max_stretch",
                          s->max_stretch, "contact_max_push", s->contact_max_push, "contact_correction",
-                         s->contact_correction);
+                         s->contact_correction, "preconditioner", tc_precond_name(s->preconditioner));
 }
 
 static PyObject *tearing_dict(const tc_tear_settings *s)

@@ -10,6 +10,7 @@
 
 #include <math.h>
 #include <stdio.h>
+#include <string.h>
 
 tc_material tc_material_default(void)
 {
@@ -28,7 +29,7 @@ tc_solver_settings tc_solver_default(void)
 {
     tc_solver_settings s = {.gravity = {0.0, 0.0, -9.81}, .cg_tolerance = 1e-4, .cg_max_iterations = 1000,
                             .max_stretch = 20.0, .contact_max_push = 0.1,
-                            .contact_correction = 0.2};
+                            .contact_correction = 0.2, .preconditioner = TC_PRECOND_AUTO};
     return s;
 }
 
@@ -88,8 +89,20 @@ int tc_solver_check(const tc_solver_settings *s, char *msg, size_t msz)
     if (!(s->max_stretch > 1.0)) BAD("max_stretch must be > 1 (got %g)", s->max_stretch);
     if (!(s->contact_max_push > 0 && isfinite(s->contact_max_push))) BAD("contact_max_push must be > 0 m/s (got %g)", s->contact_max_push);
     if (!(s->contact_correction >= 0 && s->contact_correction <= 1)) BAD("contact_correction must lie in [0, 1] (got %g)", s->contact_correction);
+    if (!tc_precond_name(s->preconditioner)) BAD("preconditioner must be auto, jacobi or amg (got %d)", s->preconditioner);
     return TC_OK;
 }
+
+static const char *const PRECOND_NAMES[] = {"auto", "jacobi", "amg"};
+
+int tc_precond_from_name(const char *name)
+{
+    for (int k = 0; k < 3; k++)
+        if (name && strcmp(name, PRECOND_NAMES[k]) == 0) return k;
+    return -1;
+}
+
+const char *tc_precond_name(int p) { return p >= 0 && p < 3 ? PRECOND_NAMES[p] : NULL; }
 
 int tc_tear_check(const tc_tear_settings *s, char *msg, size_t msz)
 {

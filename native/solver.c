@@ -1,6 +1,7 @@
 /* solver.c - the linear solve of one implicit Euler sub-step: conjugate gradients on the constraint
  * manifold (the filtered PCG of Baraff & Witkin 1998), preconditioned with the inverse 3x3 diagonal
- * blocks (block Jacobi), warm-started, solved for the velocity change rather than the velocity,
+ * blocks (block Jacobi) or, on large cloths, a smoothed-aggregation multigrid V-cycle (amg.c),
+ * warm-started, solved for the velocity change rather than the velocity,
  * stopped by a residual force small against the forces the cloth carries, with the momentum balance
  * of a free cloth made exact by a correction along the translations.
  *
@@ -10,9 +11,60 @@
 #include "core.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
-/* The preconditioner: the inverse of each vertex's 3x3 diagonal block of A. */
+/* Whether this cloth's solves use the multigrid cycle. AUTO: from TC_AMG_AUTO_VERTICES vertices
+ * (constants.h: the measured crossover, below which block Jacobi's cheaper iterations win). */
+static bool use_amg(const tc_cloth *c)
+{
+    if (c->solver.preconditioner == TC_PRECOND_JACOBI) return false;
+    if (c->solver.preconditioner == TC_PRECOND_AMG) return true;
+    return c->nv >= TC_AMG_AUTO_VERTICES;
+}
+
+/* Sub-steps between numeric refreshes of the hierarchy (TC_AMG_REFRESH; the TEARCLOTH_AMG_REFRESH
+ * environment variable overrides it, for the bench's comparison of the reuse policies; 0 there
+ * means aggregates too are rebuilt every sub-step). */
+static int amg_refresh(void)
+{
+    static int value = -2;
+    if (value == -2) {
+        const char *e = getenv("TEARCLOTH_AMG_REFRESH");
+        int v = e ? atoi(e) : TC_AMG_REFRESH;
+        value = v >= 0 && v <= 100000 ? v : TC_AMG_REFRESH;
+    }
+    return value;
+}
+
+static void amg_prepare(tc_cloth *c)
+{
+    if (!use_amg(c)) {
+        /* switched to block Jacobi: the hierarchy's memory goes back (a switch back rebuilds it) */
+        tc_amg_free(c->amg);
+        c->amg = NULL;
+        c->stats.amg_levels = 0;
+        return;
+    }
+    const double t0 = tc_now();
+    if (!c->amg) c->amg = tc_amg_new();
+    if (!c->amg) { c->stats.amg_fallbacks++; return; }
+    const int every = amg_refresh();
+    if (tc_amg_levels(c->amg) == 0 || tc_amg_needs_aggregation(c->amg, c) || c->amg_age + 1 >= (every ? every : 1) ||
+        c->amg_stale) {
+        if (tc_amg_build(c->amg, c, every == 0)) c->stats.amg_fallbacks++;
+        c->amg_age = 0;
+        c->amg_stale = false;
+        c->amg_fresh_iterations = -1;
+    } else {
+        c->amg_age++;
+    }
+    c->stats.amg_levels = tc_amg_levels(c->amg);
+    c->stats.amg_setup_seconds += tc_now() - t0;
+}
+
+/* The preconditioner: the inverse of each vertex's 3x3 diagonal block of A (block Jacobi, and the
+ * multigrid cycle's smoother), then the hierarchy when the multigrid cycle is in use. */
 void tc_precondition_build(tc_cloth *c)
 {
     const double *D = tc_vec_ptr(&c->diag);
@@ -32,6 +84,7 @@ void tc_precondition_build(tc_cloth *c)
         o[3] = c01 * id; o[4] = (a[0] * a[8] - a[2] * a[6]) * id; o[5] = (a[2] * a[3] - a[0] * a[5]) * id;
         o[6] = c02 * id; o[7] = (a[1] * a[6] - a[0] * a[7]) * id; o[8] = (a[0] * a[4] - a[1] * a[3]) * id;
     }
+    amg_prepare(c);
 }
 
 static void precondition(const tc_cloth *c, const double *r, double *z)
@@ -81,6 +134,46 @@ static double dotn(const double *a, const double *b, size_t n)
     return (s0 + s1) + (s2 + s3);
 }
 
+/* PCG with the multigrid cycle as the preconditioner: the same iteration with z = M^-1 r by a
+ * V-cycle (a symmetric positive operator on the range of S, amg.c), which costs several products,
+ * so the passes are not fused. Continues from v, r (the residual of v) where pcg() set them up.
+ * Returns the iterations, or -1 - iterations when the cycle broke down (r.z <= 0 or not finite:
+ * a hierarchy from an older matrix can lose definiteness) and block Jacobi must finish. */
+static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
+{
+    const size_t n3 = 3 * (size_t)c->nv;
+    double *r = tc_vec_ptr(&c->sr), *z = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp), *q = tc_vec_ptr(&c->sq);
+    double rr = *rr_inout;
+    tc_amg_apply(c, c->amg, r, z);
+    double rz = dotn(r, z, n3);
+    memcpy(p, z, n3 * sizeof(double));
+    int it = 0;
+    while (it < c->solver.cg_max_iterations && rr > stop2) {
+        if (!(rz > 0) || !isfinite(rz)) { *rr_inout = rr; return -1 - it; }
+        const double pq = tc_matvec(c, p, q);
+        tc_constraint_filter(c, q);
+        if (!(pq > 0)) break;
+        const double alpha = rz / pq;
+        double r0 = 0.0, r1 = 0.0;
+        for (size_t k = 0; k < n3; k += 3) {
+            v[k] += alpha * p[k]; v[k + 1] += alpha * p[k + 1]; v[k + 2] += alpha * p[k + 2];
+            r[k] -= alpha * q[k]; r[k + 1] -= alpha * q[k + 1]; r[k + 2] -= alpha * q[k + 2];
+            r0 += r[k] * r[k] + r[k + 2] * r[k + 2];
+            r1 += r[k + 1] * r[k + 1];
+        }
+        rr = r0 + r1;
+        it++;
+        if (rr <= stop2) break;
+        tc_amg_apply(c, c->amg, r, z);
+        const double rz2 = dotn(r, z, n3);
+        const double beta = rz2 / rz;
+        for (size_t k = 0; k < n3; k++) p[k] = z[k] + beta * p[k];
+        rz = rz2;
+    }
+    *rr_inout = rr;
+    return it;
+}
+
 /* Solves A v = b on the constraint manifold {v_i = S_i v_i + fix_i}; v holds the warm start. Stops
  * when |S (b - A v)|^2 <= stop2 (an absolute bound in (N s)^2 set by tc_solve_dv); *rr gets the
  * final squared residual. Returns the iterations. */
@@ -92,11 +185,26 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     tc_matvec(c, v, q);
     for (size_t k = 0; k < n3; k++) r[k] = b[k] - q[k];
     tc_constraint_filter(c, r);
+    int it = 0;
+    double rr = dotn(r, r, n3);
+    if (use_amg(c) && tc_amg_valid(c->amg, c)) {
+        it = pcg_amg(c, v, stop2, &rr);
+        if (it >= 0) {
+            /* a kept hierarchy whose cycle lost much of its strength (the tension or the contacts
+               changed a lot since) is refreshed at the next sub-step */
+            if (c->amg_fresh_iterations < 0) c->amg_fresh_iterations = it;
+            else if (it > TC_AMG_STALE_FACTOR * c->amg_fresh_iterations + 2) c->amg_stale = true;
+            *rr_out = rr;
+            return it;
+        }
+        /* broke down: block Jacobi goes on from where the cycle left v and r, counted */
+        it = -1 - it;
+        c->stats.amg_fallbacks++;
+    }
     precondition(c, r, z);
     tc_constraint_filter(c, z);
     memcpy(p, z, n3 * sizeof(double));
-    double rz = dotn(r, z, n3), rr = dotn(r, r, n3);
-    int it = 0;
+    double rz = dotn(r, z, n3);
     /* Three passes an iteration: the product with p.Ap fused in, the update of v and r fused with
      * the preconditioner and both dots, and the new direction. The filter S is a symmetric
      * projector and p, r stay on its range, so p.(S Ap) = p.Ap and r.(S P r) = r.(P r): the dots

@@ -162,6 +162,7 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     c->stats.substep_splits = 0;
     c->stats.unconverged_substeps = 0;
     c->stats.plastic_triangles = 0;
+    c->stats.amg_setup_seconds = 0.0;
     double h = dt / substeps;
     int rc = TC_OK;
     for (int s = 0; s < substeps && rc == TC_OK; s++) rc = span(c, h, (double)s / substeps, (double)(s + 1) / substeps, 0);

@@ -82,7 +82,13 @@ typedef struct tc_solver_settings {
     double contact_max_push;  /* fastest speed (m/s) at which a penetration is resolved, so that
                                  bodies that start inside the cloth separate without a blast */
     double contact_correction; /* fraction of a contact's depth removed from the position per step */
+    int preconditioner;       /* TC_PRECOND_*: of the CG (solver.c says when AUTO picks which) */
 } tc_solver_settings;
+
+enum { TC_PRECOND_AUTO = 0, TC_PRECOND_JACOBI = 1, TC_PRECOND_AMG = 2 };
+/* the names of the TC_PRECOND_* values ("auto", "jacobi", "amg"); -1 / NULL for an unknown one */
+int tc_precond_from_name(const char *name);
+const char *tc_precond_name(int p);
 
 tc_solver_settings tc_solver_default(void);
 
@@ -170,6 +176,10 @@ typedef struct tc_stats {
     int32_t grips_released;   /* held vertices let go: over threshold with one triangle left (tear.c) */
     int32_t plastic_triangles;    /* yield events of the last step: triangles that yielded, summed over its sub-steps (ortho.c) */
     int32_t plastic_unconverged;  /* return mappings stopped at their iteration cap, so far (ortho.c) */
+    int32_t amg_levels;       /* levels of the multigrid hierarchy in the last step's solves (0: block Jacobi) */
+    double amg_setup_seconds; /* wall time of the last step spent building or refreshing it */
+    int64_t amg_fallbacks;    /* solves so far where the multigrid cycle broke down or could not be
+                                 built (out of memory) and block Jacobi took over */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:

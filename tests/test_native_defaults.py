@@ -18,7 +18,7 @@ MATERIAL_FIELDS = ["young", "poisson", "thickness", "density", "bending", "dampi
                    "shear_modulus", "grain_angle", "tear_stress_weft", "plastic", "yield_stress", "yield_stress_weft",
                    "hardening"]
 SOLVER_FIELDS = ["gravity", "cg_tolerance", "cg_max_iterations", "max_stretch", "contact_max_push",
-                 "contact_correction"]
+                 "contact_correction", "preconditioner"]
 TEARING_FIELDS = ["enabled", "scan_period", "min_angle_deg"]
 
 

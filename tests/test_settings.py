@@ -192,6 +192,10 @@ def test_cloth_solver_and_tearing_keywords_are_checked_against_the_table():
         for row in table.rows(group):
             if row.native is None or row.kind == "bool":
                 continue
+            if row.kind == "enum":
+                with pytest.raises(InvalidInputError, match=row.name):
+                    setter(**{row.name: "no-such-" + row.name})
+                continue
             for bad in _outside(row.hard):
                 if row.kind == "int" and not math.isfinite(bad):
                     continue

@@ -201,6 +201,10 @@ class BakeRun:
         elif obj is not None and modifier.is_enabled(obj):
             previous = self._reattach_existing(obj)
         p = self.progress
+        if obj is not None and frames:
+            record_convergence(obj, p)
+            if p.convergence_text():
+                self.reports.warning(f"{self.object_name}: {p.convergence_text()}")
         kept = f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"
         if previous:
             kept += "; the previous bake is kept as it was"
@@ -319,6 +323,29 @@ class BakeResult:
     frames: list
     progress: Progress
     reports: Reports
+
+
+# The object's ID property that keeps the last bake's unconverged sub-steps for the panel (a
+# result, not a setting: no row of settings.py); [sub-steps, steps, steps simulated in the run].
+CONVERGENCE_KEY = "tearcloth_last_bake_unconverged"
+
+
+def record_convergence(obj, progress: Progress) -> None:
+    """Keep the run's unconverged counts on the object (saved with the .blend, read by ui.py)."""
+    obj[CONVERGENCE_KEY] = [int(progress.unconverged_substeps), int(progress.unconverged_steps),
+                            int(progress.steps)]
+
+
+def last_convergence(obj) -> tuple[int, int, int] | None:
+    """(unconverged sub-steps, steps with any, steps simulated) of the object's last bake, or None."""
+    value = obj.get(CONVERGENCE_KEY)
+    if value is None:
+        return None
+    try:
+        n, steps, total = (int(v) for v in value)
+    except (TypeError, ValueError):
+        return None
+    return n, steps, total
 
 
 def bake_object(context, obj, frame_start=None, frame_end=None, progress=None, *, resume=False,

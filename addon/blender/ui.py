@@ -137,8 +137,23 @@ class TEARCLOTH_PT_main(TearClothPanel, Panel):
         elif info is not None and info["frames"]:
             state = "" if info["complete"] else " (interrupted)"
             layout.label(text=f"Baked frames {info['frames'][0]}-{info['frames'][-1]}{state}", icon="CHECKMARK")
+            _draw_convergence(layout, obj)
         else:
             layout.label(text="Not baked: the rest mesh is shown", icon="INFO")
+
+
+def _draw_convergence(layout, obj):
+    """How many sub-steps of the last bake stopped at the CG iteration cap even after splitting
+    (blender/bake.py records it at the end of every bake run)."""
+    last = bake.last_convergence(obj)
+    if last is None:
+        return
+    n, steps, total = last
+    if n:
+        layout.label(text=f"{n} sub-step{'s' if n != 1 else ''} in {steps} of {total} steps stopped at the "
+                          "CG cap: raise CG Iterations", icon="ERROR")
+    else:
+        layout.label(text=f"Every solve converged ({total} steps)", icon="CHECKMARK")
 
 
 def _baked(obj) -> bool:

@@ -2,7 +2,7 @@
  * UndefinedBehaviorSanitizer in CI (see native/tests/run_sanitizers.sh). Each check prints and
  * counts; the exit code is the number of failures. */
 #include "tearcloth.h"
-#include "constants.h"  /* TC_SPLIT_DEPTH: how often a capped solve is split */
+#include "core.h"       /* TC_SPLIT_DEPTH; the multigrid test looks inside the cloth (amg.c) */
 
 #include <math.h>
 #include <stdio.h>
@@ -285,6 +285,105 @@ static void test_solver(void)
     tc_cloth_destroy(c);
 }
 
+
+/* The multigrid preconditioner (amg.c): its V-cycle is a symmetric positive operator on the
+ * constraint manifold (so CG stays CG), and a pinned, held, touching cloth solved with it follows
+ * the block-Jacobi solution within the tolerance, in a few iterations, through a tear (aggregates
+ * rebuilt) and across kept hierarchies (refreshes every TC_AMG_REFRESH sub-steps). */
+static void test_amg(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(41, 21, 0.4, 0.2, &V, &T, &n, &m);
+    char msg[512];
+    tc_cloth *cl[2];
+    for (int k = 0; k < 2; k++) {
+        cl[k] = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+        if (!cl[k]) { CHECK(0, "create: %s", msg); return; }
+        tc_solver_settings s = tc_cloth_solver(cl[k]);
+        s.preconditioner = k ? TC_PRECOND_AMG : TC_PRECOND_JACOBI;
+        s.cg_tolerance = 1e-8;
+        CHECK(tc_cloth_set_solver(cl[k], &s) == TC_OK, "set solver");
+        int32_t pins[21];
+        for (int j = 0; j < 21; j++) pins[j] = j;
+        tc_cloth_pin(cl[k], pins, 21, 1);
+        int32_t hv[3] = {40 * 21 + 9, 40 * 21 + 10, 40 * 21 + 11}, h;
+        CHECK(tc_cloth_add_handle(cl[k], hv, 3, &h) == TC_OK, "handle");
+        const double A[12] = {1, 0, 0, 5e-4, 0, 1, 0, 0, 0, 0, 1, 1e-3};
+        tc_cloth_set_handle_target(cl[k], h, A);
+    }
+    tc_solver_settings bad = tc_cloth_solver(cl[0]);
+    bad.preconditioner = 7;
+    CHECK(tc_cloth_set_solver(cl[0], &bad) == TC_ERR_INPUT, "unknown preconditioner refused");
+    CHECK(tc_precond_from_name("amg") == TC_PRECOND_AMG && tc_precond_from_name("x") < 0, "names");
+    int its[2] = {0, 0};
+    double worst = 0.0;
+    for (int step = 0; step < 30; step++) {
+        if (step == 15)
+            for (int k = 0; k < 2; k++) {
+                int32_t cuts = 0;
+                const double dir[3] = {0, 1, 0};
+                CHECK(tc_cloth_scripted_tear(cl[k], 20 * 21, dir, 0.08, &cuts) == TC_OK && cuts > 0, "tear: %s",
+                      tc_cloth_error(cl[k]));
+            }
+        for (int k = 0; k < 2; k++) {
+            /* from step 20 a plane under the middle: contacts filter one direction of some
+               vertices (the solutions may part there: which contacts let go is a discrete choice) */
+            size_t rows, cols, item;
+            tc_buf *xb = tc_cloth_array(cl[k], TC_POSITIONS, &rows, &cols, &item);
+            const double *x = tc_buf_data(xb);
+            int32_t idx[64], kc = 0;
+            double nrm[192], dep[64], fr[64];
+            for (int32_t i = 0; i < (int32_t)rows && kc < 64 && step >= 20; i++)
+                if (x[3 * i] > 0.15 && x[3 * i] < 0.25 && x[3 * i + 2] < -2e-4) {
+                    idx[kc] = i; nrm[3 * kc] = 0; nrm[3 * kc + 1] = 0; nrm[3 * kc + 2] = 1;
+                    dep[kc] = -2e-4 - x[3 * i + 2]; fr[kc] = 0.3; kc++;
+                }
+            tc_buf_decref(xb);
+            tc_cloth_set_contacts(cl[k], idx, nrm, dep, NULL, fr, kc);
+            CHECK(tc_cloth_step(cl[k], 1e-3, 1) == TC_OK, "amg test step %d: %s", step, tc_cloth_error(cl[k]));
+            its[k] += tc_cloth_stats(cl[k]).cg_iterations;
+        }
+        size_t rows, cols, item;
+        tc_buf *xa = tc_cloth_array(cl[0], TC_POSITIONS, &rows, &cols, &item);
+        tc_buf *xb = tc_cloth_array(cl[1], TC_POSITIONS, &rows, &cols, &item);
+        const double *a = tc_buf_data(xa), *b = tc_buf_data(xb);
+        if (step < 20)
+            for (size_t i = 0; i < 3 * rows; i++) worst = fmax(worst, fabs(a[i] - b[i]));
+        tc_buf_decref(xa); tc_buf_decref(xb);
+    }
+    tc_stats st = tc_cloth_stats(cl[1]);
+    CHECK(worst < 1e-7, "amg and jacobi positions agree: %g m", worst);
+    CHECK(st.contacts > 0, "contacts in the last step: %d", (int)st.contacts);
+    CHECK(st.amg_levels >= 2 && st.amg_fallbacks == 0, "amg used: %d levels, %lld fallbacks", (int)st.amg_levels,
+          (long long)st.amg_fallbacks);
+    CHECK(its[1] * 4 < its[0], "amg iterations %d vs jacobi %d", its[1], its[0]);
+    CHECK(st.unconverged_steps == 0, "amg converged");
+    /* the V-cycle: symmetric and positive on the manifold, with the last step's constraints */
+    tc_cloth *c = cl[1];
+    const int32_t nv = c->nv;
+    double *p = malloc(3 * (size_t)nv * sizeof *p), *q = malloc(3 * (size_t)nv * sizeof *q);
+    double *y = malloc(3 * (size_t)nv * sizeof *y), *z = malloc(3 * (size_t)nv * sizeof *z);
+    for (int32_t k = 0; k < 3 * nv; k++) { p[k] = sin(0.37 * k); q[k] = cos(0.11 * k); }
+    tc_constraint_filter(c, p); tc_constraint_filter(c, q);
+    tc_amg_apply(c, c->amg, p, y);
+    tc_amg_apply(c, c->amg, q, z);
+    double qy = 0.0, pz = 0.0, py = 0.0;
+    for (int32_t k = 0; k < 3 * nv; k++) { qy += q[k] * y[k]; pz += p[k] * z[k]; py += p[k] * y[k]; }
+    CHECK(fabs(qy - pz) <= 1e-10 * sqrt(fabs(py) * fabs(pz)) + 1e-300, "V-cycle symmetric: %.17g vs %.17g", qy, pz);
+    CHECK(py > 0, "V-cycle positive: %g", py);
+    CHECK(tc_amg_bytes(c->amg) > 0, "hierarchy bytes");
+    /* switching to block Jacobi frees the hierarchy; switching back builds it again */
+    tc_solver_settings sw = tc_cloth_solver(c);
+    sw.preconditioner = TC_PRECOND_JACOBI;
+    tc_cloth_set_solver(c, &sw);
+    CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK && c->amg == NULL && tc_cloth_stats(c).amg_levels == 0, "to jacobi");
+    sw.preconditioner = TC_PRECOND_AMG;
+    tc_cloth_set_solver(c, &sw);
+    CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK && tc_cloth_stats(c).amg_levels >= 2, "back to amg");
+    free(p); free(q); free(y); free(z); free(V); free(T);
+    tc_cloth_destroy(cl[0]); tc_cloth_destroy(cl[1]);
+}
+
 int main(void)
 {
     test_bad_input();
@@ -292,6 +391,7 @@ int main(void)
     test_strip_and_tear();
     test_contacts_and_arrays();
     test_solver();
+    test_amg();
     printf("%d passed, %d failed\n", checks - failures, failures);
     return failures != 0;
 }
