@@ -290,6 +290,14 @@ SETTINGS: tuple[Setting, ...] = (
        "above 1 an unbreakable hem",
        _UI + "; the core takes any positive factor (tc_cloth_set_tear_strength)", _B(0.0, None, lo_open=True),
        _B(0.01, 10.0), ui=dict(precision=2)),
+    _f("tearing", "min_fragment_area", "m^2", 1.0e-4, "Min Fragment",
+       "A piece a tear sets free with less rest area than this is removed with its vertices (0: keep "
+       "every piece)",
+       _CORE + " (tc_tear_default, fragment.c): 1 cm^2, a third of the disc of cotton's 1 cm tear radius, "
+       "below what the tearing model resolves; it takes the one- and two-triangle specks the T-shirt "
+       "example sheds (about 0.6 cm^2 each) and no piece an artist would see as a rag",
+       _B(0.0, 1.0), _B(0.0, 0.01), native="min_fragment_area", block="tearing.scan",
+       ui=dict(precision=5)),
 
     # -- pins --------------------------------------------------------------------------------------
     _s("pins", "pin_group", "", "Pin Group", "Vertices held in place (weight 0.5 or more); empty: none", _UI),

@@ -154,6 +154,9 @@ typedef struct tc_stats {
     int64_t matrix_bytes;     /* bytes of the system matrix one product reads (rows, blocks, indices) */
     int32_t tips_retired;     /* tips whose driving stress fell below the threshold, so far */
     int32_t grips_released;   /* held vertices let go: over threshold with one triangle left (tear.c) */
+    int32_t fragments_removed;          /* pieces removed so far for being below min_fragment_area */
+    int32_t fragment_triangles_removed; /* their triangles, so far */
+    int32_t fragment_vertices_removed;  /* their vertices, so far */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
@@ -191,6 +194,8 @@ typedef struct tc_tear_settings {
     int scan_period;          /* once a tear runs, the rest of the mesh is scanned in slices so that
                                  every triangle is examined once every scan_period steps */
     double min_angle_deg;     /* no new triangle gets an angle below this; cuts snap or stop instead */
+    double min_fragment_area; /* m^2 of rest area: a piece a tear sets free that is smaller is removed,
+                                 with its vertices (fragment.c); 0 keeps every piece */
 } tc_tear_settings;
 tc_tear_settings tc_tear_default(void);
 int tc_cloth_set_tearing(tc_cloth *c, const tc_tear_settings *s);
@@ -214,6 +219,13 @@ typedef struct tc_events {
     const int32_t *new_triangles;
     int32_t n_tips;
     const int32_t *tips;           /* current tear tips (vertex indices) */
+    /* Vertices and triangles removed with tiny fragments (fragment.c), sorted, numbered as they were
+     * when the events began; every other index above is in the numbering after the removal, whose
+     * survivors keep their order. A reader deletes these from what it holds, then applies the rest. */
+    int32_t n_removed_vertices;
+    const int32_t *removed_vertices;
+    int32_t n_removed_triangles;
+    const int32_t *removed_triangles;
 } tc_events;
 tc_events tc_cloth_events(const tc_cloth *c);
 
