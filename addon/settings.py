@@ -47,6 +47,7 @@ UNITS = {
     "N m": "newton metre", "1/s": "per second", "s": "second", "m/s": "metre per second",
     "m/s^2": "metre per second squared", "deg": "degree", "N": "newton", "N/m": "newton per metre",
     "N s/m": "newton second per metre", "frame": "frame number", "-": "not a quantity",
+    "m^2": "square metre",
 }
 KINDS = ("float", "int", "bool", "enum", "str", "file", "dir", "vector")
 NUMERIC = ("float", "int", "vector")
@@ -293,10 +294,12 @@ SETTINGS: tuple[Setting, ...] = (
     _f("tearing", "min_fragment_area", "m^2", 1.0e-4, "Min Fragment",
        "A piece a tear sets free with less rest area than this is removed with its vertices (0: keep "
        "every piece)",
-       _CORE + " (tc_tear_default, fragment.c): 1 cm^2, a third of the disc of cotton's 1 cm tear radius, "
-       "below what the tearing model resolves; it takes the one- and two-triangle specks the T-shirt "
-       "example sheds (about 0.6 cm^2 each) and no piece an artist would see as a rag",
-       _B(0.0, 1.0), _B(0.0, 0.01), native="min_fragment_area", block="tearing.scan",
+       _UI + ": 1 cm^2, a speck a third the size of the disc of cotton's 1 cm tear radius over which the "
+       "tearing model averages stress, so it cannot resolve such a piece; at the example meshes' median "
+       "triangle (1.8-1.9 cm^2) it takes split slivers and the smallest elements, not a median one. The core's default is 0 "
+       "(tc_tear_default, fragment.c): a scripted Cloth keeps every piece, so a tear conserves its area "
+       "and mass exactly unless asked",
+       _B(0.0, 1.0), _B(0.0, 0.01), native="min_fragment_area", native_default=0.0, block="tearing.scan",
        ui=dict(precision=5)),
 
     # -- pins --------------------------------------------------------------------------------------

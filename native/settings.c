@@ -32,8 +32,8 @@ tc_solver_settings tc_solver_default(void)
 
 tc_tear_settings tc_tear_default(void)
 {
-    /* min_fragment_area: addon/settings.py's row says why 1 cm^2 */
-    tc_tear_settings s = {.enabled = 0, .scan_period = 16, .min_angle_deg = 10.0, .min_fragment_area = 1.0e-4};
+    /* min_fragment_area 0: a scripted cloth keeps every piece (the add-on's 1 cm^2: settings.py) */
+    tc_tear_settings s = {.enabled = 0, .scan_period = 16, .min_angle_deg = 10.0, .min_fragment_area = 0.0};
     return s;
 }
 
