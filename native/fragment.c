@@ -2,7 +2,7 @@
  * artist's min_fragment_area are deleted from the simulation, with their vertices.
  *
  * The rule: after the cuts of a step (or of a scripted tear), every piece that holds a triangle
- * the cuts changed or made is measured by a walk across uncut edges, stopped as soon as its rest
+ * the cuts changed or made, or a vertex they duplicated or its parent, is measured by a walk across uncut edges, stopped as soon as its rest
  * area reaches min_fragment_area (so a big piece costs a walk of a few triangles). A piece that the
  * walk closes below that area is removed, unless it is all that is left of the cloth. Why remove
  * at all: a piece of one or two triangles is below what the tearing model resolves (its stress is
@@ -226,7 +226,7 @@ static int32_t small_piece(const tc_cloth *c, int32_t seed, int32_t walk, double
 int tc_fragments_remove(tc_cloth *c)
 {
     const double amin = c->tear.min_fragment_area;
-    if (!(amin > 0) || (c->ev_chg.len == 0 && c->ev_newt.len == 0) || c->nt < 2) return TC_OK;
+    if (!(amin > 0) || (c->ev_chg.len == 0 && c->ev_newt.len == 0 && c->ev_newv.len == 0) || c->nt < 2) return TC_OK;
     const size_t nt = (size_t)c->nt, nv = (size_t)c->nv;
     int32_t *mark = calloc(nt, sizeof *mark), *queue = malloc(nt * sizeof *queue);
     int32_t *vmap = malloc(nv * sizeof *vmap), *tmap = malloc(nt * sizeof *tmap);
@@ -235,17 +235,27 @@ int tc_fragments_remove(tc_cloth *c)
     if (!mark || !queue || !vmap || !tmap || !dead) { rc = TC_ERR_NOMEM; goto done; }
     unsigned char *vdead = dead + nt;
     int32_t walk = 0, ndead = 0, pieces = 0;
-    tc_vec *seeds[] = {&c->ev_chg, &c->ev_newt};
-    for (int j = 0; j < 2; j++) {
-        const int32_t *s = tc_vec_ptr(seeds[j]);
-        for (size_t i = 0; i < seeds[j]->len; i++) {
-            if (s[i] < 0 || s[i] >= c->nt || mark[s[i]]) continue;
-            int32_t n = small_piece(c, s[i], ++walk, amin, mark, queue);
-            if (n == 0 || ndead + n >= c->nt) continue;  /* large, or all that is left */
-            for (int32_t q = 0; q < n; q++) dead[queue[q]] = 1;
-            ndead += n;
-            pieces++;
+    /* Seeds: the triangles the events changed or made, and one triangle at each duplicated vertex
+     * and at its parent. The last matter: a cut along existing edges changes the triangles of one
+     * side only (those that take the duplicates), and the side that keeps the original vertices may
+     * be the piece that came free. */
+    const int32_t *vt = tc_vec_ptr(&c->vtri), *newv = tc_vec_ptr(&c->ev_newv), *par = tc_vec_ptr(&c->ev_par);
+    const size_t nchg = c->ev_chg.len, nnew = c->ev_newt.len, ndup = c->ev_newv.len;
+    for (size_t i = 0; i < nchg + nnew + 2 * ndup; i++) {
+        int32_t s;
+        if (i < nchg) s = ((const int32_t *)tc_vec_ptr(&c->ev_chg))[i];
+        else if (i < nchg + nnew) s = ((const int32_t *)tc_vec_ptr(&c->ev_newt))[i - nchg];
+        else {
+            size_t k = (i - nchg - nnew) / 2;
+            int32_t v = (i - nchg - nnew) % 2 ? par[2 * k] : newv[k];
+            s = v >= 0 && v < c->nv ? vt[v] : -1;
         }
+        if (s < 0 || s >= c->nt || mark[s]) continue;
+        int32_t n = small_piece(c, s, ++walk, amin, mark, queue);
+        if (n == 0 || ndead + n >= c->nt) continue;  /* large, or all that is left */
+        for (int32_t q = 0; q < n; q++) dead[queue[q]] = 1;
+        ndead += n;
+        pieces++;
     }
     if (!pieces) goto done;
     const int32_t *T = tc_vec_ptr(&c->tri);

@@ -35,10 +35,10 @@ DT = 1e-3  # haptic-rate simulation step (s)
 L2_READ_BYTES_PER_S = 120e9
 PULL_SPEED = 0.02  # m/s per hand, apart
 # The "after" column's load (measure_scenario): the tip's disc stress over the tear stress when the
-# timing starts, and the crack speed over c_R (0.001: about 0.2 m/s in cotton, a segment every ~70
-# steps of 1 ms, so one tip runs through the whole measurement).
+# timing starts, and a crack slow enough to cut one mean edge every AFTER_STEPS_PER_SEGMENT steps,
+# so that a tip is still running at the end of the measurement on every scenario's mesh.
 AFTER_TIP_RATIO = 3.0
-AFTER_CRACK_SPEED_RATIO = 0.001
+AFTER_STEPS_PER_SEGMENT = 20
 
 
 @dataclass
@@ -119,7 +119,8 @@ def measure_scenario(name: str, steps: int = 200) -> dict:
     if not len(tips):
         raise RuntimeError(f"{name}: the scripted cut from vertex {rim} left no tip to time")
     sigma_tip = c.vertex_stress(int(tips[0]))[0]
-    c.set_material(tear_stress=sigma_tip / AFTER_TIP_RATIO, crack_speed_ratio=AFTER_CRACK_SPEED_RATIO)
+    speed = _mean_edge(c) / (AFTER_STEPS_PER_SEGMENT * DT)
+    c.set_material(tear_stress=sigma_tip / AFTER_TIP_RATIO, crack_speed_ratio=speed / _rayleigh_speed(c.material))
     st0 = c.stats()
     fem2, tear2 = [], []
     for i in range(steps):
@@ -140,12 +141,27 @@ def measure_scenario(name: str, steps: int = 200) -> dict:
     out["tearing_after_cuts"] = int(st["cuts"] - st0["cuts"])
     out["tearing_after_tears_started"] = int(st["tears_started"] - st0["tears_started"])
     out["tearing_after_tear_stress_pa"] = sigma_tip / AFTER_TIP_RATIO
+    out["tearing_after_crack_speed_m_s"] = speed
     out["tips_running"] = int(len(c.events().tips))
     # Cost of a cut itself (snap or split, separation, local bookkeeping), from scripted tears.
     out.update(_after_cuts(name, steps))
     out["total_before_ms"] = _median_ms(total_before)
     out["total_after_ms"] = _median_ms([f + t for f, t in zip(fem2, tear2)])
     return out
+
+
+def _mean_edge(c: Cloth) -> float:
+    """Mean rest length of the mesh's edges (m)."""
+    T, X = c.triangles, c.rest_positions
+    e = np.unique(np.sort(np.concatenate([T[:, [0, 1]], T[:, [1, 2]], T[:, [2, 0]]]), axis=1), axis=0)
+    return float(np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1).mean())
+
+
+def _rayleigh_speed(m) -> float:
+    """c_R of the sheet (m/s), as the core computes it (tear.c: Viktorov's fit over the shear wave
+    speed), so a crack speed in m/s becomes the material's crack_speed_ratio."""
+    mu = m.young / (2.0 * (1.0 + m.poisson))
+    return (mu / m.density) ** 0.5 * (0.862 + 1.14 * m.poisson) / (1.0 + m.poisson)
 
 
 def _product_figures(c: Cloth, repeats: int = 200) -> dict:
