@@ -23,7 +23,8 @@
  *     members on the piece dropped), contacts on the piece dropped, tear tips on the piece retired;
  *   - the step's topology events are rewritten in the new numbering, and the removed vertices and
  *     triangles that existed when the events began are listed (in that numbering), so a reader
- *     deletes those from what it holds and then applies the rest as usual (events.c, cloth.py).
+ *     deletes those from what it holds and then applies the rest as usual (events.c, cloth.py);
+ *     where the piece kept a vertex the cut duplicated, the duplicate that stays takes its id.
  * The survivors' positions, velocities, masses and element state are moved, never changed: the
  * momentum of the rest of the cloth is exactly what it was.
  */
@@ -100,7 +101,8 @@ static void rewrite_events(tc_cloth *c, const int32_t *vmap, const int32_t *tmap
     }
 }
 
-/* Renumbers what points at vertices and triangles, and drops what pointed at removed ones. */
+/* Renumbers what points at vertices and triangles (tmap NULL: triangles keep their ids), and drops
+ * what pointed at removed ones. */
 static void renumber(tc_cloth *c, const int32_t *vmap, const int32_t *tmap)
 {
     const int32_t nt = c->nt;  /* already the kept count */
@@ -110,13 +112,13 @@ static void renumber(tc_cloth *c, const int32_t *vmap, const int32_t *tmap)
     for (size_t p = 0; p < c->pi.len; p++) {
         if (pi[p] < 0) continue;
         pi[p] = vmap[pi[p]]; pj[p] = vmap[pj[p]];
-        for (int s = 0; s < 2; s++) if (pt[2 * p + s] >= 0) pt[2 * p + s] = tmap[pt[2 * p + s]];
+        if (tmap) for (int s = 0; s < 2; s++) if (pt[2 * p + s] >= 0) pt[2 * p + s] = tmap[pt[2 * p + s]];
     }
     tc_stencil *st = tc_vec_ptr(&c->stencils);
     for (size_t s = 0; s < c->stencils.len; s++)
         if (st[s].pair >= 0) for (int k = 0; k < 4; k++) st[s].v[k] = vmap[st[s].v[k]];
     int32_t *vt = tc_vec_ptr(&c->vtri);
-    for (int32_t v = 0; v < c->nv; v++) if (vt[v] >= 0) vt[v] = tmap[vt[v]];
+    if (tmap) for (int32_t v = 0; v < c->nv; v++) if (vt[v] >= 0) vt[v] = tmap[vt[v]];
     for (int32_t h = 0; h < c->nh; h++) {
         tc_handle *H = &c->handles[h];
         int32_t k = 0;
@@ -153,6 +155,41 @@ static void renumber(tc_cloth *c, const int32_t *vmap, const int32_t *tmap)
     }
     c->tips.len = c->tipadv.len = m;
     c->tipdir.len = 3 * m;
+}
+
+static void swap_rows(tc_vec *v, size_t per, int32_t a, int32_t b)
+{
+    unsigned char *d = tc_vec_ptr(v);
+    const size_t sz = per * v->item;
+    for (size_t k = 0; k < sz; k++) {
+        unsigned char t = d[(size_t)a * sz + k];
+        d[(size_t)a * sz + k] = d[(size_t)b * sz + k];
+        d[(size_t)b * sz + k] = t;
+    }
+}
+
+/* When a cut duplicated vertex a and the piece that goes kept a, the duplicate that stays takes a's
+ * id (rows and references swapped), so readers keep what they hold for a (its cluster, its
+ * collision tracks) instead of meeting a new vertex whose parent is gone. perm: scratch, nv. */
+static void keep_original_ids(tc_cloth *c, unsigned char *vdead, int32_t *perm)
+{
+    const size_t nv = (size_t)c->nv, old_v = nv - c->ev_newv.len;
+    const int32_t *nw = tc_vec_ptr(&c->ev_newv), *par = tc_vec_ptr(&c->ev_par);
+    bool any = false;
+    for (size_t i = 0; i < nv; i++) perm[i] = (int32_t)i;
+    for (size_t k = 0; k < c->ev_newv.len; k++) {
+        int32_t v = nw[k], a = par[2 * k];
+        if (par[2 * k + 1] >= 0 || a < 0 || (size_t)a >= old_v || !vdead[a] || vdead[v]) continue;
+        perm[a] = v; perm[v] = a;
+        vdead[a] = 0; vdead[v] = 1;
+#define SWAP_V(name, per) swap_rows(&c->name, (size_t)(per), a, v);
+        VERTEX_ARRAYS(c, SWAP_V)
+#undef SWAP_V
+        any = true;
+    }
+    if (!any) return;
+    renumber(c, perm, NULL);
+    tc_pair_hash_rebuild(c);  /* the removal below looks pairs up by their (new) ends */
 }
 
 /* Deletes the triangles with dead[t] and the vertices with vdead[v] (used by no other triangle). */
@@ -228,7 +265,7 @@ int tc_fragments_remove(tc_cloth *c)
     const double amin = c->tear.min_fragment_area;
     if (!(amin > 0) || (c->ev_chg.len == 0 && c->ev_newt.len == 0 && c->ev_newv.len == 0) || c->nt < 2) return TC_OK;
     const size_t nt = (size_t)c->nt, nv = (size_t)c->nv;
-    int32_t *mark = calloc(nt, sizeof *mark), *queue = malloc(nt * sizeof *queue);
+    int32_t *mark = calloc(nt, sizeof *mark), *queue = malloc((nt > nv ? nt : nv) * sizeof *queue);
     int32_t *vmap = malloc(nv * sizeof *vmap), *tmap = malloc(nt * sizeof *tmap);
     unsigned char *dead = calloc(nt + nv, 1);
     int rc = TC_OK;
@@ -258,15 +295,29 @@ int tc_fragments_remove(tc_cloth *c)
         pieces++;
     }
     if (!pieces) goto done;
-    const int32_t *T = tc_vec_ptr(&c->tri);
-    for (size_t t = 0; t < nt; t++)
-        if (dead[t]) for (int k = 0; k < 3; k++) vdead[T[3 * t + k]] = 1;
-    /* a free piece shares nothing with the rest (see the file head); if it ever did, nothing goes */
-    for (size_t t = 0; t < nt; t++)
-        if (!dead[t]) for (int k = 0; k < 3; k++) if (vdead[T[3 * t + k]]) goto done;
-    const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
-    for (size_t p = 0; p < c->pi.len; p++)
-        if (pi[p] >= 0 && vdead[pi[p]] != vdead[pj[p]]) goto done;
+    /* A free piece shares nothing with the rest (see the file head). One that does (a vertex whose
+     * fans a cut left joined) is kept and counted (tc_stats.fragments_kept): its walk's marks
+     * name it, through the vertex's mark (vwalk, in queue as scratch). */
+    const int32_t *T = tc_vec_ptr(&c->tri), *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
+    int32_t *vwalk = queue;
+    for (bool again = true; again && pieces;) {
+        again = false;
+        memset(vdead, 0, nv);
+        for (size_t t = 0; t < nt; t++)
+            if (dead[t]) for (int k = 0; k < 3; k++) { vdead[T[3 * t + k]] = 1; vwalk[T[3 * t + k]] = mark[t]; }
+        int32_t bad = 0;
+        for (size_t t = 0; t < nt && !bad; t++)
+            if (!dead[t]) for (int k = 0; k < 3 && !bad; k++) if (vdead[T[3 * t + k]]) bad = vwalk[T[3 * t + k]];
+        for (size_t p = 0; p < c->pi.len && !bad; p++)
+            if (pi[p] >= 0 && vdead[pi[p]] != vdead[pj[p]]) bad = vwalk[vdead[pi[p]] ? pi[p] : pj[p]];
+        if (!bad) break;
+        for (size_t t = 0; t < nt; t++)
+            if (dead[t] && mark[t] == bad) { dead[t] = 0; ndead--; }
+        pieces--;
+        c->stats.fragments_kept++;
+        again = true;
+    }
+    if (!pieces) goto done;
     /* the lists of removed ids grow first: past this point nothing can fail half-way */
     size_t rv = 0, rt = 0;
     for (size_t i = 0; i < nv - c->ev_newv.len; i++) rv += vdead[i];
@@ -275,6 +326,7 @@ int tc_fragments_remove(tc_cloth *c)
         rc = TC_ERR_NOMEM;
         goto done;
     }
+    keep_original_ids(c, vdead, vmap);
     remove_pieces(c, dead, vdead, vmap, tmap);
     c->stats.fragments_removed += pieces;
 done:

@@ -22,8 +22,11 @@ BAKE = '''
 '''
 
 
-def pieces(positions, triangles):
-    """Rest-free check of a frame: (triangle count, area in m^2) of each connected piece."""
+SIZE = 0.5  # m: the test sheet's side; its UVs are its rest coordinates over SIZE
+
+
+def pieces(positions, triangles, corner_uv):
+    """(triangle count, rest area in m^2, from the UVs) of each connected piece of a frame."""
     n = len(positions)
     parent = np.arange(n)
 
@@ -38,8 +41,8 @@ def pieces(positions, triangles):
         parent[rb] = ra
         parent[find(rc)] = ra
     root = np.array([find(t[0]) for t in triangles])
-    p = positions[triangles]
-    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    u = corner_uv * SIZE
+    area = 0.5 * np.abs(np.cross(u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]))
     return [(int((root == r).sum()), float(area[root == r].sum())) for r in np.unique(root)]
 
 
@@ -53,17 +56,17 @@ def test_a_bake_drops_a_freed_speck_from_the_cache(tmp_path):
         assert got["state"] == ["FINISHED"] and got["limit"] == pytest.approx(value)
         path = cache_root(folder)
         assert cache.cache_info(path)["complete"]
-        frames[label] = [cache.read_frame(path, f)[:2] for f in range(1, 21)]
-    specks = [f for f, (p, t) in enumerate(frames["keep"], 1) if any(a < limit for _, a in pieces(p, t))]
+        frames[label] = [cache.read_frame(path, f) for f in range(1, 21)]
+    specks = [f for f, fr in enumerate(frames["keep"], 1) if any(a < limit for _, a in pieces(*fr))]
     assert specks, "the scene no longer frees a small piece: the test proves nothing"
     first = specks[0]
-    for f, (p, t) in enumerate(frames["drop"], 1):
-        assert all(a >= limit for _, a in pieces(p, t)), f"frame {f} still holds a speck"
+    for f, fr in enumerate(frames["drop"], 1):
+        assert all(a >= limit for _, a in pieces(*fr)), f"frame {f} still holds a speck"
     # up to the speck the two bakes are the same mesh; from it on the second lacks the speck
     for f in range(1, first):
-        (pk, tk), (pd, td) = frames["keep"][f - 1], frames["drop"][f - 1]
+        (pk, tk, _), (pd, td, _) = frames["keep"][f - 1], frames["drop"][f - 1]
         assert (len(pk), len(tk)) == (len(pd), len(td)), f"frame {f}"
-    (pk, tk), (pd, td) = frames["keep"][first - 1], frames["drop"][first - 1]
-    small = sum(k for k, a in pieces(pk, tk) if a < limit)
+    (pk, tk, uk), (pd, td, _) = frames["keep"][first - 1], frames["drop"][first - 1]
+    small = sum(k for k, a in pieces(pk, tk, uk) if a < limit)
     assert len(td) == len(tk) - small, (len(td), len(tk), small)
     assert len(pd) < len(pk)

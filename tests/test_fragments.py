@@ -75,6 +75,24 @@ def test_a_freed_single_triangle_is_removed_and_listed():
     assert not np.any(np.all(np.isclose(c.rest_positions, V[0]), axis=1))  # the corner is gone
 
 
+def test_two_removals_between_steps_are_listed_in_the_numbering_the_events_began_with():
+    c, V, T = grid_cloth()
+    free_corner_triangle(c, V)
+    # the opposite corner: triangle (20, 9)-(20, 10)-(19, 10), its inner edge (20, 9)-(19, 10); every
+    # vertex index past 0 has moved down by one
+    b, d = idx(20, 9), idx(19, 10)
+    assert c.scripted_tear(b - 1, V[d] - V[b], float(np.linalg.norm(V[d] - V[b]))) == 1
+    ev = c.events()
+    # this time the piece kept the cut's original vertices: the duplicates that stay take their ids,
+    # so only the two corners go and no vertex is new
+    assert ev.removed_vertices.tolist() == [0, idx(20, 10)]
+    assert ev.removed_triangles.tolist() == [0, 399]
+    assert len(ev.new_vertices) == 0 and c.num_vertices == 229
+    np.testing.assert_array_equal(c.rest_positions[[b - 1, d - 1]], V[[b, d]])
+    assert c.stats()["fragments_removed"] == 2 and c.num_triangles == 398
+    check_topology(c, rho_h(c))
+
+
 def test_a_small_piece_goes_and_one_at_the_size_stays():
     for k, limit, removed in ((2, 5e-4, True), (2, 4e-4 - 1e-9, False), (3, 1e-3, True)):
         c, V, T = grid_cloth(min_fragment_area=limit)
