@@ -319,7 +319,9 @@ class Cloth:
         cg_max_iterations), unconverged_substeps (accepted unconverged after TC_SPLIT_DEPTH
         halvings: the cap is too low for this mesh), unconverged_steps (steps so far with any),
         matrix_bytes (what one matrix-vector product reads). Also fem_seconds, tear_seconds,
-        steps, tears_started, cuts, contacts, vertices, triangles."""
+        steps, tears_started, cuts, contacts, vertices, triangles. Tiny fragments (so far):
+        fragments_removed, fragment_triangles_removed, fragment_vertices_removed, and
+        fragments_kept (below min_fragment_area but hanging on the rest by a vertex)."""
         return self._c.stats()
 
     def energy(self) -> dict:
