@@ -14,7 +14,7 @@ it was made from alive; after a step that tore, take a new one to see the added 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
@@ -35,7 +35,11 @@ class TopologyEvents:
     new_vertices: indices of vertices added; parents (k, 2): where each came from (second parent
     -1 for a duplicate made when the cloth separated); weights: weight of the first parent;
     changed_triangles: existing triangles whose vertex indices changed; new_triangles: indices of
-    added triangles; tips: vertices at the end of running tears.
+    added triangles; tips: vertices at the end of running tears; removed_vertices and
+    removed_triangles: what went with tiny fragments (min_fragment_area), sorted and numbered as
+    before the step. Every other index is in the numbering after the removal, whose survivors keep
+    their order: a reader deletes the removed rows from what it holds (``np.delete``), then applies
+    the rest.
     """
 
     new_vertices: np.ndarray
@@ -44,9 +48,16 @@ class TopologyEvents:
     changed_triangles: np.ndarray
     new_triangles: np.ndarray
     tips: np.ndarray
+    removed_vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    removed_triangles: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
 
     def __bool__(self) -> bool:
-        return bool(len(self.new_vertices) or len(self.changed_triangles) or len(self.new_triangles))
+        return bool(len(self.new_vertices) or len(self.changed_triangles) or len(self.new_triangles)
+                    or self.removed)
+
+    @property
+    def removed(self) -> bool:
+        return bool(len(self.removed_vertices) or len(self.removed_triangles))
 
     def __getitem__(self, key: str) -> np.ndarray:
         # consumers that take plain dicts of arrays (collision, caches) read events the same way
@@ -160,7 +171,8 @@ class Cloth:
 
     def set_tearing(self, enabled: bool = True, **settings) -> None:
         """enabled, scan_period (steps for one sweep of the whole mesh while a tear runs),
-        min_angle_deg (no new triangle gets a smaller angle): the tearing rows of settings.py."""
+        min_angle_deg (no new triangle gets a smaller angle), min_fragment_area (m^2: a piece a tear
+        sets free below it is removed, see TopologyEvents): the tearing rows of settings.py."""
         self._check("tearing", settings)
         self._c.set_tearing(enabled=bool(enabled), **settings)
 
@@ -318,7 +330,9 @@ class Cloth:
         cg_max_iterations), unconverged_substeps (accepted unconverged after TC_SPLIT_DEPTH
         halvings: the cap is too low for this mesh), unconverged_steps (steps so far with any),
         matrix_bytes (what one matrix-vector product reads). Also fem_seconds, tear_seconds,
-        steps, tears_started, cuts, contacts, vertices, triangles."""
+        steps, tears_started, cuts, contacts, vertices, triangles. Tiny fragments (so far):
+        fragments_removed, fragment_triangles_removed, fragment_vertices_removed, and
+        fragments_kept (below min_fragment_area but hanging on the rest by a vertex)."""
         return self._c.stats()
 
     def energy(self) -> dict:
@@ -335,6 +349,8 @@ class Cloth:
             changed_triangles=np.frombuffer(raw["changed_triangles"], dtype=np.int32),
             new_triangles=np.frombuffer(raw["new_triangles"], dtype=np.int32),
             tips=np.frombuffer(raw["tips"], dtype=np.int32),
+            removed_vertices=np.frombuffer(raw["removed_vertices"], dtype=np.int32),
+            removed_triangles=np.frombuffer(raw["removed_triangles"], dtype=np.int32),
         )
 
     def scripted_tear(self, vertex: int, direction: Sequence[float], length: float) -> int:

@@ -25,7 +25,7 @@
     X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
     X(ev_chg, int32_t) X(ev_newt, int32_t) X(rptr, int32_t) X(rcol, int32_t) X(rblk, double) X(fptr, int32_t)  \
     X(fcol, int32_t) X(fval, double) X(pslot, int32_t) X(tipadv, double) X(tstamp, int32_t) X(vstamp, int32_t)     \
-    X(tqueue, int32_t) X(vqueue, int32_t) X(tgrain, double) X(twarp, double) X(taxis, double) X(tplast, double)
+    X(tqueue, int32_t) X(vqueue, int32_t) X(tgrain, double) X(twarp, double) X(taxis, double) X(tplast, double) X(ev_rmv, int32_t) X(ev_rmt, int32_t)
 
 void tc_cloth_destroy(tc_cloth *c)
 {

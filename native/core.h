@@ -18,6 +18,7 @@
  *   amg.c         smoothed-aggregation multigrid: the preconditioner of large cloths
  *   solver.c      preconditioned CG on the constraint manifold (block Jacobi or amg.c)
  *   remesh.c      the local remesh of a cut: fans, segments, edge splits, separation
+ *   fragment.c    removal of tiny pieces a tear set free (triangles, vertices, every index into them)
  *   tear.c        tearing: where a tear starts, which way it runs, its tips
  *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
  *   cloth.c       life cycle, setters and getters, zero-copy arrays
@@ -157,6 +158,7 @@ struct tc_cloth {
     int32_t stamp;           /* current visit mark (tstamp and vstamp hold older ones) */
     /* events */
     tc_vec ev_newv, ev_par, ev_w, ev_chg, ev_newt;
+    tc_vec ev_rmv, ev_rmt;   /* removed vertices / triangles that existed when the events began (fragment.c) */
 
     tc_stats stats;
     bool dirty;              /* element state (rotations, stresses, forces) stale */
@@ -219,6 +221,7 @@ int tc_mesh_build(tc_cloth *c, char *msg, size_t msz);
 int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b);
 int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b);  /* find or create, use += 1 */
 void tc_pair_release(tc_cloth *c, int32_t p);                 /* use -= 1, frees at 0 */
+void tc_pair_hash_rebuild(tc_cloth *c);                       /* after the pairs' ends were renumbered */
 int tc_tri_rest(tc_cloth *c, int32_t t, char *msg, size_t msz);
 void tc_masses_update(tc_cloth *c);
 int tc_stencil_add(tc_cloth *c, int32_t edge_pair);
@@ -296,6 +299,10 @@ bool tc_is_boundary_vertex(const tc_cloth *c, int32_t u);
 int32_t tc_prepare_segment(tc_cloth *c, int32_t v, const double *dir, const int32_t *avoid, int navoid, int32_t *pair);
 /* Separates the mesh along the pairs in `cut`; bit i of *dup_mask set when verts[i] was duplicated. */
 int tc_separate(tc_cloth *c, const int32_t *cut, int ncut, const int32_t *verts, int nverts, unsigned *dup_mask);
+
+/* ---------------- fragment.c ---------------- */
+/* Removes the pieces the events' cuts set free whose rest area is below min_fragment_area. */
+int tc_fragments_remove(tc_cloth *c);
 
 /* ---------------- tear.c ---------------- */
 int tc_tear_step(tc_cloth *c, double dt);  /* dt: the step just taken (s), for the tips' advance */

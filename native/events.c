@@ -1,5 +1,6 @@
 /* events.c - the topology events of one step: new vertices (with their parents and weights),
- * triangles whose corners changed, new triangles, and the running tear tips.
+ * triangles whose corners changed, new triangles, the running tear tips, and the vertices and
+ * triangles removed with tiny fragments (fragment.c).
  *
  * Tearing records them as it remeshes; callers (clusters, the Blender mesh, the cache) read them
  * after the step through tc_cloth_events() and update incrementally instead of rebuilding. They are
@@ -10,6 +11,7 @@
 void tc_events_clear(tc_cloth *c)
 {
     c->ev_newv.len = c->ev_par.len = c->ev_w.len = c->ev_chg.len = c->ev_newt.len = 0;
+    c->ev_rmv.len = c->ev_rmt.len = 0;
 }
 
 tc_events tc_cloth_events(const tc_cloth *c)
@@ -20,6 +22,8 @@ tc_events tc_cloth_events(const tc_cloth *c)
         .n_changed_triangles = (int32_t)c->ev_chg.len, .changed_triangles = tc_vec_ptr(&c->ev_chg),
         .n_new_triangles = (int32_t)c->ev_newt.len, .new_triangles = tc_vec_ptr(&c->ev_newt),
         .n_tips = (int32_t)c->tips.len, .tips = tc_vec_ptr(&c->tips),
+        .n_removed_vertices = (int32_t)c->ev_rmv.len, .removed_vertices = tc_vec_ptr(&c->ev_rmv),
+        .n_removed_triangles = (int32_t)c->ev_rmt.len, .removed_triangles = tc_vec_ptr(&c->ev_rmt),
     };
     return e;
 }

@@ -103,6 +103,22 @@ void tc_pair_release(tc_cloth *c, int32_t p)
         ((int32_t *)tc_vec_ptr(&c->pfree))[c->pfree.len - 1] = p;
 }
 
+/* The hash from the pairs' current ends (fragment.c renumbers vertices): same capacity, no more
+ * keys than before, so it cannot fail. */
+void tc_pair_hash_rebuild(tc_cloth *c)
+{
+    const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
+    for (size_t s = 0; s < c->hcap; s++) c->hkeys_i[s] = HEMPTY;
+    c->hcount = 0; c->htomb = 0;
+    for (size_t p = 0; p < c->pi.len; p++) {
+        if (pi[p] < 0) continue;
+        size_t s = hslot(pi[p], pj[p], c->hcap);
+        while (c->hkeys_i[s] != HEMPTY) s = (s + 1) & (c->hcap - 1);
+        c->hkeys_i[s] = pi[p]; c->hkeys_j[s] = pj[p]; c->hvals[s] = (int32_t)p;
+        c->hcount++;
+    }
+}
+
 /* ---------------- storage ---------------- */
 
 int tc_reserve_vertices(tc_cloth *c, int32_t n)

@@ -263,8 +263,10 @@ static PyObject *Cloth_set_tearing(PyObject *o, PyObject *args, PyObject *kw)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_tear_settings s = tc_cloth_tearing(self->c);
-    static char *kwl[] = {"enabled", "scan_period", "min_angle_deg", NULL};
-    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$pid", kwl, &s.enabled, &s.scan_period, &s.min_angle_deg)) return NULL;
+    static char *kwl[] = {"enabled", "scan_period", "min_angle_deg", "min_fragment_area", NULL};
+    if (!PyArg_ParseTupleAndKeywords(args, kw, "|$pidd", kwl, &s.enabled, &s.scan_period, &s.min_angle_deg,
+                                     &s.min_fragment_area))
+        return NULL;
     int rc = tc_cloth_set_tearing(self->c, &s);
     if (rc) return raise_core(self, rc);
     Py_RETURN_NONE;
@@ -460,7 +462,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:i,s:i,s:i,s:i}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
@@ -471,7 +473,10 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
                          (int)s.tips_retired, "grips_released", (int)s.grips_released, "plastic_triangles",
                          (int)s.plastic_triangles, "plastic_unconverged", (int)s.plastic_unconverged, "amg_levels",
                          (int)s.amg_levels, "amg_setup_seconds", s.amg_setup_seconds, "amg_fallbacks",
-                         (long long)s.amg_fallbacks);
+                         (long long)s.amg_fallbacks, "fragments_removed",
+                         (int)s.fragments_removed, "fragment_triangles_removed", (int)s.fragment_triangles_removed,
+                         "fragment_vertices_removed", (int)s.fragment_vertices_removed, "fragments_kept",
+                         (int)s.fragments_kept);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the
@@ -542,13 +547,15 @@ static PyObject *Cloth_events(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_events e = tc_cloth_events(self->c);
-    return Py_BuildValue("{s:N,s:N,s:N,s:N,s:N,s:N}",
+    return Py_BuildValue("{s:N,s:N,s:N,s:N,s:N,s:N,s:N,s:N}",
                          "new_vertices", bytes_of(e.new_vertices, 4 * (size_t)e.n_new_vertices),
                          "parents", bytes_of(e.parents, 8 * (size_t)e.n_new_vertices),
                          "weights", bytes_of(e.weights, 8 * (size_t)e.n_new_vertices),
                          "changed_triangles", bytes_of(e.changed_triangles, 4 * (size_t)e.n_changed_triangles),
                          "new_triangles", bytes_of(e.new_triangles, 4 * (size_t)e.n_new_triangles),
-                         "tips", bytes_of(e.tips, 4 * (size_t)e.n_tips));
+                         "tips", bytes_of(e.tips, 4 * (size_t)e.n_tips),
+                         "removed_vertices", bytes_of(e.removed_vertices, 4 * (size_t)e.n_removed_vertices),
+                         "removed_triangles", bytes_of(e.removed_triangles, 4 * (size_t)e.n_removed_triangles));
 }
 
 static PyObject *Cloth_vertex_stress(PyObject *o, PyObject *arg)
@@ -629,8 +636,8 @@ static PyObject *solver_dict(const tc_solver_settings *s)
 
 static PyObject *tearing_dict(const tc_tear_settings *s)
 {
-    return Py_BuildValue("{s:O,s:i,s:d}", "enabled", s->enabled ? Py_True : Py_False, "scan_period", s->scan_period,
-                         "min_angle_deg", s->min_angle_deg);
+    return Py_BuildValue("{s:O,s:i,s:d,s:d}", "enabled", s->enabled ? Py_True : Py_False, "scan_period", s->scan_period,
+                         "min_angle_deg", s->min_angle_deg, "min_fragment_area", s->min_fragment_area);
 }
 
 static PyObject *native_defaults(PyObject *mod, PyObject *unused)

@@ -35,7 +35,8 @@ tc_solver_settings tc_solver_default(void)
 
 tc_tear_settings tc_tear_default(void)
 {
-    tc_tear_settings s = {.enabled = 0, .scan_period = 16, .min_angle_deg = 10.0};
+    /* min_fragment_area 0: a scripted cloth keeps every piece (the add-on's 1 cm^2: settings.py) */
+    tc_tear_settings s = {.enabled = 0, .scan_period = 16, .min_angle_deg = 10.0, .min_fragment_area = 0.0};
     return s;
 }
 
@@ -108,6 +109,8 @@ int tc_tear_check(const tc_tear_settings *s, char *msg, size_t msz)
 {
     if (s->scan_period < 1 || s->scan_period > 100000) BAD("scan_period must lie in [1, 100000] (got %d)", s->scan_period);
     if (!(s->min_angle_deg >= 0 && s->min_angle_deg < 30)) BAD("min_angle_deg must lie in [0, 30) (got %g)", s->min_angle_deg);
+    if (!(s->min_fragment_area >= 0 && s->min_fragment_area <= 1.0))
+        BAD("min_fragment_area must lie in [0, 1] m^2 (got %g)", s->min_fragment_area);
     return TC_OK;
 }
 

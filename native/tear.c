@@ -836,7 +836,8 @@ int tc_tear_step(tc_cloth *c, double dt)
     candidate cs[TC_CANDIDATES_KEPT];
     if (marks_ready(c)) return TC_ERR_NOMEM;
     int n = scan(c, t0, count, cs);
-    return n ? start_tears(c, cs, n, dt) : TC_OK;
+    int rc = n ? start_tears(c, cs, n, dt) : TC_OK;
+    return rc ? rc : tc_fragments_remove(c);  /* pieces the cuts set free, if tiny */
 }
 
 int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3], double length, int32_t *cuts)
@@ -874,5 +875,5 @@ int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3]
     if (!c->tear.enabled)
         while (c->tips.len > ntips) tip_remove(c, c->tips.len - 1);
     *cuts = c->stats.cuts - before;
-    return TC_OK;
+    return tc_fragments_remove(c);
 }

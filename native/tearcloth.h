@@ -180,6 +180,10 @@ typedef struct tc_stats {
     double amg_setup_seconds; /* wall time of the last step spent building or refreshing it */
     int64_t amg_fallbacks;    /* solves so far where the multigrid cycle broke down or could not be
                                  built (out of memory) and block Jacobi took over */
+    int32_t fragments_removed;          /* pieces removed so far for being below min_fragment_area */
+    int32_t fragment_triangles_removed; /* their triangles, so far */
+    int32_t fragment_vertices_removed;  /* their vertices, so far */
+    int32_t fragments_kept;             /* pieces below the size kept: they share a vertex with the rest */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
@@ -221,6 +225,8 @@ typedef struct tc_tear_settings {
     int scan_period;          /* once a tear runs, the rest of the mesh is scanned in slices so that
                                  every triangle is examined once every scan_period steps */
     double min_angle_deg;     /* no new triangle gets an angle below this; cuts snap or stop instead */
+    double min_fragment_area; /* m^2 of rest area: a piece a tear sets free that is smaller is removed,
+                                 with its vertices (fragment.c); 0 keeps every piece */
 } tc_tear_settings;
 tc_tear_settings tc_tear_default(void);
 int tc_cloth_set_tearing(tc_cloth *c, const tc_tear_settings *s);
@@ -247,6 +253,13 @@ typedef struct tc_events {
     const int32_t *new_triangles;
     int32_t n_tips;
     const int32_t *tips;           /* current tear tips (vertex indices) */
+    /* Vertices and triangles removed with tiny fragments (fragment.c), sorted, numbered as they were
+     * when the events began; every other index above is in the numbering after the removal, whose
+     * survivors keep their order. A reader deletes these from what it holds, then applies the rest. */
+    int32_t n_removed_vertices;
+    const int32_t *removed_vertices;
+    int32_t n_removed_triangles;
+    const int32_t *removed_triangles;
 } tc_events;
 tc_events tc_cloth_events(const tc_cloth *c);
 

@@ -171,3 +171,16 @@ def test_race_tiny_returns_the_documented_keys():
     assert r["blender_shirt_moved_m"] > 0
     assert len(r["ours_per_frame_s"]) == len(r["blender_per_frame_s"]) == 2
     assert "ratio" in format_race(r)
+
+
+# ---- Table I's "after" column (issue 13) -------------------------------------------------------
+
+def test_table1_after_column_times_steps_with_a_tip_running():
+    """The bench times only steps that begin with a tip running, counts them, and refuses to report
+    a column where the tip did not run (measure_scenario raises)."""
+    from tearcloth.bench.table1 import measure_scenario
+
+    r = measure_scenario("cloth", steps=40)
+    assert r["tearing_after_steps"] >= 20 and r["tips_running"] >= 1
+    assert r["tearing_after_cuts"] >= 0 and _finite_positive(r["tearing_after_ms"])
+    assert r["tearing_after_max_ms"] >= r["tearing_after_ms"]

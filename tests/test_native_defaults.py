@@ -19,7 +19,7 @@ MATERIAL_FIELDS = ["young", "poisson", "thickness", "density", "bending", "dampi
                    "hardening"]
 SOLVER_FIELDS = ["gravity", "cg_tolerance", "cg_max_iterations", "max_stretch", "contact_max_push",
                  "contact_correction", "preconditioner"]
-TEARING_FIELDS = ["enabled", "scan_period", "min_angle_deg"]
+TEARING_FIELDS = ["enabled", "scan_period", "min_angle_deg", "min_fragment_area"]
 
 
 def test_defaults_have_the_c_struct_fields():

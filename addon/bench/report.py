@@ -34,7 +34,18 @@ def benchmarks_markdown(r: dict) -> str:
                 f"({p['tearing_after_ms']}) | {x['total_before_ms']:.3f} ({p['total_before_ms']}) | "
                 f"{x['total_after_ms']:.3f} ({p['total_after_ms']}) |")
         lines += ["", "Paper's figures in parentheses (Xeon E5-2620, SOFA). Steps of 1 ms; the hands pull "
-                  "apart at 2 cm/s each; 'after' means a tear tip is running.", ""]
+                  "apart at 2 cm/s each; 'after' means a tear tip is running: a 1 cm cut at the most stressed "
+                  "free rim vertex, the tear stress at 1/2 of the disc stress at its tip and a crack of one "
+                  "edge per 200 steps keep it running (`addon/bench/table1.py`); only steps that begin with a "
+                  "tip running are timed:", ""]
+        lines += ["| scenario | steps timed | cuts in them | tears started | tearing after: median | mean | max |",
+                  "|---|---|---|---|---|---|---|"]
+        for name, x in r["table1"].items():
+            if "tearing_after_steps" in x:
+                lines.append(f"| {name} | {x['tearing_after_steps']} | {x['tearing_after_cuts']} | "
+                             f"{x['tearing_after_tears_started']} | {x['tearing_after_ms']:.4f} ms | "
+                             f"{x['tearing_after_mean_ms']:.4f} ms | {x['tearing_after_max_ms']:.3f} ms |")
+        lines.append("")
         lines += ["| scenario | CG iterations (median) | step after 50 cuts / before | per CG iteration |",
                   "|---|---|---|---|"]
         for name, x in r["table1"].items():
@@ -106,7 +117,8 @@ def targets_markdown(r: dict) -> list:
         x = t1["tshirt"]
         add("FEM step, T-shirt (3.3K triangles)", f"{x['fem_ms']:.2f} ms", "<= 0.7 ms", x["fem_ms"] <= 0.7)
         add("tearing before a tear, T-shirt", f"{x['tearing_before_ms']:.3f} ms", "<= 0.3 ms", x["tearing_before_ms"] <= 0.3)
-        add("tearing after (tip only), T-shirt", f"{x['tearing_after_ms']:.3f} ms", "<= 0.05 ms", x["tearing_after_ms"] <= 0.05)
+        add(f"tearing after (a tip running, {x.get('tearing_after_steps', '?')} steps), T-shirt",
+            f"{x['tearing_after_ms']:.3f} ms", "<= 0.05 ms", x["tearing_after_ms"] <= 0.05)
     for name, x in t1.items():
         add(f"step after 50 cuts / before, {name}", f"{x['step_ratio_after_50_cuts']:.2f}", "<= 1.10",
             x["step_ratio_after_50_cuts"] <= 1.10)

@@ -144,7 +144,7 @@ def solver_from_settings(settings, scene) -> dict:
 
 
 def tearing_from_settings(settings) -> dict:
-    """Keywords for ``Cloth.set_tearing`` (enabled, scan_period, min_angle_deg)."""
+    """Keywords for ``Cloth.set_tearing`` (enabled, scan_period, min_angle_deg, min_fragment_area)."""
     return {row.name: _from_blender(row, settings, None) for row in table.rows("tearing")
             if row.native is not None}
 

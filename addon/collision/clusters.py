@@ -401,16 +401,22 @@ class Clustering:
         positions = np.asarray(positions, np.float64)
         tri = np.asarray(triangles, np.int64).reshape(-1, 3)
         n = positions.shape[0]
-        old_n = self.labels.size
+        removed = np.asarray(events.get("removed_vertices", np.zeros(0)), np.int64).reshape(-1)
+        # vertices a tiny fragment took (numbered as before the step) go first; survivors keep order
+        removed = removed[(removed >= 0) & (removed < self.labels.size)]
+        old = np.delete(self.labels, removed)
+        gone = set(np.unique(self.labels[removed]).tolist())
+        old_n = old.size
         labels = np.full(n, -1, np.int64)
-        labels[: min(old_n, n)] = self.labels[: min(old_n, n)]
+        labels[: min(old_n, n)] = old[: min(old_n, n)]
         new_v = np.asarray(events.get("new_vertices", np.zeros(0)), np.int64).reshape(-1)
         parents = np.asarray(events.get("parents", np.zeros((0, 2))), np.int64).reshape(-1, 2)
         if new_v.size:
             par = parents[:, 0]
-            # A parent may itself be new in the same event batch: resolve in order.
+            # A parent may itself be new in the same event batch: resolve in order. A parent -1 (it
+            # went with a fragment) explains nothing: the vertex is an orphan below.
             for _ in range(4):
-                ok = labels[par] >= 0
+                ok = (par >= 0) & (labels[np.maximum(par, 0)] >= 0)
                 labels[new_v[ok]] = labels[par[ok]]
                 if ok.all():
                     break
@@ -429,6 +435,7 @@ class Clustering:
         dirty = set(np.unique(labels[tri[touched_tris].reshape(-1)]).tolist())
         dirty |= set(np.unique(labels[new_v]).tolist()) if new_v.size else set()
         dirty |= set(np.unique(labels[orphan]).tolist()) if orphan.any() else set()
+        dirty |= gone  # a cluster that lost vertices may have fallen apart
         self.graph = build_edge_graph(positions, tri, n)
         # Re-cluster only the dirty clusters that fell apart.
         next_label = int(labels.max()) + 1

@@ -386,6 +386,7 @@ class CollisionDetector:
         pos = np.ascontiguousarray(positions, np.float64)
         tri = np.ascontiguousarray(triangles, np.int64)
         cloth = self.cloth
+        removed = self._drop_removed(events)
         old_n = cloth.vertices.shape[0]
         new_v = np.asarray(events.get("new_vertices", np.zeros(0)), np.int64).reshape(-1)
         parents = np.asarray(events.get("parents", np.zeros((0, 2))), np.int64).reshape(-1, 2)
@@ -419,6 +420,10 @@ class CollisionDetector:
             np.asarray(events.get("changed_triangles", np.zeros(0)), np.int64).reshape(-1),
             np.asarray(events.get("new_triangles", np.zeros(0)), np.int64).reshape(-1),
         ])
+        if removed:
+            # survivors' triangle ids moved down: no cluster's scene or history holds
+            dirty = np.arange(cloth.clustering.n_clusters, dtype=np.int64)
+            touched = None
         cloth.scenes.invalidate(dirty, touched)
         self._cloth_prev = prev
         for name, tracks in self._tracks.items():
@@ -431,6 +436,46 @@ class CollisionDetector:
             self._forced[name] = dirty
         self._abs_cloth_forget = dirty
         return dirty
+
+    def _drop_removed(self, events):
+        """Delete the vertices and triangles a tiny fragment took (numbered as before the step) from
+        the cloth's per-vertex and per-triangle state; the survivors keep their order. The cluster
+        labels are Clustering.update's. True if anything went."""
+        rv = np.asarray(events.get("removed_vertices", np.zeros(0)), np.int64).reshape(-1)
+        rt = np.asarray(events.get("removed_triangles", np.zeros(0)), np.int64).reshape(-1)
+        if not (rv.size or rt.size):
+            return False
+        cloth = self.cloth
+        n, m = cloth.vertices.shape[0], cloth.triangles.shape[0]
+        vmap = np.full(n, -1, np.int64)
+        keep_v = np.ones(n, bool)
+        keep_v[rv[(rv >= 0) & (rv < n)]] = False
+        vmap[keep_v] = np.arange(int(keep_v.sum()))
+        tmap = np.full(m, -1, np.int64)
+        keep_t = np.ones(m, bool)
+        keep_t[rt[(rt >= 0) & (rt < m)]] = False
+        tmap[keep_t] = np.arange(int(keep_t.sum()))
+        cloth.vertices = cloth.vertices[keep_v]
+        if cloth.measured.shape[0] == n:
+            cloth.measured = cloth.measured[keep_v]
+        if cloth.velocities is not None and cloth.velocities.shape[0] == n:
+            cloth.velocities = cloth.velocities[keep_v]
+        self._cloth_prev = self._cloth_prev[keep_v]
+        # twins keep a shared identity; relabelled compactly so new vertices' own ids stay unique
+        cloth.rest_id = np.unique(cloth.rest_id[keep_v], return_inverse=True)[1].astype(np.int64).reshape(-1)
+        for name, tracks in self._tracks.items():
+            v = tracks.key >> 1
+            ok = vmap[v] >= 0
+            tri = tracks.tri
+            if name == "__self__":  # the cloth's own triangles; a body's keep their ids
+                ok &= tmap[np.clip(tri, 0, m - 1)] >= 0
+                tri = np.where(ok, tmap[np.clip(tri, 0, m - 1)], -1)
+            tracks.key = (vmap[v[ok]] << 1) | (tracks.key[ok] & 1)
+            tracks.tri, tracks.side = tri[ok], tracks.side[ok]
+            inside = tracks.inside[vmap[tracks.inside] >= 0]
+            tracks.inside = vmap[inside]
+            tracks.n = int(keep_v.sum())
+        return True
 
     # ------------------------------------------------------------------ detection
     def detect(self, positions, triangles, velocities=None):

@@ -384,6 +384,66 @@ static void test_amg(void)
     tc_cloth_destroy(cl[0]); tc_cloth_destroy(cl[1]);
 }
 
+/* A tear that frees the corner triangle of a grid: removed below min_fragment_area (with the handle
+ * member, contact and pin on it), kept above; the rest steps on and the events list what went. */
+static void test_fragment_removal(void)
+{
+    for (int pass = 0; pass < 2; pass++) {
+        double *V; int32_t *T, n, m;
+        grid(11, 6, 0.1, 0.05, &V, &T, &n, &m);  /* 1 cm cells: the corner triangle is 0.5 cm^2 */
+        char msg[512];
+        tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+        CHECK(c != NULL, "create: %s", msg);
+        if (!c) { free(V); free(T); return; }
+        tc_tear_settings ts = tc_tear_default();
+        ts.enabled = 1;
+        ts.min_fragment_area = pass == 0 ? 1e-4 : 1e-5;
+        CHECK(tc_cloth_set_tearing(c, &ts) == TC_OK, "tearing: %s", tc_cloth_error(c));
+        int32_t corner = 0, pins[6] = {60, 61, 62, 63, 64, 65}, h;
+        CHECK(tc_cloth_add_handle(c, &corner, 1, &h) == TC_OK, "handle");
+        CHECK(tc_cloth_pin(c, pins, 6, 1) == TC_OK, "pin");
+        double nrm[3] = {0, 0, 1}, dep = 0.0;
+        int32_t cv = 0;
+        CHECK(tc_cloth_set_contacts(c, &cv, nrm, &dep, NULL, NULL, 1) == TC_OK, "contact");
+        const int32_t b = 6, d = 1;  /* the corner triangle (0, 6, 1): its one inner edge 6-1 */
+        double dir[3] = {V[3 * d] - V[3 * b], V[3 * d + 1] - V[3 * b + 1], 0.0};
+        int32_t cuts = 0;
+        CHECK(tc_cloth_scripted_tear(c, b, dir, sqrt(dir[0] * dir[0] + dir[1] * dir[1]), &cuts) == TC_OK && cuts == 1,
+              "scripted: %s (%d cuts)", tc_cloth_error(c), (int)cuts);
+        tc_stats st = tc_cloth_stats(c);
+        tc_events e = tc_cloth_events(c);
+        if (pass == 0) {
+            CHECK(st.fragments_removed == 1 && st.fragment_triangles_removed == 1 && st.fragment_vertices_removed == 3,
+                  "removed %d pieces, %d triangles, %d vertices", (int)st.fragments_removed,
+                  (int)st.fragment_triangles_removed, (int)st.fragment_vertices_removed);
+            CHECK(tc_cloth_num_triangles(c) == m - 1 && tc_cloth_num_vertices(c) == n - 1, "counts %d %d",
+                  (int)tc_cloth_num_triangles(c), (int)tc_cloth_num_vertices(c));
+            CHECK(e.n_removed_triangles == 1 && e.removed_triangles[0] == 0, "removed triangle listed");
+            CHECK(e.n_removed_vertices >= 1 && e.removed_vertices[0] == 0, "removed corner listed");
+            double f[3];
+            CHECK(tc_cloth_handle_force(c, h, f) == TC_OK, "handle still there");
+        } else {
+            CHECK(st.fragments_removed == 0 && tc_cloth_num_triangles(c) == m, "kept above the size");
+        }
+        double A[12] = {1, 0, 0, 0.001, 0, 1, 0, 0, 0, 0, 1, 0};
+        tc_cloth_set_handle_target(c, h, A);
+        int rc = TC_OK;
+        for (int k = 0; k < 20 && rc == TC_OK; k++) rc = tc_cloth_step(c, 1e-3, 1);
+        CHECK(rc == TC_OK, "steps after removal: %s", tc_cloth_error(c));
+        size_t rows, cols, item;
+        tc_buf *x = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
+        const double *X = tc_buf_data(x);
+        int finite = 1;
+        for (size_t i = 0; i < rows * cols; i++) finite &= isfinite(X[i]);
+        CHECK(finite && rows == (size_t)tc_cloth_num_vertices(c), "positions finite after removal");
+        tc_buf_decref(x);
+        ts.min_fragment_area = -1.0;
+        CHECK(tc_cloth_set_tearing(c, &ts) == TC_ERR_INPUT, "negative min_fragment_area refused");
+        tc_cloth_destroy(c);
+        free(V); free(T);
+    }
+}
+
 int main(void)
 {
     test_bad_input();
@@ -392,6 +452,7 @@ int main(void)
     test_contacts_and_arrays();
     test_solver();
     test_amg();
+    test_fragment_removal();
     printf("%d passed, %d failed\n", checks - failures, failures);
     return failures != 0;
 }
