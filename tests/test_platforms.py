@@ -229,7 +229,7 @@ def test_x86_binaries_carry_the_avx2_product_and_choose_it_by_cpuid(binaries, pl
 # of edge blocks, 3 for an odd one, 1 per flap. Counted inside the kernel's own function: other
 # loops are vectorised by the compiler anyway (the linux-arm64 build before the kernel had 100
 # vector fmla in all, 5 of them in the portable product).
-NEON_FMLA = re.compile(r"\bfmla\s+v\d+\.2d")
+NEON_FMLA = re.compile(r"\bfmla(\s+v\d+\.2d|\.2d\s+v\d+)")  # GNU syntax on ELF, Apple's on Mach-O
 
 
 def _arm64_native(platform: str, tmp_path: Path) -> Path:
