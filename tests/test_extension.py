@@ -138,8 +138,10 @@ module = "bl_ext.user_default.tearcloth"
 if bpy.app.version >= (4, 3, 0):
     bpy.ops.wm.read_userpref()
 else:
-    # the PyPI bpy 4.2 crashes in read_userpref: the saved preference (the add-on enabled) is
-    # applied as Blender's start-up applies it, by enabling the module
+    # the PyPI bpy 4.2 crashes in read_userpref, in Blender itself (wm_userpref_read_exec ->
+    # UI_icons_reload_internal_textures -> GPU_texture_create_2d with no GPU context, even with
+    # nothing registered): the saved preference (the add-on enabled) is applied as Blender's
+    # start-up applies it, by enabling the module
     import addon_utils
 
     addon_utils.enable(module, default_set=True, handle_error=None)
