@@ -20,10 +20,11 @@ VENV42=${TEARCLOTH_VENV42:-.venv42}
 # Blender 4.2 LTS, the oldest the manifest allows, as a module (Python 3.11), with numpy 1.x as the
 # real Blender 4.2 bundles; TEARCLOTH_SKIP_42=1 leaves this half out
 BPY42=${TEARCLOTH_BPY42:-bpy==4.2.23}
-# the Blender tests run on it: add-on, bake, re-bake, the installed extension and the example files
-# (saved by 4.2): 37 tests, 5 min 26 s on the 2-core development machine at load 12 (79 s of CPU;
-# ~110 s of it is test_extension building the four zips again)
-TESTS42=(test_blender_addon.py test_blender_bake.py test_blender_rebake.py test_extension.py test_examples.py)
+# the Blender tests run on it: add-on, bake, re-bake, the installed extension, the example files
+# (saved by 4.2) and stock Blender playing our cache: 55 tests, ~5.5 min on the 2-core development
+# machine at load 12 (80 s of CPU; ~110 s of it is test_extension building the four zips again)
+TESTS42=(test_blender_addon.py test_blender_bake.py test_blender_rebake.py test_extension.py test_examples.py
+         test_cache.py)
 
 apt_install() {
     # only where we may (root with apt): a fresh Debian lacks venv, headers or a compiler
