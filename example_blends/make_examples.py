@@ -1,8 +1,17 @@
 """Generate the example scenes of Tear Cloth as .blend files, ready to bake and render headless.
 
-    /work/venv/bin/python example_blends/make_examples.py                 # all four, next to this file
-    /work/venv/bin/python example_blends/make_examples.py --only banknote --out /tmp/blends
-    /work/venv/bin/python example_blends/make_examples.py --pictures out/examples   # bake + render
+    .venv42/bin/python example_blends/make_examples.py                   # all four, next to this file
+    python example_blends/make_examples.py --python .venv42/bin/python   # the same, run by that Python
+    python example_blends/make_examples.py --only banknote --out /tmp/blends
+    python example_blends/make_examples.py --pictures out/examples       # bake + render
+
+Which Blender saves them: the committed files are saved by the OLDEST supported Blender, bpy 4.2
+LTS (``pip install "bpy>=4.2,<4.3"`` with Python 3.11, and this package, in a virtual environment):
+Blender reads files of older versions, never of newer ones, and 5.0 changed the file header so that
+4.2-4.5 cannot open what 5.x saves at all. Files saved by bpy 4.2.23 open, play and bake in 4.2.23,
+5.0.1 and 5.3.0 (tests/test_examples.py on each). ``--python`` runs the generation in another
+interpreter (one with that bpy and Tear Cloth installed); saving into this folder with bpy 5.0 or
+newer prints a warning.
 
 What each file holds (SI: one Blender unit is one metre, 24 fps, Z up, the front view looks
 along +Y at sheets that face -Y):
@@ -57,7 +66,10 @@ import sys
 import tempfile
 from pathlib import Path
 
-import numpy as np
+try:
+    import numpy as np
+except ImportError:  # only --python works then: the interpreter it names does the work
+    np = None
 
 HERE = Path(__file__).resolve().parent
 FPS = 24
@@ -589,11 +601,16 @@ EXAMPLES = {
 
 
 def generate(names, out: Path) -> list[Path]:
+    bpy = _bpy()
     written = []
+    if bpy.app.version >= (5, 0, 0) and Path(out).resolve() == HERE:
+        print(f"make_examples: warning: Blender {bpy.app.version_string} saves files that Blender 4.2-4.5 cannot "
+              "open; the committed examples are saved by bpy 4.2 (--python PATH-TO-A-PYTHON-WITH-bpy-4.2)",
+              file=sys.stderr, flush=True)
     for name in names:
         EXAMPLES[name]()
         path = save(out / f"{name}.blend")
-        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB)", flush=True)
+        print(f"wrote {path} ({path.stat().st_size / 1024:.0f} KiB, Blender {bpy.app.version_string})", flush=True)
         written.append(path)
     return written
 
@@ -671,7 +688,15 @@ def main(argv=None) -> int:
     p.add_argument("--only", default=",".join(EXAMPLES), help="comma-separated: " + ", ".join(EXAMPLES))
     p.add_argument("--out", default=str(HERE), help="folder for the .blend files (default: this folder)")
     p.add_argument("--pictures", metavar="DIR", help="instead: bake the examples and render pictures into DIR")
+    p.add_argument("--python", metavar="PY", help="run all of this in the Python interpreter PY (with the bpy to "
+                   "save with, e.g. a bpy 4.2 environment's bin/python, and Tear Cloth installed)")
     args = p.parse_args(argv)
+    if args.python:
+        # the same arguments, minus --python, in the other interpreter (its bpy saves the files)
+        rest = list(sys.argv[1:] if argv is None else argv)
+        i = next(k for k, a in enumerate(rest) if a == "--python" or a.startswith("--python="))
+        del rest[i:i + (1 if "=" in rest[i] else 2)]
+        return subprocess.run([args.python, str(Path(__file__).resolve()), *rest]).returncode
     names = [n.strip() for n in args.only.split(",") if n.strip()]
     unknown = [n for n in names if n not in EXAMPLES]
     if unknown:

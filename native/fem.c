@@ -327,19 +327,15 @@ TC_HOT int tc_assemble(tc_cloth *c, double dt)
  *
  * Row by row over the layout of core.h: no scatter, no branch between edges and flaps, one write
  * per row. Each row ends with p_i . y_i summed (the CG's curvature p.Ap, fused so p and y are not
- * read again). Three kernels of the same arithmetic, picked at run time (one abi3 wheel runs on any
+ * read again). Kernels of the same arithmetic, picked at run time (one abi3 wheel runs on any
  * x86-64): AVX2 + FMA (a block column is one 4-lane load whose fourth lane, the next column's
  * first value, lands in a lane never stored: three FMAs per block, no padding), SSE2
- * (the x86-64 baseline: two lanes plus one), and portable C, the only one on other CPUs (on arm64
- * the compiler vectorises it with NEON, baseline there). They differ only in rounding (FMA, the
+ * (the x86-64 baseline: two lanes plus one), NEON on arm64 (fem_neon.c; compilers leave the
+ * portable loop scalar there), and portable C everywhere. They differ only in rounding (FMA, the
  * order of the flap sums): tests/test_solver_simd.py holds them to 1e-12 relative. */
 
-/* The arrays of the rows (core.h), fetched once per product for whichever kernel runs. */
-typedef struct rows_view {
-    const double *D, *RB, *FV;
-    const int32_t *rp, *rc, *fp, *fc;
-    int32_t nv;
-} rows_view;
+/* The arrays of the rows (core.h), fetched once per product for whichever kernel runs: matvec.h. */
+#include "matvec.h"
 
 static double matvec_scalar(const rows_view *m, const double *restrict p, double *restrict y)
 {
@@ -496,23 +492,30 @@ static int simd_available(int level)
     if (level == TC_SIMD_SSE2) return 1;
     if (level == TC_SIMD_AVX2) return cpu_has_avx2_fma();
 #endif
+#ifdef TC_HAVE_NEON
+    if (level == TC_SIMD_NEON) return 1;
+#endif
     return 0;
 }
 
 const char *tc_simd_name(int level)
 {
-    return level == TC_SIMD_AVX2 ? "avx2" : level == TC_SIMD_SSE2 ? "sse2" : level == TC_SIMD_SCALAR ? "scalar" : "?";
+    static const char *const names[] = {"scalar", "sse2", "avx2", "neon"};
+    return level >= TC_SIMD_SCALAR && level <= TC_SIMD_LAST ? names[level] : "?";
 }
 
 int tc_simd_select(int level)
 {
     if (level == TC_SIMD_AUTO) {
-        level = simd_available(TC_SIMD_AVX2) ? TC_SIMD_AVX2 : simd_available(TC_SIMD_SSE2) ? TC_SIMD_SSE2 : TC_SIMD_SCALAR;
+        level = simd_available(TC_SIMD_AVX2)   ? TC_SIMD_AVX2
+                : simd_available(TC_SIMD_NEON) ? TC_SIMD_NEON
+                : simd_available(TC_SIMD_SSE2) ? TC_SIMD_SSE2
+                                               : TC_SIMD_SCALAR;
         const char *env = getenv("TEARCLOTH_SIMD");  /* a forced kernel, for tests and comparisons */
         if (env)
-            for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_AVX2; l++)
+            for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_LAST; l++)
                 if (!strcmp(env, tc_simd_name(l)) && simd_available(l)) level = l;
-    } else if (level < TC_SIMD_SCALAR || level > TC_SIMD_AVX2 || !simd_available(level)) {
+    } else if (level < TC_SIMD_SCALAR || level > TC_SIMD_LAST || !simd_available(level)) {
         return -1;
     }
     simd_active = level;
@@ -548,6 +551,9 @@ double tc_matvec(const tc_cloth *c, const double *restrict p, double *restrict y
     case TC_SIMD_SSE2: return matvec_sse2(&m, p, y);
     default: break;
     }
+#endif
+#ifdef TC_HAVE_NEON
+    if (tc_simd_level() == TC_SIMD_NEON) return tc_matvec_neon(&m, p, y);
 #endif
     return matvec_scalar(&m, p, y);
 }

@@ -649,7 +649,7 @@ static PyObject *native_defaults(PyObject *mod, PyObject *unused)
                          tearing_dict(&t));
 }
 
-/* The product's kernel (fem.c): simd() names the one in use, simd("scalar" | "sse2" | "avx2")
+/* The product's kernel (fem.c): simd() names the one in use, simd("scalar" | "sse2" | "avx2" | "neon")
  * switches to it (process-wide; for tests and comparisons) and ValueError if the CPU or the build
  * lacks it. */
 static PyObject *native_simd(PyObject *mod, PyObject *args)
@@ -658,10 +658,10 @@ static PyObject *native_simd(PyObject *mod, PyObject *args)
     if (!PyArg_ParseTuple(args, "|z", &name)) return NULL;
     if (name) {
         int level = -1;
-        for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_AVX2; l++)
+        for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_LAST; l++)
             if (!strcmp(name, tc_simd_name(l))) level = l;
         if (level < 0 || tc_simd_select(level) < 0) {
-            PyErr_Format(PyExc_ValueError, "SIMD kernel '%s' is not available here (scalar, sse2 or avx2, as the CPU allows)",
+            PyErr_Format(PyExc_ValueError, "SIMD kernel '%s' is not available here (scalar, sse2, avx2 or neon, as the CPU allows)",
                          name);
             return NULL;
         }
@@ -671,7 +671,7 @@ static PyObject *native_simd(PyObject *mod, PyObject *args)
 
 static PyMethodDef module_methods[] = {
     {"simd", native_simd, METH_VARARGS,
-     "simd(name=None) -> str: the matrix-vector kernel in use; with a name ('scalar', 'sse2', 'avx2') switches to it "
+     "simd(name=None) -> str: the matrix-vector kernel in use; with a name ('scalar', 'sse2', 'avx2', 'neon') switches to it "
      "(private: for tests and benchmarks)."},
     {"defaults", native_defaults, METH_NOARGS,
      "defaults() -> {'material': {...}, 'solver': {...}, 'tearing': {...}}: the C core's default settings, by the "

@@ -94,9 +94,10 @@ tc_solver_settings tc_solver_default(void);
 
 /* The kernel of the solver's matrix-vector product, process-wide (a property of the CPU):
  * TC_SIMD_AUTO picks the best the CPU has, or the one the TEARCLOTH_SIMD environment variable names
- * (scalar, sse2, avx2) if the CPU has it; a level the CPU or the build lacks is refused (-1).
+ * (scalar, sse2, avx2, neon) if the CPU has it; a level the CPU or the build lacks is refused (-1).
  * Returns the level chosen. All kernels agree to rounding (1e-12 relative). */
-enum { TC_SIMD_AUTO = -1, TC_SIMD_SCALAR = 0, TC_SIMD_SSE2 = 1, TC_SIMD_AVX2 = 2 };
+enum { TC_SIMD_AUTO = -1, TC_SIMD_SCALAR = 0, TC_SIMD_SSE2 = 1, TC_SIMD_AVX2 = 2, TC_SIMD_NEON = 3 };
+#define TC_SIMD_LAST TC_SIMD_NEON
 int tc_simd_select(int level);
 int tc_simd_level(void);
 const char *tc_simd_name(int level);

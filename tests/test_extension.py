@@ -3,7 +3,7 @@ wheel, the embreex and device wheels, the add-on without build products; tests/e
 builds them once per session, test_platforms.py checks all four), Blender's own validator accepts
 the Linux one, and a FRESH Blender session installs it exactly the way Blender's "Install from
 Disk" does and bakes with it; on every bpy the suite runs with (5.0.1 on Python 3.11, 5.3.0 on
-3.13; 4.2 LTS by hand, see the 4.2 branches in the child scripts).
+3.13; 4.2.23 LTS in tools/run.sh's 4.2 half; see the 4.2 branch in the child script).
 
 The install is not emulated: the child process runs the operator behind "Install from Disk"
 (``bpy.ops.extensions.package_install_files``, from Blender's bundled Extensions add-on), which
@@ -127,12 +127,6 @@ state = bpy.ops.extensions.package_install_files(filepath=zip_path, repo="user_d
 enabled = "bl_ext.user_default.tearcloth" in bpy.context.preferences.addons
 bpy.ops.wm.save_userpref()
 print("RESULT " + json.dumps(dict(install=sorted(state), enabled=enabled, extensions=extensions)), flush=True)
-""" + """
-if bpy.app.version < (4, 3, 0):
-    # the PyPI bpy 4.2 crashes in its exit handlers once any operator class is registered (a
-    # five-line operator shows it; full Blender quits through its window manager instead): the
-    # result is printed, leave without them
-    os._exit(0)
 """
 
 # Session 2: Blender started again. Its start-up puts the extensions' site-packages before the
@@ -144,31 +138,19 @@ module = "bl_ext.user_default.tearcloth"
 if bpy.app.version >= (4, 3, 0):
     bpy.ops.wm.read_userpref()
 else:
-    # the PyPI bpy 4.2 crashes in read_userpref: the saved preference (the add-on enabled) is
-    # applied as Blender's start-up applies it, by enabling the module
+    # the PyPI bpy 4.2 crashes in read_userpref, in Blender itself (wm_userpref_read_exec ->
+    # UI_icons_reload_internal_textures -> GPU_texture_create_2d with no GPU context, even with
+    # nothing registered): the saved preference (the add-on enabled) is applied as Blender's
+    # start-up applies it, by enabling the module
     import addon_utils
 
     addon_utils.enable(module, default_set=True, handle_error=None)
 assert module in bpy.context.preferences.addons and module in sys.modules, "not enabled after a restart"
 ext = sys.modules[module]
 work = os.path.join(folder, "scene.blend")
-if bpy.app.version >= (5, 0, 0):
-    shutil.copy2(blend, work)
-    bpy.ops.wm.open_mainfile(filepath=work)
-    cloth = bpy.data.objects["SquareCloth"]
-else:
-    # Blender 5.0 writes a new .blend header that 4.x cannot read: there the sheet is made here,
-    # a square metre facing -Y like the example's, and Tear Cloth enabled on it
-    for name in ("Cube",):
-        if name in bpy.data.objects:
-            bpy.data.objects.remove(bpy.data.objects[name])
-    bpy.ops.mesh.primitive_grid_add(x_subdivisions=24, y_subdivisions=24, size=1.0, location=(0.0, 0.0, 1.0),
-                                    rotation=(1.5707963267948966, 0.0, 0.0))
-    cloth = bpy.context.object
-    cloth.name = "SquareCloth"
-    bpy.ops.wm.save_as_mainfile(filepath=work)
-    with bpy.context.temp_override(object=cloth, active_object=cloth, selected_objects=[cloth]):
-        assert bpy.ops.tearcloth.enable() == {"FINISHED"}
+shutil.copy2(blend, work)  # saved by bpy 4.2: every supported Blender opens it
+bpy.ops.wm.open_mainfile(filepath=work)
+cloth = bpy.data.objects["SquareCloth"]
 # a collider close behind the sheet, so the bake runs the collision code (embreex) as well
 bpy.ops.mesh.primitive_cube_add(size=1.0, location=(0.0, 0.06, 1.0))
 wall = bpy.context.object
@@ -199,8 +181,6 @@ print("RESULT " + json.dumps(dict(
     wheel_package=tearcloth.__file__, baked=sorted(baked), cache=md.cache_file.filepath if md.cache_file else None,
     collision=module + ".collision.narrow" in sys.modules,
 )), flush=True)
-if bpy.app.version < (4, 3, 0):
-    os._exit(0)  # see the end of INSTALL
 """
 
 

@@ -223,3 +223,45 @@ def test_x86_binaries_carry_the_avx2_product_and_choose_it_by_cpuid(binaries, pl
                           check=True).stdout
     assert len(re.findall(r"vfmadd\w*pd\s.*%ymm", text)) >= 6, "no AVX2/FMA product in the build"
     assert re.search(r"\bcpuid\b", text) and re.search(r"\bxgetbv\b", text), "the build never asks the CPU"
+
+
+# The arm64 product (native/fem_neon.c) in fused two-lane form: 2 for the diagonal block, 6 per pair
+# of edge blocks, 3 for an odd one, 1 per flap. Counted inside the kernel's own function: other
+# loops are vectorised by the compiler anyway (the linux-arm64 build before the kernel had 100
+# vector fmla in all, 5 of them in the portable product).
+NEON_FMLA = re.compile(r"\bfmla(\s+v\d+\.2d|\.2d\s+v\d+)")  # GNU syntax on ELF, Apple's on Mach-O
+
+
+def _arm64_native(platform: str, tmp_path: Path) -> Path:
+    """The arm64 ``_native`` module: the shipped one from the macos-arm64 zip; for linux-arm64 (no
+    zip: no Blender for it is tested here) a cross build by tools/cross/native.py."""
+    if platform in PLATFORMS:
+        with zipfile.ZipFile(io.BytesIO(_own_wheel(packages()["zips"][platform])[1])) as wheel:
+            (entry,) = [n for n in wheel.namelist() if n.rpartition("/")[2].startswith("_native.")]
+            target = tmp_path / entry.rpartition("/")[2]
+            target.write_bytes(wheel.read(entry))
+        return target
+    if not cross.have_zig():
+        pytest.fail("the ziglang package (a test dependency) is not installed")
+    return cross.build_modules(platform, tmp_path, only=("_native",))["_native"]
+
+
+@pytest.mark.skipif(not __import__("shutil").which("llvm-objdump"), reason="needs llvm-objdump to disassemble")
+@pytest.mark.parametrize("platform", ["macos-arm64", "linux-arm64"])
+def test_arm64_binaries_carry_the_neon_product(platform, tmp_path):
+    """Every arm64 build has the NEON kernel of the solver's product (vector fmla on .2d lanes);
+    the Linux one is also an arm64 ELF module importing nothing but the C runtime and Python."""
+    import subprocess
+
+    target = _arm64_native(platform, tmp_path)
+    b = binfmt.read(target)
+    assert b.arch == "arm64"
+    if b.format == "ELF":
+        assert set(b.libraries) <= LINUX_RUNTIME, b.libraries
+        assert [e for e in b.exports if PYTHON_NAME.match(e)] == ["PyInit__native"]
+    text = subprocess.run(["llvm-objdump", "-d", "--no-show-raw-insn", str(target)], capture_output=True, text=True,
+                          check=True).stdout
+    # a function's listing runs from its label to the next one (Mach-O names carry a leading _)
+    m = re.search(r"^[0-9a-f]+ <_?tc_matvec_neon>:\n(.*?)(?=^[0-9a-f]+ <|\Z)", text, re.S | re.M)
+    assert m, "no NEON product (tc_matvec_neon) in the build"
+    assert len(NEON_FMLA.findall(m.group(1))) >= 12, f"{len(NEON_FMLA.findall(m.group(1)))} vector fmla in the product"

@@ -1,4 +1,4 @@
-"""The solver's matrix-vector kernels (scalar, SSE2, AVX2; the one abi3 wheel picks at run time):
+"""The solver's matrix-vector kernels (scalar, SSE2, AVX2, NEON; the one abi3 wheel picks at run time):
 the same product to 1e-12 relative, a product that is the system matrix (symmetric, translations
 only feel the mass) after tearing rebuilt its rows, and steps that agree whichever kernel ran."""
 import numpy as np
@@ -12,7 +12,7 @@ from tearcloth import Cloth, _native, material
 def available():
     was = _native.simd()
     out = []
-    for k in ("scalar", "sse2", "avx2"):
+    for k in ("scalar", "sse2", "avx2", "neon"):
         try:
             _native.simd(k)
             out.append(k)

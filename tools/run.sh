@@ -4,8 +4,9 @@
 # pip, Blender's bpy from PyPI), then run the main job or the tests.
 #   bash tools/run.sh demo    - tear the paper's square cloth, write pictures to out/demo
 #   bash tools/run.sh test    - sanitizer build of the native tests, then the pytest suite, on
-#                               Python 3.11 with bpy 5.0.1 (Blender 4.2-5.0) and, when a Python
-#                               3.13 is found, again in .venv313 with bpy 5.3.0 (Blender 5.1+)
+#                               Python 3.11 with bpy 5.0.1 (Blender 4.2-5.0), the Blender tests
+#                               again in .venv42 with bpy 4.2 LTS (BPY42 below) and, when a Python
+#                               3.13 is found, the suite again in .venv313 with bpy 5.3.0 (Blender 5.1+)
 #   bash tools/run.sh bench   - tearcloth bench --json out/bench.json
 # PYTHON picks the first interpreter (default python3), PYTHON313 the second;
 # TEARCLOTH_REQUIRE_313=1 makes a missing Python 3.13 a failure (CI) instead of a notice.
@@ -15,6 +16,15 @@ job=${1:-demo}
 PY=${PYTHON:-python3}
 VENV=${TEARCLOTH_VENV:-.venv}
 VENV313=${TEARCLOTH_VENV313:-.venv313}
+VENV42=${TEARCLOTH_VENV42:-.venv42}
+# Blender 4.2 LTS, the oldest the manifest allows, as a module (Python 3.11), with numpy 1.x as the
+# real Blender 4.2 bundles; TEARCLOTH_SKIP_42=1 leaves this half out
+BPY42=${TEARCLOTH_BPY42:-bpy==4.2.23}
+# the Blender tests run on it: add-on, bake, re-bake, the installed extension, the example files
+# (saved by 4.2) and stock Blender playing our cache: 55 tests, ~5.5 min on the 2-core development
+# machine at load 12 (80 s of CPU; ~110 s of it is test_extension building the four zips again)
+TESTS42=(test_blender_addon.py test_blender_bake.py test_blender_rebake.py test_extension.py test_examples.py
+         test_cache.py)
 
 apt_install() {
     # only where we may (root with apt): a fresh Debian lacks venv, headers or a compiler
@@ -28,7 +38,17 @@ apt_install() {
     fi
 }
 
+apt_try() {
+    # like apt_install, for what only some tests need: without root or apt they skip, saying why
+    if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+        apt_install "$@"
+    else
+        echo "tools/run.sh: not installed ($*): the tests that need it will skip" >&2
+    fi
+}
+
 is_313() { [ -n "$1" ] && "$1" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 13))' >/dev/null 2>&1; }
+is_311() { [ -n "$1" ] && "$1" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1; }
 
 find_python313() {
     # the first CPython 3.13 that runs: $PYTHON313, python3.13 on PATH (a pyenv shim too),
@@ -59,7 +79,16 @@ setup() {
         "$py" -m venv "$venv" 2>/dev/null || { rm -rf "$venv"; apt_install python3-venv; "$py" -m venv "$venv"; }
     fi
     "$venv/bin/python" -m pip install -q --upgrade pip
-    "$venv/bin/python" -m pip install -q ".[test]"
+    if [ -n "${3:-}" ]; then
+        # another bpy than the test extra pins: the extra's other requirements, then that bpy
+        local reqs
+        mapfile -t reqs < <("$venv/bin/python" -c 'import tomllib; t = tomllib.load(open("pyproject.toml", "rb"))
+print("\n".join(r for r in t["project"]["optional-dependencies"]["test"] if not r.startswith("bpy")))')
+        # shellcheck disable=SC2086  # $3 is a list of requirements, split on purpose
+        "$venv/bin/python" -m pip install -q . "${reqs[@]}" $3
+    else
+        "$venv/bin/python" -m pip install -q ".[test]"
+    fi
     # bpy from PyPI needs a few X/GL client libraries even headless
     if ! "$venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
         apt_install libxrender1 libxxf86vm1 libxfixes3 libxi6 libxkbcommon0 libsm6 libgl1 libegl1
@@ -67,10 +96,12 @@ setup() {
 }
 
 suite() {
-    # suite VENV: the pytest suite, run from tests/ so the package under test is the installed one
+    # suite VENV [FILE...]: the pytest suite (or those files of it), run from tests/ so the package
+    # under test is the installed one
     local venv=$1
+    shift
     echo "== pytest on $("$venv/bin/python" -c 'import sys, bpy; print(f"Python {sys.version.split()[0]}, bpy {bpy.app.version_string}")')" >&2
-    (cd tests && "../$venv/bin/python" -m pytest -q -p no:cacheprovider .)
+    (cd tests && "../$venv/bin/python" -m pytest -q -p no:cacheprovider "${@:-.}")
 }
 
 command -v cc >/dev/null 2>&1 || apt_install gcc libc6-dev
@@ -79,9 +110,19 @@ setup "$PY" "$VENV"
 case "$job" in
     demo) "$VENV/bin/tearcloth" demo --out out/demo ;;
     test)
+        # qemu-user (13 MB from Debian) runs the arm64 build of the native tests (test_native_arm64.py)
+        command -v qemu-aarch64 >/dev/null 2>&1 || command -v qemu-aarch64-static >/dev/null 2>&1 || apt_try qemu-user
         bash native/tests/run_sanitizers.sh
         status=0
         suite "$VENV" || status=$?
+        if [ -n "${TEARCLOTH_SKIP_42:-}" ]; then
+            echo "tools/run.sh: NOT RUN: the bpy 4.2 LTS half (TEARCLOTH_SKIP_42 is set)" >&2
+        elif is_311 "$VENV/bin/python"; then
+            setup "$PY" "$VENV42" "$BPY42 numpy<2"
+            suite "$VENV42" "${TESTS42[@]}" || status=$?
+        else
+            echo "tools/run.sh: NOT RUN: the bpy 4.2 LTS half: $PY is not Python 3.11 (Blender 4.2's)" >&2
+        fi
         if is_313 "$VENV/bin/python"; then
             echo "tools/run.sh: $PY is Python 3.13 already: the suite ran once, on it" >&2
         elif PY313=$(find_python313); then

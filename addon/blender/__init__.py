@@ -18,6 +18,7 @@ What each file owns:
 * ``ops``       operators (``tearcloth.*``)
 * ``ui``        the Physics panel, lists, menus, the status bar
 * ``report``    messages shown by operators and logged under the "tearcloth" logger
+* ``module_exit``  the PyPI bpy 4.x: unregister at exit (its static destructors crash otherwise)
 * ``race``      dev-only (``tearcloth bench``, left out of the extension zip): Blender's own
                 cloth driven through bpy, the other side of the bench's race
 
@@ -27,7 +28,7 @@ from __future__ import annotations
 
 import bpy
 
-from . import bake, haptic_session, ops, props, ui
+from . import bake, haptic_session, module_exit, ops, props, ui
 from .bake import bake_object  # the headless entry point: tearcloth.blender.bake_object
 from .report import BakeError, Reports
 
@@ -75,6 +76,7 @@ def register() -> None:
         if handler not in handlers:
             handlers.append(handler)
     _registered = True
+    module_exit.guard(unregister)
 
 
 def unregister() -> None:

@@ -12,7 +12,11 @@ cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-san
    $core tests/test_core.c -lm -o "$out"
 # once per kernel of the solver's matrix-vector product (fem.c picks it from TEARCLOTH_SIMD; one the
 # CPU lacks falls back to the best it has, so every machine runs all it can)
-for kernel in scalar sse2 avx2; do
+case "$(uname -m)" in
+    aarch64 | arm64) kernels="scalar neon" ;;
+    *) kernels="scalar sse2 avx2" ;;
+esac
+for kernel in $kernels; do
     echo "kernel $kernel:"
     TEARCLOTH_SIMD=$kernel ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1 "$out"
 done

@@ -17,7 +17,7 @@ How:
   files native/ holds at the time.
 * Python headers: the building interpreter's headers, copied WITHOUT their pyconfig.h (it
   describes the Linux build machine) and preceded by ``tools/cross/pyconfig/<os>/pyconfig.h``,
-  written for the target. The modules use the limited API 3.11 only (``Py_LIMITED_API`` from
+  written for the target (``posix``: every LP64 Unix target, macOS and Linux arm64). The modules use the limited API 3.11 only (``Py_LIMITED_API`` from
   setup.py), so the headers' Python version does not matter beyond that.
 * Windows: the modules import from ``python3.dll`` (the stable ABI's DLL, which every CPython
   3.x for Windows ships) through an import library made by ``zig dlltool`` from a .def file: the
@@ -28,8 +28,10 @@ How:
   to ``/usr/lib/libSystem.B.dylib``.
 * SIMD: native/core.h adds GCC ``target_clones`` (an ifunc) only for GCC on Linux x86-64; zig cc
   is clang, so none of these targets gets a clone (PE and Mach-O have no ifunc). The x86-64
-  builds are for the baseline x86-64 CPU (SSE2), the arm64 build for Apple's first arm64 CPU
-  (NEON is part of the arm64 baseline): nothing can trap on an older CPU.
+  builds are for the baseline x86-64 CPU (SSE2), the arm64 builds for the baseline arm64 CPU
+  (NEON is part of it: native/fem_neon.c is the product there): nothing can trap on an older CPU.
+* Linux arm64 (``linux-arm64``): not shipped (the manifest has no such platform), built to check
+  the arm64 product in a second object format (ELF beside Mach-O); glibc 2.28 as manylinux_2_28.
 """
 from __future__ import annotations
 
@@ -57,10 +59,14 @@ REPO = HERE.parents[1]
 TARGETS = {
     "windows-x64": dict(triple="x86_64-windows-gnu", cpu="baseline", pyconfig="windows",
                         wheel_platform="win_amd64", suffix=".pyd"),
-    "macos-arm64": dict(triple="aarch64-macos.11.0", cpu="baseline", pyconfig="macos",
+    "macos-arm64": dict(triple="aarch64-macos.11.0", cpu="baseline", pyconfig="posix",
                         wheel_platform="macosx_11_0_arm64", suffix=".abi3.so"),
-    "macos-x64": dict(triple="x86_64-macos.10.13", cpu="baseline", pyconfig="macos",
+    "macos-x64": dict(triple="x86_64-macos.10.13", cpu="baseline", pyconfig="posix",
                       wheel_platform="macosx_10_13_x86_64", suffix=".abi3.so"),
+    # not in the extension manifest (no Blender release for it is tested here): built so the
+    # arm64 NEON product can be checked on a second arm64 system (tests/test_platforms.py)
+    "linux-arm64": dict(triple="aarch64-linux-gnu.2.28", cpu="baseline", pyconfig="posix",
+                        wheel_platform="linux_aarch64", suffix=".abi3.so"),
 }
 
 
@@ -208,8 +214,9 @@ def python3_import_library(work: Path, symbols: dict[str, str]) -> Path:
 # Compile and link
 
 
-def build_modules(target: str, work: Path, src: Path = REPO) -> dict[str, Path]:
-    """Compile and link setup.py's extensions for ``target``; {"_native": path, ...}."""
+def build_modules(target: str, work: Path, src: Path = REPO, only: tuple[str, ...] = ()) -> dict[str, Path]:
+    """Compile and link setup.py's extensions for ``target`` (those named in ``only``, when given);
+    {"_native": path, ...}."""
     if target not in TARGETS:
         raise CrossError(f"unknown target {target!r} (known: {', '.join(TARGETS)})")
     spec = TARGETS[target]
@@ -222,11 +229,15 @@ def build_modules(target: str, work: Path, src: Path = REPO) -> dict[str, Path]:
     if spec["pyconfig"] == "windows":
         lib = python3_import_library(work, stable_abi(work, limited))
         link = ["-L", str(lib.parent), "-lpython3"]
-    else:
+    elif "macos" in spec["triple"]:
         link = ["-Wl,-undefined,dynamic_lookup"]
+    else:
+        link = []  # ELF shared objects may leave symbols undefined: the interpreter defines them
     made = {}
     for ext in exts:
         short = ext.name.rpartition(".")[2]
+        if only and short not in only:
+            continue
         # one folder per module: the linker may leave a .pdb and the DLL's own import library
         # beside a Windows DLL, which are cleared away below
         folder = work / target / short
