@@ -249,3 +249,35 @@ def test_cache_frames_drop_the_piece(tmp_path):
     assert (len(p1), len(t1)) == (231, 400) and (len(p2), len(t2)) == (230, 399)
     np.testing.assert_allclose(p2, c.positions, atol=1e-6)
     assert uv2.shape == (399, 3, 2)
+
+
+def test_a_removal_keeps_each_woven_triangles_grain_warp_and_plastic_set_with_it():
+    # fragment.c compacts every per-triangle array with the triangles: a woven, plastic sheet with
+    # its own grain on each triangle keeps each survivor's grain, warp and plastic strain (keyed
+    # by the triangle's rest centroid, which no compaction changes)
+    V, T = sheet(0.2, 0.1, 21, NY)
+    c = Cloth(V, T, material("denim"), gravity=(0, 0, -9.81), uv=V[:, :2] / np.array([0.2, 0.1]))
+    c.set_solver(cg_tolerance=1e-8, cg_max_iterations=2000)
+    c.set_tearing(True, min_fragment_area=1e-4)
+    c.set_grain_angles(np.linspace(-0.6, 0.6, c.num_triangles))
+    pins = [idx(0, j) for j in range(NY)]
+    c.pin(pins)
+    h = c.add_handle([idx(20, j) for j in range(NY)])
+    for k in range(30):  # stretch it along x past denim's yield so the strain is set
+        A = np.eye(4)[:3]
+        A[0, 3] = 4e-4 * (k + 1)
+        c.set_handle_target(h, A)
+        c.step(1e-3)
+    assert np.abs(c.plastic_strain[:, 0]).max() > 0.0, "the sheet never yielded: the test would check nothing"
+
+    def state():
+        X, Tr = c.rest_positions, c.triangles
+        keys = np.round(X[Tr].mean(axis=1), 9)
+        return {tuple(k): (g, tuple(w), tuple(p)) for k, g, w, p in zip(keys, c.grain_angles, c.warp, c.plastic_strain)}
+
+    before = state()
+    assert free_corner_triangle(c, V) == 1 and c.stats()["fragments_removed"] == 1
+    after = state()
+    assert len(after) == len(before) - 1 and set(after) < set(before)
+    for key, value in after.items():
+        assert value == before[key], f"the triangle at rest centroid {key} lost its woven state"
