@@ -8,6 +8,7 @@
 #include "core.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,6 +27,13 @@
     X(ev_chg, int32_t) X(ev_newt, int32_t) X(rptr, int32_t) X(rcol, int32_t) X(rblk, double) X(fptr, int32_t)  \
     X(fcol, int32_t) X(fval, double) X(pslot, int32_t) X(tipadv, double) X(tstamp, int32_t) X(vstamp, int32_t)     \
     X(tqueue, int32_t) X(vqueue, int32_t)
+
+/* The list above as data, for snapshot.c (which carries every array by it, so an array added to
+ * the list is saved and restored with no change there). */
+#define VEC_DESC(name, type) {#name, offsetof(tc_cloth, name), sizeof(type)},
+const tc_vec_desc tc_vec_table[] = {FOR_EACH_VEC(c, VEC_DESC)};
+#undef VEC_DESC
+const size_t tc_vec_table_len = sizeof tc_vec_table / sizeof *tc_vec_table;
 
 void tc_cloth_destroy(tc_cloth *c)
 {

@@ -19,6 +19,7 @@
  *   tear.c        tearing: where a tear starts, which way it runs, its tips
  *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
  *   cloth.c       life cycle, setters and getters, zero-copy arrays
+ *   snapshot.c    the whole state of a cloth as a validated blob, and a cloth made from one
  *
  * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The topology
  * is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils): a tear adds
@@ -175,6 +176,16 @@ struct tc_cloth {
     int32_t rows_nv;          /* and the vertex count */
     bool rows_built;
 };
+
+/* Every array of a cloth (cloth.c's FOR_EACH_VEC as a table): its name, where it sits in the struct
+ * and its item size. snapshot.c carries them all; a new scalar field of tc_cloth must be added to
+ * snapshot.c by hand (its round-trip test, tests/test_snapshot.py, finds one that was not). */
+typedef struct tc_vec_desc {
+    const char *name;
+    size_t offset, item;
+} tc_vec_desc;
+extern const tc_vec_desc tc_vec_table[];
+extern const size_t tc_vec_table_len;
 
 /* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel
  * still runs at full speed on machines that have them. */
