@@ -61,6 +61,80 @@ static void test_bad_input(void)
     CHECK(!c && strstr(msg, "poisson"), "poisson: %s", msg);
 }
 
+static uint64_t fnv1a(const unsigned char *p, size_t n)
+{
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (size_t i = 0; i < n; i++) { h ^= p[i]; h *= 0x100000001b3ull; }
+    return h;
+}
+
+/* a blob with its header's length and checksum made to agree with `size` bytes of it, so the
+ * reader's own checks (not the checksum) must catch what is wrong */
+static unsigned char *reseal(const unsigned char *blob, size_t size)
+{
+    unsigned char *b = malloc(size);
+    memcpy(b, blob, size);
+    uint64_t payload = size - 32, sum = fnv1a(b + 32, payload);
+    memcpy(b + 16, &payload, 8); memcpy(b + 24, &sum, 8);
+    return b;
+}
+
+/* Snapshot of a torn cloth: a copy steps bit for bit as the original; truncated, corrupted and
+ * resealed blobs are refused or (a flipped value that is still valid) step without reading out
+ * of bounds. */
+static void test_snapshot(tc_cloth *c)
+{
+    void *blob; size_t size;
+    CHECK(tc_cloth_snapshot(c, &blob, &size) == TC_OK, "snapshot");
+    char msg[512];
+    tc_cloth *d = tc_cloth_from_snapshot(blob, size, msg, sizeof msg);
+    CHECK(d != NULL, "restore: %s", msg);
+    if (!d) { free(blob); return; }
+    double A[12] = {1, 0, 0, 0.04, 0, 1, 0, 0, 0, 0, 1, 0};
+    for (int i = 0; i < 15; i++) {
+        A[3] += 2e-4;
+        tc_cloth_set_handle_target(c, 1, A); tc_cloth_set_handle_target(d, 1, A);
+        CHECK(tc_cloth_step(c, 1e-3, 2) == tc_cloth_step(d, 1e-3, 2), "same outcome");
+    }
+    int32_t n = tc_cloth_num_vertices(c);
+    CHECK(n == tc_cloth_num_vertices(d) && tc_cloth_num_triangles(c) == tc_cloth_num_triangles(d), "same counts");
+    size_t r, k, item;
+    tc_buf *bc = tc_cloth_array(c, TC_POSITIONS, &r, &k, &item), *bd = tc_cloth_array(d, TC_POSITIONS, &r, &k, &item);
+    CHECK(n == tc_cloth_num_vertices(d) && !memcmp(tc_buf_data(bc), tc_buf_data(bd), 3 * (size_t)n * sizeof(double)),
+          "restored cloth steps bit for bit");
+    tc_buf_decref(bc); tc_buf_decref(bd);
+    tc_cloth_destroy(d);
+    unsigned char *b = blob;
+    for (size_t len = 0; len < size; len += len < 64 ? 1 : 997) {
+        CHECK(!tc_cloth_from_snapshot(b, len, msg, sizeof msg) && strstr(msg, "truncated"), "truncated at %zu: %s", len, msg);
+        if (len < 32) continue;
+        unsigned char *t = reseal(b, len);
+        CHECK(!tc_cloth_from_snapshot(t, len, msg, sizeof msg), "resealed truncation at %zu accepted", len);
+        free(t);
+    }
+    b[size / 2] ^= 1;
+    CHECK(!tc_cloth_from_snapshot(b, size, msg, sizeof msg) && strstr(msg, "corrupted"), "flipped: %s", msg);
+    b[size / 2] ^= 1;
+    int refused = 0, accepted = 0;
+    unsigned seed = 12345;
+    for (int trial = 0; trial < 60; trial++) {
+        seed = seed * 1103515245u + 12345u;
+        size_t at = 32 + (seed >> 4) % (size - 32);
+        unsigned char *t = reseal(b, size);
+        t[at] ^= (unsigned char)(1u << (seed % 8)) | 0x80;
+        memcpy(t + 24, &(uint64_t){fnv1a(t + 32, size - 32)}, 8);
+        tc_cloth *e = tc_cloth_from_snapshot(t, size, msg, sizeof msg);
+        if (e) {  /* a value that is still valid: it must step without reading out of bounds */
+            accepted++;
+            for (int i = 0; i < 3; i++) tc_cloth_step(e, 1e-3, 1);
+            tc_cloth_destroy(e);
+        } else refused++;
+        free(t);
+    }
+    printf("snapshot %zu bytes; 60 resealed flips: %d refused, %d accepted and stepped\n", size, refused, accepted);
+    free(blob);
+}
+
 static void test_strip_and_tear(void)
 {
     double *V; int32_t *T, n, m;
@@ -108,6 +182,7 @@ static void test_strip_and_tear(void)
     double zero[3] = {0, 0, 0};
     CHECK(tc_cloth_scripted_tear(c, 0, zero, 0.05, &cuts) == TC_ERR_INPUT, "scripted zero dir");
     for (int i = 0; i < 20; i++) tc_cloth_step(c, 1e-3, 2);
+    test_snapshot(c);
     tc_cloth_destroy(c);
     free(V); free(T);
 }
