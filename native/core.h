@@ -198,6 +198,8 @@ extern const size_t tc_vec_table_len;
 /* ---------------- util.c ---------------- */
 double tc_now(void);                                  /* wall clock (s), for the step statistics */
 void tc_set_err(tc_cloth *c, const char *fmt, ...);   /* the message of tc_cloth_error() */
+void tc_culprits_clear(void);                         /* tc_create_culprits(): what a message names */
+void tc_culprit(int32_t triangle, int32_t vertex);    /* -1: none of that kind */
 
 /* ---------------- settings.c ---------------- */
 int tc_solver_check(const tc_solver_settings *s, char *msg, size_t msz);

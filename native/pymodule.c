@@ -153,6 +153,20 @@ static void Cloth_dealloc(PyObject *o)
     Py_DECREF(tp);
 }
 
+/* InvalidInputError for a mesh the core refused, with the elements it names as attributes
+ * (.triangles, .vertices: tuples of 0-based indices as given), so callers need not read the text. */
+static void raise_refused_mesh(const char *msg, tc_culprits k)
+{
+    PyObject *exc = PyObject_CallFunction(InvalidInputError, "s", msg);
+    if (!exc) return;
+    PyObject *t = PyTuple_New(k.n_triangles), *v = PyTuple_New(k.n_vertices);
+    for (int32_t i = 0; t && i < k.n_triangles; i++) PyTuple_SetItem(t, i, PyLong_FromLong(k.triangles[i]));
+    for (int32_t i = 0; v && i < k.n_vertices; i++) PyTuple_SetItem(v, i, PyLong_FromLong(k.vertices[i]));
+    if (t && v && !PyObject_SetAttrString(exc, "triangles", t) && !PyObject_SetAttrString(exc, "vertices", v))
+        PyErr_SetObject(InvalidInputError, exc);
+    Py_XDECREF(t); Py_XDECREF(v); Py_DECREF(exc);
+}
+
 static int Cloth_init(PyObject *o, PyObject *args, PyObject *kw)
 {
     ClothObject *self = (ClothObject *)o;
@@ -185,7 +199,7 @@ static int Cloth_init(PyObject *o, PyObject *args, PyObject *kw)
     c = tc_cloth_create(P.view.buf, (int32_t)n, T.view.buf, (int32_t)m, R.held ? R.view.buf : NULL, rest_dim,
                         U.held ? U.view.buf : NULL, G.held ? G.view.buf : NULL, ng, NULL, msg, sizeof msg);
     Py_END_ALLOW_THREADS
-    if (!c) { PyErr_SetString(InvalidInputError, msg); goto done; }
+    if (!c) { raise_refused_mesh(msg, tc_create_culprits()); goto done; }
     self->c = c;
     rc = 0;
 done:

@@ -83,6 +83,16 @@ const char *tc_simd_name(int level);
 
 typedef struct tc_cloth tc_cloth;
 
+/* The mesh elements the last failed tc_cloth_create on this thread named (0-based, in the numbering
+ * it was given): the triangles and vertices its message is about, so callers map them to their own
+ * numbering and select them without reading the message's text. Cleared by every create. */
+#define TC_CULPRITS_MAX 4
+typedef struct tc_culprits {
+    int32_t n_triangles, triangles[TC_CULPRITS_MAX];
+    int32_t n_vertices, vertices[TC_CULPRITS_MAX];
+} tc_culprits;
+tc_culprits tc_create_culprits(void);
+
 /* Creates a cloth from n vertices (xyz) and m triangles (vertex indices, counter-clockwise).
  * rest: NULL (rest shape = positions) or n*rest_dim values: rest_dim = 3 (3-D rest positions) or
  * 2 (material coordinates in metres, e.g. UVs scaled to size).

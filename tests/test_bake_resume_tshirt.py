@@ -145,7 +145,7 @@ print("RESULT", state, stopped, sorted(resumed), run.plan.cache_path, flush=True
 
 
 def test_tshirt_cancelled_and_resumed_by_the_operator_equals_the_uninterrupted_bake(tmp_path, reference):
-    script = tmp_path / "operator.py"
+    script = tmp_path / "cancel_and_resume.py"
     script.write_text(OPERATOR)
     proc = subprocess.run([sys.executable, str(script), str(SHIRT), str(tmp_path), str(TERM_AT), str(LAST)],
                           capture_output=True, text=True, timeout=900, cwd=tmp_path)

@@ -47,6 +47,8 @@ static void test_bad_input(void)
     double Vc[9] = {0, 0, 0, 1, 0, 0, 2, 0, 0};
     c = tc_cloth_create(Vc, 3, T, 1, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
     CHECK(!c && strstr(msg, "degenerate"), "collinear: %s", msg);
+    tc_culprits k = tc_create_culprits();
+    CHECK(k.n_triangles == 1 && k.triangles[0] == 0 && k.n_vertices == 3 && k.vertices[2] == 2, "collinear culprits");
     double Vn[9] = {0, 0, 0, NAN, 0, 0, 0, 1, 0};
     c = tc_cloth_create(Vn, 3, T, 1, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
     CHECK(!c && strstr(msg, "non-finite"), "nan: %s", msg);
@@ -55,10 +57,14 @@ static void test_bad_input(void)
     int32_t T3[9] = {0, 1, 2, 1, 0, 3, 0, 1, 4};
     c = tc_cloth_create(V4, 5, T3, 3, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
     CHECK(!c && strstr(msg, "non-manifold"), "non-manifold: %s", msg);
+    k = tc_create_culprits();
+    CHECK(k.n_triangles == 3 && k.triangles[2] == 2 && k.n_vertices == 2 && k.vertices[0] == 0 && k.vertices[1] == 1,
+          "non-manifold culprits: %d triangles, %d vertices", (int)k.n_triangles, (int)k.n_vertices);
     tc_material m = tc_material_default();
     m.poisson = 0.5;
     c = tc_cloth_create(V, 3, T, 1, NULL, 0, NULL, NULL, 0, &m, msg, sizeof msg);
     CHECK(!c && strstr(msg, "poisson"), "poisson: %s", msg);
+    CHECK(tc_create_culprits().n_triangles == 0, "a material error names no element");
 }
 
 static uint64_t fnv1a(const unsigned char *p, size_t n)
