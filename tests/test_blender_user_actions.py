@@ -227,7 +227,7 @@ MACHINE = '''
             assert info["frames"] and info["frames"] == list(range(1, info["frames"][-1] + 1)), info["frames"]
             # every frame its progress line reported is kept (the frame file of ``after`` on disk
             # is not yet a complete frame: the cache records it next)
-            reported = max([int(f) for f in re.findall(r"frame (\d+)/", err)] or [0])
+            reported = max([int(f) for f in re.findall(r"frame (\\d+)/", err)] or [0])
             assert set(range(1, reported + 1)) <= set(info["frames"]), (reported, info["frames"], err[-2000:])
             assert info["frames"][-1] >= after - 1, (info["frames"], err[-2000:])
             self.kept[path] = list(info["frames"])
