@@ -41,18 +41,24 @@ def root(out: Path) -> Path:
     return Path(find_cache(out / "tearcloth_cache", "SquareCloth", "square_cloth"))
 
 
-def stop_mid_bake(out: Path, sig: int, after_frame: int = 5) -> subprocess.CompletedProcess:
-    """Start the bake, send ``sig`` once frame ``after_frame`` is in the cache, wait for the end."""
-    pattern = f"square_cloth/SquareCloth_frames/frame_{after_frame:06d}.usdc"  # not the hidden staging
-    proc = subprocess.Popen(command(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 200
+def signal_at(cmd: list, out: Path, pattern: str, sig: int, timeout: float = 200) -> subprocess.CompletedProcess:
+    """Start ``cmd``, send ``sig`` once a file matching ``pattern`` is in ``out/tearcloth_cache``,
+    wait for the end."""
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + timeout
     while not list((out / "tearcloth_cache").glob(pattern)):
         assert proc.poll() is None, proc.communicate()[1][-3000:]
         assert time.monotonic() < deadline, "the bake did not reach the frame"
         time.sleep(0.02)
     proc.send_signal(sig)
-    stdout, stderr = proc.communicate(timeout=120)
+    stdout, stderr = proc.communicate(timeout=300)
     return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
+
+
+def stop_mid_bake(out: Path, sig: int, after_frame: int = 5) -> subprocess.CompletedProcess:
+    """Start the bake, send ``sig`` once frame ``after_frame`` is in the cache, wait for the end."""
+    # the final frames folder, not the hidden staging
+    return signal_at(command(out), out, f"square_cloth/SquareCloth_frames/frame_{after_frame:06d}.usdc", sig)
 
 
 def frames_of(path: Path) -> dict:

@@ -20,7 +20,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +28,8 @@ import pytest
 pytest.importorskip("bpy")
 pytest.importorskip("pxr")
 from tearcloth import cache  # noqa: E402
+
+from test_bake_resume_cli import frames_of, signal_at  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHIRT = REPO / "example_blends" / "tshirt.blend"
@@ -45,23 +46,9 @@ def root(out: Path) -> Path:
     return out / "tearcloth_cache" / "tshirt" / "TShirt.usda"
 
 
-def run_until(out: Path, frame: int, sig: int, timeout: float = 600) -> subprocess.CompletedProcess:
+def run_until(out: Path, frame: int, sig: int) -> subprocess.CompletedProcess:
     """Start (or resume) the bake, send ``sig`` once ``frame`` is in the cache, wait for the end."""
-    pattern = f"tshirt/TShirt_frames/frame_{frame:06d}.usdc"  # not the hidden staging
-    proc = subprocess.Popen(command(out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + timeout
-    while not list((out / "tearcloth_cache").glob(pattern)):
-        assert proc.poll() is None, proc.communicate()[1][-3000:]
-        assert time.monotonic() < deadline, "the bake did not reach the frame"
-        time.sleep(0.02)
-    proc.send_signal(sig)
-    stdout, stderr = proc.communicate(timeout=300)
-    return subprocess.CompletedProcess(proc.args, proc.returncode, stdout, stderr)
-
-
-def frames_of(path: Path) -> dict:
-    info = cache.cache_info(path)
-    return {f: cache.read_frame(path, f) for f in info["frames"]}
+    return signal_at(command(out), out, f"tshirt/TShirt_frames/frame_{frame:06d}.usdc", sig, timeout=600)
 
 
 def resume(out: Path, after: int) -> dict:
