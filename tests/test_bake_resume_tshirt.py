@@ -8,11 +8,13 @@ mannequin and tearing on), from the CLI, always in subprocesses:
   complete frame;
 * a copy of that stopped bake resumed and killed by SIGKILL (no handler runs: no .blend saved,
   the state file and the cache are what a crash leaves) once frame 82 is in, then run again;
-* every frame of both equals the reference's: the same topology and positions to the bit
+* another copy resumed by the OPERATOR's path (the modal bake's worker thread, ticked without a
+  window), cancelled (Esc) a frame later and resumed by the Bake operator;
+* every frame of the three equals the reference's: the same topology and positions to the bit
   (the tolerance 1e-9 m of the issue, met exactly: the state is the session's whole state).
 
-Runtime: ~2 x 100 s for the two 84-frame bakes plus ~4 short runs (Blender start-up and a few
-frames each): about 4 minutes on a free core.
+Runtime: two 84-frame bakes (~100 s each on a free core) plus five short runs (Blender start-up
+and a few frames each): about 4 to 5 minutes.
 """
 from __future__ import annotations
 
@@ -71,26 +73,22 @@ def assert_same(got: dict, want: dict, label: str) -> None:
     assert worst <= 1e-9, f"{label}: {worst} m"
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory):
-    whole = tmp_path_factory.mktemp("whole")
+def test_tshirt_killed_cancelled_and_resumed_equals_the_uninterrupted_bake(tmp_path):
+    whole = tmp_path / "whole"
     proc = subprocess.run(command(whole), capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    frames = frames_of(root(whole))
-    first_torn = min(f for f, (p, _, _) in frames.items() if len(p) > len(frames[1][0]))
+    reference = frames_of(root(whole))
+    first_torn = min(f for f, (p, _, _) in reference.items() if len(p) > len(reference[1][0]))
     assert first_torn <= TERM_AT, f"the shirt must tear before the stop (first torn frame {first_torn})"
-    return frames
-
-
-def test_tshirt_killed_and_resumed_equals_the_uninterrupted_bake(tmp_path, reference):
 
     termed = tmp_path / "term"
     stopped = run_until(termed, TERM_AT, signal.SIGTERM)
     assert stopped.returncode == 143, stopped.stderr[-3000:]
     last = cache.cache_info(root(termed))["frames"][-1]
     assert TERM_AT <= last < LAST
-    killed = tmp_path / "kill"
+    killed, operated = tmp_path / "kill", tmp_path / "operator"
     shutil.copytree(termed, killed)  # the stopped bake, resumed below and killed mid-way
+    shutil.copytree(termed, operated)  # ... and resumed by the operator, cancelled, resumed
 
     assert_same(resume(termed, last), reference, "SIGTERM at frame %d" % last)
 
@@ -100,23 +98,36 @@ def test_tshirt_killed_and_resumed_equals_the_uninterrupted_bake(tmp_path, refer
     assert KILL_AT <= after < LAST
     assert_same(resume(killed, after), reference, "SIGKILL at frame %d" % after)
 
+    # the operator's path (the modal bake's worker thread, ticked here without a window) on the
+    # torn state: Bake with resume, Esc once a frame more is baked, Bake with resume again
+    script = tmp_path / "cancel_and_resume.py"
+    script.write_text(OPERATOR)
+    proc = subprocess.run([sys.executable, str(script), str(operated / "tshirt.blend"), str(last + 1), str(LAST)],
+                          capture_output=True, text=True, timeout=900, cwd=tmp_path)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode == 0, out[-4000:]
+    line = [x for x in proc.stdout.splitlines() if x.startswith("RESULT ")][-1].split()
+    state, stopped, resumed, path = line[1], int(line[2]), line[3], line[4]
+    assert state == "cancelled" and last < stopped < LAST and resumed == "['FINISHED']", line
+    assert Path(path) == root(operated)
+    info = cache.cache_info(path)
+    assert info["complete"] and info["frames"] == list(range(1, LAST + 1))
+    assert_same(frames_of(Path(path)), reference, f"operator: resumed after {last}, cancelled at {stopped}")
 
-# The operator's path (the modal bake's worker thread, ticked here without a window): Esc once a
-# tear runs, then Bake with resume, in one Blender with the add-on.
+
 OPERATOR = """
-import shutil, sys, time
+import sys, time
 import bpy
 import tearcloth
 from tearcloth.blender import bake
 
-source, folder, stop_at, last = sys.argv[1], sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+blend, stop_at, last = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 tearcloth.register()
-bpy.ops.wm.open_mainfile(filepath=source)
-bpy.ops.wm.save_as_mainfile(filepath=folder + "/tshirt.blend")
+bpy.ops.wm.open_mainfile(filepath=blend)
 obj = bpy.data.objects["TShirt"]
-obj.tearcloth.frame_end = last
+obj.tearcloth.frame_end = last  # the range the CLI baked (--frames 1-84)
 ctx = bpy.context
-run = bake.BakeRun(ctx, obj)
+run = bake.BakeRun(ctx, obj, resume=True)
 run.start_thread(ctx)
 while run.tick(ctx):
     time.sleep(0.005)
@@ -131,16 +142,3 @@ print("RESULT", state, stopped, sorted(resumed), run.plan.cache_path, flush=True
 """
 
 
-def test_tshirt_cancelled_and_resumed_by_the_operator_equals_the_uninterrupted_bake(tmp_path, reference):
-    script = tmp_path / "cancel_and_resume.py"
-    script.write_text(OPERATOR)
-    proc = subprocess.run([sys.executable, str(script), str(SHIRT), str(tmp_path), str(TERM_AT), str(LAST)],
-                          capture_output=True, text=True, timeout=900, cwd=tmp_path)
-    out = proc.stdout + proc.stderr
-    assert proc.returncode == 0, out[-4000:]
-    line = [x for x in proc.stdout.splitlines() if x.startswith("RESULT ")][-1].split()
-    state, stopped, resumed, path = line[1], int(line[2]), line[3], line[4]
-    assert state == "cancelled" and TERM_AT <= stopped < LAST and resumed == "['FINISHED']", line
-    info = cache.cache_info(path)
-    assert info["complete"] and info["frames"] == list(range(1, LAST + 1))
-    assert_same(frames_of(Path(path)), reference, f"operator cancelled at frame {stopped}")
