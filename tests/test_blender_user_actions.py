@@ -287,3 +287,62 @@ def test_user_action_sequences_never_lose_a_baked_frame(tmp_path):
           "playback checks in a Blender without the add-on")
     assert got["ok"], "\n".join(got["failures"])
     assert got["sequences"] >= SEQUENCES and got["kills"] >= 1 and got["playback_checks"] >= 1
+
+
+# A process killed inside the promotion of its staged re-bake (the window the machine's SIGKILLs
+# hit now and then), made deterministic: the old root is gone, the new frames moved in, the new
+# root not written. The next Bake with resume rebuilds the root from the frames and finishes.
+KILLED_IN_PROMOTION = '''
+    import signal
+    from tearcloth import cache
+    from tearcloth.blender import bake, modifier
+    folder, stage = sys.argv[1], sys.argv[2]
+    if stage == "kill":
+        obj = build_scene(folder, n=8, frame_end=4)
+        obj.tearcloth.steps_per_frame = 2
+        assert bake.bake_object(bpy.context, obj).state == "done"
+        bpy.ops.wm.save_mainfile()
+        write_root, promote = cache.CacheWriter._write_root, cache.CacheWriter.promote
+
+        def promoting(self):
+            self.promoting = True
+            return promote(self)
+
+        def killed_in_promotion(self, complete):
+            if getattr(self, "promoting", False):
+                os.kill(os.getpid(), signal.SIGKILL)
+            return write_root(self, complete)
+
+        cache.CacheWriter.promote, cache.CacheWriter._write_root = promoting, killed_in_promotion
+        bake.bake_object(bpy.context, obj)
+    else:
+        import tearcloth
+        tearcloth.register()
+        bpy.ops.wm.open_mainfile(filepath=os.path.join(folder, "scene.blend"))
+        obj = bpy.data.objects["Sheet"]
+        path = modifier.cache_path(obj)
+        damaged = cache.damaged_root(path) and not os.path.exists(path)
+        r = bake.bake_object(bpy.context, obj, resume=True)
+        info = cache.cache_info(path)
+        result(dict(damaged=damaged, state=r.state, warnings=r.reports.warnings, frames=info["frames"],
+                    complete=info["complete"], left=sorted(os.listdir(os.path.dirname(path)))))
+'''
+
+
+def test_a_kill_inside_a_promotion_is_rebuilt_and_resumed(tmp_path):
+    import subprocess
+    import sys
+    import textwrap
+
+    from test_blender_bake import PRELUDE
+
+    script = tmp_path / "promotion.py"
+    script.write_text(PRELUDE + textwrap.dedent(KILLED_IN_PROMOTION))
+    killed = subprocess.run([sys.executable, str(script), str(tmp_path), "kill"], capture_output=True, text=True,
+                            timeout=300, cwd=tmp_path)
+    assert killed.returncode == -9, (killed.stdout + killed.stderr)[-3000:]
+    got = run_blender(tmp_path, KILLED_IN_PROMOTION, tmp_path, "resume", name="resume.py")
+    assert got["damaged"] and got["state"] == "done", got
+    assert any("rebuilt it from its intact frame files (frames 1-2)" in w for w in got["warnings"]), got["warnings"]
+    assert got["frames"] == [1, 2, 3, 4] and got["complete"]
+    assert got["left"] == ["Sheet.state.npz", "Sheet.usda", "Sheet_frames"]  # the spent staging is gone
