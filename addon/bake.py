@@ -29,9 +29,10 @@ positions of torn vertices, carried vertex-group weights, tear strengths), so af
 full state is saved next to the cache (``<name>.state.npz``, written under a temporary name and
 renamed). The state is saved BEFORE the frame goes into the cache: after a crash the state is
 either for the cache's last frame or for the frame after it, which ``BakeJob`` then writes first.
-Pins and handles are re-made from their vertex groups (weights >= 0.5, carried through tears);
-a resumed handle grasps the cloth where it is, so its target is the follow object's motion since
-the resume frame.
+The state is the session's whole state (``Session.save_state``: the core's native snapshot,
+with velocities, solver warm start, tear tips and scan position, pair order and handles, and the
+collision detector's tracks, measures and clusters) plus the first frame's handle grasps, so a
+resumed bake steps exactly as the uninterrupted one: same positions to the bit, same topology.
 """
 from __future__ import annotations
 
@@ -54,7 +55,7 @@ from .cloth import Cloth, SimulationError
 from .materials import Material
 from .session import CollisionSettings, Session, StepReport
 
-STATE_VERSION = 1
+STATE_VERSION = 2  # 2: the whole session state (native snapshot, collision, tracks)
 
 
 @dataclass
@@ -310,10 +311,14 @@ class BakeJob:
         state = self._state
         # A mesh without a UV map gets no UVs in the cache (not a layer of zeros).
         self._has_uv = plan.corner_uv is not None if state is None else state["corner_uv"] is not None
-        if state is not None:
-            self._tears_before = int(state["tears"])
         session, self._handles = make_session(plan, inputs.bodies, plan.time_of(self.start_frame), state)
-        self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
+        if state is not None:
+            # the restored core counts the tears it made before the kill too
+            self._tears_before = int(state["tears"]) - int(session.cloth.stats()["tears_started"])
+            # handle targets stay relative to the first frame's grasp, as in the uninterrupted bake
+            self._grasp = [None if np.isnan(m).all() else np.array(m) for m in state["grasp"]]
+        else:
+            self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
         self.session = session
         self._tracker = self._attribute_tracker()
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
@@ -390,7 +395,7 @@ class BakeJob:
         # the state follows the cache it belongs to: beside the staged root until it is promoted
         state_path = state_path_for(writer.path)
         if save_state:
-            save_state_file(state_path, inputs.frame, plan, cloth, tears, self._has_uv)
+            save_state_file(state_path, inputs.frame, plan, self.session, tears, self._has_uv, self._grasp)
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
@@ -454,7 +459,6 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
         cloth = Cloth(state["positions"], state["triangles"], plan.material, rest=state["rest"],
                       uv=state["corner_uv"], groups=dict(zip(state["group_names"], state["groups"].T))
                       or None, gravity=plan.solver["gravity"])
-        cloth.set_velocities(state["velocities"])
     cloth.set_solver(**plan.solver)
     cloth.set_tearing(plan.tearing.get("enabled", True),
                       **{k: v for k, v in plan.tearing.items() if k != "enabled"})
@@ -479,6 +483,10 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
         session.set_handle_keyframe(h, np.eye(4), session.time)
     for name, tris in plan.body_triangles.items():
         session.add_body(name, bodies[name], tris)
+    if state is not None:
+        # everything else as it was after the state's frame: the native core (velocities, warm
+        # start, tear tips, scan position, pair order, handles), collision history, keyframes
+        session.restore_state(state["session"])
     return session, handles
 
 
@@ -486,10 +494,14 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
 # The state file
 
 
-def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: int, has_uv: bool) -> None:
-    """The full simulation state after ``frame``. ``has_uv``: whether the cache holds UVs (the
+def save_state_file(path: str, frame: int, plan: BakePlan, session: Session, tears: int, has_uv: bool,
+                    grasp: list) -> None:
+    """The full simulation state after ``frame``: the session's (``Session.save_state``), plus the
+    mesh arrays a resumed cloth is built from (the restore then replaces its whole state) and the
+    handles' grasp matrices of the first frame. ``has_uv``: whether the cache holds UVs (the
     cloth always has a UV array, zeros without a UV map; a resumed bake must write what the
     cache holds)."""
+    cloth = session.cloth
     names = list(cloth.group_names)
     groups = cloth.groups
     uv = cloth.corner_uv if has_uv else None
@@ -507,6 +519,8 @@ def save_state_file(path: str, frame: int, plan: BakePlan, cloth: Cloth, tears: 
         groups=np.array(groups),
         tear_strength=np.array(cloth.tear_strength),
         tears=np.int64(tears),
+        session=np.frombuffer(session.save_state(), np.uint8),
+        grasp=np.array([np.full((4, 4), np.nan) if m is None else m for m in grasp], np.float64).reshape(-1, 4, 4),
     )
     if plan.grain_angles is not None and hasattr(cloth, "grain_angles"):
         data["grain_angles"] = np.array(cloth.grain_angles)  # per triangle, carried through tears by the core
@@ -532,6 +546,7 @@ def load_state(path: str) -> dict | None:
     state["group_names"] = [str(n) for n in state["group_names"]]
     if state["corner_uv"].size == 0:
         state["corner_uv"] = None
+    state["session"] = state["session"].tobytes()
     return state
 
 

@@ -394,7 +394,11 @@ def damaged_root(path) -> bool:
     ``delete_cache`` frees it. Any other unreadable file is not ours to touch."""
     path = os.path.abspath(os.fspath(path))
     if not os.path.isfile(path):
-        return False
+        # a promotion cut short (CacheWriter.promote: old root deleted, frame files moved in, the
+        # new root not yet written, the staged root still there): the frames are intact
+        frames_dir = frames_dir_for(path)
+        return (os.path.isfile(staging_path_for(path)) and bool(_scan_frames(frames_dir))
+                and os.path.isfile(os.path.join(frames_dir, _MANIFEST)))
     try:
         _read_root(path, check_frames=False)
         return False
@@ -430,9 +434,12 @@ def repair_root(path, object_name: str, fingerprint: str | None = None, owner: d
                 str(root.GetInfo("upAxis")) if root.HasInfo("upAxis") else "Z",
                 float(root.GetInfo("metersPerUnit")) if root.HasInfo("metersPerUnit") else 1.0)
     who = dict(object_name=object_name, fingerprint=fingerprint, owner=owner, uv_name=(uv_names or ["st"])[0])
+    promoting = not os.path.isfile(path)  # the staged root of a promotion cut short is spent
     CacheWriter(path, *settings, **who, _root_only=True)  # a root that names no frame yet ...
     writer = CacheWriter(path, *settings, **who, resume=True)  # ... then adopt the frame files
     writer.close(complete=False)
+    if promoting:
+        _remove_staging(staging_path_for(path))
     return writer.frames
 
 

@@ -35,7 +35,7 @@ What a bake does, in order:
    130 (SIGINT) or 143 (SIGTERM).
    Resume: when an object's cache holds an interrupted bake of the same object (a killed or
    stopped run of the same command), the bake continues after its last complete frame and says
-   so; a bake that cannot be resumed (another mesh, a stale state) starts over and says why.
+   so, from the whole saved simulation state (it ends exactly as an uninterrupted bake would); a bake that cannot be resumed (another mesh, a stale state) starts over and says why.
    ``--restart`` always bakes from the first frame.
 5. ``--render PNG`` renders a frame (default: the last baked frame; ``--render-frame 1,24``
    renders several into a name with ``#`` for the frame number, Blender's convention:

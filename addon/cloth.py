@@ -339,6 +339,26 @@ class Cloth:
         """kinetic, elastic, bending, gravity (J)."""
         return self._c.energy()
 
+    # ---- snapshot ----
+    def snapshot(self) -> bytes:
+        """The whole simulation state (positions, velocities, topology, tear tips and scan position,
+        the solver's warm start, handles, counters, settings) as a versioned, checksummed blob:
+        ``restore`` of it makes this cloth (or a copy built from the same mesh and vertex groups)
+        step exactly, bit for bit, as this one would from here."""
+        return self._c.snapshot()
+
+    def restore(self, blob: bytes) -> None:
+        """Replace the whole simulation state by a ``snapshot()`` blob. A blob of another version or
+        build, a truncated or a corrupted one raises InvalidInputError and leaves the cloth as it
+        was. The blob must have this cloth's vertex groups (their names live on the Python side)."""
+        before = self._c.snapshot()
+        self._c.restore(blob)
+        if self._c.counts()[2] != len(self.group_names):
+            groups = self._c.counts()[2]
+            self._c.restore(before)
+            raise InvalidInputError(f"the snapshot has {groups} vertex groups, this cloth "
+                                    f"{len(self.group_names)} ({', '.join(self.group_names) or 'none'})")
+
     # ---- tearing ----
     def events(self) -> TopologyEvents:
         raw = self._c.events()

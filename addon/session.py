@@ -177,6 +177,37 @@ class Session:
         else:
             track.add(m, t)
 
+    # ---- saved state ----
+    # Everything a step reads, so that a session restored from it steps as this one would have
+    # (a bake killed and resumed equals an uninterrupted one; tests/test_bake_resume_cli.py).
+    _STATE_FIELDS = ("time", "_bodies", "_handle_tracks", "detector", "max_substeps", "retries",
+                     "unconverged_steps")
+
+    def save_state(self) -> bytes:
+        """The whole state: the cloth's native snapshot and the Python side (``tearcloth.resume``)."""
+        from . import resume
+
+        return resume.dumps(self.cloth.snapshot(), {k: getattr(self, k) for k in self._STATE_FIELDS})
+
+    def restore_state(self, blob: bytes) -> None:
+        """Continue from ``save_state()``'s blob. The session must be built from the same scene
+        (cloth mesh and vertex groups, collision on or off, bodies); a blob that is not a state, or
+        of another scene, is a ValueError and leaves the session as it was."""
+        from . import resume
+
+        cloth_blob, state = resume.loads(blob)
+        if set(state) != set(self._STATE_FIELDS):
+            raise ValueError(f"session state holds {sorted(state)}, not {sorted(self._STATE_FIELDS)}")
+        if (state["detector"] is None) != (self.detector is None):
+            raise ValueError("session state was saved with collision " + ("off" if state["detector"] is None else "on")
+                             + ", this session has it " + ("off" if self.detector is None else "on"))
+        if sorted(state["_bodies"]) != sorted(self._bodies):
+            raise ValueError(f"session state has the bodies {sorted(state['_bodies'])}, this session "
+                             f"{sorted(self._bodies)}")
+        self.cloth.restore(cloth_blob)
+        for k in self._STATE_FIELDS:
+            setattr(self, k, state[k])
+
     # ---- listeners ----
     def add_step_listener(self, fn) -> None:
         """Call ``fn(session, report)`` after every step from now on (in the order added)."""

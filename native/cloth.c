@@ -8,6 +8,7 @@
 #include "core.h"
 
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -26,6 +27,13 @@
     X(ev_chg, int32_t) X(ev_newt, int32_t) X(rptr, int32_t) X(rcol, int32_t) X(rblk, double) X(fptr, int32_t)  \
     X(fcol, int32_t) X(fval, double) X(pslot, int32_t) X(tipadv, double) X(tstamp, int32_t) X(vstamp, int32_t)     \
     X(tqueue, int32_t) X(vqueue, int32_t) X(tgrain, double) X(twarp, double) X(taxis, double) X(tplast, double) X(ev_rmv, int32_t) X(ev_rmt, int32_t)
+
+/* The list above as data, for snapshot.c (which carries every array by it, so an array added to
+ * the list is saved and restored with no change there). */
+#define VEC_DESC(name, type) {#name, offsetof(tc_cloth, name), sizeof(type)},
+const tc_vec_desc tc_vec_table[] = {FOR_EACH_VEC(c, VEC_DESC)};
+#undef VEC_DESC
+const size_t tc_vec_table_len = sizeof tc_vec_table / sizeof *tc_vec_table;
 
 void tc_cloth_destroy(tc_cloth *c)
 {
@@ -47,6 +55,7 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
 {
 #define FAIL(...) do { snprintf(msg, msz, __VA_ARGS__); tc_cloth_destroy(c); return NULL; } while (0)
     tc_cloth *c = NULL;
+    tc_culprits_clear();
     if (n < 3) { snprintf(msg, msz, "a cloth needs at least 3 vertices (got %d)", (int)n); return NULL; }
     if (m < 1) { snprintf(msg, msz, "a cloth needs at least 1 triangle (got %d)", (int)m); return NULL; }
     if (n_groups < 0 || n_groups > 4096) { snprintf(msg, msz, "bad number of vertex groups %d", n_groups); return NULL; }
@@ -55,12 +64,14 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
     for (int64_t i = 0; i < 3 * (int64_t)n; i++)
         if (!isfinite(positions[i])) {
             snprintf(msg, msz, "vertex %d has a non-finite coordinate (%g)", (int)(i / 3), positions[i]);
+            tc_culprit(-1, (int32_t)(i / 3));
             return NULL;
         }
     if (rest)
         for (int64_t i = 0; i < rest_dim * (int64_t)n; i++)
             if (!isfinite(rest[i])) {
                 snprintf(msg, msz, "rest coordinate of vertex %d is not finite (%g)", (int)(i / rest_dim), rest[i]);
+                tc_culprit(-1, (int32_t)(i / rest_dim));
                 return NULL;
             }
     for (int32_t t = 0; t < m; t++) {
@@ -68,10 +79,12 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
         for (int k = 0; k < 3; k++)
             if (T[k] < 0 || T[k] >= n) {
                 snprintf(msg, msz, "triangle %d refers to vertex %d, outside [0, %d)", (int)t, (int)T[k], (int)n);
+                tc_culprit(t, -1);
                 return NULL;
             }
         if (T[0] == T[1] || T[1] == T[2] || T[0] == T[2]) {
             snprintf(msg, msz, "triangle %d is degenerate: it repeats a vertex (%d, %d, %d)", (int)t, (int)T[0], (int)T[1], (int)T[2]);
+            tc_culprit(t, T[0]); tc_culprit(-1, T[1]); tc_culprit(-1, T[2]);
             return NULL;
         }
     }

@@ -22,6 +22,7 @@
  *   tear.c        tearing: where a tear starts, which way it runs, its tips
  *   step.c        one implicit Euler step: forces, sub-steps, contacts released, rollback, tearing
  *   cloth.c       life cycle, setters and getters, zero-copy arrays
+ *   snapshot.c    the whole state of a cloth as a validated blob, and a cloth made from one
  *
  * Storage is structure-of-arrays in growable, reference-counted blocks (see buf.c). The topology
  * is kept per *pair* of vertices (mesh edges plus the "flap" pairs of bending stencils): a tear adds
@@ -193,6 +194,16 @@ struct tc_cloth {
     bool amg_stale;           /* a later solve needed many more: refresh at the next sub-step */
 };
 
+/* Every array of a cloth (cloth.c's FOR_EACH_VEC as a table): its name, where it sits in the struct
+ * and its item size. snapshot.c carries them all; a new scalar field of tc_cloth must be added to
+ * snapshot.c by hand (its round-trip test, tests/test_snapshot.py, finds one that was not). */
+typedef struct tc_vec_desc {
+    const char *name;
+    size_t offset, item;
+} tc_vec_desc;
+extern const tc_vec_desc tc_vec_table[];
+extern const size_t tc_vec_table_len;
+
 /* Hot loops get an AVX2/FMA clone picked at load time on x86-64 (GCC ifunc), so one portable wheel
  * still runs at full speed on machines that have them. */
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && !defined(TC_NO_CLONES)
@@ -204,6 +215,8 @@ struct tc_cloth {
 /* ---------------- util.c ---------------- */
 double tc_now(void);                                  /* wall clock (s), for the step statistics */
 void tc_set_err(tc_cloth *c, const char *fmt, ...);   /* the message of tc_cloth_error() */
+void tc_culprits_clear(void);                         /* tc_create_culprits(): what a message names */
+void tc_culprit(int32_t triangle, int32_t vertex);    /* -1: none of that kind */
 
 /* ---------------- settings.c ---------------- */
 int tc_solver_check(const tc_solver_settings *s, char *msg, size_t msz);

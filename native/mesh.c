@@ -233,6 +233,7 @@ int tc_tri_rest(tc_cloth *c, int32_t t, char *msg, size_t msz)
     if (l3 > lmax) lmax = l3;
     /* relative test (TC_SLIVER_AREA): a sliver cannot be inverted reliably in double precision */
     if (!(area > TC_SLIVER_AREA * lmax * lmax) || !isfinite(area)) {
+        if (msg) tc_culprit(t, T[0]), tc_culprit(-1, T[1]), tc_culprit(-1, T[2]);
         if (msg) snprintf(msg, msz, "triangle %d (vertices %d, %d, %d) is degenerate: rest area %.3g m^2", (int)t,
                           (int)T[0], (int)T[1], (int)T[2], area);
         return TC_ERR_INPUT;
@@ -364,6 +365,7 @@ int tc_mesh_build(tc_cloth *c, char *msg, size_t msz)
             if (pt[0] < 0) pt[0] = t;
             else if (pt[1] < 0) pt[1] = t;
             else {
+                tc_culprit(pt[0], a); tc_culprit(pt[1], b); tc_culprit(t, -1);
                 snprintf(msg, msz, "non-manifold edge (%d, %d): used by triangles %d, %d and %d", (int)a, (int)b,
                          (int)pt[0], (int)pt[1], (int)t);
                 return TC_ERR_INPUT;
@@ -382,6 +384,7 @@ int tc_mesh_build(tc_cloth *c, char *msg, size_t msz)
                 int32_t a = T[3 * t + (k + 1) % 3], b = T[3 * t + (k + 2) % 3];
                 int32_t la = tc_tri_local(c, o, a);
                 if (T[3 * o + (la + 1) % 3] == b) {
+                    tc_culprit(t, a); tc_culprit(o, b);
                     snprintf(msg, msz, "inconsistent winding: triangles %d and %d traverse edge (%d, %d) in the same direction",
                              (int)t, (int)o, (int)a, (int)b);
                     return TC_ERR_INPUT;
@@ -398,6 +401,7 @@ int tc_mesh_build(tc_cloth *c, char *msg, size_t msz)
     for (int32_t v = 0; v < c->nv && rc == TC_OK; v++) {
         if (count[v] == 0) {
             snprintf(msg, msz, "vertex %d is not used by any triangle (remove loose vertices)", (int)v);
+            tc_culprit(-1, v);
             rc = TC_ERR_INPUT;
             break;
         }
@@ -419,6 +423,7 @@ int tc_mesh_build(tc_cloth *c, char *msg, size_t msz)
         }
         if (n != count[v]) {
             snprintf(msg, msz, "non-manifold vertex %d: its %d triangles form more than one fan", (int)v, (int)count[v]);
+            tc_culprit(-1, v);
             rc = TC_ERR_INPUT;
         }
     }

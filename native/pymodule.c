@@ -153,6 +153,20 @@ static void Cloth_dealloc(PyObject *o)
     Py_DECREF(tp);
 }
 
+/* InvalidInputError for a mesh the core refused, with the elements it names as attributes
+ * (.triangles, .vertices: tuples of 0-based indices as given), so callers need not read the text. */
+static void raise_refused_mesh(const char *msg, tc_culprits k)
+{
+    PyObject *exc = PyObject_CallFunction(InvalidInputError, "s", msg);
+    if (!exc) return;
+    PyObject *t = PyTuple_New(k.n_triangles), *v = PyTuple_New(k.n_vertices);
+    for (int32_t i = 0; t && i < k.n_triangles; i++) PyTuple_SetItem(t, i, PyLong_FromLong(k.triangles[i]));
+    for (int32_t i = 0; v && i < k.n_vertices; i++) PyTuple_SetItem(v, i, PyLong_FromLong(k.vertices[i]));
+    if (t && v && !PyObject_SetAttrString(exc, "triangles", t) && !PyObject_SetAttrString(exc, "vertices", v))
+        PyErr_SetObject(InvalidInputError, exc);
+    Py_XDECREF(t); Py_XDECREF(v); Py_DECREF(exc);
+}
+
 static int Cloth_init(PyObject *o, PyObject *args, PyObject *kw)
 {
     ClothObject *self = (ClothObject *)o;
@@ -185,7 +199,7 @@ static int Cloth_init(PyObject *o, PyObject *args, PyObject *kw)
     c = tc_cloth_create(P.view.buf, (int32_t)n, T.view.buf, (int32_t)m, R.held ? R.view.buf : NULL, rest_dim,
                         U.held ? U.view.buf : NULL, G.held ? G.view.buf : NULL, ng, NULL, msg, sizeof msg);
     Py_END_ALLOW_THREADS
-    if (!c) { PyErr_SetString(InvalidInputError, msg); goto done; }
+    if (!c) { raise_refused_mesh(msg, tc_create_culprits()); goto done; }
     self->c = c;
     rc = 0;
 done:
@@ -570,6 +584,39 @@ static PyObject *Cloth_vertex_stress(PyObject *o, PyObject *arg)
     return Py_BuildValue("(d(ddd))", val, dir[0], dir[1], dir[2]);
 }
 
+/* The whole simulation state as bytes (snapshot.c), and back: restore() replaces this cloth's state
+ * with a blob's, or raises InvalidInputError (the cloth unchanged) for a blob of another version or
+ * build, a truncated or a corrupted one. */
+static PyObject *Cloth_snapshot(PyObject *o, PyObject *unused)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    void *blob = NULL;
+    size_t size = 0;
+    if (tc_cloth_snapshot(self->c, &blob, &size)) return PyErr_NoMemory();
+    PyObject *out = PyBytes_FromStringAndSize(blob, (Py_ssize_t)size);
+    free(blob);
+    return out;
+}
+
+static PyObject *Cloth_restore(PyObject *o, PyObject *arg)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (self->busy) { PyErr_SetString(ClothError, "the cloth is being stepped in another thread"); return NULL; }
+    Py_buffer view;
+    if (PyObject_GetBuffer(arg, &view, PyBUF_SIMPLE)) return NULL;
+    char msg[512] = "";
+    tc_cloth *c;
+    Py_BEGIN_ALLOW_THREADS
+    c = tc_cloth_from_snapshot(view.buf, (size_t)view.len, msg, sizeof msg);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&view);
+    if (!c) { PyErr_SetString(InvalidInputError, msg); return NULL; }
+    tc_cloth_destroy(self->c);
+    self->c = c;
+    Py_RETURN_NONE;
+}
+
 static PyMethodDef Cloth_methods[] = {
     {"set_material", (PyCFunction)(void (*)(void))Cloth_set_material, METH_VARARGS | METH_KEYWORDS, "Set material values (SI units)."},
     {"material", Cloth_material, METH_NOARGS, "Material values as a dict."},
@@ -597,6 +644,8 @@ static PyMethodDef Cloth_methods[] = {
     {"scripted_tear", Cloth_scripted_tear, METH_VARARGS, "Tear from a vertex along a direction for a length (m)."},
     {"events", Cloth_events, METH_NOARGS, "Topology events of the last step, as raw bytes."},
     {"vertex_stress", Cloth_vertex_stress, METH_O, "Largest principal stress at a vertex and its direction."},
+    {"snapshot", Cloth_snapshot, METH_NOARGS, "The whole simulation state as bytes (restore() takes it back)."},
+    {"restore", Cloth_restore, METH_O, "Replace the whole simulation state by a snapshot() blob (validated)."},
     {NULL, NULL, 0, NULL},
 };
 

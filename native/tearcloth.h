@@ -104,6 +104,16 @@ const char *tc_simd_name(int level);
 
 typedef struct tc_cloth tc_cloth;
 
+/* The mesh elements the last failed tc_cloth_create on this thread named (0-based, in the numbering
+ * it was given): the triangles and vertices its message is about, so callers map them to their own
+ * numbering and select them without reading the message's text. Cleared by every create. */
+#define TC_CULPRITS_MAX 4
+typedef struct tc_culprits {
+    int32_t n_triangles, triangles[TC_CULPRITS_MAX];
+    int32_t n_vertices, vertices[TC_CULPRITS_MAX];
+} tc_culprits;
+tc_culprits tc_create_culprits(void);
+
 /* Creates a cloth from n vertices (xyz) and m triangles (vertex indices, counter-clockwise).
  * rest: NULL (rest shape = positions) or n*rest_dim values: rest_dim = 3 (3-D rest positions) or
  * 2 (material coordinates in metres, e.g. UVs scaled to size).
@@ -269,6 +279,18 @@ tc_events tc_cloth_events(const tc_cloth *c);
  * rest centroid lies within tear_radius of the vertex, projected on the vertex tangent plane. This
  * is the measure tearing compares with tear_stress * strength. */
 int tc_cloth_vertex_stress(tc_cloth *c, int32_t v, double *value, double direction[3]);
+
+/* ---- snapshot and restore (snapshot.c) ----
+ * The whole simulation state of a cloth (every array, the pair hash, handles, tear tips and scan
+ * position, warm start, counters, settings) as one versioned, checksummed blob, so that a cloth
+ * made from it steps exactly (bit for bit) as the original would. A blob is read only by the build
+ * that wrote it (same array list and struct layouts) and on the same byte order; anything else, a
+ * truncated or corrupted blob included, is refused with a message, never half-restored. */
+#define TC_SNAPSHOT_VERSION 1
+/* *out: a malloc'ed blob of *size bytes (free() it); TC_ERR_NOMEM if it could not be allocated. */
+int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size);
+/* A new cloth from a blob, or NULL with the reason in msg. */
+tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_t msg_size);
 
 #ifdef __cplusplus
 }

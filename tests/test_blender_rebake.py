@@ -200,7 +200,8 @@ MESSAGES = '''
     obj.tearcloth.frame_end = 2
     mesh.vertices[v(2, 2)].co = mesh.vertices[v(2, 1)].co  # the edge between 10 and 11 collapses
     state, message = attempt("bake", obj)
-    result(dict(state=state, message=message))
+    result(dict(state=state, message=message, polygons=[p.index for p in mesh.polygons if p.select],
+                vertices=[x.index for x in mesh.vertices if x.select], corners=list(mesh.polygons[4].vertices)))
 '''
 
 
@@ -211,6 +212,28 @@ def test_geometry_messages_name_the_users_polygons_and_vertices(tmp_path):
     # polygon 4 (quad x=1, z=1) is the first with a collapsed edge; its solver triangle is 8 or 9
     assert "polygon 4 " in message and "degenerate" in message, message
     assert "10" in message and "11" in message and "triangle" not in message, message
+    # the core hands the elements over as data (.triangles, .vertices), mapped and selected
+    assert got["polygons"] == [4] and got["vertices"] == sorted(got["corners"]), got
+
+
+def test_a_message_worded_otherwise_still_names_the_users_elements():
+    """The core's element list, not its wording, carries the indices: a message the patterns do
+    not know gets the user's polygons and vertices appended."""
+    import numpy as np
+
+    from tearcloth.blender.report import user_culprits, user_geometry_message
+    from tearcloth.cloth import Cloth, InvalidInputError
+
+    with pytest.raises(InvalidInputError) as refused:
+        Cloth(np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [0, 1, 0]]), np.array([[3, 0, 1], [0, 1, 2]]))
+    assert refused.value.triangles == (1,) and refused.value.vertices == (0, 1, 2)
+    polygons, vertices = np.array([7, 8]), np.array([10, 11, 12, 13])
+    culprits = user_culprits(refused.value, polygons, vertices)
+    assert culprits == ([8], [10, 11, 12])
+    assert user_geometry_message(str(refused.value), polygons, vertices, culprits).startswith("polygon 8 (vertices 10, 11, 12)")
+    reworded = "element #1 has no area"
+    assert user_geometry_message(reworded, polygons, vertices, culprits) == \
+        "element #1 has no area (in your mesh: polygon 8; vertices 10, 11, 12)"
 
 
 OPEN_COLLIDER = '''

@@ -630,3 +630,31 @@ def test_bench_reports_time_and_size(tmp_path):
     assert result["frames"] == 3 and result["triangles"] >= 200
     assert result["ms_per_frame"] > 0 and result["bytes_per_frame"] > 1000
     assert os.listdir(tmp_path) == []  # the benchmark cleans up after itself
+
+
+def test_a_promotion_cut_short_is_rebuilt_from_its_frames(tmp_path, monkeypatch):
+    """A staged re-bake killed inside its promotion (found by tests/test_blender_user_actions.py's
+    SIGKILLs): the old root deleted and the frame files moved in, the new root not yet written.
+    The frames are intact, so the cache counts as damaged and ``repair_root`` rebuilds it (and
+    drops the spent staging root)."""
+    path = str(tmp_path / "Cloth.usda")
+    with CacheWriter(path, "Cloth", FPS, object_name="Cloth Object") as w:  # the old bake
+        for f in (1, 2, 3):
+            w.write_frame(f, *tear_frame(f)[:2])
+    new = CacheWriter(path, "Cloth", FPS, object_name="Cloth Object", stage=True)
+    for f in (1, 2):
+        new.write_frame(f, *tear_frame(10 + f)[:2])
+
+    def killed(self, complete):
+        raise KeyboardInterrupt("killed")
+    monkeypatch.setattr(CacheWriter, "_write_root", killed)
+    with pytest.raises(KeyboardInterrupt):
+        new.promote()
+    monkeypatch.undo()
+    assert not os.path.exists(path) and os.path.exists(cache.staging_path_for(path))
+    assert cache.damaged_root(path)
+    assert cache.repair_root(path, "Cloth Object") == [1, 2]
+    assert not os.path.exists(cache.staging_path_for(path))
+    for f in (1, 2):
+        assert np.array_equal(cache.read_frame(path, f)[0], np.asarray(tear_frame(10 + f)[0], np.float32))
+    assert not cache.damaged_root(str(tmp_path / "Other.usda"))  # no root and nothing staged: not ours

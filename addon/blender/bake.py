@@ -28,7 +28,7 @@ from ..bake import BakeJob, Progress, delete_state, start_worker
 from ..cloth import ClothError
 from . import jobs, modifier
 from .inputs import build_plan, gather_inputs
-from .report import BakeError, Reports, log, user_geometry_message
+from .report import BakeError, Reports, log, user_culprits, user_geometry_message
 
 # Frames gathered ahead of the worker: enough to keep it busy between two ticks, few enough that
 # collider meshes in the queue stay small.
@@ -155,7 +155,7 @@ class BakeRun:
                 self.job.begin(inputs)
             self._report_warnings(caught)
         except (BakeError, ClothError, ValueError, cache.CacheError) as exc:
-            self.progress.state, self.progress.message = "error", self._user_message(str(exc))
+            self.progress.state, self.progress.message = "error", self._user_message(exc)
         except Exception as exc:  # a bug: still a clean stop (registry, frame, files), named as such
             self.progress.state = "error"
             self.progress.message = f"internal error ({type(exc).__name__}: {exc})"
@@ -163,13 +163,38 @@ class BakeRun:
         if self.progress.state == "running" and self.job.start_frame > self.plan.frame_start:
             self.reports.info(f"{self.object_name}: resuming after frame {self.job.start_frame}")
 
-    def _user_message(self, text: str) -> str:
+    def _user_message(self, exc: Exception) -> str:
         """The core's words about the mesh in the user's polygon and vertex indices (the solver's
-        triangles are the user's polygons triangulated, loose vertices left out). Only a fresh
-        start has the user's numbering; a resumed cloth may be torn already."""
+        triangles are the user's polygons triangulated, loose vertices left out); the elements it
+        names are kept for ``finish`` to select. Only a fresh start has the user's numbering; a
+        resumed cloth may be torn already."""
+        text = str(exc)
         if self.job.resumed:
             return text
-        return user_geometry_message(text, self.plan.triangle_polygons, self.plan.vertex_ids)
+        self.culprits = user_culprits(exc, self.plan.triangle_polygons, self.plan.vertex_ids)
+        return user_geometry_message(text, self.plan.triangle_polygons, self.plan.vertex_ids, self.culprits)
+
+    def _select_culprits(self, obj) -> None:
+        """Select the polygons and vertices a refused mesh names, alone, so the user sees them
+        (Object Mode: in Edit Mode the edit mesh would overwrite the selection)."""
+        polys, verts = self.culprits
+        me = obj.data
+        if obj.mode != "OBJECT" or not hasattr(me, "polygons"):
+            return
+        # item by item, and no edges: foreach_set("select") and an edge's select crashed bpy 5.0
+        # on a mesh that had no edge selection yet (Edit Mode flushes edges from the vertices)
+        for items, chosen in ((me.polygons, set(polys)), (me.vertices, set(verts))):
+            for item in items:
+                item.select = item.index in chosen
+        for p in polys:  # a polygon is selected with its corners
+            if 0 <= p < len(me.polygons):
+                for v in me.polygons[p].vertices:
+                    me.vertices[v].select = True
+        me.update()
+        self.reports.info(f"{self.object_name}: selected " + ", ".join(
+            ([f"polygon{'s' if len(polys) > 1 else ''} {', '.join(map(str, polys))}"] if polys else [])
+            + ([f"{'vertices' if len(verts) > 1 else 'vertex'} {', '.join(map(str, verts))}"] if verts else []))
+            + " (Tab into Edit Mode to see them)")
 
     def finish(self, context) -> str:
         """Close the cache, show it on the modifier, put the scene back on its frame; returns the
@@ -217,6 +242,8 @@ class BakeRun:
         else:
             p.state = "error"
             self.reports.error(f"{self.object_name}: bake stopped: {p.message}; {kept}")
+            if obj is not None and getattr(self, "culprits", None):
+                self._select_culprits(obj)
         return p.state
 
     # -- inline (bake_object) ------------------------------------------------------------------

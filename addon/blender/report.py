@@ -80,7 +80,7 @@ def not_a_mesh(obj) -> str:
 _NUMBERS = r"(\d+(?:(?:, | and )\d+)*)"
 
 
-def user_geometry_message(text: str, polygons, vertices) -> str:
+def user_geometry_message(text: str, polygons, vertices, culprits: tuple | None = None) -> str:
     """A message of the core about the mesh it was given, with its triangle and vertex indices
     replaced by the user's polygon and vertex indices.
 
@@ -88,7 +88,9 @@ def user_geometry_message(text: str, polygons, vertices) -> str:
     vertex of each solver vertex (loose vertices are left out of the solver, so the two numberings
     differ). Valid only for the mesh as it was handed to the core, before any tear. The core names
     elements as 'triangle(s) N[, N and N]', 'vertices N, N, N', 'vertex N', 'a vertex (N, N, N)' and
-    'edge (N, N)' (native/mesh.c, native/cloth.c); anything else passes unchanged.
+    'edge (N, N)' (native/mesh.c, native/cloth.c). ``culprits``: the user's (polygons, vertices)
+    the core's error named (``user_culprits``): a message worded otherwise gets them appended, so
+    it names the user's elements whatever the wording.
     """
     if polygons is None or vertices is None:
         return text
@@ -108,9 +110,28 @@ def user_geometry_message(text: str, polygons, vertices) -> str:
         listed = ", ".join(str(p) for p in polys[:-1]) + f" and {polys[-1]}"
         return ("polygons " if plural or len(polys) > 1 else "polygon ") + listed
 
+    before = text
     text = re.sub(r"\b(triangles?) " + _NUMBERS, triangles, text)
     text = re.sub(r"\b(vertices|vertex) \(?" + _NUMBERS, lambda m: m.group(0)[: -len(m.group(2))]
                   + mapped(m.group(2), vertices), text)
     text = re.sub(r"\bedge \((\d+), (\d+)\)", lambda m: f"edge between vertices "
                   f"{mapped(m.group(1), vertices)} and {mapped(m.group(2), vertices)}", text)
+    if text == before and culprits is not None and (culprits[0] or culprits[1]):
+        # worded otherwise than the patterns above: name the elements from the core's own list
+        polys, verts = culprits
+        named = ([f"polygon{'s' if len(polys) > 1 else ''} {', '.join(map(str, polys))}"] if polys else []) + \
+                ([f"{'vertices' if len(verts) > 1 else 'vertex'} {', '.join(map(str, verts))}"] if verts else [])
+        text = f"{text} (in your mesh: {'; '.join(named)})"
     return text
+
+
+def user_culprits(exc, polygons, vertices) -> tuple[list, list] | None:
+    """The user's polygons and vertices a refusal of the core names (its ``.triangles`` and
+    ``.vertices``, solver numbering, mapped through the same tables as the message), or None when
+    the error carries none."""
+    tris, verts = getattr(exc, "triangles", None), getattr(exc, "vertices", None)
+    if tris is None or verts is None or polygons is None or vertices is None:
+        return None
+    polys = list(dict.fromkeys(int(polygons[t]) for t in tris if 0 <= t < len(polygons)))
+    users = list(dict.fromkeys(int(vertices[v]) for v in verts if 0 <= v < len(vertices)))
+    return polys, users

@@ -311,6 +311,16 @@ class CollisionDetector:
         self.lookahead = 3.0
         self.stats = {}
 
+    # ------------------------------------------------------------------ saved state
+    # A resumed bake continues from the detector as it was (tracks, measures, clusters, previous
+    # positions, step counter, scenes): pickled whole by ``tearcloth.resume``; the Embree scenes
+    # are remade from their build corners (``ClusterScenes.rebuild``), never from the resume pose.
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        for collider in (self.cloth, *self.bodies.values()):
+            if collider is not None:
+                collider.scenes.rebuild(collider.triangles)
+
     # ------------------------------------------------------------------ scene setup
     def add_body(self, vertices, triangles, name, friction=None):
         """Add a collider. Its topology is fixed; move it with ``update_body``."""

@@ -333,6 +333,29 @@ class ClusterScenes:
         self.builds += 1
         self.build_triangles += int(e - s)
 
+    # A resumed bake needs these scenes as they were, not rebuilt from the resume frame's pose
+    # (their reuse within the tolerance shapes the candidates): pickling keeps which scenes were
+    # built and their build corners (ref); ``rebuild`` makes the same scenes from those corners.
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["scene"] = [s is not None for s in self.scene]
+        return state
+
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        self._unbuilt = [bool(b) for b in self.scene]
+        self.scene = [None] * len(self.scene)
+
+    def rebuild(self, triangles):
+        """After unpickling: the scenes that were built, from their build corners."""
+        for c, was in enumerate(getattr(self, "_unbuilt", ())):
+            if was:
+                s, e = self.ptr[c], self.ptr[c + 1]
+                verts, first, local = np.unique(triangles[self.tri[s:e]].reshape(-1), return_index=True,
+                                                return_inverse=True)
+                self.scene[c] = build_scene(self.ref[s:e].reshape(-1, 3)[first], local.reshape(-1, 3))
+        self._unbuilt = []
+
     def fit(self, clusters, positions, triangles, step):
         """Make the scenes of ``clusters`` usable this step: one C call fits every built one (its
         transform lands in R, centre, ref_centre); those that deformed more than the tolerance,

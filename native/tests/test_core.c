@@ -47,6 +47,8 @@ static void test_bad_input(void)
     double Vc[9] = {0, 0, 0, 1, 0, 0, 2, 0, 0};
     c = tc_cloth_create(Vc, 3, T, 1, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
     CHECK(!c && strstr(msg, "degenerate"), "collinear: %s", msg);
+    tc_culprits k = tc_create_culprits();
+    CHECK(k.n_triangles == 1 && k.triangles[0] == 0 && k.n_vertices == 3 && k.vertices[2] == 2, "collinear culprits");
     double Vn[9] = {0, 0, 0, NAN, 0, 0, 0, 1, 0};
     c = tc_cloth_create(Vn, 3, T, 1, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
     CHECK(!c && strstr(msg, "non-finite"), "nan: %s", msg);
@@ -55,10 +57,88 @@ static void test_bad_input(void)
     int32_t T3[9] = {0, 1, 2, 1, 0, 3, 0, 1, 4};
     c = tc_cloth_create(V4, 5, T3, 3, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
     CHECK(!c && strstr(msg, "non-manifold"), "non-manifold: %s", msg);
+    k = tc_create_culprits();
+    CHECK(k.n_triangles == 3 && k.triangles[2] == 2 && k.n_vertices == 2 && k.vertices[0] == 0 && k.vertices[1] == 1,
+          "non-manifold culprits: %d triangles, %d vertices", (int)k.n_triangles, (int)k.n_vertices);
     tc_material m = tc_material_default();
     m.poisson = 0.5;
     c = tc_cloth_create(V, 3, T, 1, NULL, 0, NULL, NULL, 0, &m, msg, sizeof msg);
     CHECK(!c && strstr(msg, "poisson"), "poisson: %s", msg);
+    CHECK(tc_create_culprits().n_triangles == 0, "a material error names no element");
+}
+
+static uint64_t fnv1a(const unsigned char *p, size_t n)
+{
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (size_t i = 0; i < n; i++) { h ^= p[i]; h *= 0x100000001b3ull; }
+    return h;
+}
+
+/* a blob with its header's length and checksum made to agree with `size` bytes of it, so the
+ * reader's own checks (not the checksum) must catch what is wrong */
+static unsigned char *reseal(const unsigned char *blob, size_t size)
+{
+    unsigned char *b = malloc(size);
+    memcpy(b, blob, size);
+    uint64_t payload = size - 32, sum = fnv1a(b + 32, payload);
+    memcpy(b + 16, &payload, 8); memcpy(b + 24, &sum, 8);
+    return b;
+}
+
+/* Snapshot of a torn cloth: a copy steps bit for bit as the original; truncated, corrupted and
+ * resealed blobs are refused or (a flipped value that is still valid) step without reading out
+ * of bounds. */
+static void test_snapshot(tc_cloth *c)
+{
+    void *blob; size_t size;
+    CHECK(tc_cloth_snapshot(c, &blob, &size) == TC_OK, "snapshot");
+    char msg[512];
+    tc_cloth *d = tc_cloth_from_snapshot(blob, size, msg, sizeof msg);
+    CHECK(d != NULL, "restore: %s", msg);
+    if (!d) { free(blob); return; }
+    double A[12] = {1, 0, 0, 0.04, 0, 1, 0, 0, 0, 0, 1, 0};
+    for (int i = 0; i < 15; i++) {
+        A[3] += 2e-4;
+        tc_cloth_set_handle_target(c, 1, A); tc_cloth_set_handle_target(d, 1, A);
+        CHECK(tc_cloth_step(c, 1e-3, 2) == tc_cloth_step(d, 1e-3, 2), "same outcome");
+    }
+    int32_t n = tc_cloth_num_vertices(c);
+    CHECK(n == tc_cloth_num_vertices(d) && tc_cloth_num_triangles(c) == tc_cloth_num_triangles(d), "same counts");
+    size_t r, k, item;
+    tc_buf *bc = tc_cloth_array(c, TC_POSITIONS, &r, &k, &item), *bd = tc_cloth_array(d, TC_POSITIONS, &r, &k, &item);
+    CHECK(n == tc_cloth_num_vertices(d) && !memcmp(tc_buf_data(bc), tc_buf_data(bd), 3 * (size_t)n * sizeof(double)),
+          "restored cloth steps bit for bit");
+    tc_buf_decref(bc); tc_buf_decref(bd);
+    tc_cloth_destroy(d);
+    unsigned char *b = blob;
+    for (size_t len = 0; len < size; len += len < 64 ? 1 : 997) {
+        CHECK(!tc_cloth_from_snapshot(b, len, msg, sizeof msg) && strstr(msg, "truncated"), "truncated at %zu: %s", len, msg);
+        if (len < 32) continue;
+        unsigned char *t = reseal(b, len);
+        CHECK(!tc_cloth_from_snapshot(t, len, msg, sizeof msg), "resealed truncation at %zu accepted", len);
+        free(t);
+    }
+    b[size / 2] ^= 1;
+    CHECK(!tc_cloth_from_snapshot(b, size, msg, sizeof msg) && strstr(msg, "corrupted"), "flipped: %s", msg);
+    b[size / 2] ^= 1;
+    int refused = 0, accepted = 0;
+    unsigned seed = 12345;
+    for (int trial = 0; trial < 60; trial++) {
+        seed = seed * 1103515245u + 12345u;
+        size_t at = 32 + (seed >> 4) % (size - 32);
+        unsigned char *t = reseal(b, size);
+        t[at] ^= (unsigned char)(1u << (seed % 8)) | 0x80;
+        memcpy(t + 24, &(uint64_t){fnv1a(t + 32, size - 32)}, 8);
+        tc_cloth *e = tc_cloth_from_snapshot(t, size, msg, sizeof msg);
+        if (e) {  /* a value that is still valid: it must step without reading out of bounds */
+            accepted++;
+            for (int i = 0; i < 3; i++) tc_cloth_step(e, 1e-3, 1);
+            tc_cloth_destroy(e);
+        } else refused++;
+        free(t);
+    }
+    printf("snapshot %zu bytes; 60 resealed flips: %d refused, %d accepted and stepped\n", size, refused, accepted);
+    free(blob);
 }
 
 /* material NULL: the default (isotropic, elastic); else e.g. a woven plastic sheet, whose
@@ -133,6 +213,7 @@ static void strip_and_tear(const tc_material *material)
         CHECK(st.plastic_unconverged == 0, "return mappings at their cap: %d", st.plastic_unconverged);
         tc_buf_decref(b);
     }
+    test_snapshot(c);
     tc_cloth_destroy(c);
     free(V); free(T);
 }
