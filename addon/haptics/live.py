@@ -455,7 +455,8 @@ class LiveSession:
         # on the T-shirt beside a GIL-heavy loop). Restored when the session ends.
         self._switch_lowered = _lower_switch_interval(0.0005)
         try:
-            proc.open(self.homing_timeout_s)
+            if not proc.opened:  # HapticRun may have opened it already (begin_open/poll_open while a Falcon homes)
+                proc.open(self.homing_timeout_s)
             for hs in self._hands.values():
                 self._bind_device(hs)
             self.servo = proc
