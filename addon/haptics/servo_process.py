@@ -1084,6 +1084,9 @@ class ServoProcess:
                 theirs.close()
         except OSError as exc:
             self._sentinel_stop.set()
+            for t in self._sentinels:
+                t.join()
+            self._sentinels = []
             self.close()
             raise ServoProcessError(f"the servo process could not be started ({sys.executable}): {exc}") from exc
         try:
