@@ -31,14 +31,14 @@ _PACKAGE = __name__.rsplit(".", 2)[0]
 def importable(hook) -> Optional[str]:
     """``hook`` as "module:function" the servo process can import: a string is taken as it is,
     a module-level function by its module and name (checked by importing it back); None for a
-    lambda, a closure or a bound method."""
+    lambda, a closure, a bound method or a function of the running script (``__main__``)."""
     if hook is None:
         return None
     if isinstance(hook, str):
         return hook
     module, name = getattr(hook, "__module__", None), getattr(hook, "__qualname__", "")
-    if not module or not name or "<" in name or "." in name:
-        return None
+    if not module or module == "__main__" or not name or "<" in name or "." in name:
+        return None  # __main__ is another module in the servo process
     try:
         if getattr(importlib.import_module(module), name) is not hook:
             return None
