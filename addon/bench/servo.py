@@ -235,6 +235,50 @@ print(json.dumps({"rate_hz": float(1.0 / p.mean()), "p50_ms": float(np.percentil
 """
 
 
+_TICKS = None
+
+
+def _thread_cpu(pid: int) -> Dict[int, Tuple[float, int, int]]:
+    """{tid: (CPU seconds, voluntary, involuntary context switches)} of every thread of ``pid``
+    (Linux /proc; empty elsewhere or once it has gone)."""
+    import os
+
+    global _TICKS
+    if _TICKS is None:
+        _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    out = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+            with open(f"/proc/{pid}/task/{tid}/status") as fh:
+                status = dict(line.split(":", 1) for line in fh if ":" in line)
+        except OSError:
+            continue
+        cpu = (int(fields[11]) + int(fields[12])) / _TICKS  # utime + stime
+        out[int(tid)] = (cpu, int(status.get("voluntary_ctxt_switches", 0)), int(status.get("nonvoluntary_ctxt_switches", 0)))
+    return out
+
+
+def _cpu_use(before: Dict[int, tuple], after: Dict[int, tuple], names: Mapping[int, str], wall: float) -> dict:
+    """Per named thread: CPU share of ``wall`` and context switches per second between two
+    ``_thread_cpu`` samples; unnamed threads are summed as "other"."""
+    out: Dict[str, Dict[str, float]] = {}
+    for tid, (cpu, vol, invol) in after.items():
+        c0, v0, i0 = before.get(tid, (0.0, 0, 0))
+        name = names.get(tid, "other")
+        d = out.setdefault(name, {"cpu": 0.0, "voluntary_per_s": 0.0, "involuntary_per_s": 0.0})
+        d["cpu"] += (cpu - c0) / wall
+        d["voluntary_per_s"] += (vol - v0) / wall
+        d["involuntary_per_s"] += (invol - i0) / wall
+    out["total"] = {"cpu": sum(v["cpu"] for v in out.values())}
+    return out
+
+
 def measure_loaded_servo(
     duration_s: float = 10.0,
     scenario: str = "tshirt",
@@ -244,6 +288,7 @@ def measure_loaded_servo(
     gil_loop: bool = True,
     cpu_hog: bool = True,
     floor: bool = True,
+    hog_session: bool = False,
     **session_kwargs,
 ) -> dict:
     """Servo timing under the load of an artist's Blender, without real-time priority: two
@@ -255,18 +300,36 @@ def measure_loaded_servo(
     in-process servo threads, for the before/after comparison). Returns ``live.stats()`` (``rate_hz``,
     ``p50_ms``, ``p99_ms``, ``max_ms``: worst hand; ``privileges``: what the unprivileged servo
     got), plus ``gil_loop_iterations``, the set-up and, with ``floor``, ``floor_{rate_hz,p50_ms,
-    p99_ms,max_ms}``: a bare unprivileged 1 kHz sleeper measured beside it (``_FLOOR``)."""
+    p99_ms,max_ms}``: a bare unprivileged 1 kHz sleeper measured beside it (``_FLOOR``).
+
+    ``hog_session``: the hog in a session (hence, Linux autogroup, a scheduling group) of its own,
+    as another program would be, rather than in the simulating process's.
+
+    ``cpu``: where the CPU went meanwhile (Linux), per thread of the simulating process
+    (``sim``: the simulation thread, ``main``: the GIL-heavy loop, ``log``: the force-log drain,
+    ``servo-<hand>``: the in-process servo threads) and the servo process's total (``servo
+    process``), each as a share of one core with its context switches per second; ``sim_cpu_per_step_ms``
+    is the simulation thread's CPU per step, so a slower simulation can be told apart as less CPU
+    given (the scheduler) or more CPU spent (work) per step."""
     session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
     session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
     session_kwargs.setdefault("servo_priority", None)  # no SCHED_FIFO: what an artist's Blender gets
     live, _emus = emulated_session(scenario, collision=collision, servo=servo, **session_kwargs)
-    hog = subprocess.Popen([sys.executable, "-c", _HOG]) if cpu_hog else None
+    hog = subprocess.Popen([sys.executable, "-c", _HOG], start_new_session=hog_session) if cpu_hog else None
     loops = 0
     probe = None
+    import os
+    import threading
+
     try:
         live.start()
         if floor:
             probe = subprocess.Popen([sys.executable, "-c", _FLOOR, str(duration_s)], stdout=subprocess.PIPE, text=True)
+        servo_pid = live.servo_process.pid if live.servo_process is not None else None
+        t_cpu0, steps0 = time.perf_counter(), live.steps
+        cpu0 = _thread_cpu(os.getpid())
+        servo0 = _thread_cpu(servo_pid) if servo_pid else {}
+        hog0 = _thread_cpu(hog.pid) if hog is not None else {}
         end = time.perf_counter() + duration_s
         while time.perf_counter() < end and not live.ended:
             if gil_loop:
@@ -276,12 +339,28 @@ def measure_loaded_servo(
                 loops += 1
             else:
                 time.sleep(0.01)
+        cpu1 = _thread_cpu(os.getpid())
+        servo1 = _thread_cpu(servo_pid) if servo_pid else {}
+        hog1 = _thread_cpu(hog.pid) if hog is not None else {}
+        wall, steps = time.perf_counter() - t_cpu0, live.steps - steps0
+        names = {threading.main_thread().native_id: "main"}
+        for t in threading.enumerate():  # while they run (the servo threads are gone after stop)
+            if t.name.startswith("tearcloth-"):
+                names[t.native_id] = {"tearcloth-live-sim": "sim", "tearcloth-live-log": "log"}.get(t.name, t.name[len("tearcloth-"):])
     finally:
         live.stop()
         if hog is not None:
             hog.kill()
             hog.wait()
     out = live.stats()
+    cpu = _cpu_use(cpu0, cpu1, names, wall)
+    if servo_pid:
+        cpu["servo process"] = _cpu_use(servo0, servo1, {}, wall)["total"]
+    if hog is not None:
+        cpu["hog"] = _cpu_use(hog0, hog1, {}, wall)["total"]
+    out["cpu"] = cpu
+    out["sim_steps_per_s_measured"] = steps / wall if wall > 0 else 0.0
+    out["sim_cpu_per_step_ms"] = 1e3 * cpu.get("sim", {}).get("cpu", 0.0) * wall / steps if steps else float("nan")
     if probe is not None:
         try:
             got, _ = probe.communicate(timeout=duration_s + 30.0)

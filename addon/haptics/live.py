@@ -275,7 +275,7 @@ class LiveSession:
             kw = self.servo_kwargs
             self.servo_process = ServoProcess(specs, period_s=self.servo_period_s, stall_timeout_s=max(self.stall_timeout_s, 2.0 * self.servo_period_s),
                                               spin_s=float((servo_kwargs or {}).get("spin_s", 0.0)), slice_s=kw.get("slice_s", 0.0001),
-                                              priority=kw.get("priority"), cpus=kw.get("cpus"),
+                                              priority=kw.get("priority"), cpus=kw.get("cpus"), own_session=kw.get("own_session", True),
                                               switch_interval_s=kw.get("switch_interval_s", 0.0005))
             hands = {n: (v[0], self.servo_process.device(n), v[2]) for n, v in hands.items()}
         self._hands: Dict[str, _Hand] = self._bind_handles(hands)

@@ -573,8 +573,9 @@ def _coupling_fields(c: HandCoupling) -> dict:
 def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], parent_pid: int, options: dict) -> None:
     privileges: Dict[str, Any] = {"process": True, "sched_fifo": None}
     try:
-        os.setsid()
-        privileges["own_session"] = True
+        if options.get("own_session", True):
+            os.setsid()
+        privileges["own_session"] = bool(options.get("own_session", True))
     except (AttributeError, OSError):
         privileges["own_session"] = False
     try:
@@ -926,7 +927,7 @@ class ServoProcess:
 
     def __init__(self, specs: Mapping[str, DeviceSpec], *, period_s: float = 0.001, stall_timeout_s: float = 0.010,
                  spin_s: float = 0.0, slice_s: Optional[float] = 0.0001, priority: Optional[int] = None,
-                 cpus: Optional[Sequence[int]] = None,
+                 cpus: Optional[Sequence[int]] = None, own_session: bool = True,
                  switch_interval_s: Optional[float] = 0.0005, start_timeout_s: float = 60.0, force_log=None,
                  drain_every_s: float = 0.02):
         if not specs:
@@ -944,6 +945,7 @@ class ServoProcess:
         self._servo_kw = {"period_s": self.period_s, "stall_timeout_s": float(stall_timeout_s), "spin_s": float(spin_s), "slice_s": slice_s,
                           "priority": priority, "switch_interval_s": switch_interval_s}
         self._cpus = None if cpus is None else list(cpus)
+        self._own_session = bool(own_session)
         self._mailboxes = {h: SimulationMailbox(self.clock) for h in self._hands}
         self._devices = {h: RemoteDevice(s.build(None)[0], self, h) for h, s in self._specs.items()}
         self._couplings: Dict[str, HandCoupling] = {}
@@ -1093,7 +1095,7 @@ class ServoProcess:
             self._conn = Connection(ours.detach())
             specs = [(s.factory, dict(s.kwargs), s.sim_clock_arg, s.target_arg) for s in (self._specs[h] for h in self._hands)]
             self._conn.send((self._shared.name, self._hands, specs, tids, os.getpid(),
-                             {"cpus": self._cpus, "sys_path": [p for p in sys.path if isinstance(p, str) and p]}))
+                             {"cpus": self._cpus, "own_session": self._own_session, "sys_path": [p for p in sys.path if isinstance(p, str) and p]}))
             try:
                 if not self._conn.poll(self.start_timeout_s):
                     raise ServoProcessError(f"the servo process did not start within {self.start_timeout_s:.0f} s")
