@@ -210,6 +210,7 @@ class LiveSession:
         proxy_timeout_s: float = 0.5,
         servo_priority: Optional[int] = 10,
         servo_kwargs: Optional[Mapping[str, Any]] = None,
+        sim_switch_interval_s: Optional[float] = 0.0005,
     ):
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
@@ -255,6 +256,7 @@ class LiveSession:
         self.rebase = bool(rebase)
         self.warmup_steps = max(0, int(warmup_steps))
         self.proxy_timeout_s = float(proxy_timeout_s)
+        self.sim_switch_interval_s = sim_switch_interval_s
         # Servo threads: SCHED_FIFO when the OS allows it (servo.ServoLoop(priority=...)). On
         # fewer than 4 cores the two servo threads and the simulation thread already fill the
         # machine, and a servo thread spinning before its deadline steals the simulation's core:
@@ -453,7 +455,7 @@ class LiveSession:
         # pure Python runs here (Blender's UI): at the default 5 ms switch interval each GIL
         # hand-back after a native step costs it up to 5 ms (measured: 8 steps/s instead of 33
         # on the T-shirt beside a GIL-heavy loop). Restored when the session ends.
-        self._switch_lowered = _lower_switch_interval(0.0005)
+        self._switch_lowered = _lower_switch_interval(self.sim_switch_interval_s)
         try:
             if not proc.opened:  # HapticRun may have opened it already (begin_open/poll_open while a Falcon homes)
                 proc.open(self.homing_timeout_s)

@@ -202,6 +202,7 @@ _P_SEQ, _P_POS, _P_VEL, _P_F, _P_BUT, _P_STATE, _P_STAMP, _P_NUM, _P_EFF, _P_ZER
 # thread for a keyboard hand): [seq, target 3 (device frame, m), set (0 until the first)]
 _T_SEQ, _T_POS, _T_SET, _T_SIZE = 0, 1, 4, 5
 _MSG_BYTES = 512
+_ZEROS3, _ZEROS9 = (0.0,) * 3, (0.0,) * 9
 _PACKAGE = __name__.rsplit(".", 2)[0]  # "tearcloth", or the name Blender gave the extension
 _PACKAGE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 _RING = 1 << 16  # rendered-force entries per hand (65 s at 1 kHz between two drains)
@@ -1251,13 +1252,15 @@ class ServoProcess:
         s = mb.latest
         if self._shared is None:
             return
-        i = self._hands.index(hand)
-        vals = [(_S_F, s.f_tear), (_S_X, s.handle_position), (_S_STAMP, s.stamp), (_S_NUM, float(s.seq))]
-        if s.f0 is not None:
-            vals += [(_S_LIN, 1.0), (_S_F0, s.f0), (_S_K, s.stiffness), (_S_X0, s.x0)]
-        else:
-            vals.append((_S_LIN, 0.0))
-        _write(self._shared.sim[i], vals)
+        block = self._shared.sim[self._hands.index(hand)]
+        lin = s.f0 is not None
+        # one slice store of the contiguous fields _S_F.._S_NUM (per-field stores cost this
+        # thread, which shares the GIL with Blender's Python, 30 us a hand a step)
+        block[0] += 1.0  # odd: writing (the seqlock of _write)
+        block[_S_F:_S_NUM + 1] = [*s.f_tear.tolist(), *s.handle_position.tolist(), 1.0 if lin else 0.0,
+                                  *(s.f0.tolist() if lin else _ZEROS3), *(s.stiffness.ravel().tolist() if lin else _ZEROS9),
+                                  *(s.x0.tolist() if lin else _ZEROS3), s.stamp, float(s.seq)]
+        block[0] += 1.0
 
     def _read_proxy(self, hand: str) -> Optional[np.ndarray]:
         if self._shared is None:
