@@ -16,12 +16,9 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import signal
 import subprocess
 import sys
 import textwrap
-import time
 
 import pytest
 
@@ -176,46 +173,26 @@ hs.run_for(bpy.context, run, 600.0)  # Blender keeps ticking until it is killed
 
 
 def test_sigkill_of_blender_zeroes_the_falcon(tmp_path):
-    """SIGKILL of the Blender process that simulates (``bench.servo.kill_simulating_process``'s
-    pattern): the servo process sees its peer gone, sends the Falcon zero and exits; the devices
-    are watched from here through the shared memory."""
-    from tearcloth.bench.servo import _pid_alive
-    from tearcloth.haptics.servo_process import _P_EFF, _P_ZERO, _read, _Shared
+    """SIGKILL of the Blender process that simulates (``bench.servo.kill_and_watch``, as the
+    bench's ``kill_simulating_process``): the servo process sees its peer gone, sends the Falcon
+    zero and exits; the Falcon is watched from here through the shared memory."""
+    from tearcloth.bench.servo import kill_and_watch
 
     script = tmp_path / "killed.py"
     script.write_text(PRELUDE + TESTS_DIR_LINE + textwrap.dedent(SCENE) + textwrap.dedent(DEVICES) + KILLED)
     sim = subprocess.Popen([sys.executable, str(script), str(tmp_path)], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                            text=True, cwd=tmp_path)
-    shared = servo_pid = None
     try:
         line = ""
         while not line.startswith("READY "):
             line = sim.stdout.readline()
             assert line, sim.stderr.read()[-4000:]
-        info = json.loads(line[6:])
-        servo_pid = int(info["servo_pid"])
-        shared = _Shared(2, info["shm"])
-        before = _read(shared.prox[0])  # the left hand: the Falcon
-        assert any(before[_P_EFF : _P_EFF + 3]) and math.isnan(before[_P_ZERO]), before
-        t_kill = time.perf_counter()  # CLOCK_MONOTONIC, as the servo's stamps
-        os.kill(sim.pid, signal.SIGKILL)
-        sim.wait(10.0)
-        deadline = time.perf_counter() + 10.0
-        while time.perf_counter() < deadline:
-            after = _read(shared.prox[0])
-            if not math.isnan(after[_P_ZERO]) and not _pid_alive(servo_pid):
-                break
-            time.sleep(0.002)
-        assert not math.isnan(after[_P_ZERO]) and list(after[_P_EFF : _P_EFF + 3]) == [0.0, 0.0, 0.0], after
-        assert not _pid_alive(servo_pid)
-        # when (ms after the kill) the Falcon got its zero; the latency is the bench's
-        # servo.kill_zero_ms, printed here only
-        print(f"zero {1e3 * (after[_P_ZERO] - t_kill):.2f} ms after SIGKILL (stall timeout {info['stall']:.3f} s)")
-    finally:
-        if sim.poll() is None:
-            sim.kill()
-            sim.wait()
-        if servo_pid is not None and _pid_alive(servo_pid):
-            os.kill(servo_pid, signal.SIGKILL)
-        if shared is not None:
-            shared.close()
+    except BaseException:
+        sim.kill()
+        sim.wait()
+        raise
+    info = json.loads(line[6:])
+    got = kill_and_watch(sim, info["shm"], int(info["servo_pid"]), 2, watched=[0])  # hand 0: the Falcon
+    assert got["efforts"] == [[0, 0, 0]] and math.isfinite(got["zero_s"]) and not got["servo_alive"], got
+    # the latency is the bench's servo.kill_zero_ms; printed here only
+    print(f"zero {1e3 * got['zero_s']:.2f} ms after SIGKILL (stall timeout {info['stall']:.3f} s)")

@@ -402,28 +402,44 @@ def _pid_alive(pid: int) -> bool:
 
 def kill_simulating_process(stall_timeout_s: float = 0.5, wait_s: float = 10.0) -> Dict[str, object]:
     """SIGKILL a simulating process whose two emulated Falcons (in its servo process) push with a
-    force, and watch the devices from outside through the servo's shared memory (what each
-    emulator was last sent and when it first got a zero, on CLOCK_MONOTONIC, which every process
-    shares). Returns ``zero_s`` (kill to the later of the two devices' zero; inf if one never
-    got it within ``wait_s``), ``efforts`` (what each device was left with), ``servo_alive``
-    (the servo process after the wait) and ``stall_timeout_s``. Linux only (the peer check)."""
+    force, and watch the devices from outside through the servo's shared memory
+    (``kill_and_watch``). Returns ``zero_s``, ``efforts``, ``servo_alive`` (see there) and
+    ``stall_timeout_s``. Linux only (the peer check)."""
+    sim = subprocess.Popen([sys.executable, "-c", _SIMULATOR, repr(float(stall_timeout_s))], stdout=subprocess.PIPE, text=True)
+    try:
+        line = sim.stdout.readline()
+        if not line:
+            raise RuntimeError("the simulating process died before its session ran")
+        info = json.loads(line)
+    except BaseException:
+        sim.kill()
+        sim.wait()
+        raise
+    out = kill_and_watch(sim, info["shm"], int(info["servo_pid"]), 2, wait_s=wait_s)
+    out["stall_timeout_s"] = float(stall_timeout_s)
+    return out
+
+
+def kill_and_watch(sim: subprocess.Popen, shm_name: str, servo_pid: int, n_hands: int, watched=None,
+                   wait_s: float = 10.0) -> Dict[str, object]:
+    """SIGKILL ``sim`` (a simulating process whose servo process ``servo_pid`` drives ``n_hands``
+    hands through the shared memory ``shm_name``) once the ``watched`` hands (indices; default
+    all) feel a force, and watch them from here: what each device was last sent and when it first
+    got a zero (CLOCK_MONOTONIC, which every process shares). Returns ``zero_s`` (kill to the
+    later zero; inf if one never came within ``wait_s``), ``efforts`` (what each watched device
+    was left with) and ``servo_alive`` (after the wait). Whatever happens, ``sim`` and the servo
+    process are gone afterwards."""
     import math
     import os
     import signal
 
     from ..haptics.servo_process import _P_EFF, _P_ZERO, _read, _Shared
 
-    sim = subprocess.Popen([sys.executable, "-c", _SIMULATOR, repr(float(stall_timeout_s))], stdout=subprocess.PIPE, text=True)
+    watched = list(range(n_hands)) if watched is None else list(watched)
     shared = None
-    servo_pid = None
     try:
-        line = sim.stdout.readline()
-        if not line:
-            raise RuntimeError("the simulating process died before its session ran")
-        info = json.loads(line)
-        servo_pid = int(info["servo_pid"])
-        shared = _Shared(2, info["shm"])
-        before = [_read(p) for p in shared.prox]
+        shared = _Shared(n_hands, shm_name)
+        before = [_read(shared.prox[i]) for i in watched]
         if not all(np.any(b[_P_EFF : _P_EFF + 3]) and math.isnan(b[_P_ZERO]) for b in before):
             raise RuntimeError(f"the devices did not feel a force before the kill: {before}")
         t_kill = time.perf_counter()  # CLOCK_MONOTONIC, as the servo's stamps
@@ -431,7 +447,7 @@ def kill_simulating_process(stall_timeout_s: float = 0.5, wait_s: float = 10.0) 
         sim.wait(5.0)
         deadline = time.perf_counter() + wait_s
         while True:
-            blocks = [_read(p) for p in shared.prox]
+            blocks = [_read(shared.prox[i]) for i in watched]
             done = all(not math.isnan(b[_P_ZERO]) for b in blocks) and not _pid_alive(servo_pid)
             if done or time.perf_counter() > deadline:
                 break
@@ -441,13 +457,12 @@ def kill_simulating_process(stall_timeout_s: float = 0.5, wait_s: float = 10.0) 
             "zero_s": max(z - t_kill for z in zeros) if not any(math.isnan(z) for z in zeros) else math.inf,
             "efforts": [[int(e) for e in b[_P_EFF : _P_EFF + 3]] for b in blocks],
             "servo_alive": _pid_alive(servo_pid),
-            "stall_timeout_s": float(stall_timeout_s),
         }
     finally:
         if sim.poll() is None:
             sim.kill()
             sim.wait()
-        if servo_pid is not None and _pid_alive(servo_pid):
+        if _pid_alive(servo_pid):
             os.kill(servo_pid, signal.SIGKILL)
         if shared is not None:
             shared.close()

@@ -18,13 +18,20 @@ What this file owns
 Threads (notes/haptics.md section 8)
 ------------------------------------
 bpy is only touched on the main thread, in ``HapticRun.tick`` (the modal operator's ~60 Hz
-TIMER branch, or ``run_for`` headless: the same function). When every hand is an emulated Falcon
-the servo runs in a process of its own (``haptics.servo_process``: Blender's Python cannot hold a
-tick up, the servo zeroes the force by itself if Blender hangs or dies; ``devices`` are then
-``RemoteDevice``s and ``emulators`` ``RemoteEmulator``s). Falcons, SpaceMice and keyboard hands
-still use the in-process servo: a Falcon homes here, with the panel's LED feedback, and the
-keyboard hand is moved from this thread. The in-process servo loop owns one thread per
-device; the simulation runs on ``tearcloth-live-sim`` (the native step releases the GIL); the
+TIMER branch, or ``run_for`` headless: the same function). By default (the Servo row: Own
+Process) every hand's device is described by a ``DeviceSpec`` (``haptics.device_specs``) and
+built, opened and driven in a servo process of its own (``haptics.servo_process``: Blender's
+Python cannot hold a tick up, the servo zeroes the force by itself if Blender hangs or dies;
+``devices`` are then ``RemoteDevice``s and ``emulators`` ``RemoteEmulator``s): a Falcon loads its
+firmware and homes there while ``tick`` polls ``ServoProcess.poll_open`` (its state and message
+come back through the shared memory, so Blender never blocks on it); a SpaceMouse is read there;
+a keyboard hand is a virtual device there whose target position ``key``/``mouse_move`` set from
+this thread through the shared memory (``RemoteDevice.move_by``). The test and demo hooks of
+``haptics.discovery`` reach the servo process when they are importable ("module:function" or a
+module-level function); a lambda cannot, and a servo process that cannot start cannot serve: both
+keep the in-process servo threads, with a WARNING, counted in ``servo_fallbacks`` and said in
+``servo_fallback``. Servo = Threads keeps them on request. The in-process servo loop owns one
+thread per device; the simulation runs on ``tearcloth-live-sim`` (the native step releases the GIL); the
 ``LiveRecorder`` (live_job.py) receives frames on the simulation thread and hands them over by a
 reference swap (display) and a queue (its cache writer thread, pure USD). Devices are opened on the
 main thread and, while a Falcon homes, polled there; from ``LiveSession.open()`` on only the

@@ -67,7 +67,9 @@ their own (``servo_process.ServoProcess``: the devices are built, opened and dri
 exchange goes through shared memory, the servo zeroes the force by itself when this process
 stalls or dies); ``device(hand)`` is then a ``RemoteDevice`` and ``servo_process.emulator(hand)``
 reaches an emulated Falcon. This is the arrangement that holds 1 kHz while this process is busy
-with Python (Blender's UI) on a loaded machine, without privileges. Hands given as device objects
+with Python (Blender's UI) on a loaded machine, without privileges; every device kind can be
+described so (``device_specs``: a real Falcon, a SpaceMouse, a keyboard hand whose target comes
+through the shared memory, the emulated Falcon of ``emulated_falcon``). Hands given as device objects
 keep the in-process servo (``servo.ServoLoop``, one thread per device, SCHED_FIFO when the OS
 allows: ``servo_priority``), for tests that drive devices directly and for devices only this
 process can reach. The simulation loop runs on one thread (the

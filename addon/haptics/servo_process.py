@@ -11,6 +11,14 @@ This file owns:
   the ``ServoLoop`` calls ``LiveSession`` uses; ``RemoteDevice`` / ``RemoteEmulator``: what the
   simulating process sees of a device and of an emulated Falcon that live in the servo process;
 - ``open_ready``: open a device, wait for its homing, insist on READY (both servo kinds use it);
+- ``ServoProcess.begin_open``/``poll_open``: the devices open (a Falcon loads firmware and homes)
+  in the servo process while the caller keeps its own loop (Blender's timer), each device's state
+  and message shown through the shared memory meanwhile; ``ServoProcessError`` when the process
+  itself cannot start (the caller may fall back to threads, and says so);
+- a per-hand target block simulation -> servo (``set_target``, ``RemoteDevice.move_by``) for a
+  device driven from the simulating process (the keyboard hand, ``DeviceSpec.target_arg``);
+- the simulating process's ``sys.path`` appended in the servo process, so whatever factory or
+  hook it can import ("fakes:ftdi_falcon" in tests), the servo process can;
 - the servo process itself (``_child_main``, ``_ProcessServo``).
 
 Why a process and not native threads. The servo's tick is Python (the coupling of eq. 5, the
@@ -49,7 +57,7 @@ Safety, all in the servo process, no help from the simulating one needed:
   zero force sent, devices closed, process joined; clamp and rate limit are ``ServoLoop``'s.
 
 Without privileges (reported by ``stats()['privileges']``):
-- ``os.setsid()``: a session of its own, hence (Linux, autogroup on) a scheduling group of its
+- ``os.setsid()`` (``own_session``, default on): a session of its own, hence (Linux, autogroup on) a scheduling group of its
   own, so CFS/EEVDF shares the CPU between our servo and the whole simulating session rather
   than among all their threads; a mostly sleeping group wakes with lag to spare and preempts;
 - ``prctl(PR_SET_TIMERSLACK, 1 ns)`` per servo thread: the kernel may otherwise add 50 µs of
