@@ -79,3 +79,11 @@ def ftdi_falcon(serial):
 def hid_puck(path):
     """An emulated SpaceMouse HID device (``FakeHid``) for the hidapi path ``path``."""
     return FakeHid()
+
+
+def ftdi_falcon_unhomed(serial):
+    """A byte-level Falcon just powered up: no firmware, not homed, its user making the homing
+    gesture (grip all the way out and in)."""
+    from tearcloth.haptics.falcon_emulator import FalconEmulator, homing_gesture, spring_hand
+
+    return FalconEmulator(serial, firmware_loaded=False, homed=False, hand=spring_hand(homing_gesture(leg=0.1), 1500.0, 15.0))

@@ -3,7 +3,8 @@ a real-Falcon DeviceSpec over the byte-level FTDI emulator (``fakes.ftdi_falcon`
 protocol bytes, firmware check, packets, kinematics) and a SpaceMouse over an emulated HID device
 (``fakes.hid_puck``), both opened and driven in the servo process. Forces reach the emulated
 Falcon's bytes; the SpaceMouse drives its handle; unplugging either mid-session ends the session
-cleanly with zero force on the other; a keyboard hand beside a Falcon is driven by Blender's key
+cleanly with zero force on the other; a Falcon without firmware loads the user's file and homes
+there while Blender keeps ticking; a keyboard hand beside a Falcon is driven by Blender's key
 events through the shared memory; the Threads setting and a servo process that cannot start both
 keep the threads (the second with a warning, counted); SIGKILL of Blender zeroes the Falcon.
 
@@ -130,6 +131,30 @@ def test_falcon_and_spacemouse_in_the_servo_process(tmp_path):
                                count=hs.servo_fallbacks, steps=run.live.steps)
         run.stop("test")
         out["fallback"].update(state=run.finish(ctx), reports=run.reports.items, forces=forces(run))
+
+        # a Falcon without firmware and not homed: the user's file is loaded and it homes in the
+        # servo process while Blender keeps ticking (its state and message shown meanwhile)
+        devices.falcon_transport_factory = "fakes:ftdi_falcon_unhomed"
+        firmware = os.path.join(folder, "nvent_firmware.bin")
+        with open(firmware, "wb") as fh:
+            fh.write(bytes(range(256)) * 33 + bytes(44))  # 8492 bytes, the size of the real image
+        h.firmware_path = firmware
+        run = hs.HapticRun(ctx, obj)
+        run.start(ctx)
+        homing = dict(phase=run.status.phase, process=run.live.servo_process is not None, ticks=0)
+        seen, texts = set(), set()
+        def watch(r):
+            homing["ticks"] += 1
+            seen.add(r.devices["left"].state.value)
+            texts.add(r.status.text())
+            return r.status.phase != "homing"
+        hs.run_for(ctx, run, 60.0, until=watch, interval=0.01)
+        homing.update(seen=sorted(seen), homing_text=any("homing" in t.lower() for t in texts), phase_after=run.status.phase,
+                      firmware=len(run.emulators["left"].get("firmware")))
+        hs.run_for(ctx, run, 0.2)
+        run.stop("test")
+        homing.update(state=run.finish(ctx), reports=run.reports.items, forces=forces(run))
+        out["homing"] = homing
         result(out)
     '''), tmp_path, timeout=240)
     p = got["process"]
@@ -155,6 +180,11 @@ def test_falcon_and_spacemouse_in_the_servo_process(tmp_path):
     b = got["fallback"]
     assert not b["process"] and "could not be started" in b["fallback"] and b["count"] == 1 and b["steps"] > 20, b
     assert any(level == "WARNING" and "the servo runs in Blender's process" in m for level, m in b["reports"]), b
+    m = got["homing"]
+    assert m["process"] and m["phase"] == "homing" and m["ticks"] > 1 and "homing" in m["seen"], m
+    assert m["homing_text"] and m["phase_after"] == "running" and m["firmware"] == 8492, m
+    assert m["state"] == "done" and m["forces"]["efforts"]["left"] == [0, 0, 0], m
+    assert any("homing: move each Falcon grip" in msg for _, msg in m["reports"])
     assert b["state"] == "done" and all(x == [0.0, 0.0, 0.0] for x, _s in b["forces"]["devices"].values())
 
 
