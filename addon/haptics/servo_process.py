@@ -1199,15 +1199,19 @@ class ServoProcess:
         """Zero force on every device, close them, end the process. Idempotent."""
         if self._proc is None:
             return
-        try:
-            if self._proc.poll() is None and self._conn is not None:
-                self.final_stats = self._call("stop", expect="stopped", timeout_s=timeout_s)
-        except (HapticError, OSError, EOFError):
-            pass
-        try:
-            self._proc.wait(timeout_s)
-        except subprocess.TimeoutExpired:
-            pass
+        # While it opens (a Falcon homing) it answers nothing else: closing the pipe in
+        # _terminate is the signal, which its homing loop checks every poll.
+        opening, self._open_deadline = self._open_deadline is not None, None
+        if not opening:
+            try:
+                if self._proc.poll() is None and self._conn is not None:
+                    self.final_stats = self._call("stop", expect="stopped", timeout_s=timeout_s)
+            except (HapticError, OSError, EOFError):
+                pass
+            try:
+                self._proc.wait(timeout_s)
+            except subprocess.TimeoutExpired:
+                pass
         self._terminate()
         if self._drainer is not None:
             self._drain_stop.set()
