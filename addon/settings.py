@@ -453,6 +453,13 @@ SETTINGS: tuple[Setting, ...] = (
         ("wall", "Real Time", "The scripted hands move in real time, like a user")], block="haptics.demo"),
     _s("haptics", "force_log_folder", "//", "Force Log Folder",
        "Where Save Force Log writes the CSV and the plot ('//' = next to the .blend file)", _UI, kind="dir"),
+    _e("haptics", "servo", "process", "Servo",
+       "Where the 1 kHz servo loop runs for every hand (Falcon, SpaceMouse, keyboard, emulated)",
+       "own process: Blender's Python cannot delay a tick, and the force goes to zero by itself if Blender "
+       "hangs or dies (issue 16)",
+       [("process", "Own Process", "A servo process of its own opens and drives the devices; falls back to "
+         "threads, with a warning, when it cannot start"),
+        ("threads", "Threads", "Threads inside Blender's process (Blender's own Python can delay their ticks)")]),
 
     # -- hand: one hand of the live session (haptics.left / haptics.right) ----------------------
     _b("hand", "use", True, "Use", "Grasp the cloth with this hand", _UI),

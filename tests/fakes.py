@@ -59,3 +59,31 @@ class FakeHid:
 
     def close(self) -> None:
         self.closed = True
+
+
+# Importable device hooks for the servo process (a DeviceSpec or a discovery hook names them as
+# "fakes:ftdi_falcon" / "fakes:hid_puck"; the servo process imports this folder because the
+# simulating process has it on sys.path). Each is built inside the servo process.
+def ftdi_falcon(serial):
+    """A Falcon at the byte level over the FTDI transport interface (``FalconEmulator``), firmware
+    loaded and homed, its grip held by a hand that holds 0.05 s and then pulls 1.5 cm along
+    device x (+x for a serial ending in "R", else -x) over 0.5 s of emulator (wall) time."""
+    from tearcloth.haptics.falcon_emulator import FalconEmulator
+    from tearcloth.haptics.live import pulling_hand
+
+    side = 1.0 if str(serial).endswith("R") else -1.0
+    return FalconEmulator(serial, firmware_loaded=True, homed=True, substeps=1,
+                          hand=pulling_hand((side, 0.0, 0.0), 0.015, 0.05, 0.5))
+
+
+def hid_puck(path):
+    """An emulated SpaceMouse HID device (``FakeHid``) for the hidapi path ``path``."""
+    return FakeHid()
+
+
+def ftdi_falcon_unhomed(serial):
+    """A byte-level Falcon just powered up: no firmware, not homed, its user making the homing
+    gesture (grip all the way out and in)."""
+    from tearcloth.haptics.falcon_emulator import FalconEmulator, homing_gesture, spring_hand
+
+    return FalconEmulator(serial, firmware_loaded=False, homed=False, hand=spring_hand(homing_gesture(leg=0.1), 1500.0, 15.0))

@@ -83,3 +83,26 @@ def test_bad_device_specs_are_clear_errors():
         ServoProcess({"left": DeviceSpec("no colon here")})
     with pytest.raises(ConfigError, match="at least one device"):
         ServoProcess({})
+
+
+def test_device_hooks_reach_the_servo_process_only_when_importable():
+    """A hook the servo process can import is named "module:function"; a lambda, a closure or a
+    function of the running script cannot be, and says so (None: the session keeps the threads)."""
+    import fakes
+    from tearcloth.haptics import device_specs
+    from tearcloth.haptics.device import ConfigError
+
+    def local(serial):
+        return serial
+
+    assert device_specs.importable(fakes.ftdi_falcon) == "fakes:ftdi_falcon"
+    assert device_specs.importable("fakes:hid_puck") == "fakes:hid_puck"
+    assert device_specs.importable(None) is None
+    assert device_specs.importable(lambda serial: serial) is None
+    assert device_specs.importable(local) is None
+    local.__module__ = "__main__"
+    assert device_specs.importable(local) is None
+    assert device_specs.resolve("fakes:ftdi_falcon") is fakes.ftdi_falcon
+    for bad in ("fakes", "fakes:no_such_hook", "no_such_module:x"):
+        with pytest.raises(ConfigError, match="hook"):
+            device_specs.resolve(bad)

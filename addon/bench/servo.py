@@ -235,6 +235,50 @@ print(json.dumps({"rate_hz": float(1.0 / p.mean()), "p50_ms": float(np.percentil
 """
 
 
+_TICKS = None
+
+
+def _thread_cpu(pid: int) -> Dict[int, Tuple[float, int, int]]:
+    """{tid: (CPU seconds, voluntary, involuntary context switches)} of every thread of ``pid``
+    (Linux /proc; empty elsewhere or once it has gone)."""
+    import os
+
+    global _TICKS
+    if _TICKS is None:
+        _TICKS = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+    out = {}
+    try:
+        tids = os.listdir(f"/proc/{pid}/task")
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat") as fh:
+                fields = fh.read().rsplit(")", 1)[1].split()
+            with open(f"/proc/{pid}/task/{tid}/status") as fh:
+                status = dict(line.split(":", 1) for line in fh if ":" in line)
+        except OSError:
+            continue
+        cpu = (int(fields[11]) + int(fields[12])) / _TICKS  # utime + stime
+        out[int(tid)] = (cpu, int(status.get("voluntary_ctxt_switches", 0)), int(status.get("nonvoluntary_ctxt_switches", 0)))
+    return out
+
+
+def _cpu_use(before: Dict[int, tuple], after: Dict[int, tuple], names: Mapping[int, str], wall: float) -> dict:
+    """Per named thread: CPU share of ``wall`` and context switches per second between two
+    ``_thread_cpu`` samples; unnamed threads are summed as "other"."""
+    out: Dict[str, Dict[str, float]] = {}
+    for tid, (cpu, vol, invol) in after.items():
+        c0, v0, i0 = before.get(tid, (0.0, 0, 0))
+        name = names.get(tid, "other")
+        d = out.setdefault(name, {"cpu": 0.0, "voluntary_per_s": 0.0, "involuntary_per_s": 0.0})
+        d["cpu"] += (cpu - c0) / wall
+        d["voluntary_per_s"] += (vol - v0) / wall
+        d["involuntary_per_s"] += (invol - i0) / wall
+    out["total"] = {"cpu": sum(v["cpu"] for v in out.values())}
+    return out
+
+
 def measure_loaded_servo(
     duration_s: float = 10.0,
     scenario: str = "tshirt",
@@ -244,6 +288,7 @@ def measure_loaded_servo(
     gil_loop: bool = True,
     cpu_hog: bool = True,
     floor: bool = True,
+    hog_session: bool = False,
     **session_kwargs,
 ) -> dict:
     """Servo timing under the load of an artist's Blender, without real-time priority: two
@@ -255,18 +300,36 @@ def measure_loaded_servo(
     in-process servo threads, for the before/after comparison). Returns ``live.stats()`` (``rate_hz``,
     ``p50_ms``, ``p99_ms``, ``max_ms``: worst hand; ``privileges``: what the unprivileged servo
     got), plus ``gil_loop_iterations``, the set-up and, with ``floor``, ``floor_{rate_hz,p50_ms,
-    p99_ms,max_ms}``: a bare unprivileged 1 kHz sleeper measured beside it (``_FLOOR``)."""
+    p99_ms,max_ms}``: a bare unprivileged 1 kHz sleeper measured beside it (``_FLOOR``).
+
+    ``hog_session``: the hog in a session (hence, Linux autogroup, a scheduling group) of its own,
+    as another program would be, rather than in the simulating process's.
+
+    ``cpu``: where the CPU went meanwhile (Linux), per thread of the simulating process
+    (``sim``: the simulation thread, ``main``: the GIL-heavy loop, ``log``: the force-log drain,
+    ``servo-<hand>``: the in-process servo threads) and the servo process's total (``servo
+    process``), each as a share of one core with its context switches per second; ``sim_cpu_per_step_ms``
+    is the simulation thread's CPU per step, so a slower simulation can be told apart as less CPU
+    given (the scheduler) or more CPU spent (work) per step."""
     session_kwargs.setdefault("pull_s", max(0.8 * duration_s, 0.1))
     session_kwargs.setdefault("hold_s", min(0.3, 0.1 * duration_s))
     session_kwargs.setdefault("servo_priority", None)  # no SCHED_FIFO: what an artist's Blender gets
     live, _emus = emulated_session(scenario, collision=collision, servo=servo, **session_kwargs)
-    hog = subprocess.Popen([sys.executable, "-c", _HOG]) if cpu_hog else None
+    hog = subprocess.Popen([sys.executable, "-c", _HOG], start_new_session=hog_session) if cpu_hog else None
     loops = 0
     probe = None
+    import os
+    import threading
+
     try:
         live.start()
         if floor:
             probe = subprocess.Popen([sys.executable, "-c", _FLOOR, str(duration_s)], stdout=subprocess.PIPE, text=True)
+        servo_pid = live.servo_process.pid if live.servo_process is not None else None
+        t_cpu0, steps0 = time.perf_counter(), live.steps
+        cpu0 = _thread_cpu(os.getpid())
+        servo0 = _thread_cpu(servo_pid) if servo_pid else {}
+        hog0 = _thread_cpu(hog.pid) if hog is not None else {}
         end = time.perf_counter() + duration_s
         while time.perf_counter() < end and not live.ended:
             if gil_loop:
@@ -276,12 +339,28 @@ def measure_loaded_servo(
                 loops += 1
             else:
                 time.sleep(0.01)
+        cpu1 = _thread_cpu(os.getpid())
+        servo1 = _thread_cpu(servo_pid) if servo_pid else {}
+        hog1 = _thread_cpu(hog.pid) if hog is not None else {}
+        wall, steps = time.perf_counter() - t_cpu0, live.steps - steps0
+        names = {threading.main_thread().native_id: "main"}
+        for t in threading.enumerate():  # while they run (the servo threads are gone after stop)
+            if t.name.startswith("tearcloth-"):
+                names[t.native_id] = {"tearcloth-live-sim": "sim", "tearcloth-live-log": "log"}.get(t.name, t.name[len("tearcloth-"):])
     finally:
         live.stop()
         if hog is not None:
             hog.kill()
             hog.wait()
     out = live.stats()
+    cpu = _cpu_use(cpu0, cpu1, names, wall)
+    if servo_pid:
+        cpu["servo process"] = _cpu_use(servo0, servo1, {}, wall)["total"]
+    if hog is not None:
+        cpu["hog"] = _cpu_use(hog0, hog1, {}, wall)["total"]
+    out["cpu"] = cpu
+    out["sim_steps_per_s_measured"] = steps / wall if wall > 0 else 0.0
+    out["sim_cpu_per_step_ms"] = 1e3 * cpu.get("sim", {}).get("cpu", 0.0) * wall / steps if steps else float("nan")
     if probe is not None:
         try:
             got, _ = probe.communicate(timeout=duration_s + 30.0)
@@ -323,28 +402,44 @@ def _pid_alive(pid: int) -> bool:
 
 def kill_simulating_process(stall_timeout_s: float = 0.5, wait_s: float = 10.0) -> Dict[str, object]:
     """SIGKILL a simulating process whose two emulated Falcons (in its servo process) push with a
-    force, and watch the devices from outside through the servo's shared memory (what each
-    emulator was last sent and when it first got a zero, on CLOCK_MONOTONIC, which every process
-    shares). Returns ``zero_s`` (kill to the later of the two devices' zero; inf if one never
-    got it within ``wait_s``), ``efforts`` (what each device was left with), ``servo_alive``
-    (the servo process after the wait) and ``stall_timeout_s``. Linux only (the peer check)."""
+    force, and watch the devices from outside through the servo's shared memory
+    (``kill_and_watch``). Returns ``zero_s``, ``efforts``, ``servo_alive`` (see there) and
+    ``stall_timeout_s``. Linux only (the peer check)."""
+    sim = subprocess.Popen([sys.executable, "-c", _SIMULATOR, repr(float(stall_timeout_s))], stdout=subprocess.PIPE, text=True)
+    try:
+        line = sim.stdout.readline()
+        if not line:
+            raise RuntimeError("the simulating process died before its session ran")
+        info = json.loads(line)
+    except BaseException:
+        sim.kill()
+        sim.wait()
+        raise
+    out = kill_and_watch(sim, info["shm"], int(info["servo_pid"]), 2, wait_s=wait_s)
+    out["stall_timeout_s"] = float(stall_timeout_s)
+    return out
+
+
+def kill_and_watch(sim: subprocess.Popen, shm_name: str, servo_pid: int, n_hands: int, watched=None,
+                   wait_s: float = 10.0) -> Dict[str, object]:
+    """SIGKILL ``sim`` (a simulating process whose servo process ``servo_pid`` drives ``n_hands``
+    hands through the shared memory ``shm_name``) once the ``watched`` hands (indices; default
+    all) feel a force, and watch them from here: what each device was last sent and when it first
+    got a zero (CLOCK_MONOTONIC, which every process shares). Returns ``zero_s`` (kill to the
+    later zero; inf if one never came within ``wait_s``), ``efforts`` (what each watched device
+    was left with) and ``servo_alive`` (after the wait). Whatever happens, ``sim`` and the servo
+    process are gone afterwards."""
     import math
     import os
     import signal
 
     from ..haptics.servo_process import _P_EFF, _P_ZERO, _read, _Shared
 
-    sim = subprocess.Popen([sys.executable, "-c", _SIMULATOR, repr(float(stall_timeout_s))], stdout=subprocess.PIPE, text=True)
+    watched = list(range(n_hands)) if watched is None else list(watched)
     shared = None
-    servo_pid = None
     try:
-        line = sim.stdout.readline()
-        if not line:
-            raise RuntimeError("the simulating process died before its session ran")
-        info = json.loads(line)
-        servo_pid = int(info["servo_pid"])
-        shared = _Shared(2, info["shm"])
-        before = [_read(p) for p in shared.prox]
+        shared = _Shared(n_hands, shm_name)
+        before = [_read(shared.prox[i]) for i in watched]
         if not all(np.any(b[_P_EFF : _P_EFF + 3]) and math.isnan(b[_P_ZERO]) for b in before):
             raise RuntimeError(f"the devices did not feel a force before the kill: {before}")
         t_kill = time.perf_counter()  # CLOCK_MONOTONIC, as the servo's stamps
@@ -352,7 +447,7 @@ def kill_simulating_process(stall_timeout_s: float = 0.5, wait_s: float = 10.0) 
         sim.wait(5.0)
         deadline = time.perf_counter() + wait_s
         while True:
-            blocks = [_read(p) for p in shared.prox]
+            blocks = [_read(shared.prox[i]) for i in watched]
             done = all(not math.isnan(b[_P_ZERO]) for b in blocks) and not _pid_alive(servo_pid)
             if done or time.perf_counter() > deadline:
                 break
@@ -362,13 +457,12 @@ def kill_simulating_process(stall_timeout_s: float = 0.5, wait_s: float = 10.0) 
             "zero_s": max(z - t_kill for z in zeros) if not any(math.isnan(z) for z in zeros) else math.inf,
             "efforts": [[int(e) for e in b[_P_EFF : _P_EFF + 3]] for b in blocks],
             "servo_alive": _pid_alive(servo_pid),
-            "stall_timeout_s": float(stall_timeout_s),
         }
     finally:
         if sim.poll() is None:
             sim.kill()
             sim.wait()
-        if servo_pid is not None and _pid_alive(servo_pid):
+        if _pid_alive(servo_pid):
             os.kill(servo_pid, signal.SIGKILL)
         if shared is not None:
             shared.close()

@@ -18,13 +18,20 @@ What this file owns
 Threads (notes/haptics.md section 8)
 ------------------------------------
 bpy is only touched on the main thread, in ``HapticRun.tick`` (the modal operator's ~60 Hz
-TIMER branch, or ``run_for`` headless: the same function). When every hand is an emulated Falcon
-the servo runs in a process of its own (``haptics.servo_process``: Blender's Python cannot hold a
-tick up, the servo zeroes the force by itself if Blender hangs or dies; ``devices`` are then
-``RemoteDevice``s and ``emulators`` ``RemoteEmulator``s). Falcons, SpaceMice and keyboard hands
-still use the in-process servo: a Falcon homes here, with the panel's LED feedback, and the
-keyboard hand is moved from this thread. The in-process servo loop owns one thread per
-device; the simulation runs on ``tearcloth-live-sim`` (the native step releases the GIL); the
+TIMER branch, or ``run_for`` headless: the same function). By default (the Servo row: Own
+Process) every hand's device is described by a ``DeviceSpec`` (``haptics.device_specs``) and
+built, opened and driven in a servo process of its own (``haptics.servo_process``: Blender's
+Python cannot hold a tick up, the servo zeroes the force by itself if Blender hangs or dies;
+``devices`` are then ``RemoteDevice``s and ``emulators`` ``RemoteEmulator``s): a Falcon loads its
+firmware and homes there while ``tick`` polls ``ServoProcess.poll_open`` (its state and message
+come back through the shared memory, so Blender never blocks on it); a SpaceMouse is read there;
+a keyboard hand is a virtual device there whose target position ``key``/``mouse_move`` set from
+this thread through the shared memory (``RemoteDevice.move_by``). The test and demo hooks of
+``haptics.discovery`` reach the servo process when they are importable ("module:function" or a
+module-level function); a lambda cannot, and a servo process that cannot start cannot serve: both
+keep the in-process servo threads, with a WARNING, counted in ``servo_fallbacks`` and said in
+``servo_fallback``. Servo = Threads keeps them on request. The in-process servo loop owns one
+thread per device; the simulation runs on ``tearcloth-live-sim`` (the native step releases the GIL); the
 ``LiveRecorder`` (live_job.py) receives frames on the simulation thread and hands them over by a
 reference swap (display) and a queue (its cache writer thread, pure USD). Devices are opened on the
 main thread and, while a Falcon homes, polled there; from ``LiveSession.open()`` on only the
@@ -76,7 +83,8 @@ from ..haptics.falcon import FALCON_MAX_FORCE, FalconDevice, read_firmware
 from ..haptics.live import FALCON_TO_SCENE, LiveSession, emulated_falcon
 from ..haptics.falcon_kinematics import WORKSPACE_CENTRE, WORKSPACE_RADIUS
 from ..haptics.servo import HandCoupling
-from ..haptics.servo_process import DeviceSpec
+from ..haptics import device_specs
+from ..haptics.servo_process import DeviceSpec, ServoProcessError
 from ..haptics.spacemouse import SpaceMouseDevice
 from ..haptics.virtual import VirtualDevice
 from . import jobs, modifier
@@ -91,6 +99,8 @@ TIMER_INTERVAL = 1.0 / 60.0
 HOMING_TIMEOUT = 60.0
 # The keyboard device: a 4 cm workspace like a Falcon's, so the same coupling feels the same.
 KEYBOARD_WORKSPACE = Workspace((0.0, 0.0, 0.0), 0.04)
+# The SpaceMouse's (SpaceMouseDevice's default): its proxy integrates within a 10 cm ball.
+SPACEMOUSE_WORKSPACE = Workspace((0.0, 0.0, 0.0), 0.1)
 # Device metres per pixel of Ctrl + mouse motion.
 MOUSE_STEP = 1.0e-4
 # Arrow keys move the keyboard hand along scene axes (its device frame is the scene's).
@@ -111,6 +121,10 @@ STATE_TEXT = {"absent": "Absent", "needs_firmware": "Needs Firmware", "homing": 
 # (force log, states).
 running = jobs.live_sessions
 finished: dict[str, "HapticRun"] = {}
+# Sessions whose servo fell back to Blender's threads although Own Process was asked for (a
+# device hook the servo process cannot import, or the process would not start); each is also
+# a WARNING in that session's reports and its ``servo_fallback`` says why.
+servo_fallbacks = 0
 
 # What the last Discover found, and how its SpaceMouse paths read (both for the panel).
 discovery: devices.Discovery | None = None
@@ -315,7 +329,14 @@ class HapticRun:
             self.plan = plan
             self.matrix = inputs.object_matrix
             session, _held = make_session(plan, inputs.bodies, 0.0)
-            self._make_devices(settings, hands, plan, session)
+            self.servo_fallback = None  # why the servo runs in threads although the process was asked for
+            use_process = settings.servo == "PROCESS"
+            if use_process:
+                hooks = self._unimportable_hooks(hands)
+                if hooks:
+                    self._fall_back(f"the device hook {hooks} cannot be imported by the servo process")
+                    use_process = False
+            self._make_devices(settings, hands, plan, session, use_process)
             rebase = all(s.mapping == "FIT" for s in hands.values())
             if not rebase and any(s.mapping == "FIT" for s in hands.values()):
                 r.warning(f"{obj.name}: one hand maps by scale and offset, so the other's Fit to Region mapping is "
@@ -327,19 +348,9 @@ class HapticRun:
             record_every = max(1, int(min(1.0 / 120.0, 0.5 / plan.fps) / dt))
             self.recorder = LiveRecorder(plan.fps, plan.frame_start, self.matrix, plan.scale,
                                          plan.corner_uv is not None)
-            self.live = LiveSession(
-                session,
-                {h: (s.vertex_group, self.devices[h], self._couplings[h]) for h, s in hands.items()},
-                dt=dt,
-                stop_buttons=STOP_BUTTONS[settings.stop_button] or None,
-                recorder=self.recorder,
-                record_every=record_every,
-                rebase=rebase,
-                on_device_lost="stop",
-            )
-            if self.live.servo_process is not None:  # what this process sees of the devices there
-                self.devices = {h: self.live.device(h) for h in hands}
-                self.emulators = {h: self.live.servo_process.emulator(h) for h in hands}
+            self._live_args = dict(dt=dt, stop_buttons=STOP_BUTTONS[settings.stop_button] or None, recorder=self.recorder,
+                                   record_every=record_every, rebase=rebase, on_device_lost="stop")
+            self._new_live(session, hands)
         except HapticError as exc:
             r.error(f"{obj.name}: {exc}")
         except BakeError:
@@ -356,7 +367,30 @@ class HapticRun:
 
     # -- devices -------------------------------------------------------------------------------
 
-    def _make_devices(self, settings, hands: dict, plan, session) -> None:
+    def _new_live(self, session, hands: dict) -> None:
+        self.live = LiveSession(session, {h: (s.vertex_group, self.devices[h], self._couplings[h]) for h, s in hands.items()},
+                                **self._live_args)
+        if self.live.servo_process is not None:  # what this process sees of the devices there
+            self.devices = {h: self.live.device(h) for h in hands}
+            self.emulators = {h: self.live.servo_process.emulator(h) for h in hands}
+
+    @staticmethod
+    def _unimportable_hooks(hands: dict) -> str:
+        """The test/demo device hooks (``haptics.discovery``) a servo process could not import."""
+        kinds = {s.device for s in hands.values()}
+        bad = [name for name, kind in (("falcon_transport_factory", "FALCON"), ("spacemouse_hid_factory", "SPACEMOUSE"))
+               if kind in kinds and getattr(devices, name) is not None and device_specs.importable(getattr(devices, name)) is None]
+        return ", ".join(bad)
+
+    def _fall_back(self, why: str) -> None:
+        """The servo runs in this process's threads instead of its own process: said, counted."""
+        global servo_fallbacks
+        servo_fallbacks += 1
+        self.servo_fallback = why
+        self.reports.warning(f"{self.object_name}: {why}: the servo runs in Blender's process (threads), where "
+                             "Blender's own Python can delay its ticks")
+
+    def _make_devices(self, settings, hands: dict, plan, session, use_process: bool = False) -> None:
         r = self.reports
         found_falcons = found_mice = None
         if any(s.device == "FALCON" for s in hands.values()):
@@ -371,7 +405,7 @@ class HapticRun:
         scale = plan.scale
         centroids = {h: plan.vertices[plan.groups[s.vertex_group] >= 0.5].mean(axis=0) for h, s in hands.items()}
         self._couplings = {}
-        in_process = not all(s.device == "EMULATED" for s in hands.values())
+        in_process = not use_process
         for hand, s in hands.items():
             self.kinds[hand] = s.device
             rotation = FALCON_TO_SCENE if s.device in ("FALCON", "EMULATED") else None
@@ -385,9 +419,15 @@ class HapticRun:
                     r.error(f"the {hand} hand: the Falcon {serial!r} is not connected; connected: "
                             f"{', '.join(found_falcons) or 'none'}")
                     continue
-                dev = FalconDevice(serial, hand=hand, firmware_path=self.firmware_path,
-                                   transport_factory=devices.falcon_transport_factory,
-                                   max_force=min(float(s.max_force), FALCON_MAX_FORCE))
+                if in_process:
+                    dev = FalconDevice(serial, hand=hand, firmware_path=self.firmware_path,
+                                       transport_factory=device_specs.resolve(devices.falcon_transport_factory)
+                                       if isinstance(devices.falcon_transport_factory, str) else devices.falcon_transport_factory,
+                                       max_force=min(float(s.max_force), FALCON_MAX_FORCE))
+                else:  # opened there: firmware and homing in the servo process, its state shown here
+                    dev = DeviceSpec(".haptics.device_specs:falcon", dict(
+                        serial=serial, hand=hand, firmware_path=self.firmware_path, max_force=float(s.max_force),
+                        transport=device_specs.importable(devices.falcon_transport_factory)))
             elif s.device == "SPACEMOUSE":
                 path = mice.get(hand)
                 if path is None or path not in mouse_paths:
@@ -396,12 +436,21 @@ class HapticRun:
                     continue
                 model = next(m for m in found_mice if devices.hid_path_text(m["path"]) == path)
                 factory = devices.spacemouse_hid_factory
-                hid = factory(devices.hid_path_bytes(path)) if factory is not None else None
-                dev = SpaceMouseDevice(devices.hid_path_bytes(path), vid=model["vid"], pid=model["pid"], hid_device=hid,
-                                       hand=hand)
+                if in_process:
+                    factory = device_specs.resolve(factory) if isinstance(factory, str) else factory
+                    hid = factory(devices.hid_path_bytes(path)) if factory is not None else None
+                    dev = SpaceMouseDevice(devices.hid_path_bytes(path), vid=model["vid"], pid=model["pid"], hid_device=hid,
+                                           hand=hand)
+                else:
+                    dev = DeviceSpec(".haptics.device_specs:spacemouse", dict(
+                        path=path, hand=hand, vid=model["vid"], pid=model["pid"], hid=device_specs.importable(factory)))
             elif s.device == "KEYBOARD":
-                dev = VirtualDevice(f"keyboard ({hand} hand)", workspace=KEYBOARD_WORKSPACE,
-                                    max_force=float(s.max_force), hand=hand)
+                if in_process:
+                    dev = VirtualDevice(f"keyboard ({hand} hand)", workspace=KEYBOARD_WORKSPACE,
+                                        max_force=float(s.max_force), hand=hand)
+                else:  # Blender's key events set its target through the shared memory (RemoteDevice.move_by)
+                    dev = DeviceSpec(".haptics.device_specs:keyboard", dict(
+                        hand=hand, radius=KEYBOARD_WORKSPACE.radius, max_force=float(s.max_force)), target_arg="target")
             else:
                 args = dict(serial=f"EMU-{hand.upper()}", hand=hand,
                             direction=tuple(float(v) for v in self._pull_direction(hand, centroids, plan)),
@@ -415,7 +464,8 @@ class HapticRun:
             self.devices[hand] = dev
             gains = dict(k_position=float(s.k_position), k_velocity=float(s.k_velocity),
                          force_scale=float(s.force_scale))
-            workspace = Workspace(WORKSPACE_CENTRE, WORKSPACE_RADIUS) if isinstance(dev, DeviceSpec) else dev.workspace
+            workspace = (KEYBOARD_WORKSPACE if s.device == "KEYBOARD" else SPACEMOUSE_WORKSPACE if s.device == "SPACEMOUSE"
+                         else Workspace(WORKSPACE_CENTRE, WORKSPACE_RADIUS)) if isinstance(dev, DeviceSpec) else dev.workspace
             if s.mapping == "FIT":
                 self._couplings[hand] = HandCoupling.fit(workspace, centroids[hand], s.region_radius * scale,
                                                          rotation=rotation, **gains)
@@ -448,10 +498,8 @@ class HapticRun:
         with every device closed again and the scene as it was, if it cannot."""
         jobs.add(self)
         if self.live.servo_process is not None:
-            # the servo process opens its devices in live.open() (in _go), homed emulators READY at once
-            if not self._go(context):
-                self.reports.raise_if_errors()
-            return
+            if self._begin_process(context):
+                return
         try:
             for hand in self.hands:
                 dev = self.devices[hand]
@@ -476,6 +524,47 @@ class HapticRun:
             return
         if not self._go(context):
             self.reports.raise_if_errors()
+
+    def _begin_process(self, context) -> bool:
+        """Start the servo process and open the devices there (a Falcon homes there: ``tick``
+        polls it); True when handled, False when it could not start and the session falls back to
+        the in-process servo threads (said and counted)."""
+        proc = self.live.servo_process
+        homing = any(k == "FALCON" for k in self.kinds.values())
+        try:
+            proc.begin_open(HOMING_TIMEOUT if homing else 0.0)
+            if homing:
+                self.status.phase = "homing"
+                self._homing_deadline = time.perf_counter() + HOMING_TIMEOUT + proc.start_timeout_s
+                self.reports.info(f"{self.object_name}: homing: move each Falcon grip all the way in and out "
+                                  "(its LED turns green)")
+                return True
+            while proc.poll_open(0.05) is None:
+                pass
+        except ServoProcessError as exc:
+            self._rebuild_in_process(str(exc))
+            return False
+        except HapticError as exc:
+            self.reports.error(f"{self.object_name}: {exc}; force set to zero")
+            self._abort()
+            self.reports.raise_if_errors()
+        if not self._go(context):
+            self.reports.raise_if_errors()
+        return True
+
+    def _rebuild_in_process(self, why: str) -> None:
+        """The servo process could not start: the same session with the devices opened here."""
+        self.live.stop()
+        cloth = self.live.cloth
+        for hand in self.live.hands:
+            cloth.release_handle(self.live.handle(hand))
+        self._fall_back(why)
+        obj = bpy.data.objects.get(self.object_name)
+        settings = obj.tearcloth.haptics
+        hands = _used_hands(settings)
+        self.devices, self.emulators = {}, {}
+        self._make_devices(settings, hands, self.plan, self.live.session, use_process=False)
+        self._new_live(self.live.session, hands)
 
     def _abort(self) -> None:
         """Undo a start that failed before the session ran: zero force, devices closed."""
@@ -594,7 +683,17 @@ class HapticRun:
         return not live.ended
 
     def _tick_homing(self, context) -> bool:
+        proc = self.live.servo_process
         try:
+            if proc is not None:  # the Falcons home in the servo process; their states read from there
+                for hand in self.hands:
+                    self._note_device(hand)
+                if proc.poll_open(0.0) is not None:
+                    return self._go(context)
+                if time.perf_counter() > self._homing_deadline:
+                    raise HapticError(f"not homed within {HOMING_TIMEOUT:.0f} s")
+                self.status.message = "homing: " + "; ".join(self.devices[h].message for h in self.hands)
+                return True
             for hand in self.hands:
                 dev = self.devices[hand]
                 if dev.state in (DeviceState.HOMING, DeviceState.READY):

@@ -67,7 +67,9 @@ their own (``servo_process.ServoProcess``: the devices are built, opened and dri
 exchange goes through shared memory, the servo zeroes the force by itself when this process
 stalls or dies); ``device(hand)`` is then a ``RemoteDevice`` and ``servo_process.emulator(hand)``
 reaches an emulated Falcon. This is the arrangement that holds 1 kHz while this process is busy
-with Python (Blender's UI) on a loaded machine, without privileges. Hands given as device objects
+with Python (Blender's UI) on a loaded machine, without privileges; every device kind can be
+described so (``device_specs``: a real Falcon, a SpaceMouse, a keyboard hand whose target comes
+through the shared memory, the emulated Falcon of ``emulated_falcon``). Hands given as device objects
 keep the in-process servo (``servo.ServoLoop``, one thread per device, SCHED_FIFO when the OS
 allows: ``servo_priority``), for tests that drive devices directly and for devices only this
 process can reach. The simulation loop runs on one thread (the
@@ -183,6 +185,17 @@ class LiveSession:
     N, servo clock); ``tear_log`` holds F_tear at every simulation step (same clock), so the two
     overlay. ``first_tear_clock`` / ``first_tear_time`` are the servo-clock and simulated times of
     the step where ``cloth.stats()['tears_started']`` first became non-zero.
+
+    With a servo process, this process's simulation thread shares the GIL only with the caller's
+    Python (Blender's UI): ``sim_switch_interval_s`` (0.5 ms) bounds how long that Python holds it
+    at a time. ``gil_pump_s`` (off by default) makes ``start()`` add a ``tearcloth-live-gil``
+    thread that wakes that often, so the simulation thread, back from a native step, gets the
+    GIL sooner, as the in-process servo threads make happen as a side effect. Measured (T-shirt
+    with collision, a GIL-heavy main thread, a CPU hog, 2 shared cores, interleaved runs of
+    ``bench.servo.measure_loaded_servo``): the simulation at 41.5, 66.2, 33.4, 29.1 steps/s with a
+    0.5 ms pump against 32.5, 40.2, 20.4, 38.1 without; but the servo's worst period in those runs
+    was 86, 46, 272, 503 ms against 14, 8, 51, 8 ms without. A servo that misses half a second is
+    worse than a slower simulation, so it stays off.
     """
 
     def __init__(
@@ -210,6 +223,8 @@ class LiveSession:
         proxy_timeout_s: float = 0.5,
         servo_priority: Optional[int] = 10,
         servo_kwargs: Optional[Mapping[str, Any]] = None,
+        sim_switch_interval_s: Optional[float] = 0.0005,
+        gil_pump_s: Optional[float] = None,
     ):
         if not (dt > 0.0 and math.isfinite(dt)):
             raise ConfigError(f"dt must be a positive number of seconds, got {dt!r}")
@@ -255,6 +270,10 @@ class LiveSession:
         self.rebase = bool(rebase)
         self.warmup_steps = max(0, int(warmup_steps))
         self.proxy_timeout_s = float(proxy_timeout_s)
+        self.sim_switch_interval_s = sim_switch_interval_s
+        self.gil_pump_s = gil_pump_s
+        self._pump: Optional[threading.Thread] = None
+        self._pump_stop = threading.Event()
         # Servo threads: SCHED_FIFO when the OS allows it (servo.ServoLoop(priority=...)). On
         # fewer than 4 cores the two servo threads and the simulation thread already fill the
         # machine, and a servo thread spinning before its deadline steals the simulation's core:
@@ -275,7 +294,7 @@ class LiveSession:
             kw = self.servo_kwargs
             self.servo_process = ServoProcess(specs, period_s=self.servo_period_s, stall_timeout_s=max(self.stall_timeout_s, 2.0 * self.servo_period_s),
                                               spin_s=float((servo_kwargs or {}).get("spin_s", 0.0)), slice_s=kw.get("slice_s", 0.0001),
-                                              priority=kw.get("priority"), cpus=kw.get("cpus"),
+                                              priority=kw.get("priority"), cpus=kw.get("cpus"), own_session=kw.get("own_session", True),
                                               switch_interval_s=kw.get("switch_interval_s", 0.0005))
             hands = {n: (v[0], self.servo_process.device(n), v[2]) for n, v in hands.items()}
         self._hands: Dict[str, _Hand] = self._bind_handles(hands)
@@ -453,9 +472,10 @@ class LiveSession:
         # pure Python runs here (Blender's UI): at the default 5 ms switch interval each GIL
         # hand-back after a native step costs it up to 5 ms (measured: 8 steps/s instead of 33
         # on the T-shirt beside a GIL-heavy loop). Restored when the session ends.
-        self._switch_lowered = _lower_switch_interval(0.0005)
+        self._switch_lowered = _lower_switch_interval(self.sim_switch_interval_s)
         try:
-            proc.open(self.homing_timeout_s)
+            if not proc.opened:  # HapticRun may have opened it already (begin_open/poll_open while a Falcon homes)
+                proc.open(self.homing_timeout_s)
             for hs in self._hands.values():
                 self._bind_device(hs)
             self.servo = proc
@@ -688,6 +708,19 @@ class LiveSession:
         self._last_step_start = None
         self._thread = threading.Thread(target=self._run_thread, name="tearcloth-live-sim", daemon=True)
         self._thread.start()
+        if self.servo_process is not None and self.gil_pump_s and self._pump is None:
+            self._pump_stop.clear()
+            self._pump = threading.Thread(target=self._gil_pump, name="tearcloth-live-gil", daemon=True)
+            self._pump.start()
+
+    def _gil_pump(self) -> None:
+        # Every wake takes the GIL for an instant, so a pure-Python thread that holds it (Blender's
+        # UI) lets go every gil_pump_s and the simulation thread, back from a native step, gets
+        # it without waiting out its own switch interval. The in-process servo threads did this
+        # as a side effect (off by default: it cost the servo its worst case, measured in the
+        # class docstring).
+        while not self._pump_stop.wait(self.gil_pump_s):
+            pass
 
     def _run_thread(self) -> None:
         t0 = time.perf_counter()
@@ -730,6 +763,10 @@ class LiveSession:
             self._shutdown()
 
     def _shutdown(self) -> None:
+        if self._pump is not None:
+            self._pump_stop.set()
+            self._pump.join()
+            self._pump = None
         if self.servo is not None:
             try:
                 self.servo.stop()  # zero force sent to every device, servo threads joined
