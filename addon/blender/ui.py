@@ -438,6 +438,7 @@ class TEARCLOTH_PT_haptics(TearClothPanel, Panel):
         col.prop(settings, "stop_button")
         col.prop(settings, "time_step")
         col.prop(settings, "record")
+        col.prop(settings, "servo")  # the servo process (default) or threads in this process
         if any(h.device == "EMULATED" for h in used):
             _rows(col.column(align=True), settings, "haptics.demo")
         if any(h.device == "KEYBOARD" for h in used):
