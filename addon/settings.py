@@ -358,16 +358,14 @@ SETTINGS: tuple[Setting, ...] = (
        "above 1 an unbreakable hem",
        _UI + "; the core takes any positive factor (tc_cloth_set_tear_strength)", _B(0.0, None, lo_open=True),
        _B(0.01, 10.0), ui=dict(precision=2)),
-    _f("tearing", "min_fragment_area", "m^2", 0.0, "Min Fragment",
+    _f("tearing", "min_fragment_area", "m^2", 1.0e-4, "Min Fragment",
        "A piece a tear sets free with less rest area than this is removed with its vertices (0: keep "
        "every piece)",
-       _UI + ": off (0) until an open case is understood: the woven banknote example, with any size "
-       "above 0, bursts into five tears and blows up two steps after its first removal (reproduced from a "
-       "snapshot, sanitizer-clean; without removal it bakes). 1 cm^2 is the size to try: a speck a third "
-       "the size of the disc of cotton's 1 cm tear radius over which the tearing model averages stress, "
-       "so it cannot resolve such a piece; at the example meshes' median triangle (1.8-1.9 cm^2) it takes "
-       "split slivers and the smallest elements. A piece kept flies on with its momentum and gains no "
-       "energy at separation (tests/test_tearing_physics.py)",
+       _UI + ": 1 cm^2, a speck a third the size of the disc of cotton's 1 cm tear radius over which the "
+       "tearing model averages stress, so it cannot resolve such a piece; at the example meshes' median "
+       "triangle (1.8-1.9 cm^2) it takes split slivers and the smallest elements, not a median one. The core's default is 0 "
+       "(tc_tear_default, fragment.c): a scripted Cloth keeps every piece, so a tear conserves its area "
+       "and mass exactly unless asked",
        _B(0.0, 1.0), _B(0.0, 0.01), native="min_fragment_area", native_default=0.0, block="tearing.scan",
        ui=dict(precision=5)),
 

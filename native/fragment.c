@@ -112,6 +112,9 @@ static void renumber(tc_cloth *c, const int32_t *vmap, const int32_t *tmap)
     for (size_t p = 0; p < c->pi.len; p++) {
         if (pi[p] < 0) continue;
         pi[p] = vmap[pi[p]]; pj[p] = vmap[pj[p]];
+        /* a pair's ends are kept ordered (pi < pj: the hash key, mesh.c); the compaction keeps
+           the order, but a surviving duplicate taking its original's id can reverse it */
+        if (pi[p] > pj[p]) { int32_t t = pi[p]; pi[p] = pj[p]; pj[p] = t; }
         if (tmap) for (int s = 0; s < 2; s++) if (pt[2 * p + s] >= 0) pt[2 * p + s] = tmap[pt[2 * p + s]];
     }
     tc_stencil *st = tc_vec_ptr(&c->stencils);

@@ -480,11 +480,28 @@ static void test_amg(void)
     tc_cloth_destroy(cl[0]); tc_cloth_destroy(cl[1]);
 }
 
+/* The edge-pair table as the remesh needs it: every live pair ordered (pi < pj, the hash key),
+ * found by the hash, and each triangle's edge k (opposite corner k) on the pair of its ends. */
+static int pairs_consistent(const tc_cloth *c)
+{
+    const int32_t *T = tc_vec_ptr(&c->tri), *TP = tc_vec_ptr(&c->tpair);
+    const int32_t *PI = tc_vec_ptr(&c->pi), *PJ = tc_vec_ptr(&c->pj);
+    int bad = 0;
+    for (size_t p = 0; p < c->pi.len; p++)
+        if (PI[p] >= 0 && (PI[p] >= PJ[p] || tc_pair_find(c, PI[p], PJ[p]) != (int32_t)p)) bad++;
+    for (int32_t t = 0; t < c->nt; t++)
+        for (int k = 0; k < 3; k++) {
+            int32_t a = T[3 * t + (k + 1) % 3], b = T[3 * t + (k + 2) % 3], p = TP[3 * t + k];
+            if (PI[p] != (a < b ? a : b) || PJ[p] != (a < b ? b : a)) bad++;
+        }
+    return bad;
+}
+
 /* A tear that frees the corner triangle of a grid: removed below min_fragment_area (with the handle
  * member, contact and pin on it), kept above; the rest steps on and the events list what went. */
 static void test_fragment_removal(void)
 {
-    for (int pass = 0; pass < 2; pass++) {
+    for (int pass = 0; pass < 3; pass++) {  /* 2: the same removal, cut from the other end */
         double *V; int32_t *T, n, m;
         grid(11, 6, 0.1, 0.05, &V, &T, &n, &m);  /* 1 cm cells: the corner triangle is 0.5 cm^2 */
         char msg[512];
@@ -493,7 +510,7 @@ static void test_fragment_removal(void)
         if (!c) { free(V); free(T); return; }
         tc_tear_settings ts = tc_tear_default();
         ts.enabled = 1;
-        ts.min_fragment_area = pass == 0 ? 1e-4 : 1e-5;
+        ts.min_fragment_area = pass == 1 ? 1e-5 : 1e-4;
         CHECK(tc_cloth_set_tearing(c, &ts) == TC_OK, "tearing: %s", tc_cloth_error(c));
         int32_t corner = 0, pins[6] = {60, 61, 62, 63, 64, 65}, h;
         CHECK(tc_cloth_add_handle(c, &corner, 1, &h) == TC_OK, "handle");
@@ -501,14 +518,19 @@ static void test_fragment_removal(void)
         double nrm[3] = {0, 0, 1}, dep = 0.0;
         int32_t cv = 0;
         CHECK(tc_cloth_set_contacts(c, &cv, nrm, &dep, NULL, NULL, 1) == TC_OK, "contact");
-        const int32_t b = 6, d = 1;  /* the corner triangle (0, 6, 1): its one inner edge 6-1 */
+        /* the corner triangle (0, 6, 1): its one inner edge 6-1 */
+        const int32_t b = pass == 2 ? 1 : 6, d = pass == 2 ? 6 : 1;
         double dir[3] = {V[3 * d] - V[3 * b], V[3 * d + 1] - V[3 * b + 1], 0.0};
         int32_t cuts = 0;
         CHECK(tc_cloth_scripted_tear(c, b, dir, sqrt(dir[0] * dir[0] + dir[1] * dir[1]), &cuts) == TC_OK && cuts == 1,
               "scripted: %s (%d cuts)", tc_cloth_error(c), (int)cuts);
         tc_stats st = tc_cloth_stats(c);
         tc_events e = tc_cloth_events(c);
-        if (pass == 0) {
+        /* the piece kept the originals of the cut's ends, so the duplicates that stay took their
+           ids: pairs of those must be re-ordered (a reversed pair is lost to the hash, and the
+           next cut there made a second pair of the same edge: a banknote blew up) */
+        CHECK(pairs_consistent(c) == 0, "pair table consistent after the removal: %d problems", pairs_consistent(c));
+        if (pass != 1) {
             CHECK(st.fragments_removed == 1 && st.fragment_triangles_removed == 1 && st.fragment_vertices_removed == 3,
                   "removed %d pieces, %d triangles, %d vertices", (int)st.fragments_removed,
                   (int)st.fragment_triangles_removed, (int)st.fragment_vertices_removed);
@@ -540,6 +562,37 @@ static void test_fragment_removal(void)
     }
 }
 
+/* Freed corner triangles at both ends of a grid, cut from either end: whichever side kept the
+ * original ids of the cut's ends, the pair table stays ordered and hashed, and a second cut beside
+ * the first (which looks its edges up in the hash) leaves it so. */
+static void test_fragment_removal_keeps_pairs_ordered(void)
+{
+    const int32_t corners[2][2] = {{6, 1}, {54, 61}};  /* inner edges of (0, 6, 1) and (54, 60, 61) */
+    for (int k = 0; k < 4; k++) {
+        double *V; int32_t *T, n, m;
+        grid(11, 6, 0.1, 0.05, &V, &T, &n, &m);
+        char msg[512];
+        tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+        if (!c) { CHECK(0, "create: %s", msg); free(V); free(T); return; }
+        tc_tear_settings ts = tc_tear_default();
+        ts.min_fragment_area = 1e-4;
+        tc_cloth_set_tearing(c, &ts);
+        const int32_t b = corners[k / 2][k % 2], d = corners[k / 2][1 - k % 2];
+        double dir[3] = {V[3 * d] - V[3 * b], V[3 * d + 1] - V[3 * b + 1], 0.0};
+        int32_t cuts = 0;
+        CHECK(tc_cloth_scripted_tear(c, b, dir, sqrt(dir[0] * dir[0] + dir[1] * dir[1]), &cuts) == TC_OK, "cut %d", k);
+        CHECK(tc_cloth_stats(c).fragments_removed == 1, "corner %d freed and removed", k);
+        CHECK(pairs_consistent(c) == 0, "pairs after removal %d: %d problems", k, pairs_consistent(c));
+        /* a second cut from the surviving end along the grid line next to the first */
+        const int32_t e = k / 2 ? 55 : 7;
+        double dir2[3] = {k / 2 ? -1.0 : 1.0, 0.0, 0.0};
+        CHECK(tc_cloth_scripted_tear(c, e, dir2, 0.02, &cuts) == TC_OK, "second cut %d: %s", k, tc_cloth_error(c));
+        CHECK(pairs_consistent(c) == 0, "pairs after the second cut %d: %d problems", k, pairs_consistent(c));
+        tc_cloth_destroy(c);
+        free(V); free(T);
+    }
+}
+
 int main(void)
 {
     printf("kernel %s\n", tc_simd_name(tc_simd_level()));  /* TEARCLOTH_SIMD, or the CPU's best */
@@ -550,6 +603,7 @@ int main(void)
     test_solver();
     test_amg();
     test_fragment_removal();
+    test_fragment_removal_keeps_pairs_ordered();
     printf("%d passed, %d failed\n", checks - failures, failures);
     return failures != 0;
 }
