@@ -16,6 +16,7 @@
 #include "tearcloth.h"
 
 #include <math.h>
+#include <stdlib.h>  /* free() of the snapshot blob: the cross builds' Python.h does not bring it */
 #include <string.h>
 
 static PyObject *ClothError, *InvalidInputError, *SimulationError;
