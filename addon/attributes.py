@@ -15,8 +15,9 @@ What this file owns
   as ``{name: (usd type, interpolation, values)}`` for ``CacheWriter.write_frame(primvars=...)``.
 
 Why the original rest position is enough: a tear only splits triangles (each piece lies inside
-the triangle it came from, in rest space) and duplicates vertices (same rest position), and
-triangles are never renumbered. So a triangle's rest centroid lies inside exactly one original
+the triangle it came from, in rest space) and duplicates vertices (same rest position); a
+removed fragment renumbers what is left, so triangles and points are known by their carried rest
+positions, never by index. So a triangle's rest centroid lies inside exactly one original
 triangle (its face attributes come from that face), and a corner's barycentric coordinates in that
 triangle interpolate the original triangle's own corner values: a duplicated vertex's corners keep
 their own triangles' values, so UV seams along the tear stay sharp. A boundary edge of the torn mesh
@@ -141,8 +142,13 @@ class AttributeTracker:
         self._boundary0 = _single_edges(self.tri0).reshape(m0, 3)
         pad = 1e-6 * (np.ptp(self.rest0, axis=0).max() if len(self.rest0) else 1.0)
         self._box_lo, self._box_hi = p.min(axis=1) - pad, p.max(axis=1) + pad
-        self._origin = np.arange(m0, dtype=np.int64)  # original triangle of every triangle so far
-        self._torn_time = np.zeros(0)
+        # Keyed by material points, not by index: a removed fragment (fragment.c) renumbers the
+        # vertices and triangles, so an index would name another element afterwards. A triangle is
+        # keyed by its three carried rest positions (order-free), a point by its own, which its
+        # twin across a tear shares: it tore when its twin did.
+        self._origin_of = dict(zip(_triangle_keys(self.rest0, self.tri0), range(m0)))
+        self._torn_at: dict = {}
+        self._resumed_torn_time = None  # torn_time of a resumed bake's last frame, keyed on next frame
 
     # -- locating the torn mesh in the user's mesh ---------------------------------------------
 
@@ -174,13 +180,15 @@ class AttributeTracker:
         return out
 
     def origins(self, triangles: np.ndarray, rest0: np.ndarray) -> np.ndarray:
-        """The original triangle of every current triangle (indices are never renumbered, so only
-        the triangles added since the last call are located)."""
-        known = len(self._origin)
-        if len(triangles) > known:
-            added = triangles[known:]
-            self._origin = np.concatenate([self._origin, self._locate(rest0[added].mean(axis=1))])
-        return self._origin[:len(triangles)]
+        """The original triangle of every current triangle; only triangles not met before (made
+        by a tear since the last frame) are located."""
+        keys = _triangle_keys(rest0, triangles)
+        origin = np.fromiter((self._origin_of.get(k, -1) for k in keys), dtype=np.int64, count=len(keys))
+        new = np.flatnonzero(origin < 0)
+        if len(new):
+            origin[new] = self._locate(rest0[triangles[new]].mean(axis=1))
+            self._origin_of.update(zip((keys[i] for i in new), origin[new].tolist()))
+        return origin
 
     # -- one frame -----------------------------------------------------------------------------
 
@@ -216,10 +224,9 @@ class AttributeTracker:
     def _corner_bary(self, tris, rest0, origin) -> np.ndarray:
         """Each corner's barycentric coordinates in its original triangle: the identity for the
         user's triangles a tear left alone (most of them), computed for the others only."""
-        m, m0 = len(tris), len(self.tri0)
+        m = len(tris)
         bary = np.broadcast_to(np.eye(3), (m, 3, 3)).copy()
-        moved = np.ones(m, dtype=bool)
-        moved[:m0] = ~np.all(rest0[tris[:m0]] == self.rest0[self.tri0], axis=(1, 2))
+        moved = ~np.all(rest0[tris] == self.rest0[self.tri0[origin]], axis=(1, 2))
         idx = np.flatnonzero(moved)
         if len(idx):
             b = np.clip(self._bary(rest0[tris[idx]].reshape(-1, 3), np.repeat(origin[idx], 3)), 0.0, 1.0)
@@ -242,26 +249,33 @@ class AttributeTracker:
         return torn
 
     def _update_torn_time(self, torn, rest0, time) -> np.ndarray:
-        n = len(torn)
-        tt = np.full(n, -1.0)
-        keep = min(n, len(self._torn_time))
-        tt[:keep] = self._torn_time[:keep]
-        fresh = torn & (tt < 0)
-        if fresh.any():
-            # a duplicate made by the separation is the same material point as its twin (the same
-            # carried rest position, bit for bit): it tore when its twin did
-            earliest: dict = {}
-            for v in np.flatnonzero(tt >= 0):
-                key = rest0[v].tobytes()
-                earliest[key] = min(earliest.get(key, np.inf), tt[v])
-            for v in np.flatnonzero(fresh):
-                tt[v] = earliest.get(rest0[v].tobytes(), time)
-        self._torn_time = tt
-        return tt.astype(np.float32)
+        keys = _point_keys(rest0)
+        if self._resumed_torn_time is not None:
+            for k, t in zip(keys, self._resumed_torn_time[:len(keys)]):
+                if t >= 0:
+                    self._torn_at.setdefault(k, float(t))
+            self._resumed_torn_time = None
+        for v in np.flatnonzero(torn):
+            self._torn_at.setdefault(keys[v], time)
+        return np.fromiter((self._torn_at.get(k, -1.0) for k in keys), dtype=np.float32, count=len(keys))
 
     def restore_torn_time(self, values) -> None:
-        """Continue a resumed bake: the ``torn_time`` of the cache's last frame."""
-        self._torn_time = np.asarray(values, dtype=np.float64).reshape(-1).copy()
+        """Continue a resumed bake: the ``torn_time`` of the cache's last frame (per point of the
+        cloth as restored, keyed on the next frame)."""
+        self._resumed_torn_time = np.asarray(values, dtype=np.float64).reshape(-1).copy()
+
+
+def _point_keys(rest0) -> list:
+    """One bytes key per point: its carried rest position (exact: the core copies it to twins)."""
+    r = np.ascontiguousarray(rest0, dtype=np.float64)
+    return r.view(np.dtype((np.void, 24))).ravel().tolist()
+
+
+def _triangle_keys(rest0, triangles) -> list:
+    """One bytes key per triangle: its three carried rest positions, sorted (any corner order)."""
+    c = np.ascontiguousarray(np.asarray(rest0, dtype=np.float64)[np.asarray(triangles, dtype=np.int64)])
+    v = np.sort(c.view(np.dtype((np.void, 24))).reshape(len(c), 3), axis=1)
+    return np.ascontiguousarray(v).view(np.dtype((np.void, 72))).ravel().tolist()
 
 
 def _single_edges(tris: np.ndarray) -> np.ndarray:

@@ -142,3 +142,34 @@ def test_grain_angle_face_attribute_overrides_the_material():
     normal = np.cross(v[t[0, 1]] - v[t[0, 0]], v[t[0, 2]] - v[t[0, 0]])
     turned = np.cross(normal / np.linalg.norm(normal), [1.0, 0.0, 0.0])
     np.testing.assert_allclose(override["warp"][2], np.tile(turned, (len(v), 1)), atol=1e-6)
+
+
+def test_attributes_follow_a_removed_fragment_that_renumbers_the_rest():
+    # Regression: the tracker knew triangles and points by index; a removed fragment renumbers
+    # what is left (fragment.c), and a denim bake on bpy 4.2 failed with "operands could not be
+    # broadcast together with shapes (1603,3,3) (1606,3,3)". Now they are known by their carried
+    # rest positions: after cutting off a corner (removed) and a tear elsewhere, every face keeps
+    # its own value, corners stay sharp and earlier torn points keep when they tore.
+    v, t = sheet(0.1, 0.1, 11, 11)
+    m = len(t)
+    face = attrs.UserAttribute("f", "FACE", "INT", np.arange(m, dtype=float)[:, None])
+    corner = attrs.UserAttribute("c", "CORNER", "FLOAT", np.repeat(np.arange(m, dtype=float)[:, None, None], 3, axis=1))
+    cloth = Cloth(v, t, material("cotton"), uv=v[:, :2][t] * 10.0, groups=attrs.carried_groups(v, [face, corner]))
+    cloth.set_tearing(True, min_fragment_area=1e-4)  # the sheet's cells are 1 cm^2: a corner triangle goes
+    tracker = attrs.AttributeTracker(v, t, [face, corner])
+    tracker.frame(cloth, 0.0, None, cloth.corner_uv)
+    assert cloth.scripted_tear(60, (0.37, 1.0, 0.0), 0.03) > 0
+    first = tracker.frame(cloth, 0.5, None, cloth.corner_uv)
+    torn_before = {cloth.rest_positions[i].tobytes() for i in np.flatnonzero(first["torn"][2])}
+    corner_tri = int(np.flatnonzero((t == 0).any(axis=1))[0])  # the triangle at vertex 0
+    a, b = [k for k in t[corner_tri] if k != 0]
+    assert cloth.scripted_tear(a, v[b] - v[a], float(np.linalg.norm(v[b] - v[a]))) == 1
+    assert cloth.stats()["fragments_removed"] == 1 and cloth.num_triangles < m + 20
+    after = tracker.frame(cloth, 1.0, None, cloth.corner_uv)
+    tri, rest = cloth.triangles, cloth.rest_positions
+    faces = after["f"][2]
+    assert len(faces) == len(tri) and corner_tri not in set(faces.tolist())
+    assert tracker._bary(rest[tri].mean(axis=1), faces).min() > -1e-9  # each triangle inside its own face
+    np.testing.assert_allclose(after["c"][2].reshape(-1, 3), np.repeat(faces[:, None], 3, axis=1))
+    times = {rest[i].tobytes(): after["torn_time"][2][i] for i in range(len(rest))}
+    assert torn_before and all(times[k] == 0.5 for k in torn_before if k in times)
