@@ -585,7 +585,7 @@ def build_denim_knee():
         if bpy.ops.tearcloth.add_frayed_edges() != {"FINISHED"}:
             raise RuntimeError("could not add frayed edges to the denim")
     md = fray.find_modifier(cloth)
-    md[fray.socket_identifier(md.node_group, "Material")] = plain_material("Threads", (0.86, 0.84, 0.78))
+    fray.set_input(md, "Material", plain_material("Threads", (0.86, 0.84, 0.78)))
     camera((0.5, -0.62, 0.68), (0.02, 0.08, 0.56), lens=50.0)
     sun((0.0, 0.0, 0.55), location=(1.5, -2.5, 3.0))
     scene.frame_set(1)

@@ -46,7 +46,8 @@ def pieces(positions, triangles, corner_uv):
         parent[find(rc)] = ra
     root = np.array([find(t[0]) for t in triangles])
     u = corner_uv * SIZE
-    area = 0.5 * np.abs(np.cross(u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]))
+    a, b = u[:, 1] - u[:, 0], u[:, 2] - u[:, 0]
+    area = 0.5 * np.abs(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])  # numpy 2 refuses np.cross of 2-D vectors
     return [(int((root == r).sum()), float(area[root == r].sum())) for r in np.unique(root)]
 
 

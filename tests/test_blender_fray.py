@@ -77,7 +77,7 @@ SLIT_SHEET = '''
 
     def set_inputs(md, **values):
         for name, value in values.items():
-            md[fray.socket_identifier(md.node_group, name)] = value
+            fray.set_input(md, name, value)
         md.node_group.interface_update(bpy.context)
 '''
 
@@ -92,10 +92,10 @@ def test_threads_run_along_warp_and_weft_out_of_the_tear(tmp_path):
         assert op("add_frayed_edges", obj) == {"FINISHED"}
         assert op("add_frayed_edges", obj) == {"CANCELLED"}  # once is enough
         md = fray.find_modifier(obj)
-        defaults = {item.name: md[item.identifier] for item in md.node_group.interface.items_tree
+        defaults = {item.name: fray.input_value(md, item.name) for item in md.node_group.interface.items_tree
                     if item.item_type == "SOCKET" and item.in_out == "INPUT" and item.name not in ("Geometry",
                                                                                                 "Material")}
-        material = md[fray.socket_identifier(md.node_group, "Material")]
+        material = fray.input_value(md, "Material")
         order = [m.name for m in obj.modifiers]
         set_inputs(md, Jitter=0.0, **{"Thread Radius": 1e-6, "Length": 0.01, "Density": 200.0})
         n_cloth = len(obj.data.vertices)

@@ -300,6 +300,30 @@ def socket_identifier(tree, name: str) -> str:
     raise KeyError(name)
 
 
+def _rna_inputs(md):
+    """Blender 5.3's modifier inputs (``md.properties.inputs.<identifier>.value``), or None where
+    they are ID properties of the modifier (``md[identifier]``, 4.2-5.0): 5.3 refuses the latter."""
+    props = getattr(md, "properties", None)
+    return getattr(props, "inputs", None) if props is not None else None
+
+
+def input_value(md, name: str):
+    """The modifier's value of the group input labelled ``name``."""
+    ident = socket_identifier(md.node_group, name)
+    inputs = _rna_inputs(md)
+    return getattr(inputs, ident).value if inputs is not None else md[ident]
+
+
+def set_input(md, name: str, value) -> None:
+    """Set the modifier's value of the group input labelled ``name``."""
+    ident = socket_identifier(md.node_group, name)
+    inputs = _rna_inputs(md)
+    if inputs is not None:
+        getattr(inputs, ident).value = value
+    else:
+        md[ident] = value
+
+
 def add_modifier(obj, scene, material=None):
     """The frayed-edge modifier of ``obj`` right after its "Tear Cloth" modifier, with the table's
     defaults (lengths in the scene's units) and ``material`` for the threads. Returns it (the
@@ -314,9 +338,9 @@ def add_modifier(obj, scene, material=None):
     per_unit = {"m": 1.0 / convert.scale_length(scene), "1/m": convert.scale_length(scene)}
     for row in table.rows("fray"):
         value = row.default * per_unit.get(row.unit, 1.0)
-        md[socket_identifier(tree, row.label)] = int(value) if row.kind == "int" else float(value)
+        set_input(md, row.label, int(value) if row.kind == "int" else float(value))
     if material is not None:
-        md[socket_identifier(tree, "Material")] = material
+        set_input(md, "Material", material)
     cache_md = modifier.find_modifier(obj)
     if cache_md is not None:
         obj.modifiers.move(len(obj.modifiers) - 1, modifier.modifier_index(obj, cache_md) + 1)
