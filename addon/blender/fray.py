@@ -175,9 +175,10 @@ def build_group():
     capture = _node(tree, "GeometryNodeCaptureAttribute", -1600, 0, domain="POINT")
     capture.capture_items.new("VECTOR", "Normal")
     capture.capture_items.new("VECTOR", "Inward")
-    link(gin("Geometry"), capture.inputs[0])
-    link(_node(tree, "GeometryNodeInputNormal", -1800, -200).outputs["Normal"], capture.inputs[1])
-    link(inward, capture.inputs[2])
+    # sockets by name, never by position: Blender 5.3 added a Selection socket before the items
+    link(gin("Geometry"), capture.inputs["Geometry"])
+    link(_node(tree, "GeometryNodeInputNormal", -1800, -200).outputs["Normal"], capture.inputs["Normal"])
+    link(inward, capture.inputs["Inward"])
 
     # The torn boundary: edges with a single face whose two points are both torn.
     torn = _node(tree, "GeometryNodeInputNamedAttribute", -1800, 300, data_type="FLOAT")
@@ -193,7 +194,7 @@ def build_group():
     link(_out(on_tear, "Result"), both.inputs[0])
     link(_out(boundary, "Result"), both.inputs[1])
     to_curve = _node(tree, "GeometryNodeMeshToCurve", -1200, 100)
-    link(capture.outputs[0], _in(to_curve, "Mesh"))
+    link(capture.outputs["Geometry"], _in(to_curve, "Mesh"))
     link(_out(both), _in(to_curve, "Selection"))
     samples = _node(tree, "GeometryNodeCurveToPoints", -1000, 100, mode="LENGTH")
     link(_out(to_curve), _in(samples, "Curve"))
@@ -204,7 +205,7 @@ def build_group():
     # Directions at a sample: normal n, warp w (in the tangent plane), weft = n x w, outward o.
     index = _node(tree, "GeometryNodeInputIndex", -1000, -600).outputs[0]
     seed = gin("seed")
-    n = _vec(tree, -800, -200, "NORMALIZE", capture.outputs[1])
+    n = _vec(tree, -800, -200, "NORMALIZE", capture.outputs["Normal"])
     warp_attr = _node(tree, "GeometryNodeInputNamedAttribute", -1400, -350, data_type="FLOAT_VECTOR")
     _in(warp_attr, "Name").default_value = WARP
     warp_world = _out(warp_attr, "Attribute")
@@ -221,8 +222,8 @@ def build_group():
     warp_t = _vec(tree, -600, -350, "NORMALIZE", _vec(tree, -800, -350, "SUBTRACT", warp,
                                                       _vec(tree, -1000, -450, "PROJECT", warp, n)))
     weft = _vec(tree, -400, -450, "CROSS_PRODUCT", n, warp_t)
-    inward_t = _vec(tree, -800, -550, "SUBTRACT", capture.outputs[2], _vec(tree, -1000, -700, "PROJECT",
-                                                                           capture.outputs[2], n))
+    inward_t = _vec(tree, -800, -550, "SUBTRACT", capture.outputs["Inward"], _vec(tree, -1000, -700, "PROJECT",
+                                                                           capture.outputs["Inward"], n))
     outward = _vec(tree, -600, -550, "NORMALIZE", _vec(tree, -800, -700, "SCALE", inward_t, scale=-1.0))
     pick_warp = _random(tree, -400, -200, "BOOLEAN", seed, 0, index, Probability=0.5)
     thread = _switch(tree, -200, -300, "VECTOR", pick_warp, weft, warp_t)
