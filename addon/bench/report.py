@@ -28,11 +28,13 @@ def benchmarks_markdown(r: dict) -> str:
         for name, x in r["table1"].items():
             p = PAPER_TABLE1[name]
             col = f"{x['collision_ms']:.3f} ({p['collision_ms']})" if "collision_ms" in x else f"- ({p['collision_ms']})"
+            after = "not measured" if x["tearing_after_ms"] is None else f"{x['tearing_after_ms']:.4f}"
+            total_after = "not measured" if x["total_after_ms"] is None else f"{x['total_after_ms']:.3f}"
             lines.append(
                 f"| {name} | {x['triangles']} | {col} | {x['fem_ms']:.3f} ({p['fem_ms']}) | "
-                f"{x['tearing_before_ms']:.4f} ({p['tearing_before_ms']}) | {x['tearing_after_ms']:.4f} "
+                f"{x['tearing_before_ms']:.4f} ({p['tearing_before_ms']}) | {after} "
                 f"({p['tearing_after_ms']}) | {x['total_before_ms']:.3f} ({p['total_before_ms']}) | "
-                f"{x['total_after_ms']:.3f} ({p['total_after_ms']}) |")
+                f"{total_after} ({p['total_after_ms']}) |")
         lines += ["", "Paper's figures in parentheses (Xeon E5-2620, SOFA). Steps of 1 ms; the hands pull "
                   "apart at 2 cm/s each; 'after' means a tear tip is running: a 1 cm cut at the most stressed "
                   "free rim vertex, the tear stress at 1/2 of the disc stress at its tip and a crack of one "
@@ -41,6 +43,8 @@ def benchmarks_markdown(r: dict) -> str:
         lines += ["| scenario | steps timed | cuts in them | tears started | tearing after: median | mean | max |",
                   "|---|---|---|---|---|---|---|"]
         for name, x in r["table1"].items():
+            if "tearing_after_note" in x:
+                lines.append(f"| {name} | - | - | - | not measured: {x['tearing_after_note']} | | |")
             if "tearing_after_steps" in x:
                 lines.append(f"| {name} | {x['tearing_after_steps']} | {x['tearing_after_cuts']} | "
                              f"{x['tearing_after_tears_started']} | {x['tearing_after_ms']:.4f} ms | "
@@ -122,7 +126,8 @@ def targets_markdown(r: dict) -> list:
     for name, x in t1.items():
         add(f"step after 50 cuts / before, {name}", f"{x['step_ratio_after_50_cuts']:.2f}", "<= 1.10",
             x["step_ratio_after_50_cuts"] <= 1.10)
-        add(f"total step after the tear started, {name}", f"{x['total_after_ms']:.2f} ms", "<= 1 ms", x["total_after_ms"] <= 1.0)
+        if x["total_after_ms"] is not None:
+            add(f"total step after the tear started, {name}", f"{x['total_after_ms']:.2f} ms", "<= 1 ms", x["total_after_ms"] <= 1.0)
         add(f"total step before, {name}", f"{x['total_before_ms']:.2f} ms", "<= 1.5 ms", x["total_before_ms"] <= 1.5)
     if "collision" in r:
         c = r["collision"]["simulated"]["dt1ms"]["moving"]

@@ -56,7 +56,8 @@ def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"),
                 r = results["table1"][name]
                 r["collision_ms"] = results["collision"]["simulated"]["dt1ms"]["moving"]["relative_ms"]
                 r["total_before_ms"] += r["collision_ms"]
-                r["total_after_ms"] += r["collision_ms"]
+                if r["total_after_ms"] is not None:
+                    r["total_after_ms"] += r["collision_ms"]
     if "servo" in parts:
         out("... servo loop (two emulated Falcons, T-shirt simulation on the main thread, 10 s)")
         sv = measure_live_servo(10.0, "tshirt", servo="process")
