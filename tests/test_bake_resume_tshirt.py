@@ -95,7 +95,10 @@ def test_tshirt_killed_cancelled_and_resumed_equals_the_uninterrupted_bake(tmp_p
     crashed = run_until(killed, KILL_AT, signal.SIGKILL)
     assert crashed.returncode == -signal.SIGKILL
     after = cache.cache_info(root(killed))["frames"][-1]
-    assert KILL_AT <= after < LAST
+    # the kill lands once frame 82's file exists; the root lists a frame only after its file is
+    # complete, so a kill between the two leaves 81 as the last complete frame (seen once on a
+    # loaded machine): the resume then continues after 81, which is what must equal the reference
+    assert KILL_AT - 1 <= after < LAST
     assert_same(resume(killed, after), reference, "SIGKILL at frame %d" % after)
 
     # the operator's path (the modal bake's worker thread, ticked here without a window) on the
