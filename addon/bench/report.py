@@ -161,15 +161,13 @@ def targets_markdown(r: dict) -> list:
         return []
     return ["## Targets", "", "| figure | this run | target | |", "|---|---|---|---|", *rows, "",
             "Where the time goes when a target is missed: the FEM solve. One step is an element pass "
-            "(co-rotation, stress, forces), an assembly of 3x3 blocks per vertex pair, and a conjugate-"
-            "gradient solve preconditioned by the inverse diagonal blocks; `perf` puts 50-60 % of the step "
-            "in the CG's matrix-vector products and 15-20 % in the assembly. A cotton sheet is stiff "
-            "(E h = 2e4 N/m) against its areal mass, so block Jacobi needs tens of iterations at 1 ms "
-            "steps (median 17 for the square cloth, 54 for the T-shirt) and more on larger meshes, "
-            "which is also why the time grows faster than linearly (the iteration count doubles from "
-            "1K to 30K triangles). What would close it: a preconditioner whose iteration count does "
-            "not grow with the mesh (smoothed-aggregation multigrid on the 3x3 block graph, or an "
-            "incomplete Cholesky factorisation), then a row-ordered (CSR) product that vectorises; "
-            "the collision, tearing and servo parts already meet their targets or come close. "
-            "After 50 cuts the per-iteration cost moves little; the step grows because a torn cloth "
-            "moves more and the solver iterates more.", ""]
+            "(co-rotation, stress, forces), an assembly of 3x3 blocks into rows, and a conjugate-gradient "
+            "solve. Below 2,500 vertices (the T-shirt) it is preconditioned by the inverse diagonal blocks: "
+            "a cotton sheet is stiff (E h = 2e4 N/m) against its areal mass, so that takes tens of "
+            "iterations at 1 ms steps (17 for the square cloth, 51 for the T-shirt), each a matrix product "
+            "about 2.5x its memory roofline. Above it the smoothed-aggregation multigrid of amg.c keeps the "
+            "iterations at 12-18 from 10K to 100K triangles, but each of its iterations costs about ten "
+            "Jacobi ones and its hierarchy (a copy of the fine matrix and A P while it is built) doubles the "
+            "memory per triangle; on the T-shirt it is slower than Jacobi. After 50 cuts the per-iteration "
+            "cost moves little; the step grows because a torn cloth moves more and the solver iterates "
+            "more.", ""]
