@@ -5,7 +5,10 @@ skips those tests with the reason; any other failure fails them."""
 from __future__ import annotations
 
 import atexit
+import fcntl
 import importlib.util
+import json
+import os
 import re
 import shutil
 import sys
@@ -32,14 +35,50 @@ def load_tool(name: str = "build_extension", path: str = "tools/build_extension.
     return sys.modules[name]
 
 
+def _build(tool) -> dict:
+    """tool.build's result. Under pytest-xdist the workers of one run share one build: the first
+    to get the lock builds into a folder named after the run, the others wait and read its result
+    (the build is ~2 minutes of CPU; a second one would be the same zips)."""
+    run = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if not run:
+        out = Path(tempfile.mkdtemp(prefix="tearcloth-test-dist-"))
+        atexit.register(shutil.rmtree, out, True)
+        return tool.build(out_dir=out)
+    shared = Path(tempfile.gettempdir()) / f"tearcloth-test-dist-{run}"
+    # no worker may delete the zips at exit (another may still install them): earlier runs' folders
+    # go here instead, those whose lock nobody holds
+    for old in Path(tempfile.gettempdir()).glob("tearcloth-test-dist-*"):
+        if old != shared and (old / "lock").exists():
+            with open(old / "lock") as held:
+                try:
+                    fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:
+                    continue
+                shutil.rmtree(old, ignore_errors=True)
+    shared.mkdir(exist_ok=True)
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes, also if this worker dies
+        done = shared / "result.json"
+        if done.exists():
+            result = json.loads(done.read_text())
+            if "error" in result:
+                raise tool.BuildError(result["error"])
+            return result
+        try:
+            result = tool.build(out_dir=shared / "zips")
+        except tool.BuildError as exc:  # the other workers fail (or skip) the same way, not rebuild
+            done.write_text(json.dumps({"error": str(exc)}))
+            raise
+        done.write_text(json.dumps(result))
+        return result
+
+
 def packages() -> dict:
     """{'zips': {blender platform: zip path}, 'validation': {platform: verdict}, 'tool': module}."""
     if not _outcome:
         tool = load_tool()
-        out = Path(tempfile.mkdtemp(prefix="tearcloth-test-dist-"))
-        atexit.register(shutil.rmtree, out, True)
         try:
-            result = tool.build(out_dir=out)
+            result = _build(tool)
         except Exception as exc:  # kept, so the next module's tests fail the same way, not rebuild
             _outcome["error"] = exc
             _outcome["skip"] = isinstance(exc, tool.BuildError) and bool(NETWORK_TROUBLE.search(str(exc)))
