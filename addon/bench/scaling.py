@@ -111,7 +111,7 @@ def base_and_levels(target: float, lo: int = BASE_RANGE[0], hi: int = BASE_RANGE
     target = float(target)
     if not target > 0:
         raise ValueError(f"triangle target must be > 0, got {target}")
-    levels = 0
+    levels = amg_bytes = 0
     while target / 4**levels >= hi:
         levels += 1
     return max(50, int(round(target / 4**levels))), levels
@@ -298,6 +298,7 @@ def _child_point(spec: dict) -> dict:
             iters.append(st["cg_iterations"])
             setup.append(st["amg_setup_seconds"])
             levels = max(levels, int(st["amg_levels"]))
+            amg_bytes = max(amg_bytes, int(st.get("amg_bytes", 0)))
             contacts.append(rep.contacts)
             unconverged += rep.unconverged_substeps > 0
             parts["collision"].append(rep.collision_s)
@@ -306,7 +307,7 @@ def _child_point(spec: dict) -> dict:
     st = c.stats()
     return {"step_s": times, "step_cpu_s": cpu,
             "cg_iterations_median": statistics.median(iters) if iters else None,
-            "cg_iterations": iters, "amg_levels": levels,
+            "cg_iterations": iters, "amg_levels": levels, "amg_bytes": amg_bytes,
             "amg_setup_ms_median": 1e3 * statistics.median(setup) if setup else None,
             "amg_setup_ms_mean": 1e3 * statistics.fmean(setup) if setup else None,
             "unconverged_warmup_steps": int(unconverged_warmup),
@@ -417,6 +418,8 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                             "cg_iterations": res["cg_iterations"],
                             "preconditioner": "amg" if res["amg_levels"] >= 2 else "jacobi",
                             "amg_levels": res["amg_levels"],
+                            # what the hierarchy holds after its builds (the core's own count): part of peak_mb
+                            "amg_mb": res.get("amg_bytes", 0) / MB,
                             "amg_setup_ms_median": res["amg_setup_ms_median"],
                             "amg_setup_ms_mean": res["amg_setup_ms_mean"],
                             # timed steps whose solve the core accepted short of cg_tolerance
@@ -478,7 +481,7 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                                       if config_label(p["mesh"], p["tearing"], p["collision"]) == base_label},
         # the exponent configuration, one row per size: what the exponent and the memory target read
         "per_size": [{k: p[k] for k in ("triangles", "vertices", "step_ms", "step_cpu_ms", "cg_iterations_median",
-                                        "ms_per_cg_iteration", "preconditioner", "amg_setup_ms_mean", "peak_mb",
+                                        "ms_per_cg_iteration", "preconditioner", "amg_setup_ms_mean", "amg_mb", "peak_mb",
                                         "bytes_per_triangle", "peak_rss_mb", "unconverged_steps")}
                      for p in points if config_label(p["mesh"], p["tearing"], p["collision"]) == base_label],
         "exponents_cpu": exponents_cpu,
