@@ -111,7 +111,7 @@ def base_and_levels(target: float, lo: int = BASE_RANGE[0], hi: int = BASE_RANGE
     target = float(target)
     if not target > 0:
         raise ValueError(f"triangle target must be > 0, got {target}")
-    levels = amg_bytes = 0
+    levels = 0
     while target / 4**levels >= hi:
         levels += 1
     return max(50, int(round(target / 4**levels))), levels
@@ -198,15 +198,23 @@ def default_warmup(triangles: int) -> int:
 # ------------------------------------------------------------------------------------------------
 
 
-def _peak_rss_bytes() -> int:
-    """This process's peak resident set: VmHWM from /proc, else ru_maxrss."""
+def _status_bytes(key: str) -> int | None:
+    """A size line of /proc/self/status (VmHWM, VmRSS) in bytes; None without /proc."""
     try:
         with open("/proc/self/status") as fh:
             for line in fh:
-                if line.startswith("VmHWM:"):
+                if line.startswith(key + ":"):
                     return int(line.split()[1]) * 1024
     except OSError:
         pass
+    return None
+
+
+def _peak_rss_bytes() -> int:
+    """This process's peak resident set: VmHWM from /proc, else ru_maxrss."""
+    peak = _status_bytes("VmHWM")
+    if peak is not None:
+        return peak
     import resource
 
     r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -223,14 +231,7 @@ def _import_all():
 
 def _rss_bytes() -> int | None:
     """This process's resident set now (VmRSS), None without /proc."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
+    return _status_bytes("VmRSS")
 
 
 def _reset_peak() -> bool:
@@ -272,7 +273,7 @@ def _child_point(spec: dict) -> dict:
         s = session_mod.Session(c, None)
     times, cpu, iters, contacts, setup = [], [], [], [], []
     unconverged = unconverged_warmup = 0
-    levels = 0
+    levels = amg_bytes = 0
     parts = {"collision": [], "fem": [], "tearing": []}
     error = None
     n = int(spec["warmup"]) + int(spec["steps"])
