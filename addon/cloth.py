@@ -332,7 +332,8 @@ class Cloth:
         matrix_bytes (what one matrix-vector product reads). Also fem_seconds, tear_seconds,
         steps, tears_started, cuts, contacts, vertices, triangles. Tiny fragments (so far):
         fragments_removed, fragment_triangles_removed, fragment_vertices_removed, and
-        fragments_kept (below min_fragment_area but hanging on the rest by a vertex)."""
+        fragments_kept (below min_fragment_area but hanging on the rest by a vertex), amg_bytes
+        (bytes the multigrid hierarchy holds, 0 with block Jacobi)."""
         return self._c.stats()
 
     def energy(self) -> dict:

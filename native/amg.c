@@ -7,7 +7,11 @@
  *
  * The operator is the constrained one of the solve, S A S on the range of the filter S
  * (constraints.c); it is made definite off that range by (I - S) times a diagonal scale, so the
- * fine level's explicit copy A' = S A S + (I - S) d is SPD and equals S A S where CG works.
+ * fine level's operator A' = S A S + (I - S) d is SPD and equals S A S where CG works. A' is never
+ * stored: the setup reads it row by row from fem.c's rows (fine_row), and the products it needs
+ * (the smoothed prolongator, the Galerkin operator P^T A' P) are made row by row too, so the setup
+ * holds no copy of the fine matrix and no A P (at 100K triangles those were 47 and 41 MB, the
+ * peak of the step's memory).
  *   - Strength of connection on A's 3x3 (coarse: 6x6) blocks, |A_ij|_F >= theta sqrt(|A_ii| |A_jj|);
  *     fully constrained vertices (pins, handles) take no part: the smoother alone handles them.
  *   - Aggregation: the three passes of standard aggregation (pyamg's standard_aggregation).
@@ -17,12 +21,13 @@
  *     mode an aggregate cannot carry (a two-vertex aggregate has no twist about its axis) gives a
  *     zero column: that coarse unknown is decoupled with a unit-scaled diagonal.
  *   - Prolongator smoothing by one damped Jacobi step P = (I - w D^-1 A) T, w = 4/(3 rho(D^-1 A)),
- *     rho from power iterations; coarse operators A_c = P^T A P by sparse block products.
+ *     rho from power iterations; coarse operators A_c = P^T A P, pattern first, then one pass over
+ *     the fine rows scattering P_i^T (A P)_i into the upper blocks.
  *   - Coarsest level (at most TC_AMG_COARSEST unknowns): a dense Cholesky factor.
  * The cycle is a V-cycle with the same damped block Jacobi step before and after the coarse
  * correction, so it is a symmetric operator and CG stays CG. On the finest level it never uses the
- * copy A': the smoother's products are fem.c's row product (tc_matvec) and the filter, the
- * operator CG itself uses; the copy lives only while the coarse operators are built.
+ * copy A' either: the smoother's products are fem.c's row product (tc_matvec) and the filter, the
+ * operator CG itself uses.
  *
  * The matrix changes every sub-step (co-rotation, damping, contacts) while the mesh rarely does, so
  * the hierarchy is kept: the aggregates are rebuilt only when the mesh changed (a tear, a restore)
@@ -88,17 +93,26 @@ static int grow(void **p, size_t *cap, size_t need, size_t item)
     return 0;
 }
 
+/* room for n block rows and nnz blocks, exactly (a hierarchy is made again at the same sizes on
+ * every refresh, so slack would only be held) */
 static int bsr_reserve(bsr *a, int32_t n, size_t nnz)
 {
-    if (grow((void **)&a->ptr, &a->cap_rows, (size_t)n + 1, sizeof(int32_t))) return -1;
-    size_t cn = a->cap_nnz;
-    if (grow((void **)&a->col, &cn, nnz, sizeof(int32_t))) return -1;
-    if (nnz > a->cap_nnz || !a->val) {
+    if ((size_t)n + 1 > a->cap_rows || !a->ptr) {
+        int32_t *p = realloc(a->ptr, ((size_t)n + 1) * sizeof(int32_t));
+        if (!p) return -1;
+        a->ptr = p;
+        a->cap_rows = (size_t)n + 1;
+    }
+    if (nnz > a->cap_nnz || !a->col || !a->val) {
+        const size_t cn = nnz ? nnz : 1;
+        int32_t *col = realloc(a->col, cn * sizeof(int32_t));
+        if (!col) return -1;
+        a->col = col;
         double *v = realloc(a->val, cn * (size_t)a->br * (size_t)a->bc * sizeof(double));
         if (!v) return -1;
         a->val = v;
+        a->cap_nnz = cn;
     }
-    a->cap_nnz = cn;
     return 0;
 }
 
@@ -129,8 +143,11 @@ size_t tc_amg_bytes(const tc_amg *h)
         const bsr *m[2] = {&L->A, &L->P};
         for (int k = 0; k < 2; k++)
             s += m[k]->cap_rows * 4 + m[k]->cap_nnz * (4 + 8 * (size_t)m[k]->br * (size_t)m[k]->bc);
-        const size_t n = L->agg || L->dinv ? (size_t)L->n : 0;
-        s += n * (4 + 8 * (size_t)L->b * (L->b + NS)) + 4 * L->cap_vec * 8;
+        const size_t n = (size_t)L->n, b = (size_t)L->b;
+        if (L->agg) s += n * 4;
+        if (L->dinv) s += n * b * b * 8;
+        if (L->B) s += n * b * NS * 8;
+        s += 4 * L->cap_vec * 8;
     }
     return s + h->cap_chol * 8 + h->cap_mark * 4 + h->cap_acc * 8;
 }
@@ -224,7 +241,7 @@ static inline bool fully_constrained(const tc_cloth *c, int32_t i)
     return f == VC_PINNED || f == VC_HANDLE;
 }
 
-/* ---------------- the finest level's explicit operator A' ---------------- */
+/* ---------------- the finest level's operator, row by row ---------------- */
 
 /* a 3x3 block stored column by column, each column `stride` doubles apart, row-major */
 static void from_columns(const double *src, int stride, double a[9])
@@ -233,72 +250,113 @@ static void from_columns(const double *src, int stride, double a[9])
         for (int q = 0; q < 3; q++) a[3 * r + q] = src[stride * q + r];
 }
 
-/* A' = S A S + (I - S) d_i, 3x3 blocks row-major, from fem.c's rows (diagonal padded column-major,
- * edge blocks column-major, flaps scalars). */
-static int fine_matrix(const tc_cloth *c, bsr *A)
+/* Row i of A' = S A S + (I - S) d_i (3x3 blocks row-major; its diagonal first, then the edge
+ * blocks, then the flaps) from fem.c's rows, into col/val (val NULL: the columns only). The
+ * hierarchy reads the finest level this way, never as a stored copy: that copy (76 bytes per block,
+ * 13 blocks per row) was the largest allocation of the setup, 47 MB at 100K triangles. */
+static int32_t fine_row(const tc_cloth *c, int32_t i, int32_t *col, double *val)
 {
-    const int32_t nv = c->nv;
     const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
     const double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
-    A->n = A->m = nv; A->br = A->bc = 3;
-    if (bsr_reserve(A, nv, (size_t)nv + (size_t)rp[nv] + (size_t)fp[nv])) return -1;
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
     int32_t k = 0;
-    for (int32_t i = 0; i < nv; i++) {
-        A->ptr[i] = k;
-        double Si[9];
-        filter_matrix(c, i, Si);
-        const bool free_i = ((const int8_t *)tc_vec_ptr(&c->vflag))[i] == VC_FREE;
-        /* diagonal */
-        {
-            double a[9];
-            from_columns(D + 12 * (size_t)i, 4, a);
-            double *o = A->val + 9 * (size_t)k;
-            A->col[k++] = i;
-            if (free_i) { memcpy(o, a, sizeof a); }
-            else {
-                double t[9] = {0}, u[9] = {0};
-                gemm_acc(t, Si, a, 3, 3, 3);
-                gemm_acc(u, t, Si, 3, 3, 3);
-                const double sc = (a[0] + a[4] + a[8]) / 3.0;
-                for (int r = 0; r < 9; r++) o[r] = u[r] + sc * ((r % 4 == 0 ? 1.0 : 0.0) - Si[r]);
-            }
-        }
-        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
-            const int32_t j = rc[s];
-            double a[9];
-            from_columns(RB + 9 * (size_t)s, 3, a);
-            double *o = A->val + 9 * (size_t)k;
-            A->col[k++] = j;
-            const bool free_j = ((const int8_t *)tc_vec_ptr(&c->vflag))[j] == VC_FREE;
-            if (free_i && free_j) { memcpy(o, a, sizeof a); continue; }
-            double Sj[9], t[9] = {0};
-            filter_matrix(c, j, Sj);
-            memset(o, 0, 9 * sizeof(double));
+    col[k++] = i;
+    for (int32_t s = rp[i]; s < rp[i + 1]; s++) col[k++] = rc[s];
+    for (int32_t s = fp[i]; s < fp[i + 1]; s++) col[k++] = fc[s];
+    if (!val) return k;
+    double Si[9];
+    filter_matrix(c, i, Si);
+    const bool free_i = fl[i] == VC_FREE;
+    {
+        double a[9];
+        from_columns(D + 12 * (size_t)i, 4, a);
+        if (free_i) memcpy(val, a, sizeof a);
+        else {
+            double t[9] = {0}, u[9] = {0};
             gemm_acc(t, Si, a, 3, 3, 3);
-            gemm_acc(o, t, Sj, 3, 3, 3);
-        }
-        for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
-            const int32_t j = fc[s];
-            const double f = FV[s];
-            double *o = A->val + 9 * (size_t)k;
-            A->col[k++] = j;
-            const bool free_j = ((const int8_t *)tc_vec_ptr(&c->vflag))[j] == VC_FREE;
-            if (free_i && free_j) {
-                for (int r = 0; r < 9; r++) o[r] = r % 4 == 0 ? f : 0.0;
-                continue;
-            }
-            double Sj[9];
-            filter_matrix(c, j, Sj);
-            memset(o, 0, 9 * sizeof(double));
-            gemm_acc(o, Si, Sj, 3, 3, 3);
-            for (int r = 0; r < 9; r++) o[r] *= f;
+            gemm_acc(u, t, Si, 3, 3, 3);
+            const double sc = (a[0] + a[4] + a[8]) / 3.0;
+            for (int r = 0; r < 9; r++) val[r] = u[r] + sc * ((r % 4 == 0 ? 1.0 : 0.0) - Si[r]);
         }
     }
-    A->ptr[nv] = k;
-    return 0;
+    double *o = val + 9;
+    for (int32_t s = rp[i]; s < rp[i + 1]; s++, o += 9) {
+        const int32_t j = rc[s];
+        double a[9];
+        from_columns(RB + 9 * (size_t)s, 3, a);
+        if (free_i && fl[j] == VC_FREE) { memcpy(o, a, sizeof a); continue; }
+        double Sj[9], t[9] = {0};
+        filter_matrix(c, j, Sj);
+        memset(o, 0, 9 * sizeof(double));
+        gemm_acc(t, Si, a, 3, 3, 3);
+        gemm_acc(o, t, Sj, 3, 3, 3);
+    }
+    for (int32_t s = fp[i]; s < fp[i + 1]; s++, o += 9) {
+        const int32_t j = fc[s];
+        const double f = FV[s];
+        if (free_i && fl[j] == VC_FREE) {
+            for (int r = 0; r < 9; r++) o[r] = r % 4 == 0 ? f : 0.0;
+            continue;
+        }
+        double Sj[9];
+        filter_matrix(c, j, Sj);
+        memset(o, 0, 9 * sizeof(double));
+        gemm_acc(o, Si, Sj, 3, 3, 3);
+        for (int r = 0; r < 9; r++) o[r] *= f;
+    }
+    return k;
 }
 
-/* ---------------- sparse block products ---------------- */
+/* The rows of a level's operator: level 0's made one at a time by fine_row into the scratch,
+ * a coarse level's read in place from its stored matrix. */
+typedef struct rowsrc {
+    const tc_cloth *c;
+    const bsr *A;          /* coarse levels */
+    int32_t *col;          /* level 0: one row's columns and blocks */
+    double *val;
+    int32_t max_row;
+} rowsrc;
+
+static int rowsrc_init(rowsrc *s, const tc_cloth *c, const level *L, int l)
+{
+    memset(s, 0, sizeof *s);
+    s->c = c;
+    if (l > 0) { s->A = &L->A; return 0; }
+    const int32_t *rp = tc_vec_ptr(&c->rptr), *fp = tc_vec_ptr(&c->fptr);
+    int32_t m = 1;
+    for (int32_t i = 0; i < c->nv; i++) {
+        const int32_t k = 1 + (rp[i + 1] - rp[i]) + (fp[i + 1] - fp[i]);
+        if (k > m) m = k;
+    }
+    s->max_row = m;
+    s->col = malloc((size_t)m * sizeof(int32_t));
+    s->val = malloc((size_t)m * 9 * sizeof(double));
+    return s->col && s->val ? 0 : -1;
+}
+
+static void rowsrc_free(rowsrc *s)
+{
+    free(s->col); free(s->val);
+    s->col = NULL; s->val = NULL;
+}
+
+/* row i: its length; its columns and blocks (b x b row-major) in *col, *val (want_val false: the
+ * columns only, *val untouched) */
+static inline int32_t row_get(rowsrc *s, int32_t i, const int32_t **col, const double **val, bool want_val)
+{
+    if (!s->A) {
+        const int32_t k = fine_row(s->c, i, s->col, want_val ? s->val : NULL);
+        *col = s->col;
+        if (want_val) *val = s->val;
+        return k;
+    }
+    const int32_t a = s->A->ptr[i];
+    *col = s->A->col + a;
+    if (want_val) *val = s->A->val + (size_t)a * s->A->br * s->A->bc;
+    return s->A->ptr[i + 1] - a;
+}
+
+/* ---------------- prolongator and Galerkin product, from the rows ---------------- */
 
 static int scratch(tc_amg *h, int32_t m, size_t acc)
 {
@@ -308,137 +366,236 @@ static int scratch(tc_amg *h, int32_t m, size_t acc)
     return grow((void **)&h->acc, &h->cap_acc, acc, sizeof(double));
 }
 
-/* The numeric pass of C = X Y row by row: `mark` holds the slot of a column in the current row.
- * Instantiated for the block shapes the hierarchy has (3x3 . 3x6 on the finest level, 6x3 . 3x6 for
- * its Galerkin product, 6x6 . 6x6 below), so the compiler unrolls the block products: the generic
- * loop ran at 0.4 GFlop/s. */
-#define BSR_MUL_NUMERIC(NAME, BR, BK, BC, SYM)                                                          \
-    TC_HOT static void NAME(const bsr *X, const bsr *Y, bsr *C, int32_t *mark, double *acc)          \
+/* room for one more block in row-growing C (n block rows) */
+static int bsr_push(bsr *C, size_t nnz)
+{
+    if (nnz < C->cap_nnz) return 0;
+    return bsr_reserve(C, C->n, nnz + 1 + nnz / 2);
+}
+
+/* P = (I - w D^-1 A) T row by row (T: at most one block per row, that of the row's aggregate),
+ * D^-1 the smoother's inverse diagonal blocks (level 0: S times the solver's). One pass: row i's
+ * blocks are (A T)_iJ = sum over its columns j in aggregate J of A_ij T_j, so no product A T is
+ * stored before it is smoothed. Instantiated for the finest (b = 3) and coarse (b = 6) blocks. */
+#define PROLONGATOR(NAME, B)                                                                          \
+    TC_HOT static int NAME(tc_amg *h, rowsrc *s, const level *L, int l, const bsr *T, bsr *P)          \
     {                                                                                                 \
-        enum { BS = BR * BC };                                                                        \
-        for (int32_t i = 0; i < X->n; i++) {                                                          \
-            const int32_t s0 = C->ptr[i];                                                             \
-            int32_t s = s0;                                                                           \
-            for (int32_t a = X->ptr[i]; a < X->ptr[i + 1]; a++) {                                     \
-                const double *xa = X->val + (size_t)a * BR * BK;                                      \
-                const int32_t k = X->col[a];                                                          \
-                for (int32_t b = Y->ptr[k]; b < Y->ptr[k + 1]; b++) {                                 \
-                    const int32_t j = Y->col[b];                                                      \
-                    if (SYM && j < i) continue;                                                       \
-                    if (mark[j] < s0) {                                                               \
-                        mark[j] = s;                                                                  \
-                        C->col[s] = j;                                                                \
-                        memset(acc + (size_t)(s - s0) * BS, 0, BS * sizeof(double));                  \
-                        s++;                                                                          \
+        enum { BS = B * NS };                                                                         \
+        const int32_t n = L->n;                                                                       \
+        P->n = n; P->m = T->m; P->br = B; P->bc = NS;                                                 \
+        if (scratch(h, T->m, 64 * BS)) return -1;                                                     \
+        int32_t *mark = h->mark;                                                                      \
+        /* the pattern's size first (columns only), so P takes what it needs and no more */           \
+        size_t k = 0;                                                                                 \
+        for (int32_t i = 0; i < n; i++) {                                                             \
+            const int32_t *col;                                                                       \
+            const double *unused = NULL;                                                              \
+            const int32_t len = row_get(s, i, &col, &unused, false);                                  \
+            for (int32_t a = 0; a < len; a++) {                                                       \
+                const int32_t j = col[a];                                                             \
+                if (T->ptr[j + 1] == T->ptr[j]) continue;                                             \
+                const int32_t J = T->col[T->ptr[j]];                                                  \
+                if (mark[J] != i) { mark[J] = i; k++; }                                               \
+            }                                                                                         \
+        }                                                                                             \
+        for (int32_t J = 0; J < T->m; J++) mark[J] = -1;                                              \
+        if (bsr_reserve(P, n, k)) return -1;                                                          \
+        k = 0;                                                                                        \
+        for (int32_t i = 0; i < n; i++) {                                                             \
+            P->ptr[i] = (int32_t)k;                                                                   \
+            const int32_t *col;                                                                       \
+            const double *val;                                                                        \
+            const int32_t len = row_get(s, i, &col, &val, true);                                      \
+            const size_t s0 = k;                                                                      \
+            for (int32_t a = 0; a < len; a++) {                                                       \
+                const int32_t j = col[a];                                                             \
+                if (T->ptr[j + 1] == T->ptr[j]) continue;                                             \
+                const int32_t J = T->col[T->ptr[j]];                                                  \
+                if (mark[J] < 0) {                                                                    \
+                    if (bsr_push(P, k) || grow((void **)&h->acc, &h->cap_acc, (k - s0 + 1) * BS, sizeof(double))) \
+                        return -1;                                                                    \
+                    mark[J] = (int32_t)k;                                                             \
+                    P->col[k] = J;                                                                    \
+                    memset(h->acc + (k - s0) * BS, 0, BS * sizeof(double));                           \
+                    k++;                                                                              \
+                }                                                                                     \
+                double *o = h->acc + (size_t)(mark[J] - (int32_t)s0) * BS;                            \
+                const double *ab = val + (size_t)a * B * B, *tb = T->val + (size_t)T->ptr[j] * BS;    \
+                for (int r = 0; r < B; r++)                                                           \
+                    for (int q = 0; q < B; q++) {                                                     \
+                        const double x = ab[r * B + q];                                               \
+                        for (int m = 0; m < NS; m++) o[r * NS + m] += x * tb[q * NS + m];             \
                     }                                                                                 \
-                    double *o = acc + (size_t)(mark[j] - s0) * BS;                                    \
-                    const double *yb = Y->val + (size_t)b * BK * BC;                                  \
-                    for (int r = 0; r < BR; r++)                                                      \
-                        for (int l = 0; l < BK; l++) {                                                \
-                            const double x = xa[r * BK + l];                                          \
-                            for (int q = 0; q < BC; q++) o[r * BC + q] += x * yb[l * BC + q];         \
+            }                                                                                         \
+            double M[B * B];                                                                          \
+            if (l == 0) {                                                                             \
+                const double *p = (const double *)tc_vec_ptr(&s->c->pinv) + 9 * (size_t)i;            \
+                double S[9];                                                                          \
+                filter_matrix(s->c, i, S);                                                            \
+                memset(M, 0, sizeof M);                                                               \
+                gemm_acc(M, S, p, 3, 3, 3);                                                           \
+            } else {                                                                                  \
+                memcpy(M, L->dinv + (size_t)i * B * B, sizeof M);                                     \
+            }                                                                                         \
+            const int32_t Ti = T->ptr[i + 1] > T->ptr[i] ? T->col[T->ptr[i]] : -1;                    \
+            for (size_t a = s0; a < k; a++) {                                                         \
+                const double *v = h->acc + (a - s0) * BS;                                             \
+                double *o = P->val + a * BS;                                                          \
+                for (int r = 0; r < B; r++)                                                           \
+                    for (int m = 0; m < NS; m++) {                                                    \
+                        double t = 0.0;                                                               \
+                        for (int q = 0; q < B; q++) t += M[r * B + q] * v[q * NS + m];                \
+                        o[r * NS + m] = -L->omega * t;                                                \
+                    }                                                                                 \
+                if (P->col[a] == Ti)                                                                  \
+                    for (int q = 0; q < BS; q++) o[q] += T->val[(size_t)T->ptr[i] * BS + q];          \
+                mark[P->col[a]] = -1;                                                                 \
+            }                                                                                         \
+        }                                                                                             \
+        P->ptr[n] = (int32_t)k;                                                                       \
+        return 0;                                                                                     \
+    }
+PROLONGATOR(prolongator_3, 3)
+PROLONGATOR(prolongator_6, 6)
+#undef PROLONGATOR
+
+/* slot of column J in row I of C (its columns sorted), -1 if absent */
+static inline int32_t find_slot(const bsr *C, int32_t I, int32_t J)
+{
+    int32_t lo = C->ptr[I], hi = C->ptr[I + 1] - 1;
+    while (lo <= hi) {
+        const int32_t mid = (lo + hi) >> 1, v = C->col[mid];
+        if (v == J) return mid;
+        if (v < J) lo = mid + 1; else hi = mid - 1;
+    }
+    return -1;
+}
+
+/* C = P^T A P (NS x NS blocks, columns sorted in each row). Its pattern first, from the patterns
+ * alone (the rows of P^T: the fine rows of each aggregate); then one pass over the fine rows, each
+ * making its row of A P once in a small accumulator and adding P_iI^T (A P)_iJ into C's upper
+ * blocks (J >= I; the lower ones are their transposes). So neither A P nor P^T is ever stored: at
+ * 100K triangles they were 41 and 20 MB at the peak of the setup. */
+#define GALERKIN(NAME, B)                                                                             \
+    TC_HOT static int NAME(tc_amg *h, rowsrc *s, const bsr *P, bsr *C)                                \
+    {                                                                                                 \
+        enum { BS = B * NS, CS = NS * NS };                                                           \
+        const int32_t n = P->n, na = P->m;                                                            \
+        int rc = -1;                                                                                  \
+        int32_t *tptr = calloc((size_t)na + 1, sizeof(int32_t));                                      \
+        int32_t *trow = malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));                            \
+        int32_t *cols = malloc(((size_t)na + 1) * sizeof(int32_t)); /* one row's columns of A P */    \
+        if (!tptr || !trow || !cols || scratch(h, na, 64 * BS)) goto done;                            \
+        for (int32_t a = 0; a < P->ptr[n]; a++) tptr[P->col[a] + 1]++;                                \
+        for (int32_t I = 0; I < na; I++) tptr[I + 1] += tptr[I];                                      \
+        for (int32_t i = 0; i < n; i++)                                                               \
+            for (int32_t a = P->ptr[i]; a < P->ptr[i + 1]; a++) trow[tptr[P->col[a]]++] = i;          \
+        for (int32_t I = na; I > 0; I--) tptr[I] = tptr[I - 1];                                       \
+        tptr[0] = 0;                                                                                  \
+        int32_t *mark = h->mark;                                                                      \
+        C->n = C->m = na; C->br = C->bc = NS;                                                         \
+        /* two symbolic passes, the count then the columns, so C takes what it needs and no more */    \
+        size_t k = 0;                                                                                 \
+        for (int pass = 0; pass < 2; pass++) {                                                        \
+        if (pass == 1 && bsr_reserve(C, na, k)) goto done;                                            \
+        k = 0;                                                                                        \
+        for (int32_t I = 0; I < na; I++) {                                                            \
+            if (pass) C->ptr[I] = (int32_t)k;                                                         \
+            const size_t s0 = k;                                                                      \
+            for (int32_t t = tptr[I]; t < tptr[I + 1]; t++) {                                         \
+                const int32_t *col;                                                                   \
+                const double *unused = NULL;                                                          \
+                const int32_t len = row_get(s, trow[t], &col, &unused, false);                        \
+                for (int32_t a = 0; a < len; a++) {                                                   \
+                    const int32_t j = col[a];                                                         \
+                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++) {                             \
+                        const int32_t J = P->col[b];                                                  \
+                        if (mark[J] == I) continue;                                                   \
+                        mark[J] = I;                                                                  \
+                        if (pass) C->col[k] = J;                                                      \
+                        k++;                                                                          \
+                    }                                                                                 \
+                }                                                                                     \
+            }                                                                                         \
+            /* sorted columns (a few dozen: insertion sort) */                                        \
+            if (pass) for (size_t a = s0 + 1; a < k; a++) {                                           \
+                const int32_t v = C->col[a];                                                          \
+                size_t b = a;                                                                         \
+                while (b > s0 && C->col[b - 1] > v) { C->col[b] = C->col[b - 1]; b--; }               \
+                C->col[b] = v;                                                                        \
+            }                                                                                         \
+        }                                                                                             \
+        for (int32_t J = 0; J < na; J++) mark[J] = -1;                                                \
+        }                                                                                             \
+        C->ptr[na] = (int32_t)k;                                                                      \
+        memset(C->val, 0, k * CS * sizeof(double));                                                   \
+        for (int32_t i = 0; i < n; i++) {                                                             \
+            if (P->ptr[i + 1] == P->ptr[i]) continue;                                                 \
+            const int32_t *col;                                                                       \
+            const double *val;                                                                        \
+            const int32_t len = row_get(s, i, &col, &val, true);                                      \
+            int32_t m = 0;                                                                            \
+            for (int32_t a = 0; a < len; a++) {                                                       \
+                const int32_t j = col[a];                                                             \
+                const double *ab = val + (size_t)a * B * B;                                           \
+                for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++) {                                 \
+                    const int32_t J = P->col[b];                                                      \
+                    if (mark[J] < 0) {                                                                \
+                        if (grow((void **)&h->acc, &h->cap_acc, ((size_t)m + 1) * BS, sizeof(double))) goto done; \
+                        mark[J] = m;                                                                  \
+                        cols[m] = J;                                                                  \
+                        memset(h->acc + (size_t)m * BS, 0, BS * sizeof(double));                      \
+                        m++;                                                                          \
+                    }                                                                                 \
+                    double *o = h->acc + (size_t)mark[J] * BS;                                        \
+                    const double *pb = P->val + (size_t)b * BS;                                       \
+                    for (int r = 0; r < B; r++)                                                       \
+                        for (int q = 0; q < B; q++) {                                                 \
+                            const double x = ab[r * B + q];                                           \
+                            for (int e = 0; e < NS; e++) o[r * NS + e] += x * pb[q * NS + e];         \
                         }                                                                             \
                 }                                                                                     \
             }                                                                                         \
-            memcpy(C->val + (size_t)s0 * BS, acc, (size_t)(s - s0) * BS * sizeof(double));            \
+            for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++) {                                     \
+                const int32_t I = P->col[b];                                                          \
+                const double *pb = P->val + (size_t)b * BS;                                           \
+                for (int32_t q = 0; q < m; q++) {                                                     \
+                    const int32_t J = cols[q];                                                        \
+                    if (J < I) continue;                                                              \
+                    const int32_t slot = find_slot(C, I, J);                                          \
+                    if (slot < 0) continue; /* cannot happen: the pattern has every (I, J) */         \
+                    double *o = C->val + (size_t)slot * CS;                                           \
+                    const double *v = h->acc + (size_t)q * BS;                                        \
+                    for (int r = 0; r < B; r++)                                                       \
+                        for (int x = 0; x < NS; x++) {                                                \
+                            const double p = pb[r * NS + x];                                          \
+                            for (int e = 0; e < NS; e++) o[x * NS + e] += p * v[r * NS + e];          \
+                        }                                                                             \
+                }                                                                                     \
+            }                                                                                         \
+            for (int32_t q = 0; q < m; q++) mark[cols[q]] = -1;                                       \
         }                                                                                             \
+        /* the lower blocks: transposes of the upper ones */                                          \
+        for (int32_t I = 0; I < na; I++)                                                              \
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {                                     \
+                const int32_t J = C->col[a];                                                          \
+                if (J <= I) continue;                                                                 \
+                const int32_t t = find_slot(C, J, I);                                                 \
+                if (t < 0) continue;                                                                  \
+                const double *u = C->val + (size_t)a * CS;                                            \
+                double *o = C->val + (size_t)t * CS;                                                  \
+                for (int r = 0; r < NS; r++)                                                          \
+                    for (int q = 0; q < NS; q++) o[q * NS + r] = u[r * NS + q];                       \
+            }                                                                                         \
+        rc = 0;                                                                                       \
+    done:                                                                                             \
+        free(tptr); free(trow); free(cols);                                                           \
+        return rc;                                                                                    \
     }
-BSR_MUL_NUMERIC(mul_336, 3, 3, 6, 0)
-BSR_MUL_NUMERIC(mul_636_sym, 6, 3, 6, 1)
-BSR_MUL_NUMERIC(mul_666, 6, 6, 6, 0)
-BSR_MUL_NUMERIC(mul_666_sym, 6, 6, 6, 1)
-#undef BSR_MUL_NUMERIC
+GALERKIN(galerkin_3, 3)
+GALERKIN(galerkin_6, 6)
+#undef GALERKIN
 
-/* C = X Y (X: n x k blocks br x bk, Y: k x m blocks bk x bc), with a dense accumulator per row.
- * `symmetric`: C is known to be symmetric (a Galerkin product P^T (A P)), so only the blocks on
- * and above the diagonal are computed and the others are their transposes: half the work. */
-static int bsr_mul(tc_amg *h, const bsr *X, const bsr *Y, bsr *C, bool symmetric)
-{
-    const int br = X->br, bk = X->bc, bc = Y->bc, bs = br * bc;
-    C->n = X->n; C->m = Y->m; C->br = br; C->bc = bc;
-    if (scratch(h, Y->m, (size_t)Y->m * bs)) return -1;
-    /* symbolic: count (the upper part first when symmetric: the numeric pass fills rows that way) */
-    size_t nnz = 0;
-    int32_t *mark = h->mark;
-    if (grow((void **)&C->ptr, &C->cap_rows, (size_t)X->n + 1, sizeof(int32_t))) return -1;
-    for (int32_t i = 0; i < X->n; i++) {
-        C->ptr[i] = (int32_t)nnz;
-        for (int32_t a = X->ptr[i]; a < X->ptr[i + 1]; a++) {
-            const int32_t k = X->col[a];
-            for (int32_t b = Y->ptr[k]; b < Y->ptr[k + 1]; b++)
-                if (mark[Y->col[b]] != i) { mark[Y->col[b]] = i; nnz++; }
-        }
-    }
-    C->ptr[X->n] = (int32_t)nnz;
-    for (int32_t j = 0; j < Y->m; j++) mark[j] = -1;
-    if (bsr_reserve(C, C->n, nnz)) return -1;
-    symmetric = symmetric && br == bc && X->n == Y->m;
-    if (br == 3 && bk == 3 && bc == 6) mul_336(X, Y, C, mark, h->acc);
-    else if (br == 6 && bk == 3 && bc == 6 && symmetric) mul_636_sym(X, Y, C, mark, h->acc);
-    else if (symmetric) mul_666_sym(X, Y, C, mark, h->acc);
-    else mul_666(X, Y, C, mark, h->acc);
-    for (int32_t j = 0; j < Y->m; j++) mark[j] = -1;
-    if (!symmetric) return 0;
-    /* Row i holds its upper blocks (j >= i) in its first slots; its lower blocks follow, each the
-     * transpose of the upper block (j, i) of row j. */
-    int32_t *upper = malloc(((size_t)C->n + 1) * sizeof(int32_t));
-    if (!upper) return -1;
-    /* how many upper blocks each row got: the first slots up to the first column left unset */
-    for (int32_t i = 0; i < C->n; i++) {
-        int32_t u = 0;
-        for (int32_t a = X->ptr[i]; a < X->ptr[i + 1]; a++) {
-            const int32_t k = X->col[a];
-            for (int32_t b = Y->ptr[k]; b < Y->ptr[k + 1]; b++) {
-                const int32_t j = Y->col[b];
-                if (j >= i && mark[j] != i) { mark[j] = i; u++; }
-            }
-        }
-        upper[i] = u;
-    }
-    for (int32_t j = 0; j < Y->m; j++) mark[j] = -1;
-    int32_t *fill = malloc(((size_t)C->n + 1) * sizeof(int32_t));
-    if (!fill) { free(upper); return -1; }
-    for (int32_t i = 0; i < C->n; i++) fill[i] = C->ptr[i] + upper[i];
-    for (int32_t j = 0; j < C->n; j++)
-        for (int32_t a = C->ptr[j]; a < C->ptr[j] + upper[j]; a++) {
-            const int32_t i = C->col[a];
-            if (i == j) continue;
-            const int32_t s = fill[i]++;
-            C->col[s] = j;
-            const double *u = C->val + (size_t)a * bs;
-            double *t = C->val + (size_t)s * bs;
-            for (int r = 0; r < br; r++)
-                for (int q = 0; q < bc; q++) t[q * br + r] = u[r * bc + q];
-        }
-    free(upper); free(fill);
-    return 0;
-}
-
-/* T = X^T */
-static int bsr_transpose(const bsr *X, bsr *T)
-{
-    const int br = X->br, bc = X->bc;
-    T->n = X->m; T->m = X->n; T->br = bc; T->bc = br;
-    const size_t nnz = (size_t)X->ptr[X->n];
-    if (bsr_reserve(T, T->n, nnz)) return -1;
-    memset(T->ptr, 0, ((size_t)T->n + 1) * sizeof(int32_t));
-    for (size_t a = 0; a < nnz; a++) T->ptr[X->col[a] + 1]++;
-    for (int32_t j = 0; j < T->n; j++) T->ptr[j + 1] += T->ptr[j];
-    for (int32_t i = 0; i < X->n; i++)
-        for (int32_t a = X->ptr[i]; a < X->ptr[i + 1]; a++) {
-            const int32_t s = T->ptr[X->col[a]]++;
-            T->col[s] = i;
-            const double *x = X->val + (size_t)a * br * bc;
-            double *t = T->val + (size_t)s * br * bc;
-            for (int r = 0; r < br; r++)
-                for (int q = 0; q < bc; q++) t[q * br + r] = x[r * bc + q];
-        }
-    for (int32_t j = T->n; j > 0; j--) T->ptr[j] = T->ptr[j - 1];
-    T->ptr[0] = 0;
-    return 0;
-}
-
-/* y = A x, instantiated per block shape as the products above */
 #define BSR_APPLY(NAME, BR, BC)                                                                          \
     TC_HOT static void NAME(const bsr *A, const double *x, double *y)                                        \
     {                                                                                                 \
@@ -496,51 +653,72 @@ static double fro2(const double *v, int n)
     return s;
 }
 
-static inline double block_diag_norm(const bsr *A, int32_t i)
+/* The strong graph of a level (theta on the Frobenius norms: |A_ij|_F > theta sqrt(|A_ii| |A_jj|)),
+ * in sptr/scol, and dn the diagonal blocks' norms (0: the row takes no part: a fully constrained
+ * vertex of the finest level). Only the pattern is kept: 4 bytes per strong block. */
+static int strength_graph(rowsrc *s, const tc_cloth *c, int l, int32_t n, int b, double *dn, int32_t **sptr_out,
+                          int32_t **scol_out)
 {
-    for (int32_t a = A->ptr[i]; a < A->ptr[i + 1]; a++)
-        if (A->col[a] == i) return sqrt(fro2(A->val + (size_t)a * A->br * A->bc, A->br * A->bc));
-    return 0.0;
-}
-
-/* strong(a): block a of row i is a strong connection (theta on the Frobenius norms) */
-static inline bool strong(const bsr *A, const double *dn, int32_t i, int32_t a)
-{
-    const int32_t j = A->col[a];
-    if (j == i || dn[j] <= 0.0) return false;
-    const double f = fro2(A->val + (size_t)a * A->br * A->bc, A->br * A->bc);
-    return f > TC_AMG_THETA * TC_AMG_THETA * dn[i] * dn[j];
+    const int bb = b * b;
+    size_t nnz = 0;
+    for (int32_t i = 0; i < n; i++) {
+        const int32_t *col;
+        const double *val;
+        const int32_t len = row_get(s, i, &col, &val, true);
+        nnz += (size_t)len;
+        dn[i] = 0.0;
+        if (l == 0 && fully_constrained(c, i)) continue;
+        for (int32_t a = 0; a < len; a++)
+            if (col[a] == i) { dn[i] = sqrt(fro2(val + (size_t)a * bb, bb)); break; }
+    }
+    int32_t *sptr = malloc(((size_t)n + 1) * sizeof(int32_t)), *scol = malloc((nnz + 1) * sizeof(int32_t));
+    if (!sptr || !scol) { free(sptr); free(scol); return -1; }
+    int32_t k = 0;
+    for (int32_t i = 0; i < n; i++) {
+        sptr[i] = k;
+        if (dn[i] <= 0.0) continue;
+        const int32_t *col;
+        const double *val;
+        const int32_t len = row_get(s, i, &col, &val, true);
+        for (int32_t a = 0; a < len; a++) {
+            const int32_t j = col[a];
+            if (j == i || dn[j] <= 0.0) continue;
+            if (fro2(val + (size_t)a * bb, bb) > TC_AMG_THETA * TC_AMG_THETA * dn[i] * dn[j]) scol[k++] = j;
+        }
+    }
+    sptr[n] = k;
+    *sptr_out = sptr;
+    *scol_out = scol;
+    return 0;
 }
 
 /* The three passes of standard aggregation on the strong graph; rows with dn <= 0 (excluded) and
  * rows with no strong neighbour stay out (-1). Returns the number of aggregates. */
-static int32_t aggregate(const bsr *A, const double *dn, int32_t *agg, int32_t *pass1)
+static int32_t aggregate(int32_t n, const int32_t *sptr, const int32_t *scol, const double *dn, int32_t *agg,
+                         int32_t *pass1)
 {
-    const int32_t n = A->n;
     int32_t na = 0;
     for (int32_t i = 0; i < n; i++) agg[i] = -1;
     for (int32_t i = 0; i < n; i++) {
-        if (dn[i] <= 0.0) continue;
-        bool ok = true, any = false;
-        for (int32_t a = A->ptr[i]; a < A->ptr[i + 1] && ok; a++)
-            if (strong(A, dn, i, a)) { any = true; ok = agg[A->col[a]] < 0; }
-        if (!ok || !any) continue;
+        if (dn[i] <= 0.0 || sptr[i + 1] == sptr[i]) continue;
+        bool ok = true;
+        for (int32_t a = sptr[i]; a < sptr[i + 1] && ok; a++) ok = agg[scol[a]] < 0;
+        if (!ok) continue;
         agg[i] = na;
-        for (int32_t a = A->ptr[i]; a < A->ptr[i + 1]; a++)
-            if (strong(A, dn, i, a)) agg[A->col[a]] = na;
+        for (int32_t a = sptr[i]; a < sptr[i + 1]; a++) agg[scol[a]] = na;
         na++;
     }
     memcpy(pass1, agg, (size_t)n * sizeof(int32_t));
     for (int32_t i = 0; i < n; i++) {
         if (agg[i] >= 0 || dn[i] <= 0.0) continue;
-        for (int32_t a = A->ptr[i]; a < A->ptr[i + 1]; a++)
-            if (strong(A, dn, i, a) && pass1[A->col[a]] >= 0) { agg[i] = pass1[A->col[a]]; break; }
+        for (int32_t a = sptr[i]; a < sptr[i + 1]; a++)
+            if (pass1[scol[a]] >= 0) { agg[i] = pass1[scol[a]]; break; }
     }
     for (int32_t i = 0; i < n; i++) {
         if (agg[i] >= 0 || dn[i] <= 0.0) continue;
         bool any = false;
-        for (int32_t a = A->ptr[i]; a < A->ptr[i + 1]; a++)
-            if (strong(A, dn, i, a) && agg[A->col[a]] < 0) { agg[A->col[a]] = na; any = true; }
+        for (int32_t a = sptr[i]; a < sptr[i + 1]; a++)
+            if (agg[scol[a]] < 0) { agg[scol[a]] = na; any = true; }
         if (any) agg[i] = na++;
     }
     return na;
@@ -691,36 +869,6 @@ static double spectral_radius(const tc_cloth *c, level *L, int l)
     }
     return rho > 0 ? 1.1 * rho : 1.0;
 }
-
-/* P = (I - w D^-1 A) T, in place of AT's values (AT = A T has T's pattern plus the neighbours') */
-static void smooth_prolongator(const tc_cloth *c, const level *L, int l, const bsr *T, bsr *AT)
-{
-    const int b = L->b, bs = b * NS;
-    const double w = L->omega;
-    double tmp[NS * NS];
-    for (int32_t i = 0; i < AT->n; i++) {
-        double m[NS * NS];
-        if (l == 0) {
-            const double *p = (const double *)tc_vec_ptr(&c->pinv) + 9 * (size_t)i;
-            double S[9], t[9] = {0};
-            filter_matrix(c, i, S);
-            gemm_acc(t, S, p, 3, 3, 3);
-            memcpy(m, t, sizeof t);
-        } else {
-            memcpy(m, L->dinv + (size_t)i * b * b, (size_t)b * b * sizeof(double));
-        }
-        for (int32_t a = AT->ptr[i]; a < AT->ptr[i + 1]; a++) {
-            double *v = AT->val + (size_t)a * bs;
-            memset(tmp, 0, (size_t)bs * sizeof(double));
-            gemm_acc(tmp, m, v, b, b, NS);
-            for (int k = 0; k < bs; k++) v[k] = -w * tmp[k];
-            for (int32_t t = T->ptr[i]; t < T->ptr[i + 1]; t++)
-                if (T->col[t] == AT->col[a])
-                    for (int k = 0; k < bs; k++) v[k] += T->val[(size_t)t * bs + k];
-        }
-    }
-}
-
 /* inverse diagonal blocks of a coarse level; a dead unknown gets the live diagonal's scale first */
 static int coarse_diagonal(level *L, const int32_t *dead)
 {
@@ -803,18 +951,26 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
 {
     aggregate_again = aggregate_again || tc_amg_needs_aggregation(h, c);
     int rc = -1;
-    int32_t *pass1 = NULL, *dead = NULL;
+    int32_t *pass1 = NULL, *dead = NULL, *sptr = NULL, *scol = NULL;
     double *dn = NULL, *B = NULL;
     bsr T = {0};
+    rowsrc src = {0};
     level *L0 = &h->lev[0];
+    /* The old operators and prolongators go first: they are all made again, and kept they would
+     * sit under this build's scratch (the near-null space, T), the peak of a refresh. The finest
+     * level never has a stored operator (fine_row). */
+    for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) { bsr_free(&h->lev[l].A); bsr_free(&h->lev[l].P); }
+    h->nlev = 0;
     L0->n = c->nv; L0->b = 3;
-    if (fine_matrix(c, &L0->A) || level_vectors(L0)) goto out;
+    if (level_vectors(L0)) goto out;
     L0->omega = 4.0 / (3.0 * spectral_radius(c, L0, 0));
     int nlev = 1;
     for (int l = 0; l + 1 < TC_AMG_MAX_LEVELS; l++) {
         level *L = &h->lev[l], *N = &h->lev[l + 1];
         const int32_t n = L->n;
         if ((size_t)n * L->b <= TC_AMG_COARSEST) break;
+        rowsrc_free(&src);
+        if (rowsrc_init(&src, c, L, l)) goto out;
         /* aggregates */
         if (aggregate_again || l >= h->nlev - 1) {
             free(dn); free(pass1);
@@ -824,9 +980,10 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
             int32_t *na = realloc(L->agg, (size_t)n * sizeof(int32_t));
             if (!na) goto out;
             L->agg = na;
-            for (int32_t i = 0; i < n; i++)
-                dn[i] = (l == 0 && fully_constrained(c, i)) ? 0.0 : block_diag_norm(&L->A, i);
-            L->nagg = aggregate(&L->A, dn, L->agg, pass1);
+            if (strength_graph(&src, c, l, n, L->b, dn, &sptr, &scol)) goto out;
+            L->nagg = aggregate(n, sptr, scol, dn, L->agg, pass1);
+            free(sptr); free(scol);
+            sptr = scol = NULL;
         }
         const int32_t na = L->nagg;
         if (na == 0 || (double)na > TC_AMG_MIN_COARSENING * (double)n) break;
@@ -842,16 +999,12 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         if (!Bc) goto out;
         N->B = Bc;
         if (tentative(h, L, B, &T, Bc, dead)) goto out;
-        /* smoothed prolongator, its transpose, the Galerkin operator */
-        if (bsr_mul(h, &L->A, &T, &L->P, false)) goto out;
-        smooth_prolongator(c, L, l, &T, &L->P);
+        free(B);  /* T holds it now, orthonormalised */
+        B = NULL;
+        /* smoothed prolongator, then the Galerkin operator, both straight from the rows */
+        if ((l == 0 ? prolongator_3 : prolongator_6)(h, &src, L, l, &T, &L->P)) goto out;
         bsr_free(&T);
-        /* A P, then the finest copy goes before P^T and A_c need room (the peak of the build) */
-        bsr AP = {0}, R = {0};
-        if (bsr_mul(h, &L->A, &L->P, &AP, false)) { bsr_free(&AP); goto out; }
-        if (l == 0) bsr_free(&L0->A);
-        if (bsr_transpose(&L->P, &R) || bsr_mul(h, &R, &AP, &N->A, true)) { bsr_free(&AP); bsr_free(&R); goto out; }
-        bsr_free(&AP); bsr_free(&R);
+        if ((l == 0 ? galerkin_3 : galerkin_6)(h, &src, &L->P, &N->A)) goto out;
         N->n = na; N->b = NS;
         if (coarse_diagonal(N, dead) || level_vectors(N)) goto out;
         N->omega = 4.0 / (3.0 * spectral_radius(c, N, l + 1));
@@ -876,8 +1029,6 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         }
         h->nc = nlev > 1 && m <= TC_AMG_DENSE_MAX ? m : 0;
     }
-    /* the finest level's copy is needed only to build the coarse operators */
-    bsr_free(&L0->A);
     h->nlev = nlev;
     h->pair_version = c->pair_version;
     h->nv = c->nv;
@@ -885,7 +1036,8 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
     rc = 0;
 out:
     bsr_free(&T);
-    free(pass1); free(dead); free(dn); free(B);
+    rowsrc_free(&src);
+    free(pass1); free(dead); free(dn); free(B); free(sptr); free(scol);
     if (rc) h->nlev = 0;
     return rc;
 }
@@ -929,6 +1081,44 @@ static void vcycle(const tc_cloth *c, tc_amg *h, int l, const double *b, double 
     for (size_t k = 0; k < nb; k++) r[k] = b[k] - r[k];
     level_dinv(c, L, l, r, t);
     for (size_t k = 0; k < nb; k++) x[k] += w * t[k];
+}
+
+/* For the tests: the largest relative error of u . A_1 v against (P u) . S A (P v) by the solver's
+ * product, over a few pseudo-random coarse u, v (the Galerkin product made from the rows must be
+ * that triple product), and of u . A_1 v against v . A_1 u (its symmetry). -1 without a level 1. */
+double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
+{
+    if (!h || h->nlev < 2) return -1.0;
+    level *L = &h->lev[0], *N = &h->lev[1];
+    const size_t nf = (size_t)L->n * 3, nc = (size_t)N->n * NS;
+    double *u = malloc(nc * sizeof(double)), *v = malloc(nc * sizeof(double)), *w = malloc(nc * sizeof(double));
+    double *pu = malloc(nf * sizeof(double)), *pv = malloc(nf * sizeof(double)), *apv = malloc(nf * sizeof(double));
+    double worst = -1.0;
+    if (u && v && w && pu && pv && apv) {
+        worst = 0.0;
+        for (int trial = 0; trial < 3; trial++) {
+            for (size_t k = 0; k < nc; k++) {
+                u[k] = sin(0.37 * (double)k + trial);
+                v[k] = cos(1.13 * (double)k - 2.0 * trial);
+            }
+            bsr_apply(&L->P, u, pu);
+            bsr_apply(&L->P, v, pv);
+            tc_matvec(c, pv, apv);
+            tc_constraint_filter(c, apv);
+            double fine = 0.0, scale = 0.0;
+            for (size_t k = 0; k < nf; k++) { fine += pu[k] * apv[k]; scale += fabs(pu[k] * apv[k]); }
+            bsr_apply(&N->A, v, w);
+            double coarse = 0.0;
+            for (size_t k = 0; k < nc; k++) coarse += u[k] * w[k];
+            bsr_apply(&N->A, u, w);
+            double swapped = 0.0;
+            for (size_t k = 0; k < nc; k++) swapped += v[k] * w[k];
+            if (!(scale > 0)) scale = 1.0;
+            worst = fmax(worst, fmax(fabs(coarse - fine), fabs(coarse - swapped)) / scale);
+        }
+    }
+    free(u); free(v); free(w); free(pu); free(pv); free(apv);
+    return worst;
 }
 
 /* z = M^-1 r with M^-1 the V-cycle (r and z on the range of S) */

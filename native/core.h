@@ -295,6 +295,7 @@ void tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /*
 int tc_amg_levels(const tc_amg *h);
 bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
 size_t tc_amg_bytes(const tc_amg *h);
+double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 against P^T S A P */
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);

@@ -44,6 +44,7 @@ static void amg_prepare(tc_cloth *c)
         tc_amg_free(c->amg);
         c->amg = NULL;
         c->stats.amg_levels = 0;
+        c->stats.amg_bytes = 0;
         return;
     }
     const double t0 = tc_now();
@@ -60,6 +61,7 @@ static void amg_prepare(tc_cloth *c)
         c->amg_age++;
     }
     c->stats.amg_levels = tc_amg_levels(c->amg);
+    c->stats.amg_bytes = (int64_t)tc_amg_bytes(c->amg);
     c->stats.amg_setup_seconds += tc_now() - t0;
 }
 

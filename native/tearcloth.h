@@ -195,6 +195,7 @@ typedef struct tc_stats {
     int32_t fragment_triangles_removed; /* their triangles, so far */
     int32_t fragment_vertices_removed;  /* their vertices, so far */
     int32_t fragments_kept;             /* pieces below the size kept: they share a vertex with the rest */
+    int64_t amg_bytes;        /* bytes the multigrid hierarchy holds after its last build or refresh (0: none) */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:

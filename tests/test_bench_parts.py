@@ -184,3 +184,34 @@ def test_table1_after_column_times_steps_with_a_tip_running():
     assert r["tearing_after_steps"] >= 20 and r["tips_running"] >= 1
     assert r["tearing_after_cuts"] >= 0 and _finite_positive(r["tearing_after_ms"])
     assert r["tearing_after_max_ms"] >= r["tearing_after_ms"]
+
+
+def test_scaling_fits_converged_points_only_and_reports_memory_precisely(monkeypatch):
+    """Issue 14: a point with a step accepted unconverged is left out of the exponent (and
+    counted); every point says how its memory was measured and its per-step CG iterations."""
+    real = bs._run_child
+
+    def flagged(args, timeout):
+        res = real(args, timeout)
+        if args[0] == "--point" and "_1200" in args[1]:
+            res["unconverged_steps"] = 1  # as if the core had accepted one solve short of its tolerance
+        return res
+
+    monkeypatch.setattr(bs, "_run_child", flagged)
+    r = bs.scaling(triangle_targets=(300, 600, 1200), families=("square",), with_tearing=(False,),
+                   with_collision=(False,), steps=2, warmup=1)
+    tris = [p["triangles"] for p in r["points"]]
+    big = max(tris)
+    assert r["excluded"] == [big] and sorted(r["exponent_sizes"]) == sorted(t for t in tris if t != big)
+    assert r["unconverged_steps"] == 1 and r["unconverged_steps_by_size"][str(big)] == 1
+    kept = [p for p in r["points"] if p["triangles"] != big]
+    assert r["exponent"] == pytest.approx(bs.fit_exponent([p["triangles"] for p in kept], [p["step_ms"] for p in kept]))
+    assert [row["triangles"] for row in r["per_size"]] == tris
+    for p in r["points"]:
+        assert len(p["cg_iterations"]) == p["steps"] == 2 and p["preconditioner"] == "jacobi"
+        assert p["memory_method"] == "peak minus RSS before the cloth"
+        # the peak over the RSS before the cloth, in the same process: below the absolute peak by
+        # at least the interpreter, numpy and the core (tens of MB)
+        assert 0 < p["peak_mb"] < p["peak_rss_mb"] - 20 and p["rss_before_mb"] > 20
+        assert p["bytes_per_triangle"] == pytest.approx(p["peak_mb"] * 2**20 / p["triangles"])
+    assert "bytes_per_triangle_100k" in r and "VmRSS just before the cloth" in r["settings"]["memory"]

@@ -35,12 +35,21 @@ all its threads): on a machine shared with other jobs the wall time stretches an
 much less, so both get an exponent (``exponents`` / ``exponents_cpu``); the load average at the
 end of the run is recorded with the result.
 
-Memory: every point runs in a fresh subprocess (peaks never accumulate). The child reads its own
-peak resident set (``VmHWM`` in /proc/self/status; ``ru_maxrss`` where there is no /proc) after
-the steps; the same reading from an idle child that imported the same modules (numpy, the
-native core, the session and the collision package, whether the point uses them or not) is the
-baseline, subtracted. So ``peak_mb`` (MB = 2^20 bytes) is what the mesh arrays, the cloth, the
-session and the detector added at their peak; ``bytes_per_triangle`` = that / triangles.
+Memory: every point runs in a fresh subprocess (peaks never accumulate). The child imports
+everything (numpy, the native core, the session and the collision package, used or not) and loads
+the mesh arrays, reads its resident set (``VmRSS``), resets its peak (``/proc/self/clear_refs``),
+builds the cloth and steps it, then reads its peak (``VmHWM``). ``peak_mb`` (MB = 2^20 bytes) is
+that peak minus the resident set just before the cloth was built: what the cloth, its solver
+(the multigrid hierarchy included), the session and the detector added at their peak, in the same
+process; ``bytes_per_triangle`` = that / triangles, the figure the target (<= 1 KB per triangle at
+100K) is about. ``peak_rss_mb`` is the absolute peak of the child; ``peak_mb_vs_idle`` the older
+figure, the peak minus an idle child's (same imports, no mesh). Where the peak cannot be reset (no
+/proc), the idle child's figure is used and ``memory_method`` says so.
+
+Convergence: a step whose solve the core accepted short of its tolerance (after the sub-step
+splits) is counted per point (``unconverged_steps``, timed steps; ``unconverged_warmup_steps``);
+the exponent is fitted on the points with none (``exponent_sizes`` lists them, ``excluded`` the
+others), and ``unconverged_steps`` at the top is the exponent configuration's total.
 
 Exponent: least squares of log(step_ms) on log(triangles) per configuration (``fit_exponent``);
 ``exponent`` is the square cloth's with tearing and collision off, ``exponents`` has all.
@@ -189,15 +198,23 @@ def default_warmup(triangles: int) -> int:
 # ------------------------------------------------------------------------------------------------
 
 
-def _peak_rss_bytes() -> int:
-    """This process's peak resident set: VmHWM from /proc, else ru_maxrss."""
+def _status_bytes(key: str) -> int | None:
+    """A size line of /proc/self/status (VmHWM, VmRSS) in bytes; None without /proc."""
     try:
         with open("/proc/self/status") as fh:
             for line in fh:
-                if line.startswith("VmHWM:"):
+                if line.startswith(key + ":"):
                     return int(line.split()[1]) * 1024
     except OSError:
         pass
+    return None
+
+
+def _peak_rss_bytes() -> int:
+    """This process's peak resident set: VmHWM from /proc, else ru_maxrss."""
+    peak = _status_bytes("VmHWM")
+    if peak is not None:
+        return peak
     import resource
 
     r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
@@ -212,6 +229,21 @@ def _import_all():
     return cloth, materials, session
 
 
+def _rss_bytes() -> int | None:
+    """This process's resident set now (VmRSS), None without /proc."""
+    return _status_bytes("VmRSS")
+
+
+def _reset_peak() -> bool:
+    """Resets VmHWM to the current resident set (Linux >= 4.0); False where that is not possible."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
+
+
 def _child_idle() -> dict:
     _import_all()
     return {"peak_rss_bytes": _peak_rss_bytes()}
@@ -221,17 +253,27 @@ def _child_point(spec: dict) -> dict:
     cloth_mod, materials, session_mod = _import_all()
     d = np.load(spec["npz"])
     V, T = d["vertices"], d["triangles"]
+    hand_a, hand_b = d["hand_a"], d["hand_b"]
+    body_v, body_t = d["body_vertices"], d["body_triangles"]
+    import gc
+    import warnings
+
+    warnings.simplefilter("ignore", UserWarning)  # the unreachable tear stress is meant
+    gc.collect()
+    rss_before = _rss_bytes()
+    reset = rss_before is not None and _reset_peak()
     mat = materials.material("cotton", tear_stress=UNREACHABLE_TEAR_STRESS)
-    c = cloth_mod.Cloth(V, T, mat, groups={"hand_a": d["hand_a"], "hand_b": d["hand_b"]})
+    c = cloth_mod.Cloth(V, T, mat, groups={"hand_a": hand_a, "hand_b": hand_b})
     hands = (c.add_handle("hand_a"), c.add_handle("hand_b"))
     c.set_tearing(bool(spec["tearing"]))
     if spec["collision"]:
         s = session_mod.Session(c, session_mod.CollisionSettings())
-        s.add_body("body", d["body_vertices"], d["body_triangles"])
+        s.add_body("body", body_v, body_t)
     else:
         s = session_mod.Session(c, None)
-    times, cpu, iters, contacts = [], [], [], []
-    unconverged = 0
+    times, cpu, iters, contacts, setup = [], [], [], [], []
+    unconverged = unconverged_warmup = 0
+    levels = amg_bytes = 0
     parts = {"collision": [], "fem": [], "tearing": []}
     error = None
     n = int(spec["warmup"]) + int(spec["steps"])
@@ -248,10 +290,16 @@ def _child_point(spec: dict) -> dict:
             break
         t1 = time.perf_counter()
         c1 = time.process_time()
-        if i >= int(spec["warmup"]):
+        st = c.stats()
+        if i < int(spec["warmup"]):
+            unconverged_warmup += rep.unconverged_substeps > 0
+        else:
             times.append(t1 - t0)
             cpu.append(c1 - c0)
-            iters.append(c.stats()["cg_iterations"])
+            iters.append(st["cg_iterations"])
+            setup.append(st["amg_setup_seconds"])
+            levels = max(levels, int(st["amg_levels"]))
+            amg_bytes = max(amg_bytes, int(st.get("amg_bytes", 0)))
             contacts.append(rep.contacts)
             unconverged += rep.unconverged_substeps > 0
             parts["collision"].append(rep.collision_s)
@@ -260,6 +308,11 @@ def _child_point(spec: dict) -> dict:
     st = c.stats()
     return {"step_s": times, "step_cpu_s": cpu,
             "cg_iterations_median": statistics.median(iters) if iters else None,
+            "cg_iterations": iters, "amg_levels": levels, "amg_bytes": amg_bytes,
+            "amg_setup_ms_median": 1e3 * statistics.median(setup) if setup else None,
+            "amg_setup_ms_mean": 1e3 * statistics.fmean(setup) if setup else None,
+            "unconverged_warmup_steps": int(unconverged_warmup),
+            "rss_before_bytes": rss_before if reset else None,
             "contacts_median": statistics.median(contacts) if contacts else None, "cuts": int(st.get("cuts", 0)),
             "triangles_end": int(c.num_triangles), "error": error, "unconverged_steps": int(unconverged),
             "parts_ms": {k: 1e3 * statistics.median(v) if v else None for k, v in parts.items()},
@@ -339,7 +392,11 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                                 "steps": max(1, n_steps), "warmup": max(0, n_warm)}
                         t0 = time.perf_counter()
                         res = _run_child(["--point", json.dumps(spec)], timeout)
-                        peak = max(0, int(res["peak_rss_bytes"]) - baseline)
+                        vs_idle = max(0, int(res["peak_rss_bytes"]) - baseline)
+                        # the target's figure: this process's peak over its own resident set just
+                        # before the cloth was built (the idle child's where the peak cannot be reset)
+                        before = res.get("rss_before_bytes")
+                        peak = max(0, int(res["peak_rss_bytes"]) - int(before)) if before is not None else vs_idle
                         p = {
                             "mesh": family, "target": target, "made": sc["made"],
                             "body": sc["body"] if collision else None,
@@ -355,9 +412,20 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                             "steps": len(res["step_s"]), "warmup": n_warm,
                             "peak_mb": peak / MB, "bytes_per_triangle": peak / tri,
                             "peak_rss_mb": int(res["peak_rss_bytes"]) / MB,
+                            "peak_mb_vs_idle": vs_idle / MB,
+                            "rss_before_mb": before / MB if before is not None else None,
+                            "memory_method": "peak minus RSS before the cloth" if before is not None else "peak minus idle child",
                             "cg_iterations_median": res["cg_iterations_median"],
+                            "cg_iterations": res["cg_iterations"],
+                            "preconditioner": "amg" if res["amg_levels"] >= 2 else "jacobi",
+                            "amg_levels": res["amg_levels"],
+                            # what the hierarchy holds after its builds (the core's own count): part of peak_mb
+                            "amg_mb": res.get("amg_bytes", 0) / MB,
+                            "amg_setup_ms_median": res["amg_setup_ms_median"],
+                            "amg_setup_ms_mean": res["amg_setup_ms_mean"],
                             # timed steps whose solve the core accepted short of cg_tolerance
                             "unconverged_steps": int(res.get("unconverged_steps", 0)),
+                            "unconverged_warmup_steps": int(res["unconverged_warmup_steps"]),
                             "contacts_median": res["contacts_median"], "cuts": res["cuts"],
                             "ms_per_cg_iteration": (1e3 * statistics.median(res["step_s"]) / res["cg_iterations_median"]
                                                     if res["step_s"] and res["cg_iterations_median"] else None),
@@ -371,19 +439,25 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                         say(f"{config_label(family, tearing, collision):<45} {tri:>7} tris  "
                             f"{p['step_ms']:9.2f} ms  {p['peak_mb']:8.1f} MB  {p['bytes_per_triangle']:7.0f} B/tri  "
                             f"({p['steps']} steps, {p['wall_s']:.1f} s)")
-    exponents, exponents_cpu = {}, {}
+    exponents, exponents_cpu, fitted, excluded = {}, {}, {}, {}
     largest = {}
     for family in families:
         for tearing in with_tearing:
             for collision in with_collision:
-                pts = [p for p in points if (p["mesh"], p["tearing"], p["collision"]) == (family, tearing, collision)]
+                every = [p for p in points if (p["mesh"], p["tearing"], p["collision"]) == (family, tearing, collision)]
                 label = config_label(family, tearing, collision)
+                # the exponent of converged solves only: a point with a step accepted short of the
+                # tolerance (or one that failed) is left out of the fit, and listed
+                pts = [p for p in every if p["unconverged_steps"] == 0 and not p["error"] and p["steps"]]
+                fitted[label] = [p["triangles"] for p in pts]
+                excluded[label] = [p["triangles"] for p in every if p not in pts]
+                pts_all = every
                 if len({p["triangles"] for p in pts}) >= 2:
                     exponents[label] = fit_exponent([p["triangles"] for p in pts], [p["step_ms"] for p in pts])
                     exponents_cpu[label] = fit_exponent([p["triangles"] for p in pts],
                                                         [p["step_cpu_ms"] for p in pts])
-                if pts:
-                    big = max(pts, key=lambda p: p["triangles"])
+                if pts_all:
+                    big = max(pts_all, key=lambda p: p["triangles"])
                     largest[label] = {"triangles": big["triangles"], "peak_mb": big["peak_mb"],
                                       "bytes_per_triangle": big["bytes_per_triangle"]}
     base_family = "square" if "square" in families else families[0]
@@ -395,22 +469,37 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
         "exponent": exponents.get(base_label, float("nan")),
         "exponent_of": base_label,
         "exponents": exponents,
+        "exponent_sizes": fitted.get(base_label, []),
+        "excluded": excluded.get(base_label, []),
+        "exponent_sizes_all": fitted, "excluded_all": excluded,
         "exponent_cpu": exponents_cpu.get(base_label, float("nan")),
         # steps of the exponent's configuration the core accepted unconverged (0: the exponent
         # is of converged solves only), and of every point
         "unconverged_steps": sum(p["unconverged_steps"] for p in points
                                  if config_label(p["mesh"], p["tearing"], p["collision"]) == base_label),
         "unconverged_steps_all": sum(p["unconverged_steps"] for p in points),
+        "unconverged_steps_by_size": {str(p["triangles"]): p["unconverged_steps"] for p in points
+                                      if config_label(p["mesh"], p["tearing"], p["collision"]) == base_label},
+        # the exponent configuration, one row per size: what the exponent and the memory target read
+        "per_size": [{k: p[k] for k in ("triangles", "vertices", "step_ms", "step_cpu_ms", "cg_iterations_median",
+                                        "ms_per_cg_iteration", "preconditioner", "amg_setup_ms_mean", "amg_mb", "peak_mb",
+                                        "bytes_per_triangle", "peak_rss_mb", "unconverged_steps")}
+                     for p in points if config_label(p["mesh"], p["tearing"], p["collision"]) == base_label],
         "exponents_cpu": exponents_cpu,
         "load_average": loadavg(),
         "peak_mb_100k": largest.get(base_label, {}).get("peak_mb", float("nan")),
         "peak_mb_100k_triangles": largest.get(base_label, {}).get("triangles"),
+        "bytes_per_triangle_100k": largest.get(base_label, {}).get("bytes_per_triangle", float("nan")),
         "peak_mb_largest": largest,
         "baseline_mb": baseline / MB,
         "settings": {"dt_s": DT, "pull_speed_m_per_s": PULL_SPEED, "material": "cotton",
                      "tear_stress_when_tearing": UNREACHABLE_TEAR_STRESS, "targets": targets,
                      "families": list(families), "collision": "CollisionSettings() defaults",
-                     "memory": "VmHWM of a fresh child minus an idle child's (same imports)",
+                     "memory": ("peak_mb: VmHWM of a fresh child per point minus its VmRSS just before the cloth "
+                                "is built (peak reset there; mesh arrays and imports excluded); the target "
+                                "(<= 1 KB per triangle at 100K) reads bytes_per_triangle = that / triangles; "
+                                "peak_rss_mb: the absolute peak; peak_mb_vs_idle: the peak minus an idle "
+                                "child's (same imports)"),
                      "cpus": os.cpu_count()},
         "wall_s": time.perf_counter() - wall0,
     }
@@ -473,18 +562,23 @@ def format_scaling(result: dict) -> str:
         return f"{x:9.2f}" if x is not None else f"{'-':>9}"
 
     rows = [f"{'configuration':<45} {'tris':>7} {'step ms':>9} {'CPU ms':>9} {'FEM ms':>9} {'tear ms':>9} "
-            f"{'coll ms':>9} {'CG it':>6} {'peak MB':>8} {'B/tri':>7} {'steps':>5}"]
+            f"{'coll ms':>9} {'CG it':>6} {'peak MB':>8} {'B/tri':>7} {'steps':>5} {'unconv':>6}"]
     for p in result["points"]:
         rows.append(f"{config_label(p['mesh'], p['tearing'], p['collision']):<45} {p['triangles']:>7} "
                     f"{ms(p['step_ms'])} {ms(p.get('step_cpu_ms'))} {ms(p.get('fem_ms'))} "
                     f"{ms(p.get('tearing_ms'))} {ms(p.get('collision_ms'))} "
                     f"{p['cg_iterations_median'] or 0:>6.0f} {p['peak_mb']:>8.1f} {p['bytes_per_triangle']:>7.0f} "
-                    f"{p['steps']:>5}" + (f"  ERROR {p['error']}" if p.get("error") else ""))
+                    f"{p['steps']:>5} {p.get('unconverged_steps', 0):>6}"
+                    + (f"  ERROR {p['error']}" if p.get("error") else ""))
     for label, e in result["exponents"].items():
         e_cpu = result.get("exponents_cpu", {}).get(label, float("nan"))
         rows.append(f"exponent {label}: {e:.3f} (wall), {e_cpu:.3f} (CPU)")
+    rows.append(f"exponent fitted on the converged points {result.get('exponent_sizes')} "
+                f"(left out: {result.get('excluded') or 'none'}); unconverged steps {result.get('unconverged_steps')}")
     rows.append(f"peak at {result['peak_mb_100k_triangles']} triangles ({result['exponent_of']}): "
-                f"{result['peak_mb_100k']:.1f} MB; idle baseline {result['baseline_mb']:.1f} MB")
+                f"{result['peak_mb_100k']:.1f} MB over the RSS before the cloth "
+                f"({result.get('bytes_per_triangle_100k', float('nan')):.0f} B/triangle); "
+                f"idle baseline {result['baseline_mb']:.1f} MB")
     return "\n".join(rows)
 
 

@@ -468,6 +468,11 @@ static void test_amg(void)
     CHECK(fabs(qy - pz) <= 1e-10 * sqrt(fabs(py) * fabs(pz)) + 1e-300, "V-cycle symmetric: %.17g vs %.17g", qy, pz);
     CHECK(py > 0, "V-cycle positive: %g", py);
     CHECK(tc_amg_bytes(c->amg) > 0, "hierarchy bytes");
+    /* the coarse operator, made from the rows without a stored fine matrix or A P, is P^T S A P of
+       the current matrix (a build for it, as a refresh does) and symmetric */
+    CHECK(tc_amg_build(c->amg, c, false) == 0 && tc_amg_levels(c->amg) >= 2, "amg rebuild");
+    const double gerr = tc_amg_galerkin_error(c, c->amg);
+    CHECK(gerr >= 0 && gerr < 1e-12, "Galerkin operator = P^T S A P: relative error %g", gerr);
     /* switching to block Jacobi frees the hierarchy; switching back builds it again */
     tc_solver_settings sw = tc_cloth_solver(c);
     sw.preconditioner = TC_PRECOND_JACOBI;
