@@ -16,8 +16,7 @@
 
 #include <math.h>
 
-/* Whether the segment o + s d, s in [0, len], meets the box [lo, hi]. */
-static int segment_box(const double o[3], const double d[3], double len, const double lo[3], const double hi[3])
+int tcc_segment_box(const double o[3], const double d[3], double len, const double lo[3], const double hi[3])
 {
     double t0 = 0.0, t1 = len;
     for (int a = 0; a < 3; a++) {
@@ -82,7 +81,7 @@ int tcc_prepare_rays(const tcc_ray_setup *s, const tcc_idx *pair_a, const tcc_id
                 double dw[3] = {nv[0] * sg, nv[1] * sg, nv[2] * sg};
                 double ow[3] = {xv[0] - s->backoff * dw[0], xv[1] - s->backoff * dw[1], xv[2] - s->backoff * dw[2]};
                 if (!(isfinite(ow[0]) && isfinite(ow[1]) && isfinite(ow[2]))) continue;
-                if (!segment_box(ow, dw, len, lo, hi)) continue;
+                if (!tcc_segment_box(ow, dw, len, lo, hi)) continue;
                 if (m < cap) {
                     /* world -> build frame: x0 = R^T (x - centre) + ref_centre */
                     double r[3] = {ow[0] - cg[0], ow[1] - cg[1], ow[2] - cg[2]};
