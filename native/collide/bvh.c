@@ -231,31 +231,6 @@ int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
 
 /* ------------------------------------------------------------------ query */
 
-/* Entry distance of the ray (o, 1/d) into box over [0, tmax], or INFINITY when it misses. NaN
- * boxes (a NaN position) are missed. */
-static inline double box_entry(const double o[3], const double inv[3], double tmax, const double *bx)
-{
-    double t0 = 0.0, t1 = tmax;
-    for (int a = 0; a < 3; a++) {
-        double lo = bx[a], hi = bx[3 + a];
-        if (!(lo <= hi)) return INFINITY;
-        if (isinf(inv[a])) {
-            if (o[a] < lo || o[a] > hi) return INFINITY;
-            continue;
-        }
-        double ta = (lo - o[a]) * inv[a], tb = (hi - o[a]) * inv[a];
-        if (ta > tb) {
-            double t = ta;
-            ta = tb;
-            tb = t;
-        }
-        if (ta > t0) t0 = ta;
-        if (tb < t1) t1 = tb;
-        if (t0 > t1) return INFINITY;
-    }
-    return t0;
-}
-
 int tcc_bvh_first_hit(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double o[3], const double d[3],
                       double tmax, const tcc_ring *ring, tcc_idx v, tcc_hit *h, tcc_error *err)
 {
@@ -275,10 +250,10 @@ int tcc_bvh_first_hit(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const doub
     double best = tmax;
     tcc_idx stack[BVH_STACK];
     int top = 0;
-    if (box_entry(o, inv, best, b->box + 6 * s) < INFINITY) stack[top++] = s;
+    if (tcc_box_entry(o, inv, best, b->box + 6 * s) < INFINITY) stack[top++] = s;
     while (top > 0) {
         tcc_idx i = stack[--top];
-        if (box_entry(o, inv, best, b->box + 6 * i) == INFINITY) continue; /* best shrank since the push */
+        if (tcc_box_entry(o, inv, best, b->box + 6 * i) == INFINITY) continue; /* best shrank since the push */
         int leaf;
         tcc_idx x, y;
         if ((rc = node_links(b, i, e, &leaf, &x, &y, err))) return rc;
@@ -291,7 +266,9 @@ int tcc_bvh_first_hit(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const doub
                 if (!tcc_line_triangle(o, d, p[0], p[1], p[2], &t, &u, &w)) continue;
                 if (!(t >= 0.0 && t <= best && u >= -BVH_EPS && w >= -BVH_EPS && u + w <= 1.0 + BVH_EPS)) continue;
                 if (t == best && h->tri >= 0) continue; /* a tie keeps the first found */
-                if (filter && tcc_ring_excludes(ring, v, m->tri + 3 * f)) continue;
+                const tcc_idx *tv = m->tri + 3 * f;
+                /* the ray's own vertex first: every ray passes through its ~6 incident triangles */
+                if (filter && (tv[0] == v || tv[1] == v || tv[2] == v || tcc_ring_excludes(ring, v, tv))) continue;
                 best = t;
                 h->tri = f;
                 h->t = t;
@@ -300,7 +277,7 @@ int tcc_bvh_first_hit(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const doub
             }
             continue;
         }
-        double tx = box_entry(o, inv, best, b->box + 6 * x), ty = box_entry(o, inv, best, b->box + 6 * y);
+        double tx = tcc_box_entry(o, inv, best, b->box + 6 * x), ty = tcc_box_entry(o, inv, best, b->box + 6 * y);
         if (top + 2 > BVH_STACK)
             return tcc_fail(err, TCC_ERR_VALUE, "BVH of cluster %lld is deeper than %d levels", (long long)c,
                             BVH_STACK);
@@ -345,44 +322,27 @@ int tcc_self_cast(const tcc_ray_setup *s, const tcc_mesh *target, tcc_bvh *b, tc
         return tcc_fail(err, TCC_ERR_VALUE, "%lld collider boxes for a BVH of %lld clusters", (long long)s->kb,
                         (long long)b->k);
     for (tcc_idx p = 0; p < np; p++) {
-        tcc_idx a = pair_a[p], c = pair_b[p];
-        if (a < 0 || a >= s->kc)
-            return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: cloth cluster %lld is not in [0, %lld)", (long long)p,
-                            (long long)a, (long long)s->kc);
-        if (c < 0 || c >= s->kb)
-            return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: collider cluster %lld is not in [0, %lld)", (long long)p,
-                            (long long)c, (long long)s->kb);
-        tcc_idx st = s->ptr[a], en = s->ptr[a + 1];
-        if (st < 0 || en < st || en > s->norder)
-            return tcc_fail(err, TCC_ERR_INDEX, "cloth cluster %lld spans [%lld, %lld), outside the %lld members",
-                            (long long)a, (long long)st, (long long)en, (long long)s->norder);
+        tcc_idx a = pair_a[p], c = pair_b[p], st, en;
+        int rc = tcc_pair_span(s, p, a, c, &st, &en, err);
+        if (rc) return rc;
         const double *lo = s->box_lo + 3 * c, *hi = s->box_hi + 3 * c;
         int fitted = 0;
         for (tcc_idx i = st; i < en; i++) {
-            tcc_idx v = s->order[i];
-            if (v < 0 || v >= s->n)
-                return tcc_fail(err, TCC_ERR_INDEX, "order[%lld] = %lld is not a vertex index in [0, %lld)",
-                                (long long)i, (long long)v, (long long)s->n);
-            if (!s->has_normal[v]) continue;
-            double len = (s->long_mask && s->long_mask[v] ? s->long_dist : s->short_dist) + s->backoff + s->tol;
             for (int slot = 0; slot < 2; slot++) {
-                double sg = slot == 0 ? 1.0 : -1.0;
-                const double *nv = s->normals + 3 * v, *xv = s->x + 3 * v;
-                double dw[3] = {nv[0] * sg, nv[1] * sg, nv[2] * sg};
-                double ow[3] = {xv[0] - s->backoff * dw[0], xv[1] - s->backoff * dw[1], xv[2] - s->backoff * dw[2]};
-                if (!(isfinite(ow[0]) && isfinite(ow[1]) && isfinite(ow[2]))) continue;
-                if (!tcc_segment_box(ow, dw, len, lo, hi)) continue;
+                tcc_idx v;
+                double ow[3], dw[3], len;
+                int cast = tcc_member_ray(s, i, slot, lo, hi, &v, ow, dw, &len, err);
+                if (cast < 0) return cast;
+                if (!cast) continue;
                 if (!fitted && refit_step[c] != step) {
                     /* the first ray into cluster c this step refits its tree from the current positions */
-                    int rc = tcc_bvh_refit(target, b, c, err);
-                    if (rc) return rc;
+                    if ((rc = tcc_bvh_refit(target, b, c, err))) return rc;
                     refit_step[c] = step;
                 }
                 fitted = 1;
                 rays++;
                 tcc_hit h;
-                int rc = tcc_bvh_first_hit(target, b, c, ow, dw, len, ring, v, &h, err);
-                if (rc) return rc;
+                if ((rc = tcc_bvh_first_hit(target, b, c, ow, dw, len, ring, v, &h, err))) return rc;
                 if (h.tri < 0) continue;
                 if (hits < cap) {
                     ray_v[hits] = v;

@@ -22,6 +22,7 @@
 #define TCC_COLLIDE_H
 
 #include <stddef.h>
+#include <math.h>
 #include <stdint.h>
 
 typedef int64_t tcc_idx;
@@ -185,6 +186,40 @@ int tcc_accept_hits(const tcc_idx *rays, const int32_t *prim, const float *tfar,
                     tcc_idx nscene, const tcc_idx *ray_v, tcc_idx nrays, const tcc_mesh *target, const tcc_ring *ring,
                     float *o, const float *d, float *dist, tcc_idx *hit_tri, tcc_idx *retry, tcc_idx *nretry,
                     tcc_error *err);
+
+/* Entry distance of the ray (o, 1/d) into box over [0, tmax], or INFINITY when it misses. NaN
+ * boxes (a NaN position) are missed. */
+static inline double tcc_box_entry(const double o[3], const double inv[3], double tmax, const double *bx)
+{
+    double t0 = 0.0, t1 = tmax;
+    for (int a = 0; a < 3; a++) {
+        double lo = bx[a], hi = bx[3 + a];
+        if (!(lo <= hi)) return INFINITY;
+        if (isinf(inv[a])) {
+            if (o[a] < lo || o[a] > hi) return INFINITY;
+            continue;
+        }
+        double ta = (lo - o[a]) * inv[a], tb = (hi - o[a]) * inv[a];
+        if (ta > tb) {
+            double t = ta;
+            ta = tb;
+            tb = t;
+        }
+        if (ta > t0) t0 = ta;
+        if (tb < t1) t1 = tb;
+        if (t0 > t1) return INFINITY;
+    }
+    return t0;
+}
+
+/* Pair p (a cloth cluster, b collider cluster) checked; [*st, *en) the members of a in s->order. */
+int tcc_pair_span(const tcc_ray_setup *s, tcc_idx p, tcc_idx a, tcc_idx b, tcc_idx *st, tcc_idx *en, tcc_error *err);
+
+/* The world ray of member i of the cloth clustering (vertex *v = order[i], checked) along slot:
+ * from x - backoff d, length *len; 1 when it is cast, 0 when not (no normal, not finite, or its
+ * segment misses the box [lo, hi]), an error code (< 0) for a bad index. */
+int tcc_member_ray(const tcc_ray_setup *s, tcc_idx i, int slot, const double *lo, const double *hi, tcc_idx *v,
+                   double ow[3], double dw[3], double *len, tcc_error *err);
 
 /* Whether the segment o + s d, s in [0, len], meets the box [lo, hi] (an empty or NaN box: no). */
 int tcc_segment_box(const double o[3], const double d[3], double len, const double lo[3], const double hi[3]);
