@@ -2,11 +2,13 @@
 
 Python orchestrates; every loop over vertices, rays, triangles or cluster pairs runs in C
 (``tearcloth._collide``, sources ``native/collide/``); Embree (embreex) casts the rays of full
-detection. What each file owns:
+detection into the bodies, native refitted BVHs (``native/collide/bvh.c``) those into the cloth
+itself. What each file owns:
 
 * ``clusters``    geodesic k-means decomposition of a mesh, its local update after a tear
 * ``measure``     per-cluster displacement, cluster AABBs, close pairs, relative / absolute measure
-* ``narrow``      Embree scenes per cluster (rigid-frame cache), contact classification, ``Contacts``
+* ``narrow``      Embree scenes per body cluster (rigid-frame cache), the cloth's refitted BVHs,
+                  contact classification, ``Contacts``
 * ``incremental`` exact line/triangle tests and the walk over triangle adjacency
 * ``detector``    ``CollisionDetector``: the per-step orchestration
 * ``kernels``     the calls into the C kernels (outputs, growing workspaces)

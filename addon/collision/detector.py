@@ -14,7 +14,8 @@ in C (``kernels.py`` -> ``tearcloth._collide``), so a step is a few dozen calls 
 3. full     – for the marked pairs, grouped by collider cluster: the rays of every cloth cluster
               paired with that collider cluster, culled against its box, go in one Embree call
               into its cached scene (``narrow.py``), and are refined exactly on the current
-              geometry.
+              geometry. The cloth against itself: every pair's rays in one C call into the
+              clusters' refitted BVHs, the two-ring skipped inside (``narrow.ClusterBVH``).
 4. contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
               contact per vertex is returned (``all_contacts``: one per vertex per collider).
 
@@ -59,7 +60,7 @@ from .measure import (
     AbsoluteMeasure,
     RelativeMeasure,
 )
-from .narrow import RAY_BACKOFF, ClusterScenes, Contacts, ring_table
+from .narrow import RAY_BACKOFF, ClusterBVH, ClusterScenes, Contacts, ring_table
 
 __all__ = ["CollisionDetector", "Contacts"]
 
@@ -175,14 +176,14 @@ def twin_ring(ring, rest_id):
 class _Collider:
     """One collision target: a body (closed volume or open surface) or the cloth itself."""
 
-    def __init__(self, name, kind, vertices, triangles, cluster_size, tolerance, friction):
+    def __init__(self, name, kind, vertices, triangles, cluster_size, tolerance, friction, scenes=None):
         self.name = name
         self.kind = kind  # 'volume' | 'surface' | 'self'
         self.friction = float(friction)
         self.vertices = np.ascontiguousarray(vertices, np.float64)
         self.measured = self.vertices.copy()  # positions at the last detect(): displacement origin
         self.velocities = np.zeros_like(self.vertices)
-        self.scenes = ClusterScenes(tolerance)
+        self.scenes = ClusterScenes(tolerance) if scenes is None else scenes
         self.set_topology(triangles, cluster_size)
 
     def set_topology(self, triangles, cluster_size, clustering=None):
@@ -309,6 +310,9 @@ class CollisionDetector:
         # Batching of full detections (measure.py): the pairs that would pass the threshold within
         # this many steps join a step that runs full detection anyway.
         self.lookahead = 3.0
+        # Self-collision's acceleration structures: 'bvh' (native, refitted; narrow.ClusterBVH) or
+        # 'embree' (the rigid-frame Embree scenes the bodies use), read by set_cloth.
+        self.self_scenes = "bvh"
         self.stats = {}
 
     # ------------------------------------------------------------------ saved state
@@ -366,7 +370,10 @@ class CollisionDetector:
     def set_cloth(self, positions, triangles):
         """(Re)define the cloth: clusters it and forgets every history (a global redo)."""
         v, t = _check_mesh(positions, triangles, "cloth")
-        self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.scene_tolerance, self.friction)
+        # the cloth's own clusters deform every step: refitted native BVHs, not Embree scenes
+        # (narrow.ClusterBVH); 'embree' keeps the former scenes, for comparison
+        scenes = ClusterBVH() if getattr(self, "self_scenes", "bvh") == "bvh" else None
+        self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.scene_tolerance, self.friction, scenes)
         self._cloth_prev = v.copy()
         self._first = True
         for name in list(self._tracks):
@@ -589,6 +596,7 @@ class CollisionDetector:
 
         # 3. full detection of the marked pairs --------------------------------------
         n_full = 0
+        t_self = c_self = 0.0
         n_rays = 0
         for plan in plans:
             nf = int(np.count_nonzero(plan.full))
@@ -601,7 +609,10 @@ class CollisionDetector:
                 other = fi != fj
                 fi, fj = np.concatenate([fi, fj[other]]), np.concatenate([fj, fi[other]])
             lazy.need(fi)
+            t_plan, c_plan = time.perf_counter(), time.process_time()
             plan.found, rays = self._full_detection(plan, fi, fj, pos, normals, has_normal, step)
+            if plan.name == "__self__":
+                t_self, c_self = time.perf_counter() - t_plan, time.process_time() - c_plan
             n_rays += rays
         t_full = time.perf_counter()
 
@@ -633,13 +644,15 @@ class CollisionDetector:
                 "full": 1e3 * (t_full - t_incr),
                 "contacts": 1e3 * (t_end - t_full),
                 "total": 1e3 * (t_end - t_start),
+                "full_self": 1e3 * t_self,  # of "full": the cloth against itself
+                "full_self_cpu": 1e3 * c_self,  # the same, process CPU (Embree builds use a second thread)
             },
         }
         return contacts
 
     def _full_detection(self, plan, fi, fj, pos, normals, has_normal, step):
-        """Embree candidates for cloth clusters fi against collider clusters fj, refined exactly.
-        Returns ((vertex, slot, Hits, status) of the hits found, or None; rays cast)."""
+        """Candidates (Embree for a body, the cloth's BVHs for itself) for cloth clusters fi against
+        collider clusters fj, refined exactly. Returns ((vertex, slot, Hits, status) of the hits found, or None; rays cast)."""
         name, target = plan.name, plan.target
         cloth = self.cloth
         if fi.size == 0:
@@ -660,11 +673,16 @@ class CollisionDetector:
             if not np.isfinite(extent):
                 extent = self.cluster_extent(target)
             short = long_ = self.track_range + 2.0 * self.inflate + extent
+        scenes = target.scenes
+        if isinstance(scenes, ClusterBVH):
+            # the cloth against itself: every pair's rays, refits and two-ring filter in one C call
+            rv, rslot, hit, count = scenes.cast_self(pos, normals, has_normal, cloth.clustering, plan.lo, plan.hi,
+                                                     target.triangles, ring, fi, fj, step, short, RAY_BACKOFF)
+            return self._refine(plan, kind, ring, inside_prev, rv, rslot, hit, pos, normals), count
         # One group per collider cluster, each cluster's scene fitted (or rebuilt) once.
         order = np.argsort(fj, kind="stable")
         fi, fj = fi[order], fj[order]
         ub = np.unique(fj)
-        scenes = target.scenes
         buf = self._rays
         args = (pos, normals, has_normal, None, cloth.clustering, plan.lo, plan.hi)
         dist_args = (short, long_, RAY_BACKOFF, scenes.tolerance)
@@ -709,15 +727,23 @@ class CollisionDetector:
                     break
                 rays = retry[:again].copy()
                 res = scene.run(o[rays], d[rays], dists=dist[rays], output=1)
-        # Exact hits on the current geometry (the scenes may be up to the tolerance stale).
+        return self._refine(plan, kind, ring, inside_prev, rv, buf.slot[:count], hit, pos, normals), count
+
+    def _refine(self, plan, kind, ring, inside_prev, rv, rslot, hit, pos, normals):
+        """Candidate hits (ray vertex, slot, triangle or -1) made exact on the current geometry
+        (Embree's scenes may be up to their tolerance stale): (vertex, slot, Hits, status) or None."""
+        name, target = plan.name, plan.target
+        count = rv.size
+        if count == 0:
+            return None
         ints = np.empty((3, count), np.int64)
         reals = np.empty((3, count))
         flags = np.empty((2, count), bool)
-        k = _collide.refine(pos, normals, rv, buf.slot[:count], hit, target.vertices, target.triangles, target.adj,
+        k = _collide.refine(pos, normals, rv, rslot, hit, target.vertices, target.triangles, target.adj,
                             target.flip, ring, kernels.KIND[kind], self.track_range, inside_prev, ints[0], ints[1],
                             ints[2], reals[0], reals[1], reals[2], flags[0], flags[1])
         if k == 0:
-            return None, count
+            return None
         fv, fs = ints[0, :k], ints[1, :k]
         res = kernels.Hits.view(ints[2, :k], reals[0, :k], reals[1, :k], reals[2, :k], flags[0, :k])
         status = flags[1, :k].view(np.uint8)
@@ -727,7 +753,7 @@ class CollisionDetector:
             if _collide.drop_dominated(fv, fs, res.t, status.view(bool), tracks.key, walked.tri, walked.t):
                 c2 = np.flatnonzero(status == 2)
                 status[c2] = self._confirm_inside(plan, fv, fs, res, c2, pos, normals)
-        return (fv, fs, res, status), count
+        return fv, fs, res, status
 
     def _confirm_inside(self, plan, fv, fs, res, c2, pos, normals):
         """1 for each far back-face hit c2 that is the ray's first hit on the body (the vertex is

@@ -22,6 +22,7 @@
 #define TCC_COLLIDE_H
 
 #include <stddef.h>
+#include <math.h>
 #include <stdint.h>
 
 typedef int64_t tcc_idx;
@@ -54,6 +55,17 @@ typedef struct {
     tcc_idx rows;
     tcc_idx width;
 } tcc_ring;
+
+/* Whether triangle tv touches the exclusion row of vertex v (v < rows, checked by the caller). */
+static inline int tcc_ring_excludes(const tcc_ring *ring, tcc_idx v, const tcc_idx tv[3])
+{
+    const tcc_idx *row = ring->table + v * ring->width;
+    for (tcc_idx w = 0; w < ring->width; w++) {
+        tcc_idx e = row[w];
+        if (e >= 0 && (tv[0] == e || tv[1] == e || tv[2] == e)) return 1;
+    }
+    return 0;
+}
 
 /* ---------------------------------------------------------------- geometry.c */
 
@@ -174,6 +186,87 @@ int tcc_accept_hits(const tcc_idx *rays, const int32_t *prim, const float *tfar,
                     tcc_idx nscene, const tcc_idx *ray_v, tcc_idx nrays, const tcc_mesh *target, const tcc_ring *ring,
                     float *o, const float *d, float *dist, tcc_idx *hit_tri, tcc_idx *retry, tcc_idx *nretry,
                     tcc_error *err);
+
+/* Entry distance of the ray (o, 1/d) into box over [0, tmax], or INFINITY when it misses. NaN
+ * boxes (a NaN position) are missed. */
+static inline double tcc_box_entry(const double o[3], const double inv[3], double tmax, const double *bx)
+{
+    double t0 = 0.0, t1 = tmax;
+    for (int a = 0; a < 3; a++) {
+        double lo = bx[a], hi = bx[3 + a];
+        if (!(lo <= hi)) return INFINITY;
+        if (isinf(inv[a])) {
+            if (o[a] < lo || o[a] > hi) return INFINITY;
+            continue;
+        }
+        double ta = (lo - o[a]) * inv[a], tb = (hi - o[a]) * inv[a];
+        if (ta > tb) {
+            double t = ta;
+            ta = tb;
+            tb = t;
+        }
+        if (ta > t0) t0 = ta;
+        if (tb < t1) t1 = tb;
+        if (t0 > t1) return INFINITY;
+    }
+    return t0;
+}
+
+/* Pair p (a cloth cluster, b collider cluster) checked; [*st, *en) the members of a in s->order. */
+int tcc_pair_span(const tcc_ray_setup *s, tcc_idx p, tcc_idx a, tcc_idx b, tcc_idx *st, tcc_idx *en, tcc_error *err);
+
+/* The world ray of member i of the cloth clustering (vertex *v = order[i], checked) along slot:
+ * from x - backoff d, length *len; 1 when it is cast, 0 when not (no normal, not finite, or its
+ * segment misses the box [lo, hi]), an error code (< 0) for a bad index. */
+int tcc_member_ray(const tcc_ray_setup *s, tcc_idx i, int slot, const double *lo, const double *hi, tcc_idx *v,
+                   double ow[3], double dw[3], double *len, tcc_error *err);
+
+/* Whether the segment o + s d, s in [0, len], meets the box [lo, hi] (an empty or NaN box: no). */
+int tcc_segment_box(const double o[3], const double d[3], double len, const double lo[3], const double hi[3]);
+
+/* ---------------------------------------------------------------- bvh.c */
+
+/* Per-cluster BVHs of the cloth (bvh.c's module docs): cluster c's nodes node_ptr[c] ..
+ * node_ptr[c+1] of node (nnodes, 2) and box (nnodes, 6); leaves index prim (nprim). */
+typedef struct {
+    const tcc_idx *node_ptr; /* (k + 1) */
+    tcc_idx k;
+    const tcc_idx *node;     /* inner: two children; leaf: -1 - first, count */
+    double *box;             /* lo xyz, hi xyz */
+    tcc_idx nnodes;
+    const tcc_idx *prim;     /* triangle ids */
+    tcc_idx nprim;
+} tcc_bvh;
+
+/* Builds every cluster's tree over its scene triangles scene_tri[scene_ptr[c] .. scene_ptr[c+1]]
+ * (median splits at the current positions, then a refit): node_ptr (k+1), node and box with room
+ * for cap >= 2 * nrows rows, prim (nrows). *nnodes = rows used. */
+int tcc_bvh_build(const tcc_mesh *m, const tcc_idx *scene_ptr, const tcc_idx *scene_tri, tcc_idx nrows, tcc_idx k,
+                  tcc_idx *node_ptr, tcc_idx *node, double *box, tcc_idx cap, tcc_idx *prim, tcc_idx *nnodes,
+                  tcc_error *err);
+
+/* Cluster c's boxes, bottom-up from the current positions m->x. */
+int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err);
+
+/* Nearest triangle of cluster c's tree hit by o + t d, t in [0, tmax], skipping the two-ring of
+ * vertex v when ring->table is set: h->tri (-1 if none), t, u, v. */
+int tcc_bvh_first_hit(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double o[3], const double d[3],
+                      double tmax, const tcc_ring *ring, tcc_idx v, tcc_hit *h, tcc_error *err);
+
+/* tcc_bvh_first_hit for r rays (o, d (r, 3), tmax, cluster, ray_v (may be NULL without a ring)). */
+int tcc_bvh_cast(const tcc_mesh *m, const tcc_bvh *b, const tcc_idx *cluster, const double *o, const double *d,
+                 const double *tmax, const tcc_idx *ray_v, tcc_idx r, const tcc_ring *ring, tcc_hits out,
+                 tcc_error *err);
+
+/* Full self-collision detection of a step in one call: for every close pair (pair_a cloth cluster,
+ * pair_b cloth cluster as the target, any order) the rays of pair_a's vertices (as
+ * tcc_prepare_rays: from x - backoff d, length dist + backoff + tol, culled against pair_b's box),
+ * each cast into pair_b's tree, refitted first when refit_step[pair_b] != step (then set to step).
+ * Rays that hit are written (ray_v, ray_slot, hit_tri, at most cap); *nhits = how many hit (> cap:
+ * call again with more room), *nrays = rays cast. */
+int tcc_self_cast(const tcc_ray_setup *s, const tcc_mesh *target, tcc_bvh *b, tcc_idx *refit_step, tcc_idx step,
+                  const tcc_ring *ring, const tcc_idx *pair_a, const tcc_idx *pair_b, tcc_idx np, tcc_idx *ray_v,
+                  tcc_idx *ray_slot, tcc_idx *hit_tri, tcc_idx cap, tcc_idx *nhits, tcc_idx *nrays, tcc_error *err);
 
 /* ---------------------------------------------------------------- contacts.c */
 

@@ -983,6 +983,204 @@ fail:
     return NULL;
 }
 
+/* ---------------------------------------------------------------- bvh.c */
+
+/* a cluster BVH forest from five consecutive rows: node_ptr (k+1), node (N, 2), box (N, 6), prim */
+#define BVH_ROWS(box_flags)                                                                                           \
+    ARR("node_ptr", PA_I64, 0, 1, 0, 0), ARR("node", PA_I64, 0, 2, 2, 0), ARR("box", PA_F64, box_flags, 2, 6, 0),     \
+        ARR("prim", PA_I64, 0, 1, 0, 0)
+
+static int bvh_from(pyarg_set *p, int first, tcc_bvh *b)
+{
+    if (!bounds_ok(pyarg_nrows(p, first), "node_ptr", "cluster")) return -1;
+    if (pyarg_rows(p, first + 2, pyarg_nrows(p, first + 1))) return -1;
+    b->node_ptr = pyarg_data(p, first);
+    b->k = pyarg_nrows(p, first) - 1;
+    b->node = pyarg_data(p, first + 1);
+    b->box = pyarg_data(p, first + 2);
+    b->nnodes = pyarg_nrows(p, first + 1);
+    b->prim = pyarg_data(p, first + 3);
+    b->nprim = pyarg_nrows(p, first + 3);
+    return 0;
+}
+
+static const pyarg_spec BVH_BUILD[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("scene_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("scene_triangles", PA_I64, 0, 1, 0, 0),
+    ARR("node_ptr", PA_I64, OUT, 1, 0, 0),
+    ARR("node", PA_I64, OUT, 2, 2, 0),
+    ARR("box", PA_F64, OUT, 2, 6, 0),
+    ARR("prim", PA_I64, OUT, 1, 0, 0),
+};
+enum { BB_X, BB_T, BB_SP, BB_ST, BB_NP, BB_NODE, BB_BOX, BB_PRIM, BB_N };
+
+static PyObject *py_bvh_build(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("bvh_build", BVH_BUILD, BB_N);
+    if (!bounds_ok(ROWS(BB_SP), "scene_ptr", "cluster")) goto fail;
+    Py_ssize_t k = ROWS(BB_SP) - 1, nrows = ROWS(BB_ST);
+    CHECK_ROWS(BB_NP, k + 1);
+    CHECK_ROWS(BB_BOX, ROWS(BB_NODE));
+    CHECK_ROWS(BB_PRIM, nrows);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(BB_X), ROWS(BB_X), D(BB_T), ROWS(BB_T), NULL, NULL};
+    tcc_error err = {0};
+    tcc_idx nnodes = 0;
+    int rc;
+    RUN(tcc_bvh_build(&m, D(BB_SP), D(BB_ST), nrows, k, D(BB_NP), D(BB_NODE), D(BB_BOX), ROWS(BB_NODE), D(BB_PRIM),
+                      &nnodes, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return PyLong_FromLongLong(nnodes);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec BVH_REFIT[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    BVH_ROWS(OUT),
+    ARR("clusters", PA_I64, 0, 1, 0, 0),
+};
+enum { BR_X, BR_T, BR_BVH, BR_CL = BR_BVH + 4, BR_N };
+
+static PyObject *py_bvh_refit(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("bvh_refit", BVH_REFIT, BR_N);
+    tcc_bvh b;
+    if (bvh_from(&s, BR_BVH, &b)) goto fail;
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(BR_X), ROWS(BR_X), D(BR_T), ROWS(BR_T), NULL, NULL};
+    tcc_error err = {0};
+    const tcc_idx *cl = D(BR_CL);
+    Py_ssize_t q = ROWS(BR_CL);
+    int rc = TCC_OK;
+    Py_BEGIN_ALLOW_THREADS for (Py_ssize_t i = 0; i < q && rc == TCC_OK; i++) rc = tcc_bvh_refit(&m, &b, cl[i], &err);
+    Py_END_ALLOW_THREADS pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec BVH_CAST[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    BVH_ROWS(0),
+    ARR("cluster", PA_I64, 0, 1, 0, 0),
+    ARR("origins", PA_F64, 0, 2, 3, 0),
+    ARR("directions", PA_F64, 0, 2, 3, 0),
+    ARR("tmax", PA_F64, 0, 1, 0, 0),
+    ARR("ray_vertex", PA_I64, OPT, 1, 0, 0),
+    RING_ROW,
+    ARR("tri_out", PA_I64, OUT, 1, 0, 0),
+    ARR("t_out", PA_F64, OUT, 1, 0, 0),
+    ARR("u_out", PA_F64, OUT, 1, 0, 0),
+    ARR("v_out", PA_F64, OUT, 1, 0, 0),
+};
+enum { BC_X, BC_T, BC_BVH, BC_CL = BC_BVH + 4, BC_O, BC_D, BC_TMAX, BC_RV, BC_RING, BC_TRI, BC_TT, BC_U, BC_V, BC_N };
+
+static PyObject *py_bvh_cast(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("bvh_cast", BVH_CAST, BC_N);
+    tcc_bvh b;
+    if (bvh_from(&s, BC_BVH, &b)) goto fail;
+    Py_ssize_t r = ROWS(BC_CL);
+    for (int i = BC_O; i <= BC_RV; i++) CHECK_ROWS(i, r);
+    for (int i = BC_TRI; i <= BC_V; i++) CHECK_ROWS(i, r);
+    tcc_ring ring = ring_from(&s, BC_RING);
+    if (ring.table && !D(BC_RV)) {
+        PyErr_SetString(PyExc_ValueError, "skipping the two-ring needs ray_vertex");
+        goto fail;
+    }
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_mesh m = {D(BC_X), ROWS(BC_X), D(BC_T), ROWS(BC_T), NULL, NULL};
+    uint8_t *flips = PyMem_Malloc(r > 0 ? (size_t)r : 1);
+    if (!flips) {
+        PyErr_NoMemory();
+        goto fail;
+    }
+    tcc_hits out = {D(BC_TRI), D(BC_TT), D(BC_U), D(BC_V), flips};
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_bvh_cast(&m, &b, D(BC_CL), D(BC_O), D(BC_D), D(BC_TMAX), D(BC_RV), r, &ring, out, &err));
+    PyMem_Free(flips);
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec SELF_CAST[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("normals", PA_F64, 0, 2, 3, 0),
+    ARR("has_normal", PA_BOOL, 0, 1, 0, 0),
+    ARR("order", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    ARR("box_lo", PA_F64, 0, 2, 3, 0),
+    ARR("box_hi", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    BVH_ROWS(OUT),
+    ARR("refit_step", PA_I64, OUT, 1, 0, 0),
+    VAL("step", PA_SSIZE),
+    RING_ROW,
+    ARR("pair_a", PA_I64, 0, 1, 0, 0),
+    ARR("pair_b", PA_I64, 0, 1, 0, 0),
+    VAL("dist", PA_DOUBLE),
+    VAL("backoff", PA_DOUBLE),
+    ARR("ray_vertex", PA_I64, OUT, 1, 0, 0),
+    ARR("ray_slot", PA_I64, OUT, 1, 0, 0),
+    ARR("hit_triangle", PA_I64, OUT, 1, 0, 0),
+};
+enum { SC_X, SC_NRM, SC_HAS, SC_ORDER, SC_PTR, SC_BLO, SC_BHI, SC_T, SC_BVH, SC_STAMP = SC_BVH + 4, SC_STEP, SC_RING,
+       SC_PA, SC_PB, SC_DIST, SC_BACKOFF, SC_RV, SC_RS, SC_HIT, SC_N };
+
+static PyObject *py_self_cast(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("self_cast", SELF_CAST, SC_N);
+    double dist = s.v[SC_DIST].d, backoff = s.v[SC_BACKOFF].d;
+    if (finite_param(dist, "dist", 1) || finite_param(backoff, "backoff", 1)) goto fail;
+    Py_ssize_t n = ROWS(SC_X), cap = ROWS(SC_RV);
+    CHECK_ROWS(SC_NRM, n);
+    CHECK_ROWS(SC_HAS, n);
+    if (!bounds_ok(ROWS(SC_PTR), "ptr", "cluster")) goto fail;
+    tcc_bvh b;
+    if (bvh_from(&s, SC_BVH, &b)) goto fail;
+    CHECK_ROWS(SC_BLO, b.k);
+    CHECK_ROWS(SC_BHI, b.k);
+    CHECK_ROWS(SC_STAMP, b.k);
+    CHECK_ROWS(SC_PB, ROWS(SC_PA));
+    CHECK_ROWS(SC_RS, cap);
+    CHECK_ROWS(SC_HIT, cap);
+    tcc_ring ring = ring_from(&s, SC_RING);
+    if (!ring.table || ring.rows != n) {
+        PyErr_Format(PyExc_ValueError, "self_cast needs the ring table of the %zd cloth vertices (has %lld rows)", n,
+                     (long long)ring.rows);
+        goto fail;
+    }
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_ray_setup setup = {D(SC_X), D(SC_NRM), D(SC_HAS), NULL, n, D(SC_ORDER), D(SC_PTR), ROWS(SC_ORDER),
+                           ROWS(SC_PTR) - 1, D(SC_BLO), D(SC_BHI), b.k, dist, dist, backoff, 0.0};
+    tcc_mesh m = {D(SC_X), n, D(SC_T), ROWS(SC_T), NULL, NULL};
+    tcc_error err = {0};
+    tcc_idx nhits = 0, nrays = 0;
+    int rc;
+    RUN(tcc_self_cast(&setup, &m, &b, D(SC_STAMP), (tcc_idx)s.v[SC_STEP].n, &ring, D(SC_PA), D(SC_PB), ROWS(SC_PA),
+                      D(SC_RV), D(SC_RS), D(SC_HIT), cap, &nhits, &nrays, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return Py_BuildValue("(LL)", (long long)nhits, (long long)nrays);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
 #define KERNEL(name, doc) {#name, (PyCFunction)(void (*)(void))py_##name, METH_VARARGS | METH_KEYWORDS, doc}
 
 static PyMethodDef methods[] = {
@@ -1052,6 +1250,20 @@ static PyMethodDef methods[] = {
     KERNEL(edge_edge_state,
            "edge_edge_state(positions, edge_a, edge_b, sd, dist, params, normal): signed distance along the unit "
            "common normal, distance and closest-point parameters of each edge pair."),
+    KERNEL(bvh_build,
+           "bvh_build(positions, triangles, scene_ptr, scene_triangles, node_ptr, node, box, prim) -> node count: "
+           "a BVH per cluster over its scene triangles (node and box need 2 * len(scene_triangles) rows)."),
+    KERNEL(bvh_refit, "bvh_refit(positions, triangles, node_ptr, node, box, prim, clusters): refit the listed "
+                      "clusters' boxes bottom-up from the positions."),
+    KERNEL(bvh_cast,
+           "bvh_cast(positions, triangles, node_ptr, node, box, prim, cluster, origins, directions, tmax, "
+           "ray_vertex=None, ring=None, tri_out, t_out, u_out, v_out): the nearest hit (t in [0, tmax]) of each ray "
+           "in its cluster's tree, skipping the ray vertex's two-ring when a ring is given; tri -1 when none."),
+    KERNEL(self_cast,
+           "self_cast(positions, normals, has_normal, order, ptr, box_lo, box_hi, triangles, node_ptr, node, box, "
+           "prim, refit_step, step, ring, pair_a, pair_b, dist, backoff, ray_vertex, ray_slot, hit_triangle) -> "
+           "(hits, rays): every close pair's rays cast into the target cluster's tree (refitted once per step), the "
+           "two-ring skipped; the rays that hit (more than len(ray_vertex): call again, larger)."),
     {NULL, NULL, 0, NULL},
 };
 

@@ -16,28 +16,51 @@
 
 #include <math.h>
 
-/* Whether the segment o + s d, s in [0, len], meets the box [lo, hi]. */
-static int segment_box(const double o[3], const double d[3], double len, const double lo[3], const double hi[3])
+int tcc_segment_box(const double o[3], const double d[3], double len, const double lo[3], const double hi[3])
 {
-    double t0 = 0.0, t1 = len;
+    double inv[3], box[6];
     for (int a = 0; a < 3; a++) {
-        if (!(lo[a] <= hi[a])) return 0; /* an empty (or NaN) box */
-        if (fabs(d[a]) < 1e-300) {
-            if (o[a] < lo[a] || o[a] > hi[a]) return 0;
-            continue;
-        }
-        double inv = 1.0 / d[a];
-        double ta = (lo[a] - o[a]) * inv, tb = (hi[a] - o[a]) * inv;
-        if (ta > tb) {
-            double s = ta;
-            ta = tb;
-            tb = s;
-        }
-        if (ta > t0) t0 = ta;
-        if (tb < t1) t1 = tb;
-        if (t0 > t1) return 0;
+        inv[a] = fabs(d[a]) < 1e-300 ? INFINITY : 1.0 / d[a];
+        box[a] = lo[a];
+        box[3 + a] = hi[a];
     }
-    return 1;
+    return tcc_box_entry(o, inv, len, box) < INFINITY;
+}
+
+int tcc_pair_span(const tcc_ray_setup *s, tcc_idx p, tcc_idx a, tcc_idx b, tcc_idx *st, tcc_idx *en, tcc_error *err)
+{
+    if (a < 0 || a >= s->kc)
+        return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: cloth cluster %lld is not in [0, %lld)", (long long)p,
+                        (long long)a, (long long)s->kc);
+    if (b < 0 || b >= s->kb)
+        return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: collider cluster %lld is not in [0, %lld)", (long long)p,
+                        (long long)b, (long long)s->kb);
+    *st = s->ptr[a];
+    *en = s->ptr[a + 1];
+    if (*st < 0 || *en < *st || *en > s->norder)
+        return tcc_fail(err, TCC_ERR_INDEX, "cloth cluster %lld spans [%lld, %lld), outside the %lld members",
+                        (long long)a, (long long)*st, (long long)*en, (long long)s->norder);
+    return TCC_OK;
+}
+
+int tcc_member_ray(const tcc_ray_setup *s, tcc_idx i, int slot, const double *lo, const double *hi, tcc_idx *v,
+                   double ow[3], double dw[3], double *len, tcc_error *err)
+{
+    tcc_idx u = s->order[i];
+    if (u < 0 || u >= s->n)
+        return tcc_fail(err, TCC_ERR_INDEX, "order[%lld] = %lld is not a vertex index in [0, %lld)", (long long)i,
+                        (long long)u, (long long)s->n);
+    *v = u;
+    if (!s->has_normal[u]) return 0;
+    *len = (s->long_mask && s->long_mask[u] ? s->long_dist : s->short_dist) + s->backoff + s->tol;
+    double sg = slot == 0 ? 1.0 : -1.0;
+    const double *nv = s->normals + 3 * u, *xv = s->x + 3 * u;
+    for (int c = 0; c < 3; c++) {
+        dw[c] = nv[c] * sg;
+        ow[c] = xv[c] - s->backoff * dw[c];
+    }
+    if (!(isfinite(ow[0]) && isfinite(ow[1]) && isfinite(ow[2]))) return 0;
+    return tcc_segment_box(ow, dw, *len, lo, hi);
 }
 
 int tcc_prepare_rays(const tcc_ray_setup *s, const tcc_idx *pair_a, const tcc_idx *pair_b, tcc_idx np,
@@ -47,13 +70,9 @@ int tcc_prepare_rays(const tcc_ray_setup *s, const tcc_idx *pair_a, const tcc_id
 {
     tcc_idx m = 0, g = -1;
     for (tcc_idx p = 0; p < np; p++) {
-        tcc_idx a = pair_a[p], b = pair_b[p];
-        if (a < 0 || a >= s->kc)
-            return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: cloth cluster %lld is not in [0, %lld)", (long long)p,
-                            (long long)a, (long long)s->kc);
-        if (b < 0 || b >= s->kb)
-            return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: collider cluster %lld is not in [0, %lld)", (long long)p,
-                            (long long)b, (long long)s->kb);
+        tcc_idx a = pair_a[p], b = pair_b[p], st, en;
+        int rc = tcc_pair_span(s, p, a, b, &st, &en, err);
+        if (rc) return rc;
         if (g < 0 || b != ub[g]) {
             /* next group: pairs are sorted by b and ub lists each b once, in that order */
             g++;
@@ -63,26 +82,15 @@ int tcc_prepare_rays(const tcc_ray_setup *s, const tcc_idx *pair_a, const tcc_id
                                 "in that order (pair %lld, cluster %lld)", (long long)p, (long long)b);
             seg[g] = m;
         }
-        tcc_idx st = s->ptr[a], en = s->ptr[a + 1];
-        if (st < 0 || en < st || en > s->norder)
-            return tcc_fail(err, TCC_ERR_INDEX, "cloth cluster %lld spans [%lld, %lld), outside the %lld members",
-                            (long long)a, (long long)st, (long long)en, (long long)s->norder);
         const double *Rg = R + 9 * b, *cg = centre + 3 * b, *rg = ref_centre + 3 * b;
         const double *lo = s->box_lo + 3 * b, *hi = s->box_hi + 3 * b;
         for (tcc_idx i = st; i < en; i++) {
-            tcc_idx v = s->order[i];
-            if (v < 0 || v >= s->n)
-                return tcc_fail(err, TCC_ERR_INDEX, "order[%lld] = %lld is not a vertex index in [0, %lld)",
-                                (long long)i, (long long)v, (long long)s->n);
-            if (!s->has_normal[v]) continue;
-            double len = (s->long_mask && s->long_mask[v] ? s->long_dist : s->short_dist) + s->backoff + s->tol;
             for (int slot = 0; slot < 2; slot++) {
-                double sg = slot == 0 ? 1.0 : -1.0;
-                const double *nv = s->normals + 3 * v, *xv = s->x + 3 * v;
-                double dw[3] = {nv[0] * sg, nv[1] * sg, nv[2] * sg};
-                double ow[3] = {xv[0] - s->backoff * dw[0], xv[1] - s->backoff * dw[1], xv[2] - s->backoff * dw[2]};
-                if (!(isfinite(ow[0]) && isfinite(ow[1]) && isfinite(ow[2]))) continue;
-                if (!segment_box(ow, dw, len, lo, hi)) continue;
+                tcc_idx v;
+                double ow[3], dw[3], len;
+                int cast = tcc_member_ray(s, i, slot, lo, hi, &v, ow, dw, &len, err);
+                if (cast < 0) return cast;
+                if (!cast) continue;
                 if (m < cap) {
                     /* world -> build frame: x0 = R^T (x - centre) + ref_centre */
                     double r[3] = {ow[0] - cg[0], ow[1] - cg[1], ow[2] - cg[2]};

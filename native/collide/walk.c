@@ -17,17 +17,6 @@
 
 static const int EDGE_OPPOSITE[3] = {1, 2, 0}; /* corner k -> edge opposite it */
 
-/* Whether triangle tv touches the exclusion row of vertex v (ring table row, -1 padded). */
-static inline int excluded(const tcc_ring *ring, tcc_idx v, const tcc_idx tv[3])
-{
-    const tcc_idx *row = ring->table + v * ring->width;
-    for (tcc_idx w = 0; w < ring->width; w++) {
-        tcc_idx e = row[w];
-        if (e >= 0 && (tv[0] == e || tv[1] == e || tv[2] == e)) return 1;
-    }
-    return 0;
-}
-
 int tcc_walk_one(const tcc_mesh *m, const double o[3], const double d[3], tcc_idx v, tcc_idx start,
                  const tcc_ring *ring, int max_steps, tcc_hit *h, tcc_error *err)
 {
@@ -52,7 +41,7 @@ int tcc_walk_one(const tcc_mesh *m, const double o[3], const double d[3], tcc_id
         if (b[1] < b[kmin]) kmin = 1;
         if (b[2] < b[kmin]) kmin = 2;
         int inside = ok && b[kmin] >= -BARY_EPS;
-        if (ring && ring->table && excluded(ring, v, tv)) ok = inside = 0;
+        if (ring && ring->table && tcc_ring_excludes(ring, v, tv)) ok = inside = 0;
         if (inside) {
             h->tri = cur;
             h->t = t;

@@ -295,13 +295,167 @@ static void test_ccd(const mesh *m)
     free(x0); free(x1); free(pv); free(pt); free(toi); free(w); free(side);
 }
 
+/* The cloth's BVHs (bvh.c): the grid wrapped around a cylinder that breathes and wobbles, so its
+ * vertices' inward rays cross to the far side; every step the trees are refitted (never rebuilt)
+ * and each ray's first hit in every cluster must equal a brute-force test of the cluster's
+ * triangles with the same two-ring exclusion; the step's self_cast must find the same hits; bad
+ * trees and indices are errors. */
+static double brute_first_hit(const mesh *m, const tcc_idx *tris, tcc_idx nt, const double o[3], const double d[3],
+                              double tmax, const tcc_ring *ring, tcc_idx v)
+{
+    double best = INFINITY;
+    for (tcc_idx i = 0; i < nt; i++) {
+        const tcc_idx *tv = m->tri + 3 * tris[i];
+        double t, u, w;
+        if (!tcc_line_triangle(o, d, m->x + 3 * tv[0], m->x + 3 * tv[1], m->x + 3 * tv[2], &t, &u, &w)) continue;
+        if (t < 0 || t > tmax || u < -1e-12 || w < -1e-12 || u + w > 1 + 1e-12) continue;
+        if (ring && tcc_ring_excludes(ring, v, tv)) continue;
+        if (t < best) best = t;
+    }
+    return best;
+}
+
+static void test_bvh(mesh *m)
+{
+    enum { K = 6, W = 16 };
+    tcc_idx nv = m->nv, nt = m->nt;
+    double *x0 = malloc(sizeof(double) * 3 * nv), *nrm = malloc(sizeof(double) * 3 * nv);
+    uint8_t *has = malloc(nv);
+    memcpy(x0, m->x, sizeof(double) * 3 * nv);
+    tcc_idx *order = malloc(sizeof(tcc_idx) * nv), ptr[K + 1], tptr[K + 1];
+    tcc_idx *stri = malloc(sizeof(tcc_idx) * nt), *prim = malloc(sizeof(tcc_idx) * nt);
+    tcc_idx *node = malloc(sizeof(tcc_idx) * 4 * nt), node_ptr[K + 1], nnodes = 0;
+    double *box = malloc(sizeof(double) * 12 * nt);
+    strips(nv, nt, K, order, ptr, tptr);
+    for (tcc_idx f = 0; f < nt; f++) stri[f] = f;
+    /* ring table: each vertex and its edge neighbours */
+    tcc_idx *table = malloc(sizeof(tcc_idx) * W * nv);
+    for (tcc_idx i = 0; i < W * nv; i++) table[i] = -1;
+    for (tcc_idx v = 0; v < nv; v++) table[W * v] = v;
+    for (tcc_idx f = 0; f < nt; f++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) {
+                tcc_idx va = m->tri[3 * f + a], vb = m->tri[3 * f + b];
+                tcc_idx *row = table + W * va;
+                for (int w = 0; w < W; w++) {
+                    if (row[w] == vb) break;
+                    if (row[w] < 0) { row[w] = vb; break; }
+                }
+            }
+    tcc_ring ring = {table, nv, W};
+    tcc_mesh tm = {m->x, nv, m->tri, nt, NULL, NULL};
+    tcc_error err = {0};
+    int rc = tcc_bvh_build(&tm, tptr, stri, nt, K, node_ptr, node, box, 2 * nt, prim, &nnodes, &err);
+    CHECK(rc == TCC_OK && nnodes > K && nnodes <= 2 * nt, "bvh build: rc %d (%s), %lld nodes", rc, err.what,
+          (long long)nnodes);
+    tcc_bvh b = {node_ptr, K, node, box, nnodes, prim, nt};
+    tcc_idx stamp[K];
+    for (int c = 0; c < K; c++) stamp[c] = -1;
+    tcc_idx *rv = malloc(sizeof(tcc_idx) * 2 * nv * K), *rs = malloc(sizeof(tcc_idx) * 2 * nv * K);
+    tcc_idx *ht = malloc(sizeof(tcc_idx) * 2 * nv * K);
+    int compared = 0, found = 0, mismatched = 0;
+    for (int step = 0; step < 4; step++) {
+        /* wrap x onto 1.7 pi of a cylinder of radius 0.1 + 0.01 step, wobbling in y */
+        double R = 0.1 + 0.01 * step;
+        for (tcc_idx v = 0; v < nv; v++) {
+            double th = 1.7 * 3.141592653589793 * (x0[3 * v] + 0.3) / 0.6;
+            m->x[3 * v] = R * cos(th);
+            m->x[3 * v + 1] = x0[3 * v + 1] + 0.01 * sin(3 * th + step);
+            m->x[3 * v + 2] = R * sin(th);
+        }
+        tcc_vertex_normals(&tm, nrm, has, &err);
+        for (int c = 0; c < K; c++) {
+            rc = tcc_bvh_refit(&tm, &b, c, &err);
+            CHECK(rc == TCC_OK, "refit of cluster %d: %s", c, err.what);
+        }
+        /* boxes of the refitted roots hold their triangles' corners */
+        for (int c = 0; c < K; c++) {
+            const double *rb = box + 6 * node_ptr[c];
+            int ok = 1;
+            for (tcc_idx f = tptr[c]; f < tptr[c + 1]; f++)
+                for (int k = 0; k < 3; k++)
+                    for (int a = 0; a < 3; a++) {
+                        double xv = m->x[3 * m->tri[3 * f + k] + a];
+                        ok &= xv >= rb[a] && xv <= rb[3 + a];
+                    }
+            CHECK(ok, "step %d: cluster %d's root box holds its triangles", step, c);
+        }
+        for (tcc_idx v = 0; v < nv; v += 3)
+            for (int slot = 0; slot < 2; slot++)
+                for (int c = 0; c < K; c++) {
+                    double sg = slot ? -1.0 : 1.0, d[3] = {nrm[3 * v] * sg, nrm[3 * v + 1] * sg, nrm[3 * v + 2] * sg};
+                    tcc_hit h;
+                    rc = tcc_bvh_first_hit(&tm, &b, c, m->x + 3 * v, d, 0.5, &ring, v, &h, &err);
+                    double ref = brute_first_hit(m, stri + tptr[c], tptr[c + 1] - tptr[c], m->x + 3 * v, d, 0.5,
+                                                 &ring, v);
+                    compared++;
+                    found += h.tri >= 0;
+                    if (rc != TCC_OK || (h.tri >= 0) != isfinite(ref) || (h.tri >= 0 && fabs(h.t - ref) > 1e-12))
+                        mismatched++;
+                }
+        /* the step's self detection: every cluster pair, one call */
+        tcc_idx pa[K * K], pb[K * K], np = 0;
+        double lo[3 * K], hi[3 * K];
+        for (int c = 0; c < K; c++)
+            for (int a = 0; a < 3; a++) {
+                lo[3 * c + a] = box[6 * node_ptr[c] + a] - 0.01;
+                hi[3 * c + a] = box[6 * node_ptr[c] + 3 + a] + 0.01;
+            }
+        for (int a = 0; a < K; a++)
+            for (int c = 0; c < K; c++) {
+                pa[np] = a;
+                pb[np++] = c;
+            }
+        tcc_ray_setup setup = {m->x, nrm, has, NULL, nv, order, ptr, nv, K, lo, hi, K, 0.5, 0.5, 0.0, 0.0};
+        tcc_idx nh = 0, nr = 0;
+        rc = tcc_self_cast(&setup, &tm, &b, stamp, step, &ring, pa, pb, np, rv, rs, ht, 2 * nv * K, &nh, &nr, &err);
+        int all_stamped = 1;
+        for (int c = 0; c < K; c++) all_stamped &= stamp[c] == step;
+        CHECK(rc == TCC_OK && nh > 0 && nh <= nr && all_stamped, "self_cast: rc %d (%s), %lld hits of %lld rays",
+              rc, err.what, (long long)nh, (long long)nr);
+        int bad_hits = 0;
+        for (tcc_idx i = 0; i < nh; i++) {
+            const tcc_idx *tv = m->tri + 3 * ht[i];
+            bad_hits += tcc_ring_excludes(&ring, rv[i], tv);
+        }
+        CHECK(bad_hits == 0, "self_cast: %d hits on the ray vertex's own two-ring", bad_hits);
+    }
+    CHECK(mismatched == 0 && found > compared / 20, "bvh first hits vs brute force: %d of %d differ (%d hits)",
+          mismatched, compared, found);
+    /* bad trees and indices are errors, never reads out of bounds */
+    tcc_hit h;
+    tcc_error e1 = {0}, e2 = {0}, e3 = {0}, e4 = {0}, e5 = {0};
+    double o[3] = {0, 0, 0}, d[3] = {0, 0, 1};
+    CHECK(tcc_bvh_first_hit(&tm, &b, K, o, d, 1.0, NULL, 0, &h, &e1) == TCC_ERR_INDEX, "a cluster out of range");
+    tcc_idx keep = node[2 * node_ptr[0] + 1];
+    node[2 * node_ptr[0] + 1] = node_ptr[0]; /* the root its own child */
+    CHECK(tcc_bvh_refit(&tm, &b, 0, &e2) == TCC_ERR_INDEX, "a child before its parent is an index error: %s", e2.what);
+    node[2 * node_ptr[0] + 1] = keep;
+    keep = prim[0];
+    prim[0] = nt;
+    CHECK(tcc_bvh_refit(&tm, &b, 0, &e3) == TCC_ERR_INDEX, "a leaf triangle out of range is an index error");
+    prim[0] = keep;
+    tcc_idx bad_pair = K, zero_pair = 0;
+    tcc_ray_setup setup = {m->x, nrm, has, NULL, nv, order, ptr, nv, K, box, box, K, 0.5, 0.5, 0.0, 0.0};
+    tcc_idx nh, nr;
+    CHECK(tcc_self_cast(&setup, &tm, &b, stamp, 9, &ring, &zero_pair, &bad_pair, 1, rv, rs, ht, 1, &nh, &nr, &e4) ==
+              TCC_ERR_INDEX, "a pair's target cluster out of range is an index error");
+    CHECK(tcc_bvh_build(&tm, tptr, stri, nt, K, node_ptr, node, box, nt, prim, &nnodes, &e5) == TCC_ERR_VALUE,
+          "a node array without room for 2 rows per triangle is a value error");
+    memcpy(m->x, x0, sizeof(double) * 3 * nv);
+    free(x0); free(nrm); free(has); free(order); free(stri); free(prim); free(node); free(box); free(table);
+    free(rv); free(rs); free(ht);
+}
+
 int main(void)
 {
     mesh m = grid();
     test_measure_and_detection_steps(&m);
     test_ccd(&m);
+    test_bvh(&m);
     tear(&m);
     test_measure_and_detection_steps(&m);
+    test_bvh(&m);
     free(m.x);
     free(m.tri);
     printf("collide: %d checks, %d failures\n", checks, failures);

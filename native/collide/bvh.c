@@ -1,0 +1,359 @@
+/* bvh.c - a bounding volume hierarchy per cluster of the cloth, refitted instead of rebuilt, and
+ * the full self-collision detection of a step in one call.
+ *
+ * Why a native BVH for the cloth's own clusters (and Embree for the bodies): a cloth cluster
+ * deforms every step, so its Embree scene (narrow.ClusterScenes, reused only up to a rigid motion)
+ * was rebuilt in most steps of the artist's bake - 12.5 of 18 clusters per sub-step, 5.3 ms of
+ * bookkeeping, per-triangle copies through Python and Embree builds - and embreex can neither
+ * refit a scene nor filter hits, so the own two-ring was skipped by casting again (up to 8 times)
+ * from Python. Here the tree of each cluster is built once per topology (median split, the
+ * topology does not change between tears) and refitted bottom-up from the current positions when
+ * a step first needs it: a refit is one pass over the cluster's ~300 triangles, and its boxes are
+ * exact, so there is no staleness tolerance to add to the rays and no rigid frame to move them
+ * into. The two-ring filter runs inside the traversal. A body's cluster moves almost rigidly (a
+ * skinned limb), so its Embree scene in the rigid frame is rarely rebuilt and Embree's SIMD
+ * traversal of its long inside rays is the faster one: bodies keep Embree.
+ *
+ * Layout (arrays owned by the caller, narrow.ClusterBVH): cluster c's nodes are rows
+ * node_ptr[c] .. node_ptr[c+1] of node (N, 2) and box (N, 6: lo xyz, hi xyz), its root first; an
+ * inner node holds its two children (both after it, so a refit runs the rows backwards), a leaf
+ * holds -1 - first and count: triangles prim[first .. first+count). Every index read from these
+ * arrays is checked, so a corrupted tree gives TCC_ERR_INDEX, never an out-of-bounds read.
+ *
+ * A hit is the nearest triangle the ray o + t d meets for t in [0, tmax] (barycentrics within
+ * -BVH_EPS, so a ray through a shared edge is not lost between the two triangles), skipping
+ * triangles of the ray vertex's two-ring when a ring is given: what Embree followed by the
+ * re-casts of tcc_accept_hits found, in double precision.
+ */
+#include "collide.h"
+#include "vecmath.h"
+
+#include <math.h>
+#include <stdlib.h>
+
+#define BVH_LEAF 4      /* triangles per leaf at most */
+#define BVH_STACK 64    /* a median split over 2^40 triangles is 41 deep */
+#define BVH_EPS 1e-12   /* barycentric slack (relative to 1) */
+
+/* ------------------------------------------------------------------ build */
+
+typedef struct {
+    tcc_idx *perm;       /* scene rows of the cluster being built, permuted */
+    const double *cent;  /* (rows, 3) triangle centroids */
+    tcc_idx *node;
+    tcc_idx nnode;       /* nodes written so far (global) */
+} builder;
+
+/* Partial sort of perm[lo..hi) so that perm[mid] has the median centroid along axis (quickselect). */
+static void select_median(tcc_idx *perm, const double *cent, int axis, tcc_idx lo, tcc_idx hi, tcc_idx mid)
+{
+    while (hi - lo > 1) {
+        double pivot = cent[3 * perm[lo + (hi - lo) / 2] + axis];
+        tcc_idx i = lo, j = hi - 1;
+        while (i <= j) {
+            while (cent[3 * perm[i] + axis] < pivot) i++;
+            while (cent[3 * perm[j] + axis] > pivot) j--;
+            if (i <= j) {
+                tcc_idx t = perm[i];
+                perm[i] = perm[j];
+                perm[j] = t;
+                i++;
+                j--;
+            }
+        }
+        if (mid <= j) hi = j + 1;
+        else if (mid >= i) lo = i;
+        else return;
+    }
+}
+
+/* Node for perm[lo..hi) at row b->nnode, then its subtrees (preorder: children after parents). */
+static void build_node(builder *b, tcc_idx lo, tcc_idx hi, int depth)
+{
+    tcc_idx me = b->nnode++;
+    if (hi - lo <= BVH_LEAF || depth >= BVH_STACK - 2) {
+        b->node[2 * me] = -1 - lo;
+        b->node[2 * me + 1] = hi - lo;
+        return;
+    }
+    double clo[3] = {INFINITY, INFINITY, INFINITY}, chi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (tcc_idx i = lo; i < hi; i++)
+        for (int a = 0; a < 3; a++) {
+            double c = b->cent[3 * b->perm[i] + a];
+            if (c < clo[a]) clo[a] = c;
+            if (c > chi[a]) chi[a] = c;
+        }
+    int axis = 0;
+    for (int a = 1; a < 3; a++)
+        if (chi[a] - clo[a] > chi[axis] - clo[axis]) axis = a;
+    tcc_idx mid = lo + (hi - lo) / 2;
+    select_median(b->perm, b->cent, axis, lo, hi, mid);
+    b->node[2 * me] = b->nnode;
+    build_node(b, lo, mid, depth + 1);
+    b->node[2 * me + 1] = b->nnode;
+    build_node(b, mid, hi, depth + 1);
+}
+
+/* Corners of triangle f, checked. */
+static int corners(const tcc_mesh *m, tcc_idx f, const double *p[3], tcc_error *err)
+{
+    if (f < 0 || f >= m->nt)
+        return tcc_fail(err, TCC_ERR_INDEX, "BVH triangle %lld is not in [0, %lld)", (long long)f, (long long)m->nt);
+    const tcc_idx *tv = m->tri + 3 * f;
+    for (int k = 0; k < 3; k++) {
+        if (tv[k] < 0 || tv[k] >= m->nv)
+            return tcc_fail(err, TCC_ERR_INDEX, "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)",
+                            (long long)f, k, (long long)tv[k], (long long)m->nv);
+        p[k] = m->x + 3 * tv[k];
+    }
+    return TCC_OK;
+}
+
+int tcc_bvh_build(const tcc_mesh *m, const tcc_idx *scene_ptr, const tcc_idx *scene_tri, tcc_idx nrows, tcc_idx k,
+                  tcc_idx *node_ptr, tcc_idx *node, double *box, tcc_idx cap, tcc_idx *prim, tcc_idx *nnodes,
+                  tcc_error *err)
+{
+    if (scene_ptr[0] != 0 || scene_ptr[k] != nrows)
+        return tcc_fail(err, TCC_ERR_VALUE, "scene_ptr must run from 0 to the %lld scene rows", (long long)nrows);
+    if (cap < 2 * nrows)
+        return tcc_fail(err, TCC_ERR_VALUE, "the node arrays need 2 * %lld rows, have %lld", (long long)nrows,
+                        (long long)cap);
+    double *cent = malloc(sizeof(double) * 3 * (size_t)(nrows > 0 ? nrows : 1));
+    tcc_idx *perm = malloc(sizeof(tcc_idx) * (size_t)(nrows > 0 ? nrows : 1));
+    if (!cent || !perm) {
+        free(cent);
+        free(perm);
+        return tcc_fail(err, TCC_ERR_NOMEM, "no memory for the BVH build of %lld triangles", (long long)nrows);
+    }
+    int rc = TCC_OK;
+    for (tcc_idx r = 0; r < nrows && rc == TCC_OK; r++) {
+        const double *p[3];
+        rc = corners(m, scene_tri[r], p, err);
+        if (rc) break;
+        for (int a = 0; a < 3; a++) cent[3 * r + a] = (p[0][a] + p[1][a] + p[2][a]) / 3.0;
+    }
+    builder b = {perm, cent, node, 0};
+    for (tcc_idx c = 0; c < k && rc == TCC_OK; c++) {
+        tcc_idx s = scene_ptr[c], e = scene_ptr[c + 1];
+        if (s < 0 || e < s || e > nrows) {
+            rc = tcc_fail(err, TCC_ERR_INDEX, "scene_ptr: cluster %lld spans [%lld, %lld) of %lld rows", (long long)c,
+                          (long long)s, (long long)e, (long long)nrows);
+            break;
+        }
+        node_ptr[c] = b.nnode;
+        if (e == s) continue;
+        for (tcc_idx r = s; r < e; r++) perm[r] = r;
+        build_node(&b, s, e, 0);
+    }
+    if (rc == TCC_OK) {
+        node_ptr[k] = b.nnode;
+        for (tcc_idx r = 0; r < nrows; r++) prim[r] = scene_tri[perm[r]];
+        *nnodes = b.nnode;
+        tcc_bvh t = {node_ptr, k, node, box, b.nnode, prim, nrows};
+        for (tcc_idx c = 0; c < k && rc == TCC_OK; c++) rc = tcc_bvh_refit(m, &t, c, err);
+    }
+    free(cent);
+    free(perm);
+    return rc;
+}
+
+/* ------------------------------------------------------------------ refit */
+
+/* Node rows [s, e) of cluster c, checked. */
+static int cluster_nodes(const tcc_bvh *b, tcc_idx c, tcc_idx *s, tcc_idx *e, tcc_error *err)
+{
+    if (c < 0 || c >= b->k)
+        return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld is not in [0, %lld)", (long long)c, (long long)b->k);
+    *s = b->node_ptr[c];
+    *e = b->node_ptr[c + 1];
+    if (*s < 0 || *e < *s || *e > b->nnodes)
+        return tcc_fail(err, TCC_ERR_INDEX, "node_ptr: cluster %lld spans [%lld, %lld) of %lld nodes", (long long)c,
+                        (long long)*s, (long long)*e, (long long)b->nnodes);
+    return TCC_OK;
+}
+
+/* The children (inner) or triangle range (leaf) of node i of a cluster spanning [s, e), checked. */
+static int node_links(const tcc_bvh *b, tcc_idx i, tcc_idx e, int *leaf, tcc_idx *x, tcc_idx *y, tcc_error *err)
+{
+    tcc_idx p = b->node[2 * i], q = b->node[2 * i + 1];
+    *leaf = p < 0;
+    if (p < 0) {
+        tcc_idx first = -1 - p;
+        if (q < 1 || first > b->nprim - q)
+            return tcc_fail(err, TCC_ERR_INDEX, "BVH leaf %lld holds triangles [%lld, +%lld) of %lld", (long long)i,
+                            (long long)first, (long long)q, (long long)b->nprim);
+        *x = first;
+        *y = first + q;
+    } else {
+        if (p <= i || p >= e || q <= i || q >= e)
+            return tcc_fail(err, TCC_ERR_INDEX, "BVH node %lld: children %lld, %lld must lie in (%lld, %lld)",
+                            (long long)i, (long long)p, (long long)q, (long long)i, (long long)e);
+        *x = p;
+        *y = q;
+    }
+    return TCC_OK;
+}
+
+int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
+{
+    tcc_idx s, e;
+    int rc = cluster_nodes(b, c, &s, &e, err);
+    if (rc) return rc;
+    for (tcc_idx i = e - 1; i >= s; i--) {
+        int leaf;
+        tcc_idx x, y;
+        if ((rc = node_links(b, i, e, &leaf, &x, &y, err))) return rc;
+        double *bx = b->box + 6 * i;
+        if (leaf) {
+            for (int a = 0; a < 3; a++) {
+                bx[a] = INFINITY;
+                bx[3 + a] = -INFINITY;
+            }
+            for (tcc_idx r = x; r < y; r++) {
+                const double *p[3];
+                if ((rc = corners(m, b->prim[r], p, err))) return rc;
+                for (int k = 0; k < 3; k++)
+                    for (int a = 0; a < 3; a++) {
+                        if (p[k][a] < bx[a]) bx[a] = p[k][a];
+                        if (p[k][a] > bx[3 + a]) bx[3 + a] = p[k][a];
+                    }
+            }
+        } else {
+            const double *l = b->box + 6 * x, *r = b->box + 6 * y;
+            for (int a = 0; a < 3; a++) {
+                bx[a] = fmin(l[a], r[a]);
+                bx[3 + a] = fmax(l[3 + a], r[3 + a]);
+            }
+        }
+    }
+    return TCC_OK;
+}
+
+/* ------------------------------------------------------------------ query */
+
+int tcc_bvh_first_hit(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double o[3], const double d[3],
+                      double tmax, const tcc_ring *ring, tcc_idx v, tcc_hit *h, tcc_error *err)
+{
+    h->tri = -1;
+    h->t = INFINITY;
+    h->u = h->v = 0.0;
+    h->flips = 0;
+    tcc_idx s, e;
+    int rc = cluster_nodes(b, c, &s, &e, err);
+    if (rc || e == s) return rc;
+    int filter = ring && ring->table;
+    if (filter && (v < 0 || v >= ring->rows))
+        return tcc_fail(err, TCC_ERR_INDEX, "ray vertex %lld has no exclusion row (of %lld)", (long long)v,
+                        (long long)ring->rows);
+    double inv[3];
+    for (int a = 0; a < 3; a++) inv[a] = fabs(d[a]) < 1e-300 ? INFINITY : 1.0 / d[a];
+    double best = tmax;
+    tcc_idx stack[BVH_STACK];
+    int top = 0;
+    if (tcc_box_entry(o, inv, best, b->box + 6 * s) < INFINITY) stack[top++] = s;
+    while (top > 0) {
+        tcc_idx i = stack[--top];
+        if (tcc_box_entry(o, inv, best, b->box + 6 * i) == INFINITY) continue; /* best shrank since the push */
+        int leaf;
+        tcc_idx x, y;
+        if ((rc = node_links(b, i, e, &leaf, &x, &y, err))) return rc;
+        if (leaf) {
+            for (tcc_idx r = x; r < y; r++) {
+                const double *p[3];
+                tcc_idx f = b->prim[r];
+                if ((rc = corners(m, f, p, err))) return rc;
+                double t, u, w;
+                if (!tcc_line_triangle(o, d, p[0], p[1], p[2], &t, &u, &w)) continue;
+                if (!(t >= 0.0 && t <= best && u >= -BVH_EPS && w >= -BVH_EPS && u + w <= 1.0 + BVH_EPS)) continue;
+                if (t == best && h->tri >= 0) continue; /* a tie keeps the first found */
+                const tcc_idx *tv = m->tri + 3 * f;
+                /* the ray's own vertex first: every ray passes through its ~6 incident triangles */
+                if (filter && (tv[0] == v || tv[1] == v || tv[2] == v || tcc_ring_excludes(ring, v, tv))) continue;
+                best = t;
+                h->tri = f;
+                h->t = t;
+                h->u = u;
+                h->v = w;
+            }
+            continue;
+        }
+        double tx = tcc_box_entry(o, inv, best, b->box + 6 * x), ty = tcc_box_entry(o, inv, best, b->box + 6 * y);
+        if (top + 2 > BVH_STACK)
+            return tcc_fail(err, TCC_ERR_VALUE, "BVH of cluster %lld is deeper than %d levels", (long long)c,
+                            BVH_STACK);
+        /* the nearer child is popped first */
+        if (tx <= ty) {
+            if (ty < INFINITY) stack[top++] = y;
+            if (tx < INFINITY) stack[top++] = x;
+        } else {
+            if (tx < INFINITY) stack[top++] = x;
+            if (ty < INFINITY) stack[top++] = y;
+        }
+    }
+    return TCC_OK;
+}
+
+int tcc_bvh_cast(const tcc_mesh *m, const tcc_bvh *b, const tcc_idx *cluster, const double *o, const double *d,
+                 const double *tmax, const tcc_idx *ray_v, tcc_idx r, const tcc_ring *ring, tcc_hits out,
+                 tcc_error *err)
+{
+    for (tcc_idx i = 0; i < r; i++) {
+        tcc_hit h;
+        int rc = tcc_bvh_first_hit(m, b, cluster[i], o + 3 * i, d + 3 * i, tmax[i], ring, ray_v ? ray_v[i] : -1, &h,
+                                   err);
+        if (rc) return rc;
+        out.tri[i] = h.tri;
+        out.t[i] = h.t;
+        out.u[i] = h.u;
+        out.v[i] = h.v;
+        out.flips[i] = 0;
+    }
+    return TCC_OK;
+}
+
+/* ------------------------------------------------------------------ a step's self-collision rays */
+
+int tcc_self_cast(const tcc_ray_setup *s, const tcc_mesh *target, tcc_bvh *b, tcc_idx *refit_step, tcc_idx step,
+                  const tcc_ring *ring, const tcc_idx *pair_a, const tcc_idx *pair_b, tcc_idx np, tcc_idx *ray_v,
+                  tcc_idx *ray_slot, tcc_idx *hit_tri, tcc_idx cap, tcc_idx *nhits, tcc_idx *nrays, tcc_error *err)
+{
+    tcc_idx hits = 0, rays = 0;
+    if (s->kb != b->k)
+        return tcc_fail(err, TCC_ERR_VALUE, "%lld collider boxes for a BVH of %lld clusters", (long long)s->kb,
+                        (long long)b->k);
+    for (tcc_idx p = 0; p < np; p++) {
+        tcc_idx a = pair_a[p], c = pair_b[p], st, en;
+        int rc = tcc_pair_span(s, p, a, c, &st, &en, err);
+        if (rc) return rc;
+        const double *lo = s->box_lo + 3 * c, *hi = s->box_hi + 3 * c;
+        int fitted = 0;
+        for (tcc_idx i = st; i < en; i++) {
+            for (int slot = 0; slot < 2; slot++) {
+                tcc_idx v;
+                double ow[3], dw[3], len;
+                int cast = tcc_member_ray(s, i, slot, lo, hi, &v, ow, dw, &len, err);
+                if (cast < 0) return cast;
+                if (!cast) continue;
+                if (!fitted && refit_step[c] != step) {
+                    /* the first ray into cluster c this step refits its tree from the current positions */
+                    if ((rc = tcc_bvh_refit(target, b, c, err))) return rc;
+                    refit_step[c] = step;
+                }
+                fitted = 1;
+                rays++;
+                tcc_hit h;
+                if ((rc = tcc_bvh_first_hit(target, b, c, ow, dw, len, ring, v, &h, err))) return rc;
+                if (h.tri < 0) continue;
+                if (hits < cap) {
+                    ray_v[hits] = v;
+                    ray_slot[hits] = slot;
+                    hit_tri[hits] = h.tri;
+                }
+                hits++;
+            }
+        }
+    }
+    *nhits = hits;
+    *nrays = rays;
+    return TCC_OK;
+}
