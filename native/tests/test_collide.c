@@ -275,6 +275,20 @@ static void test_ccd(const mesh *m)
     double sd, dist, nrm[3];
     rc = tcc_edge_edge_state(x1, m->nv, ea, eb, 1, &sd, &dist, st, nrm, &err);
     CHECK(rc == TCC_OK && (sd > 0 ? 1 : -1) == -es && fabs(dist - 0.03) < 1e-9, "edge state: sd %g (side %d), dist %g", sd, es, dist);
+    /* the swept-box reject (ccd.c swept_boxes_apart): the same edge held still 3 mm below the other
+       is found at once with a 4 mm gap (boxes grown by the gap overlap), and not with a 2 mm gap;
+       carried 1 m sideways over the interval it meets nothing */
+    for (int i = 0; i < 3; i++) {
+        x0[i] = x1[i] = mid[i] - d[i] - 0.003 * nh[i];
+        x0[3 + i] = x1[3 + i] = mid[i] + d[i] - 0.003 * nh[i];
+    }
+    rc = tcc_ccd_edge_edge(x0, x1, m->nv, ea, eb, 1, 0.004, NULL, &et, st, &es, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 1 && et == 0.0, "still edge within the gap: rc %d, %lld hits, toi %g", rc, (long long)hits, et);
+    rc = tcc_ccd_edge_edge(x0, x1, m->nv, ea, eb, 1, 0.002, NULL, &et, st, &es, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 0 && isinf(et), "still edge beyond the gap: rc %d, %lld hits", rc, (long long)hits);
+    for (int i = 0; i < 3; i++) { x0[i] += 1.0; x0[3 + i] += 1.0; x1[i] += 1.0 + 1e-3; x1[3 + i] += 1.0 + 1e-3; }
+    rc = tcc_ccd_edge_edge(x0, x1, m->nv, ea, eb, 1, 0.004, NULL, &et, st, &es, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 0, "far edge: rc %d, %lld hits", rc, (long long)hits);
     /* bad pairs */
     tcc_idx badt = m->nt, badv = m->nv;
     tcc_error ex = {0};
