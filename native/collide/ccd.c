@@ -398,16 +398,17 @@ int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int
             if (id[j] < 0 || id[j] >= n)
                 return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: vertex %lld is not in [0, %lld)", (long long)q, (long long)id[j], (long long)n);
         const double *d0 = disp + 3 * id[0];
-        double ma = 0.0, mb = 0.0;
+        double ma2 = 0.0, mb2 = 0.0;  /* squared largest relative motions of the two elements */
         for (int j = 1; j < 4; j++) {
             double r[3];
             sub3(disp + 3 * id[j], d0, r);
-            double l = sqrt(dot3(r, r));
-            if (j < split) { if (l > ma) ma = l; } else if (l > mb) mb = l;
+            double l2 = dot3(r, r);
+            if (j < split) { if (l2 > ma2) ma2 = l2; } else if (l2 > mb2) mb2 = l2;
         }
-        double s = slack[q] - (ma + mb);
-        if (s > 0) {
-            if (update) slack[q] = s;
+        /* ma + mb <= sqrt(2 (ma^2 + mb^2)): the far pairs (nearly all) pass without a square root */
+        double sl = slack[q], b2 = 2.0 * (ma2 + mb2);
+        if (sl > 0 && sl * sl > b2) {
+            if (update) slack[q] = sl - sqrt(b2);
             continue;
         }
         out[m++] = q;
