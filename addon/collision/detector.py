@@ -255,7 +255,9 @@ class CollisionDetector:
     coefficient reported with every contact; ``displacement_threshold`` relative displacement
     (m, > 0) above which a cluster pair gets full detection; ``cluster_size`` target vertices per
     cluster; ``measure`` 'relative' (paper), 'absolute' (per-cluster, no pairing) or 'full'
-    (full detection of every close pair every step); ``self_collision``.
+    (full detection of every close pair every step); ``self_collision``; ``swept`` the swept
+    self-collision of the two-ring the rays skip (stage 5, ``swept.py``; its cost is
+    ``stats['ms']['swept']``, its counts ``stats['swept_*']``).
     """
 
     def __init__(
@@ -323,6 +325,9 @@ class CollisionDetector:
     # are remade from their build corners (``ClusterScenes.rebuild``), never from the resume pose.
     def __setstate__(self, state):
         self.__dict__.update(state)
+        # a detector saved before the swept stage existed: it starts with the stage on, pairs rebuilt
+        self.__dict__.setdefault("swept", True)
+        self.__dict__.setdefault("_swept", None)
         for collider in (self.cloth, *self.bodies.values()):
             if collider is not None:
                 collider.scenes.rebuild(collider.triangles)
@@ -480,7 +485,9 @@ class CollisionDetector:
         if cloth.velocities is not None and cloth.velocities.shape[0] == n:
             cloth.velocities = cloth.velocities[keep_v]
         self._cloth_prev = self._cloth_prev[keep_v]
-        self._rest = self._rest[keep_v[:self._rest.shape[0]]] if self._rest.shape[0] == n else self._rest
+        rest = getattr(self, "_rest", None)
+        if rest is not None and rest.shape[0] == n:
+            self._rest = rest[keep_v]
         # twins keep a shared identity; relabelled compactly so new vertices' own ids stay unique
         cloth.rest_id = np.unique(cloth.rest_id[keep_v], return_inverse=True)[1].astype(np.int64).reshape(-1)
         for name, tracks in self._tracks.items():
