@@ -245,7 +245,7 @@ class Session:
             for body in self._bodies.values():
                 v, rate = body.track.sample(t_end)
                 self.detector.update_body(body.name, v, rate)
-            self.detector.detect(self.cloth.positions, self.cloth.triangles, self.cloth.velocities)
+            self.detector.detect(self.cloth.positions, self.cloth.triangles, self.cloth.velocities, dt)
             contacts = self.detector.all_contacts  # all colliders per vertex, not just the deepest
             self.cloth.set_contacts(contacts.vertex, contacts.normal, contacts.depth, contacts.velocity,
                                     contacts.friction)

@@ -18,6 +18,8 @@ in C (``kernels.py`` -> ``tearcloth._collide``), so a step is a few dozen calls 
               clusters' refitted BVHs, the two-ring skipped inside (``narrow.ClusterBVH``).
 4. contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
               contact per vertex is returned (``all_contacts``: one per vertex per collider).
+5. swept    – self-collision of the pairs the rays skip (the two-ring), by swept vertex-triangle
+              and edge-edge tests over the step (``swept.py``); its contacts join ``all_contacts``.
 
 Tracks: per collider, per cloth vertex, two ray slots (+n, -n) hold the triangle last hit, the
 remembered side (thin surfaces) and, for closed bodies, whether the vertex was inside. A full
@@ -61,6 +63,7 @@ from .measure import (
     RelativeMeasure,
 )
 from .narrow import RAY_BACKOFF, ClusterBVH, ClusterScenes, Contacts, ring_table
+from .swept import SweptSelf
 
 __all__ = ["CollisionDetector", "Contacts"]
 
@@ -253,7 +256,9 @@ class CollisionDetector:
     coefficient reported with every contact; ``displacement_threshold`` relative displacement
     (m, > 0) above which a cluster pair gets full detection; ``cluster_size`` target vertices per
     cluster; ``measure`` 'relative' (paper), 'absolute' (per-cluster, no pairing) or 'full'
-    (full detection of every close pair every step); ``self_collision``.
+    (full detection of every close pair every step); ``self_collision``; ``swept`` the swept
+    self-collision of the two-ring the rays skip (stage 5, ``swept.py``; its cost is
+    ``stats['ms']['swept']``, its counts ``stats['swept_*']``).
     """
 
     def __init__(
@@ -264,6 +269,7 @@ class CollisionDetector:
         cluster_size=100,
         measure="relative",
         self_collision=True,
+        swept=True,
     ):
         if not np.isfinite(thickness) or thickness <= 0:
             raise ValueError(f"thickness must be a positive distance in metres, got {thickness!r}")
@@ -283,6 +289,8 @@ class CollisionDetector:
         self.cluster_size = int(cluster_size)
         self.measure = measure
         self.self_collision = bool(self_collision)
+        self.swept = bool(swept)  # stage 5 (swept.py); off only to measure what it costs and saves
+        self._swept = None
         self.inflate = 0.5 * (self.displacement_threshold + self.thickness)
         # Relative motion between two full detections of a pair stays under the threshold (twice
         # it with the absolute measure, see measure.py); 1.5 because the measure is a mean plus
@@ -321,6 +329,9 @@ class CollisionDetector:
     # are remade from their build corners (``ClusterScenes.rebuild``), never from the resume pose.
     def __setstate__(self, state):
         self.__dict__.update(state)
+        # a detector saved before the swept stage existed: it starts with the stage on, pairs rebuilt
+        self.__dict__.setdefault("swept", True)
+        self.__dict__.setdefault("_swept", None)
         for collider in (self.cloth, *self.bodies.values()):
             if collider is not None:
                 collider.scenes.rebuild(collider.triangles)
@@ -375,6 +386,8 @@ class CollisionDetector:
         scenes = ClusterBVH() if getattr(self, "self_scenes", "bvh") == "bvh" else None
         self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.scene_tolerance, self.friction, scenes)
         self._cloth_prev = v.copy()
+        self._rest = v.copy()  # the swept stage's per-pair gaps come from this (rest) geometry
+        self._swept = None
         self._first = True
         for name in list(self._tracks):
             self._reset_target(name)
@@ -443,6 +456,7 @@ class CollisionDetector:
             touched = None
         cloth.scenes.invalidate(dirty, touched)
         self._cloth_prev = prev
+        self._swept_topology(pos)
         for name, tracks in self._tracks.items():
             tracks.resize(pos.shape[0], new_v, parents)
             if name == "__self__":
@@ -478,6 +492,9 @@ class CollisionDetector:
         if cloth.velocities is not None and cloth.velocities.shape[0] == n:
             cloth.velocities = cloth.velocities[keep_v]
         self._cloth_prev = self._cloth_prev[keep_v]
+        rest = getattr(self, "_rest", None)
+        if rest is not None and rest.shape[0] == n:
+            self._rest = rest[keep_v]
         # twins keep a shared identity; relabelled compactly so new vertices' own ids stay unique
         cloth.rest_id = np.unique(cloth.rest_id[keep_v], return_inverse=True)[1].astype(np.int64).reshape(-1)
         for name, tracks in self._tracks.items():
@@ -495,11 +512,13 @@ class CollisionDetector:
         return True
 
     # ------------------------------------------------------------------ detection
-    def detect(self, positions, triangles, velocities=None):
+    def detect(self, positions, triangles, velocities=None, dt=None):
         """Contacts of the cloth at ``positions`` (n,3) m with ``triangles`` (m,3).
 
         ``velocities`` (n,3) m/s of the cloth, optional: reported as the surface velocity of
-        self-collision contacts (zero when not given).
+        self-collision contacts (zero when not given). ``dt`` (s), optional: the coming step, over
+        which the swept stage predicts the two-ring's motion (without it, or without velocities,
+        that stage only catches crossings after the fact).
         """
         t_start = time.perf_counter()
         pos = np.ascontiguousarray(positions, np.float64)
@@ -621,8 +640,9 @@ class CollisionDetector:
         contacts, every = self._assemble_rows(rows, pos.shape[0])
         # Every collider's contact per vertex, for the solver: a vertex touching a body and another
         # layer of cloth at once must respect both (the solver combines their normals).
-        self.all_contacts = every
         t_end = time.perf_counter()
+        self.all_contacts = self._swept_stage(every, pos, dt)
+        t_swept = time.perf_counter()
 
         self._cloth_prev = pos.copy()
         for body in self.bodies.values():
@@ -643,12 +663,52 @@ class CollisionDetector:
                 "incremental": 1e3 * (t_incr - t_measure),
                 "full": 1e3 * (t_full - t_incr),
                 "contacts": 1e3 * (t_end - t_full),
-                "total": 1e3 * (t_end - t_start),
+                "total": 1e3 * (t_swept - t_start),
                 "full_self": 1e3 * t_self,  # of "full": the cloth against itself
                 "full_self_cpu": 1e3 * c_self,  # the same, process CPU (Embree builds use a second thread)
+                "swept": 1e3 * (t_swept - t_end),
             },
+            "swept_pairs": 0 if self._swept is None else self._swept.n_pairs,
+            **{f"swept_{k}": v for k, v in (self._swept.counts if self._swept is not None else {}).items()},
         }
         return contacts
+
+    # ------------------------------------------------------------------ 5. swept (swept.py)
+    def _swept_topology(self, pos):
+        """Rest positions for vertices a tear made (a twin's are its original's) and a fresh pair
+        list; the remembered crossings of the old topology are dropped (their ids changed)."""
+        self._swept = None
+        rest = getattr(self, "_rest", None)
+        n = pos.shape[0]
+        if rest is None:
+            rest = pos.copy()
+        if rest.shape[0] < n:
+            rid = self.cloth.rest_id[rest.shape[0]:n]
+            extra = np.where((rid < rest.shape[0])[:, None], rest[np.minimum(rid, rest.shape[0] - 1)],
+                             pos[rest.shape[0]:n])
+            rest = np.concatenate([rest, extra])
+        self._rest = rest[:n]
+
+    def _swept_stage(self, every, pos, dt):
+        """Stage 5: the swept contacts of the cloth's two-ring, appended to ``every`` (per vertex,
+        sorted by vertex)."""
+        if not (self.swept and self.self_collision):
+            return every
+        cloth = self.cloth
+        if self._swept is None:
+            self._swept_topology(pos)
+            self._swept = SweptSelf(pos, cloth.triangles, cloth.ring, self._rest, self.thickness)
+        prev = None if self._first else self._cloth_prev
+        rows = self._swept.contacts(prev, pos, cloth.velocities, 0.0 if dt is None else float(dt))
+        if rows is None:
+            return every
+        v, depth, normal, vel = rows
+        v = np.concatenate([every.vertex.astype(np.int64), v])
+        order = np.argsort(v, kind="stable")
+        fr = np.full(rows[0].size, cloth.friction)
+        return Contacts(v[order].astype(np.int32), np.concatenate([every.normal, normal])[order],
+                        np.concatenate([every.depth, depth])[order], np.concatenate([every.velocity, vel])[order],
+                        np.concatenate([every.friction, fr])[order])
 
     def _full_detection(self, plan, fi, fj, pos, normals, has_normal, step):
         """Candidates (Embree for a body, the cloth's BVHs for itself) for cloth clusters fi against

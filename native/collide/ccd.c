@@ -155,6 +155,25 @@ static int cubic_candidates(const double c[4], double cand[8])
     return nc;
 }
 
+/* True when the boxes swept by points 0..split-1 and split..3 over the interval, each grown by
+ * gap, are apart: the pair cannot meet. Why: the candidate lists hold every neighbour pair the
+ * rays skip (tens of thousands on a small sheet), almost all of them far apart against their
+ * motion; this reject is a few compares where the exact distance test costs a square root and
+ * the closest-point search. */
+static int swept_boxes_apart(const double *const A[4], const double *const B[4], int split, double gap)
+{
+    for (int i = 0; i < 3; i++) {
+        double lo0 = INFINITY, hi0 = -INFINITY, lo1 = INFINITY, hi1 = -INFINITY;
+        for (int j = 0; j < 4; j++) {
+            double a = A[j][i], b = B[j][i], lo = a < b ? a : b, hi = a < b ? b : a;
+            if (j < split) { if (lo < lo0) lo0 = lo; if (hi > hi0) hi0 = hi; }
+            else { if (lo < lo1) lo1 = lo; if (hi > hi1) hi1 = hi; }
+        }
+        if (lo0 > hi1 + gap || lo1 > hi0 + gap) return 1;
+    }
+    return 0;
+}
+
 int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const tcc_idx *tri, tcc_idx nt,
                             const tcc_idx *pv, const tcc_idx *pt, tcc_idx k, double gap_all, const double *pair_gap,
                             double *toi, double *w, int8_t *side, tcc_idx *nhit, tcc_error *err)
@@ -168,6 +187,7 @@ int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const
         toi[q] = INFINITY;
         side[q] = 0;
         w[3 * q] = w[3 * q + 1] = w[3 * q + 2] = 0.0;
+        if (swept_boxes_apart(A, B, 1, gap)) continue;
         /* displacements, and the fastest the vertex can approach the triangle */
         double D[4][3], reach2 = 0.0;
         for (int j = 0; j < 4; j++) sub3(B[j], A[j], D[j]);
@@ -286,6 +306,7 @@ int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_i
         toi[q] = INFINITY;
         side[q] = 0;
         st[2 * q] = st[2 * q + 1] = 0.0;
+        if (swept_boxes_apart(A, B, 2, gap)) continue;
         double D[4][3], reach = 0.0;
         for (int j = 0; j < 4; j++) sub3(B[j], A[j], D[j]);
         for (int i = 0; i < 2; i++)
@@ -349,5 +370,55 @@ int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc
         sd[q] = dot3(g, nn);
         for (int i = 0; i < 3; i++) normal[3 * q + i] = nn[i];
     }
+    return TCC_OK;
+}
+
+/* Which pairs can come within their gap over a motion of displacement disp[v] per vertex: a lower
+ * bound slack[q] of (distance - gap[q]) is kept per pair, and a pair is handed to the exact swept
+ * test (out) only when that bound minus the pair's largest relative motion is not positive. Why:
+ * the two-ring pairs of a sheet number ~60 per vertex and all are neighbours, so boxes overlap and
+ * only the distance rejects them; the distance of two elements changes by at most
+ * max_i |d_i - r| + max_j |d_j - r| over the corners i of one and j of the other, for any common
+ * r (every point of a triangle or segment is a convex combination of its corners) - r = the first
+ * vertex's displacement, so a sheet that falls or swings as a whole spends no slack. One bound per
+ * pair and step replaces the exact distance until the pair has drawn close. With update (the real
+ * motion, x = its end) the bound is carried on, and recomputed exactly at x for the pairs handed
+ * out; without (a predicted motion) it is only read. quad[q] = (vertex, a, b, c) with split 1
+ * (vertex-triangle) or (a, b, c, d) with split 2 (edge-edge). */
+int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
+                 const double *gap, double *slack, int update, tcc_idx *out, tcc_idx *nout, tcc_error *err)
+{
+    if (split != 1 && split != 2) return tcc_fail(err, TCC_ERR_VALUE, "split must be 1 (vertex-triangle) or 2 (edge-edge), got %d", split);
+    for (tcc_idx v = 0; v < 3 * n; v++)
+        if (!isfinite(disp[v])) return tcc_fail(err, TCC_ERR_VALUE, "displacement of vertex %lld is not finite", (long long)(v / 3));
+    tcc_idx m = 0;
+    for (tcc_idx q = 0; q < k; q++) {
+        const tcc_idx *id = quad + 4 * q;
+        for (int j = 0; j < 4; j++)
+            if (id[j] < 0 || id[j] >= n)
+                return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: vertex %lld is not in [0, %lld)", (long long)q, (long long)id[j], (long long)n);
+        const double *d0 = disp + 3 * id[0];
+        double ma2 = 0.0, mb2 = 0.0;  /* squared largest relative motions of the two elements */
+        for (int j = 1; j < 4; j++) {
+            double r[3];
+            sub3(disp + 3 * id[j], d0, r);
+            double l2 = dot3(r, r);
+            if (j < split) { if (l2 > ma2) ma2 = l2; } else if (l2 > mb2) mb2 = l2;
+        }
+        /* ma + mb <= sqrt(2 (ma^2 + mb^2)): the far pairs (nearly all) pass without a square root */
+        double sl = slack[q], b2 = 2.0 * (ma2 + mb2);
+        if (sl > 0 && sl * sl > b2) {
+            if (update) slack[q] = sl - sqrt(b2);
+            continue;
+        }
+        out[m++] = q;
+        if (!update) continue;
+        const double *P[4] = {x + 3 * id[0], x + 3 * id[1], x + 3 * id[2], x + 3 * id[3]};
+        double d2, w[3], ss, tt;
+        if (split == 1) d2 = closest_on_triangle(P[0], P[1], P[2], P[3], w);
+        else d2 = closest_segments(P[0], P[1], P[2], P[3], &ss, &tt);
+        slack[q] = sqrt(d2) - gap[q];
+    }
+    *nout = m;
     return TCC_OK;
 }

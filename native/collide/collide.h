@@ -380,4 +380,11 @@ int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_i
 int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc_idx *eb, tcc_idx k, double *sd,
                         double *dist, double *st, double *normal, tcc_error *err);
 
+/* The pairs (quad[q]: 4 vertex ids, the first `split` one element) that may come within gap[q]
+ * over a motion of displacement disp (n, 3) (m) per vertex: out[0..*nout) their indices; slack (k) in/out, a
+ * lower bound of distance - gap (start at -inf: exact on first use), carried on and recomputed
+ * exactly at x for the pairs handed out when update is set (see ccd.c). */
+int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
+                 const double *gap, double *slack, int update, tcc_idx *out, tcc_idx *nout, tcc_error *err);
+
 #endif

@@ -1181,6 +1181,40 @@ fail:
     return NULL;
 }
 
+static const pyarg_spec CCD_CULL[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("quads", PA_I64, 0, 2, 4, 0),
+    VAL("split", PA_INT),
+    ARR("displacement", PA_F64, 0, 2, 3, 0),
+    ARR("gap", PA_F64, 0, 1, 0, 0),
+    ARR("slack", PA_F64, OUT, 1, 0, 0),
+    VAL("update", PA_FLAG),
+    ARR("out", PA_I64, OUT, 1, 0, 0),
+};
+enum { CU_X, CU_Q, CU_SPLIT, CU_MOVE, CU_GAP, CU_SLACK, CU_UPD, CU_OUT, CU_N };
+
+static PyObject *py_ccd_cull(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("ccd_cull", CCD_CULL, CU_N);
+    Py_ssize_t n = ROWS(CU_X), k = ROWS(CU_Q);
+    CHECK_ROWS(CU_MOVE, n);
+    CHECK_ROWS(CU_GAP, k);
+    CHECK_ROWS(CU_SLACK, k);
+    CHECK_ROWS(CU_OUT, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    tcc_idx count = 0;
+    int rc;
+    RUN(tcc_ccd_cull(D(CU_X), n, D(CU_Q), k, s.v[CU_SPLIT].i, D(CU_MOVE), D(CU_GAP), D(CU_SLACK), s.v[CU_UPD].i,
+                     D(CU_OUT), &count, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return PyLong_FromLongLong(count);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
 #define KERNEL(name, doc) {#name, (PyCFunction)(void (*)(void))py_##name, METH_VARARGS | METH_KEYWORDS, doc}
 
 static PyMethodDef methods[] = {
@@ -1247,6 +1281,10 @@ static PyMethodDef methods[] = {
            "ccd_edge_edge(start, end, edge_a, edge_b, gap, toi, params, side, pair_gap=None) -> hits: the earliest time in [0, 1] "
            "at which each pair of moving edges comes within gap, the closest points' parameters and the side of "
            "edge a from edge b before."),
+    KERNEL(ccd_cull,
+           "ccd_cull(positions, quads, split, displacement, gap, slack, update, out) -> count: the pairs that may "
+           "come within their gap over a motion of the given displacement per vertex (their indices into out), from a lower "
+           "bound slack of distance - gap carried per pair (updated and recomputed at positions with update)."),
     KERNEL(edge_edge_state,
            "edge_edge_state(positions, edge_a, edge_b, sd, dist, params, normal): signed distance along the unit "
            "common normal, distance and closest-point parameters of each edge pair."),

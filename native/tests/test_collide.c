@@ -252,6 +252,41 @@ static void test_ccd(const mesh *m)
             CHECK(side[q] == 1, "side %d of a vertex coming from the normal's side", side[q]);
             CHECK(fabs(w[3 * q] - 1.0 / 3) < 1e-9 && fabs(w[3 * q + 1] - 1.0 / 3) < 1e-9, "weights %g %g", w[3 * q], w[3 * q + 1]);
         }
+    /* the carried distance bound (tcc_ccd_cull): unknown bounds hand every pair out and are made
+       exact at x1; then with no motion only the pairs within their gap come out again (the driven
+       vertex sits at the far triangle's centre - 1 cm below it); bad input is an error */
+    {
+        tcc_idx *quad = malloc(sizeof(tcc_idx) * 4 * (size_t)k), *out = malloc(sizeof(tcc_idx) * (size_t)k);
+        double *gapq = malloc(sizeof(double) * (size_t)k), *slack = malloc(sizeof(double) * (size_t)k);
+        double *disp = calloc(nx, sizeof(double));
+        for (tcc_idx q = 0; q < k; q++) {
+            quad[4 * q] = pv[q];
+            for (int j = 0; j < 3; j++) quad[4 * q + 1 + j] = m->tri[3 * pt[q] + j];
+            gapq[q] = 0.002;
+            slack[q] = -INFINITY;
+        }
+        for (int i = 0; i < 3; i++) disp[i] = x1[i] - x0[i];
+        tcc_idx nout = -1;
+        rc = tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, out, &nout, &err);
+        CHECK(rc == TCC_OK && nout == k, "unknown bounds: rc %d, %lld of %lld handed out", rc, (long long)nout, (long long)k);
+        int finite = 1;
+        for (tcc_idx q = 0; q < k; q++) finite &= isfinite(slack[q]);
+        CHECK(finite, "every bound made exact");
+        memset(disp, 0, sizeof(double) * nx);
+        rc = tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, out, &nout, &err);
+        tcc_idx close = 0;
+        for (tcc_idx q = 0; q < k; q++) close += slack[q] <= 0;
+        CHECK(rc == TCC_OK && nout == close && nout < k, "still: rc %d, %lld handed out, %lld within their gap of %lld",
+              rc, (long long)nout, (long long)close, (long long)k);
+        tcc_error c1 = {0}, c2 = {0}, c3 = {0};
+        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 3, disp, gapq, slack, 0, out, &nout, &c1) == TCC_ERR_VALUE, "split 3 is a value error");
+        disp[4] = NAN;
+        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, out, &nout, &c2) == TCC_ERR_VALUE, "a NaN displacement is a value error");
+        disp[4] = 0.0;
+        quad[4 * (k - 1) + 2] = m->nv;
+        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 2, disp, gapq, slack, 0, out, &nout, &c3) == TCC_ERR_INDEX, "a vertex out of range is an index error");
+        free(quad); free(out); free(gapq); free(slack); free(disp);
+    }
     /* edge (0, 1), across an edge of the far triangle, driven along the normal through it */
     tcc_idx ea[2] = {0, 1}, eb[2] = {m->tri[3 * far], m->tri[3 * far + 2]};
     const double *pa = m->x + 3 * eb[0], *pb = m->x + 3 * eb[1];
@@ -275,6 +310,20 @@ static void test_ccd(const mesh *m)
     double sd, dist, nrm[3];
     rc = tcc_edge_edge_state(x1, m->nv, ea, eb, 1, &sd, &dist, st, nrm, &err);
     CHECK(rc == TCC_OK && (sd > 0 ? 1 : -1) == -es && fabs(dist - 0.03) < 1e-9, "edge state: sd %g (side %d), dist %g", sd, es, dist);
+    /* the swept-box reject (ccd.c swept_boxes_apart): the same edge held still 3 mm below the other
+       is found at once with a 4 mm gap (boxes grown by the gap overlap), and not with a 2 mm gap;
+       carried 1 m sideways over the interval it meets nothing */
+    for (int i = 0; i < 3; i++) {
+        x0[i] = x1[i] = mid[i] - d[i] - 0.003 * nh[i];
+        x0[3 + i] = x1[3 + i] = mid[i] + d[i] - 0.003 * nh[i];
+    }
+    rc = tcc_ccd_edge_edge(x0, x1, m->nv, ea, eb, 1, 0.004, NULL, &et, st, &es, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 1 && et == 0.0, "still edge within the gap: rc %d, %lld hits, toi %g", rc, (long long)hits, et);
+    rc = tcc_ccd_edge_edge(x0, x1, m->nv, ea, eb, 1, 0.002, NULL, &et, st, &es, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 0 && isinf(et), "still edge beyond the gap: rc %d, %lld hits", rc, (long long)hits);
+    for (int i = 0; i < 3; i++) { x0[i] += 1.0; x0[3 + i] += 1.0; x1[i] += 1.0 + 1e-3; x1[3 + i] += 1.0 + 1e-3; }
+    rc = tcc_ccd_edge_edge(x0, x1, m->nv, ea, eb, 1, 0.004, NULL, &et, st, &es, &hits, &err);
+    CHECK(rc == TCC_OK && hits == 0, "far edge: rc %d, %lld hits", rc, (long long)hits);
     /* bad pairs */
     tcc_idx badt = m->nt, badv = m->nv;
     tcc_error ex = {0};
