@@ -56,8 +56,10 @@ from .clusters import Clustering
 from .incremental import triangle_adjacency
 from .measure import (
     MEASURES,
+    TRIP_RULES,
     AbsoluteMeasure,
     RelativeMeasure,
+    TripMeasure,
 )
 from .narrow import RAY_BACKOFF, ClusterScenes, Contacts, ring_table
 
@@ -252,7 +254,12 @@ class CollisionDetector:
     coefficient reported with every contact; ``displacement_threshold`` relative displacement
     (m, > 0) above which a cluster pair gets full detection; ``cluster_size`` target vertices per
     cluster; ``measure`` 'relative' (paper), 'absolute' (per-cluster, no pairing) or 'full'
-    (full detection of every close pair every step); ``self_collision``.
+    (full detection of every close pair every step); ``self_collision``; ``trip_rule`` how the
+    relative measure trips full detection: 'paper' (eqs. 1-4 against the threshold, the default)
+    or 'bound' (a rigorous bound on each vertex's motion towards the other cluster against the
+    clearance left, measure.py; not the default yet: in the simulated scenes it fully detects
+    1.7-2x more pairs, and full detection at nearly every step - like measure='full' - lets a
+    body that starts inside the cloth blow it up, test_collision_session).
     """
 
     def __init__(
@@ -263,6 +270,7 @@ class CollisionDetector:
         cluster_size=100,
         measure="relative",
         self_collision=True,
+        trip_rule="paper",
     ):
         if not np.isfinite(thickness) or thickness <= 0:
             raise ValueError(f"thickness must be a positive distance in metres, got {thickness!r}")
@@ -274,6 +282,8 @@ class CollisionDetector:
             raise ValueError(f"friction must be a coefficient >= 0, got {friction!r}")
         if measure not in MEASURES:
             raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
+        if trip_rule not in TRIP_RULES:
+            raise ValueError(f"trip_rule must be one of {TRIP_RULES}, got {trip_rule!r}")
         if int(cluster_size) < 2:
             raise ValueError(f"cluster_size must be at least 2 vertices, got {cluster_size!r}")
         self.thickness = float(thickness)
@@ -282,6 +292,7 @@ class CollisionDetector:
         self.cluster_size = int(cluster_size)
         self.measure = measure
         self.self_collision = bool(self_collision)
+        self.trip_rule = trip_rule
         self.inflate = 0.5 * (self.displacement_threshold + self.thickness)
         # Relative motion between two full detections of a pair stays under the threshold (twice
         # it with the absolute measure, see measure.py); 1.5 because the measure is a mean plus
@@ -309,6 +320,12 @@ class CollisionDetector:
         # Batching of full detections (measure.py): the pairs that would pass the threshold within
         # this many steps join a step that runs full detection anyway.
         self.lookahead = 3.0
+        # The trip rule (measure.py): a full detection tracks every hit within track_range, so an
+        # untracked vertex has this much clearance to spend before it could touch; its motion
+        # bound counts the distance to a point up to reach away (measure.c: |L| |x - y|), twice the
+        # track range covering a step that starts beyond it.
+        self.trip_budget = self.displacement_threshold
+        self.trip_reach = 2.0 * self.track_range
         self.stats = {}
 
     # ------------------------------------------------------------------ saved state
@@ -316,6 +333,7 @@ class CollisionDetector:
     # positions, step counter, scenes): pickled whole by ``tearcloth.resume``; the Embree scenes
     # are remade from their build corners (``ClusterScenes.rebuild``), never from the resume pose.
     def __setstate__(self, state):
+        state.setdefault("trip_rule", "paper")  # saved before trip rules existed: the paper's measures
         self.__dict__.update(state)
         for collider in (self.cloth, *self.bodies.values()):
             if collider is not None:
@@ -376,7 +394,10 @@ class CollisionDetector:
     def _reset_target(self, name):
         n = 0 if self.cloth is None else self.cloth.vertices.shape[0]
         self._tracks[name] = _Tracks(n)
-        self._rel[name] = RelativeMeasure(self.displacement_threshold, self.lookahead)
+        if self.trip_rule == "bound":
+            self._rel[name] = TripMeasure(self.trip_budget, self.thickness, self.inflate, self.lookahead)
+        else:
+            self._rel[name] = RelativeMeasure(self.displacement_threshold, self.lookahead)
         self._abs[name] = AbsoluteMeasure(self.displacement_threshold, self.lookahead)
         self._forced[name] = None
         self._new_targets.add(name)
@@ -514,7 +535,12 @@ class CollisionDetector:
         normals, has_normal = lazy.normals, lazy.has_normal
 
         # 1. measure ---------------------------------------------------------------
-        avg_c, dev_c = kernels.cluster_motion(cloth.clustering, pos, self._cloth_prev)
+        bound_rule = self.measure == "relative" and self.trip_rule == "bound"
+        if bound_rule:
+            fit_c = kernels.cluster_fit(cloth.clustering, pos, self._cloth_prev, self.trip_reach)
+            side_c = (cloth.clustering, pos, self._cloth_prev, fit_c)
+        else:
+            avg_c, dev_c = kernels.cluster_motion(cloth.clustering, pos, self._cloth_prev)
         lo_c, hi_c = kernels.cluster_boxes(cloth.clustering, pos, self.inflate)
         due_c = None
         if self.measure == "absolute":
@@ -530,9 +556,16 @@ class CollisionDetector:
             if name == "__self__":
                 lo_b, hi_b = lo_c, hi_c
                 i, j = kernels.box_pairs(lo_c, hi_c, lo_c, hi_c, self_pairs=True)
-                avg_b, dev_b = avg_c, dev_c
+                if bound_rule:
+                    side_b = side_c
+                else:
+                    avg_b, dev_b = avg_c, dev_c
             else:
-                avg_b, dev_b = kernels.cluster_motion(target.clustering, target.vertices, target.measured)
+                if bound_rule:
+                    fit_b = kernels.cluster_fit(target.clustering, target.vertices, target.measured, self.trip_reach)
+                    side_b = (target.clustering, target.vertices, target.measured, fit_b)
+                else:
+                    avg_b, dev_b = kernels.cluster_motion(target.clustering, target.vertices, target.measured)
                 lo_b, hi_b = kernels.cluster_boxes(target.clustering, target.vertices, self.inflate)
                 i, j = kernels.box_pairs(lo_c, hi_c, lo_b, hi_b)
             force = None
@@ -546,7 +579,10 @@ class CollisionDetector:
                     force |= np.isin(j, forced)
             self._forced[name] = None
             self._new_targets.discard(name)
-            if self.measure == "relative":
+            if bound_rule:
+                bound = kernels.pair_motion(i, j, side_c, side_b, self.trip_reach)
+                full = self._rel[name].step(i, j, bound, lo_c, hi_c, lo_b, hi_b, force)
+            elif self.measure == "relative":
                 full = self._rel[name].step(i, j, avg_c, dev_c, avg_b, dev_b, force)
             elif self.measure == "absolute":
                 due_b = due_c if name == "__self__" else self._abs[name].accumulate(avg_b, dev_b)
