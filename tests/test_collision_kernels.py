@@ -677,3 +677,96 @@ def test_scenes_follow_rigid_motion_and_rebuild_only_when_deformed():
     sc.invalidate(triangles=cl.triangles_of(0)[:1])
     dropped = [c for c in range(cl.n_clusters) if sc.scene[c] is None]
     assert 0 in dropped and 1 <= len(dropped) <= 4  # the cluster and the margins that hold the triangle
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**16), target=st.integers(8, 60), spin=st.sampled_from([0.0, 0.05]))
+def test_trip_rule_kernels_equal_numpy_and_bound_the_motion(seed, target, spin):
+    """cluster_fit / pair_motion against their numpy specification, and the bound's promise: no
+    vertex of one cluster changes its distance to the other cluster's surface by more than m."""
+    from tearcloth.collision import measure
+
+    rng = np.random.default_rng(seed)
+    p, t = wavy_sheet(20, 17, seed)
+    cl = Clustering(p, t, target)
+    sv, stt = sphere(0.1, (0.2, 0.2, 0.05))
+    cb = Clustering(sv, stt, target)
+    c, s_ = np.cos(spin), np.sin(spin)
+    R = np.array([[c, -s_, 0], [s_, c, 0], [0, 0, 1]])
+    q = p @ R.T + rng.normal(scale=2e-3, size=3) + rng.normal(scale=3e-4, size=p.shape)
+    sq = sv @ R.T + rng.normal(scale=2e-3, size=3) + rng.normal(scale=1e-4, size=sv.shape)
+    reach = 0.02
+    fa, fb = kernels.cluster_fit(cl, q, p, reach), kernels.cluster_fit(cb, sq, sv, reach)
+    np.testing.assert_allclose(fa, measure.cluster_fit(cl, q, p, reach), rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(fb, measure.cluster_fit(cb, sq, sv, reach), rtol=1e-7, atol=1e-12)
+    i, j = (a.ravel().astype(np.int64) for a in np.meshgrid(np.arange(cl.n_clusters), np.arange(cb.n_clusters),
+                                                            indexing="ij"))
+    a, b = (cl, q, p, fa), (cb, sq, sv, fb)
+    m = kernels.pair_motion(i, j, a, b, reach)
+    np.testing.assert_allclose(m, measure.pair_motion(i, j, a, b, reach), rtol=1e-9, atol=1e-15)
+    # the promise, on vertex-to-point distances within reach (points: b's vertices and triangle centres)
+    cent0, cent1 = sv[stt].mean(axis=1), sq[stt].mean(axis=1)
+    for p_ in rng.choice(i.size, size=min(40, i.size), replace=False):
+        va, tb = cl.vertices_of(i[p_]), np.flatnonzero(cb.tri_labels == j[p_])
+        vb = np.unique(stt[tb])
+        y0, y1 = np.concatenate([sv[vb], cent0[tb]]), np.concatenate([sq[vb], cent1[tb]])
+        d0 = np.linalg.norm(p[va, None] - y0[None], axis=2)
+        d1 = np.linalg.norm(q[va, None] - y1[None], axis=2)
+        near = d0 <= reach
+        assert (np.abs(d1 - d0)[near] <= m[p_] * (1 + 1e-9)).all()
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 2**16), lookahead=st.sampled_from([0.0, 2.0]))
+def test_trip_measure_equals_numpy_over_steps(seed, lookahead):
+    from tearcloth.collision.measure import TripMeasure
+
+    rng = np.random.default_rng(seed)
+    ka, kb = 12, 9
+    c_side, ref_side = TripMeasure(0.004, 0.002, 0.003, lookahead), TripMeasure(0.004, 0.002, 0.003, lookahead)
+    for _ in range(25):
+        pairs = np.argwhere(rng.random((ka, kb)) < 0.4)
+        i, j = pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
+        lo_a, lo_b = rng.uniform(0, 0.05, (ka, 3)), rng.uniform(0, 0.05, (kb, 3))
+        hi_a, hi_b = lo_a + rng.uniform(0, 0.02, (ka, 3)), lo_b + rng.uniform(0, 0.02, (kb, 3))
+        bound = rng.uniform(0, 2e-3, i.size)
+        if i.size and rng.random() < 0.2:
+            bound[0] = np.inf
+        force = rng.random(i.size) < 0.1 if rng.random() < 0.5 else None
+        got = c_side.step(i, j, bound, lo_a, hi_a, lo_b, hi_b, force)
+        want = ref_side.step_reference(i, j, bound, lo_a, hi_a, lo_b, hi_b, force)
+        np.testing.assert_array_equal(got, want)
+        np.testing.assert_array_equal(c_side.keys, ref_side.keys)
+        np.testing.assert_allclose(c_side.used, ref_side.used, rtol=1e-12, atol=1e-18)
+        np.testing.assert_allclose(c_side.amplitude, ref_side.amplitude, rtol=1e-12, atol=1e-18)
+        assert (c_side.used <= 0.004).all()
+
+
+def test_trip_rule_kernels_reject_bad_input():
+    p, t = wavy_sheet(8, 8, 0)
+    cl = Clustering(p, t, 20)
+    k = cl.n_clusters
+    fit = np.empty((k, 17))
+    order = cl.order.copy()
+    order[0] = p.shape[0]
+    with pytest.raises(IndexError, match="order"):
+        _collide.cluster_fit(positions=p, previous=p, order=order, ptr=cl.ptr, reach=0.01, fit=fit)
+    with pytest.raises(ValueError, match="reach"):
+        _collide.cluster_fit(positions=p, previous=p, order=cl.order, ptr=cl.ptr, reach=float("nan"), fit=fit)
+    fit = kernels.cluster_fit(cl, p, p, 0.01)
+    side = (cl, p, p, fit)
+    with pytest.raises(IndexError, match="pair"):
+        kernels.pair_motion(np.array([k], np.int64), np.array([0], np.int64), side, side, 0.01)
+    with pytest.raises(ValueError, match="previous_a"):
+        kernels.pair_motion(np.array([0], np.int64), np.array([0], np.int64), (cl, p, p[:-1], fit), side, 0.01)
+    bad = Clustering(p, t, 20)
+    bad.order = order
+    with pytest.raises(IndexError, match="order"):
+        kernels.pair_motion(np.array([0], np.int64), np.array([0], np.int64), side, (bad, p, p, fit), 0.01)
+    lo = np.zeros((k, 3))
+    from tearcloth.collision.measure import TripMeasure
+    tm = TripMeasure(0.004, 0.002, 0.003)
+    with pytest.raises(ValueError, match="row-major"):
+        tm.step(np.array([1, 0], np.int64), np.array([0, 0], np.int64), np.zeros(2), lo, lo, lo, lo)
+    with pytest.raises(IndexError, match="pair"):
+        tm.step(np.array([0, k], np.int64), np.array([0, 0], np.int64), np.zeros(2), lo, lo, lo, lo)

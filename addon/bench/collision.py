@@ -9,7 +9,9 @@ This file owns
   sub-steps per 24 fps frame. The simulation is recorded once per case (body, cloth positions,
   velocities, triangles, tear events per step) and replayed into three fresh detectors, one per
   measure, so every measure sees the same deforming cloth. JSON keys
-  ``collision.simulated.{dt1ms,frame10}.{immobile,moving}.{full_ms,absolute_ms,relative_ms,full_share}``.
+  ``collision.simulated.{dt1ms,frame10}.{immobile,moving}.{full_ms,absolute_ms,relative_ms,full_share}``;
+  ``bound_rule_ms`` / ``bound_rule_full_share``: the relative measure with the motion-bound trip
+  rule (measure.py, ``trip_rule='bound'``) on the same replay, stepped interleaved with the others.
 - ``collision_figures``: both experiments; the old one is kept under ``rigid_skinned`` and is
   what its name says: the shirt skinned rigidly to the body (no relative motion, no deformation),
   3 mm threshold, 4 mm thickness - it does not measure what the paper measured.
@@ -74,38 +76,47 @@ def collision_experiment(
         else:
             frames.append(_Recorded(np.asarray(out, np.float64), cloth_vertices, cloth_triangles))
     result = {}
-    for measure in ("full", "absolute", "relative"):
+    # the variants step interleaved (one frame each in turn) so that the machine's load hits them
+    # alike; 'relative' is the detector's default (the paper's trip rule, eqs. 1-4 against the
+    # threshold), 'bound' the relative measure with the motion-bound trip rule of measure.py
+    variants = {"full": ("full", "paper"), "absolute": ("absolute", "paper"), "relative": ("relative", "paper"),
+                "bound": ("relative", "bound")}
+    dets, setups = {}, {}
+    for name, (measure, rule) in variants.items():
         t0 = time.perf_counter()
-        det = CollisionDetector(thickness, 0.3, displacement_threshold, cluster_size, measure, self_collision)
+        det = CollisionDetector(thickness, 0.3, displacement_threshold, cluster_size, measure, self_collision,
+                                trip_rule=rule)
         det.add_body(frames[0].body, body_triangles, "body")
         det.set_cloth(frames[0].cloth, frames[0].triangles)
-        setup = 1e3 * (time.perf_counter() - t0)
-        totals, shares, close = [], [], []
-        phases = {"measure": [], "incremental": [], "full": [], "contacts": []}
-        contacts = []
-        for k, fr in enumerate(frames):
+        dets[name], setups[name] = det, 1e3 * (time.perf_counter() - t0)
+    rec = {name: {"totals": [], "shares": [], "close": [], "contacts": [],
+                  "phases": {"measure": [], "incremental": [], "full": [], "contacts": []}} for name in variants}
+    for k, fr in enumerate(frames):
+        for name, det in dets.items():
             det.update_body("body", fr.body, fr.body_velocity)
             c = det.detect(fr.cloth, fr.triangles, fr.velocity)
             if fr.events is not None:  # the tear of this step, as the session hands it on
                 det.on_topology(fr.events, fr.after, fr.after_triangles)
             if k < warmup:
                 continue
-            st = det.stats
-            totals.append(st["ms"]["total"])
-            shares.append(st["full_share"])
-            close.append(st["close_pairs"])
-            contacts.append(len(c))
-            for p in phases:
-                phases[p].append(st["ms"][p])
+            st, r = det.stats, rec[name]
+            r["totals"].append(st["ms"]["total"])
+            r["shares"].append(st["full_share"])
+            r["close"].append(st["close_pairs"])
+            r["contacts"].append(len(c))
+            for p in r["phases"]:
+                r["phases"][p].append(st["ms"][p])
+    for measure, r in rec.items():
         # the mean: full detections come in bursts (most steps only walk their tracks), and a
         # median would hide them; the median is reported beside it
-        result[f"{measure}_ms"] = float(np.mean(totals))
-        result[f"{measure}_median_ms"] = float(np.median(totals))
-        result[f"{measure}_phases"] = {p: float(np.mean(v)) for p, v in phases.items()}
-        result[f"{measure}_share"] = float(np.mean(shares))
-        result[f"{measure}_setup_ms"] = setup
-        result["close_pairs"] = float(np.median(close))
-        result["contacts"] = float(np.median(contacts))
+        result[f"{measure}_ms"] = float(np.mean(r["totals"]))
+        result[f"{measure}_median_ms"] = float(np.median(r["totals"]))
+        result[f"{measure}_phases"] = {p: float(np.mean(v)) for p, v in r["phases"].items()}
+        result[f"{measure}_share"] = float(np.mean(r["shares"]))
+        result[f"{measure}_setup_ms"] = setups[measure]
+        result[f"{measure}_contacts"] = float(np.median(r["contacts"]))
+    result["close_pairs"] = float(np.median(rec["relative"]["close"]))
+    result["contacts"] = result["relative_contacts"]
     result["full_share"] = result["relative_share"]
     result["absolute_full_share"] = result["absolute_share"]
     return result
@@ -328,6 +339,10 @@ def simulated_figures(steps: int = 120, cases=SIMULATED_CASES, body=None, shirt=
             row["absolute_over_relative"] = r["absolute_ms"] / r["relative_ms"] if r["relative_ms"] > 0 else float("inf")
             row["relative_phases"] = r["relative_phases"]
             row["relative_median_ms"] = r["relative_median_ms"]
+            # the motion-bound trip rule on the same replay, interleaved with the others (measure.py)
+            row["bound_rule_ms"] = r["bound_ms"]
+            row["bound_rule_full_share"] = r["bound_share"]
+            row["bound_rule_over_relative"] = r["bound_ms"] / r["relative_ms"] if r["relative_ms"] > 0 else float("inf")
             row["session_detect_ms"] = float(np.mean(own_ms))
             row["session_full_share"] = float(np.mean(own_share))
             row["tears"] = tears
@@ -369,12 +384,13 @@ def format_collision(c: dict) -> str:
     """Both experiments as text tables (mean ms per step)."""
     def table(title, cases):
         rows = [title, f"{'':<18} {'full':>8} {'absolute':>9} {'(paper)':>8} {'relative':>9} {'(paper)':>8} "
-                       f"{'abs/rel':>8} {'full share':>11}"]
+                       f"{'abs/rel':>8} {'full share':>11} {'bound rule':>11} {'its share':>10}"]
         for label, r, name in cases:
             p = PAPER_COLLISION[name]
             rows.append(f"{label:<18} {r['full_ms']:>8.2f} {r['absolute_ms']:>9.2f} {p['absolute_ms']:>8.2f} "
                         f"{r['relative_ms']:>9.2f} {p['relative_ms']:>8.2f} {r['absolute_over_relative']:>8.2f} "
-                        f"{r['full_share']:>11.3f}")
+                        f"{r['full_share']:>11.3f} {r.get('bound_rule_ms', float('nan')):>11.2f} "
+                        f"{r.get('bound_rule_full_share', float('nan')):>10.3f}")
         return rows
 
     sim, rig = c["simulated"], c["rigid_skinned"]

@@ -218,6 +218,7 @@ class _Ours:
         self.parts = {"pose": 0.0, "collision": 0.0, "fem": 0.0, "tearing": 0.0}
         self.cg_iterations = []
         self.contacts = []
+        self.full_share = []  # share of close cluster pairs fully detected, per sub-step
         self.cpu_s = 0.0
 
     def frame(self, f: int) -> float:
@@ -239,6 +240,7 @@ class _Ours:
             parts["tearing"] += rep.tearing_s
             iters.append(self.cloth.stats()["cg_iterations"])
             contacts.append(rep.contacts)
+            self.full_share.append(float(self.session.detector.stats.get("full_share", float("nan"))))
         t2 = time.perf_counter()
         self.cpu_s += time.process_time() - c0
         self.parts["pose"] += t1 - t0
@@ -343,6 +345,10 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
         # cores (ours steps on one thread; Blender's collision and BVH code may use more)
         "ours_cpu_s_per_frame": ours.cpu_s / raced if raced else float("nan"),
         "blender_cpu_s_per_frame": sum(got["cpu_s"][:raced]) / raced if raced else float("nan"),
+        "cpu_ratio": ((ours.cpu_s / raced) / (sum(got["cpu_s"][:raced]) / raced)
+                      if raced and sum(got["cpu_s"][:raced]) > 0 else float("nan")),
+        # collision: the share of close cluster pairs that got full detection, mean over sub-steps
+        "ours_full_share": statistics.fmean(ours.full_share) if ours.full_share else float("nan"),
         "blender_s_per_frame_median": statistics.median(t_bl[:raced]) if raced else float("nan"),
         "frames": frames,
         "frames_raced": raced,
@@ -396,11 +402,13 @@ def format_race(r: dict) -> str:
         f"{r['ours_tears_started']} tears, {r['ours_cuts']} cuts",
         f"Blender {r['blender_s_per_frame']:.3f} s/frame (median {r['blender_s_per_frame_median']:.3f}), "
         f"replay from cache {r['blender_replay_s_per_frame']:.4f} s/frame",
-        f"CPU s/frame: ours {r['ours_cpu_s_per_frame']:.3f}, Blender {r['blender_cpu_s_per_frame']:.3f}",
+        f"CPU s/frame: ours {r['ours_cpu_s_per_frame']:.3f}, Blender {r['blender_cpu_s_per_frame']:.3f} "
+        f"(ratio {r.get('cpu_ratio', float('nan')):.2f})",
         f"penetration at the last frame: ours {r['ours_penetration_max_m'] * 1e3:.1f} mm, "
         f"{r['ours_vertices_inside']} vertices inside; Blender {r['blender_penetration_max_m'] * 1e3:.1f} mm, "
         f"{r['blender_vertices_inside']} vertices inside",
-        f"collision share of our sub-step time: {r['ours_collision_share_of_substep']:.2f}",
+        f"collision share of our sub-step time: {r['ours_collision_share_of_substep']:.2f}; close pairs fully "
+        f"detected: {r.get('ours_full_share', float('nan')):.2f}",
         f"ratio ours/Blender {r['ratio']:.2f}",
         f"Blender cloth: {bl['cloth']}",
         f"Blender collision: {bl['collision']}; body: {bl['body_collision']}; scene: {bl['scene']}",

@@ -9,7 +9,8 @@ ValueError / IndexError itself; what is here is bookkeeping, not validation.
 
 Each kernel has a numpy reference that is its specification (the tests compare
 them on random inputs): ``narrow.VertexNormals``, ``measure.cluster_motion``, ``cluster_boxes``,
-``box_pairs``, ``RelativeMeasure.step_reference``, ``incremental.walk``, and
+``box_pairs``, ``RelativeMeasure.step_reference``, ``measure.cluster_fit``, ``measure.pair_motion``,
+``TripMeasure.step_reference``, ``incremental.walk``, and
 ``merge_classify`` / ``assemble`` of ``tests/collision_reference.py``.
 """
 from __future__ import annotations
@@ -23,6 +24,8 @@ __all__ = [
     "cluster_motion",
     "cluster_boxes",
     "box_pairs",
+    "cluster_fit",
+    "pair_motion",
     "walk",
     "Hits",
     "RayBuffer",
@@ -79,6 +82,24 @@ def box_pairs(lo_a, hi_a, lo_b, hi_b, self_pairs=False):
         if count <= cap:
             return i[:count], j[:count]
         cap = count
+
+
+def cluster_fit(clustering, positions, previous, reach):
+    """(K, 17) affine fit per cluster of the displacement positions - previous (measure.py)."""
+    fit = np.empty((clustering.n_clusters, 17))
+    _collide.cluster_fit(positions=positions, previous=previous, order=clustering.order, ptr=clustering.ptr,
+                         reach=float(reach), fit=fit)
+    return fit
+
+
+def pair_motion(i, j, a, b, reach):
+    """Per pair, the step's bound on a vertex's motion towards the other cluster (measure.py); a, b =
+    (clustering, positions, previous, fit)."""
+    bound = np.empty(i.shape[0])
+    _collide.pair_motion(i=i, j=j, positions_a=a[1], previous_a=a[2], order_a=a[0].order, ptr_a=a[0].ptr,
+                         fit_a=a[3], positions_b=b[1], previous_b=b[2], order_b=b[0].order, ptr_b=b[0].ptr,
+                         fit_b=b[3], reach=float(reach), bound=bound)
+    return bound
 
 
 class Hits:

@@ -119,6 +119,35 @@ int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const d
                          const uint8_t *force, double threshold, double lookahead, tcc_idx *keys, double *rel_avg,
                          double *rel_dev, double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err);
 
+/* The trip rule (measure.c, issue 15). Per cluster, the affine fit of the step's displacement
+ * x - prev over the previous positions, TCC_FIT_LEN doubles per cluster: centre c[3], mean
+ * displacement t[3], L[9] (row-major), e = the largest residual over the members, |L|_F (L = 0
+ * when a pure translation bounds tighter at this reach). */
+#define TCC_FIT_LEN 17
+int tcc_cluster_fit(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
+                    const tcc_idx *ptr, tcc_idx k, double reach, double *fit, tcc_error *err);
+
+/* Per pair (i of object a, j of object b): a bound m of how much the step changed the distance
+ * between any vertex of one cluster and the other cluster's surface (within reach): the smaller of
+ * max_{x in i} |d_x - A_j(x)| + e_j + |L_j| reach and the same from j's vertices. The clusters'
+ * members are order / ptr as given to tcc_cluster_fit (indices checked there). Non-finite -> inf. */
+int tcc_pair_motion(const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *xa, const double *pa,
+                    const tcc_idx *oa, const tcc_idx *pta, const double *fa, tcc_idx ka, const double *xb,
+                    const double *pb, const tcc_idx *ob, const tcc_idx *ptb, const double *fb, tcc_idx kb,
+                    double reach, double *m, tcc_error *err);
+
+/* Per close pair, the clearance spent since it was last known (used, m): a known pair adds this
+ * step's bound m; every pair is capped by what its boxes (inflated by `inflate`) prove now,
+ * budget - (gap - thickness), which is also where a new pair starts. full = used > budget or force
+ * (then used resets to 0: a full detection tracks every hit within thickness + budget); batching as
+ * in tcc_relative_measure with used + lookahead * m. Pairs in row-major order, each once; keys /
+ * used / amplitude (the spent clearance before a reset) / full in that order. */
+int tcc_trip_measure(const tcc_idx *old_keys, const double *old_used, tcc_idx nold, const tcc_idx *pi,
+                     const tcc_idx *pj, tcc_idx np, const double *m, const double *lo_a, const double *hi_a,
+                     tcc_idx ka, const double *lo_b, const double *hi_b, tcc_idx kb, double inflate, double budget,
+                     double thickness, const uint8_t *force, double lookahead, tcc_idx *keys, double *used,
+                     double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err);
+
 /* ---------------------------------------------------------------- walk.c */
 
 typedef struct {

@@ -108,23 +108,33 @@ static int by_key(const void *pa, const void *pb)
     return a->key < b->key ? -1 : (a->key > b->key);
 }
 
+/* Every pair a cluster pair of [0, ka) x [0, kb) that fits a key, and the stored keys ascending.
+ * Returns TCC_OK and *sorted = whether the pairs come in ascending key order. */
+static int check_pairs(const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, tcc_idx ka, tcc_idx kb,
+                       const tcc_idx *old_keys, tcc_idx nold, int *sorted, tcc_error *err)
+{
+    *sorted = 1;
+    for (tcc_idx p = 0; p < np; p++) {
+        tcc_idx i = pi[p], j = pj[p];
+        if (i < 0 || i >= ka || j < 0 || j >= kb || i > 0x7fffffff || j > 0x7fffffff)
+            return tcc_fail(err, TCC_ERR_INDEX, "pair %lld = (%lld, %lld) is not a cluster pair of [0, %lld) x [0, %lld)",
+                            (long long)p, (long long)i, (long long)j, (long long)ka, (long long)kb);
+        if (p > 0 && ((i << 32) | j) <= ((pi[p - 1] << 32) | pj[p - 1])) *sorted = 0;
+    }
+    for (tcc_idx o = 1; o < nold; o++)
+        if (old_keys[o] <= old_keys[o - 1])
+            return tcc_fail(err, TCC_ERR_VALUE, "the stored pair keys are not sorted (entry %lld)", (long long)o);
+    return TCC_OK;
+}
+
 int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const double *old_dev, tcc_idx nold,
                          const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *avg_a,
                          const double *dev_a, tcc_idx ka, const double *avg_b, const double *dev_b, tcc_idx kb,
                          const uint8_t *force, double threshold, double lookahead, tcc_idx *keys, double *rel_avg,
                          double *rel_dev, double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err)
 {
-    int sorted = 1;
-    for (tcc_idx p = 0; p < np; p++) {
-        tcc_idx i = pi[p], j = pj[p];
-        if (i < 0 || i >= ka || j < 0 || j >= kb || i > 0x7fffffff || j > 0x7fffffff)
-            return tcc_fail(err, TCC_ERR_INDEX, "pair %lld = (%lld, %lld) is not a cluster pair of [0, %lld) x [0, %lld)",
-                            (long long)p, (long long)i, (long long)j, (long long)ka, (long long)kb);
-        if (p > 0 && ((i << 32) | j) <= ((pi[p - 1] << 32) | pj[p - 1])) sorted = 0;
-    }
-    for (tcc_idx o = 1; o < nold; o++)
-        if (old_keys[o] <= old_keys[o - 1])
-            return tcc_fail(err, TCC_ERR_VALUE, "the stored pair keys are not sorted (entry %lld)", (long long)o);
+    int sorted, rc = check_pairs(pi, pj, np, ka, kb, old_keys, nold, &sorted, err);
+    if (rc != TCC_OK) return rc;
     /* pairs in any order: the stored keys come out sorted, full / amplitude in the caller's order */
     keyed *ord = NULL;
     if (!sorted) {
@@ -193,6 +203,226 @@ int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const d
         }
     }
     free(ord);
+    *nfull = nf;
+    return TCC_OK;
+}
+
+/* ------------------------------------------------------------------ the trip rule (issue 15)
+ *
+ * A bound, not a threshold per step: per close pair (a, b), how far any vertex of a can have moved
+ * towards b since b's surface near it was last known, against the clearance that knowledge left.
+ *
+ * Each cluster's displacement over the step is fitted by an affine field A(x) = t + L (x - c) over
+ * its previous positions (c their mean, t the mean displacement, L least squares, regularised:
+ * any L gives a valid bound below, the fit only makes it tight). e = the largest residual
+ * |d_v - A(x_v)| over the cluster's vertices. A point y of b's surface is a convex combination of
+ * b's vertices, so its displacement is A_b(y) + (a residual of length <= e_b). For a vertex x of a
+ * and the point y of b nearest to it, |x - y| <= reach while it matters, so the step changes their
+ * distance by at most
+ *     |d_x - d_y| <= |d_x - A_b(x)| + |L_b| |x - y| + e_b <= max_x |d_x - A_b(x)| + |L_b|_F reach + e_b,
+ * and the same with the roles of a and b swapped; the smaller of the two is the pair's bound m.
+ * Rigid co-motion (a sleeve on a swinging arm, neighbouring cloth clusters translating and turning
+ * together) then costs only its residual, where the paper's ||avg_a - avg_b|| + dev_a + dev_b
+ * counts both clusters' rotation spread again at every step. */
+
+#define TCC_FIT TCC_FIT_LEN
+
+static int inv3_sym(const double a[9], double out[9])
+{
+    double c00 = a[4] * a[8] - a[5] * a[7], c01 = a[5] * a[6] - a[3] * a[8], c02 = a[3] * a[7] - a[4] * a[6];
+    double det = a[0] * c00 + a[1] * c01 + a[2] * c02;
+    if (!(fabs(det) > 0.0) || !isfinite(det)) return 0;
+    double id = 1.0 / det;
+    out[0] = c00 * id;
+    out[1] = (a[2] * a[7] - a[1] * a[8]) * id;
+    out[2] = (a[1] * a[5] - a[2] * a[4]) * id;
+    out[3] = c01 * id;
+    out[4] = (a[0] * a[8] - a[2] * a[6]) * id;
+    out[5] = (a[2] * a[3] - a[0] * a[5]) * id;
+    out[6] = c02 * id;
+    out[7] = (a[1] * a[6] - a[0] * a[7]) * id;
+    out[8] = (a[0] * a[4] - a[1] * a[3]) * id;
+    return 1;
+}
+
+/* |d_v - t - L (p_v - c)| for vertex v */
+static double fit_residual(const double *x, const double *prev, tcc_idx v, const double *f)
+{
+    const double *p = prev + 3 * v;
+    double q0 = p[0] - f[0], q1 = p[1] - f[1], q2 = p[2] - f[2];
+    const double *L = f + 6;
+    double r0 = x[3 * v] - p[0] - f[3] - (L[0] * q0 + L[1] * q1 + L[2] * q2);
+    double r1 = x[3 * v + 1] - p[1] - f[4] - (L[3] * q0 + L[4] * q1 + L[5] * q2);
+    double r2 = x[3 * v + 2] - p[2] - f[5] - (L[6] * q0 + L[7] * q1 + L[8] * q2);
+    return sqrt(r0 * r0 + r1 * r1 + r2 * r2);
+}
+
+int tcc_cluster_fit(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
+                    const tcc_idx *ptr, tcc_idx k, double reach, double *fit, tcc_error *err)
+{
+    for (tcc_idx c = 0; c < k; c++) {
+        tcc_idx s = ptr[c], e = ptr[c + 1];
+        if (s < 0 || e < s || e > norder)
+            return tcc_fail(err, TCC_ERR_INDEX, "cluster %lld spans [%lld, %lld), outside the %lld members",
+                            (long long)c, (long long)s, (long long)e, (long long)norder);
+        double *f = fit + TCC_FIT * c;
+        double cen[3] = {0, 0, 0}, t[3] = {0, 0, 0};
+        for (tcc_idx q = s; q < e; q++) {
+            tcc_idx v = order[q];
+            if (v < 0 || v >= n)
+                return tcc_fail(err, TCC_ERR_INDEX, "order[%lld] = %lld is not a vertex index in [0, %lld)",
+                                (long long)q, (long long)v, (long long)n);
+            for (int a = 0; a < 3; a++) {
+                cen[a] += prev[3 * v + a];
+                t[a] += x[3 * v + a] - prev[3 * v + a];
+            }
+        }
+        double cnt = e > s ? (double)(e - s) : 1.0;
+        double C[9] = {0}, S[9] = {0};
+        for (int a = 0; a < 3; a++) {
+            cen[a] /= cnt;
+            t[a] /= cnt;
+        }
+        for (tcc_idx q = s; q < e; q++) {
+            tcc_idx v = order[q];
+            double p[3], d[3];
+            for (int a = 0; a < 3; a++) {
+                p[a] = prev[3 * v + a] - cen[a];
+                d[a] = x[3 * v + a] - prev[3 * v + a] - t[a];
+            }
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) {
+                    C[3 * a + b] += p[a] * p[b];
+                    S[3 * a + b] += d[a] * p[b];
+                }
+        }
+        /* A flat cluster's covariance is singular along its normal: regularise by a thousandth of its
+         * mean spread so L stays bounded there (the residual e measures whatever this costs). */
+        double reg = 1e-3 * (C[0] + C[4] + C[8]) / 3.0 + 1e-300;
+        C[0] += reg;
+        C[4] += reg;
+        C[8] += reg;
+        double Ci[9], L[9] = {0};
+        if (inv3_sym(C, Ci))
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) L[3 * a + b] = S[3 * a] * Ci[b] + S[3 * a + 1] * Ci[3 + b] + S[3 * a + 2] * Ci[6 + b];
+        double ln = 0.0;
+        for (int a = 0; a < 9; a++) ln += L[a] * L[a];
+        ln = sqrt(ln);
+        if (!isfinite(ln)) { /* NaN / inf motion: the field is unusable, the residual below says so */
+            for (int a = 0; a < 9; a++) L[a] = 0.0;
+            ln = 0.0;
+        }
+        for (int a = 0; a < 3; a++) {
+            f[a] = cen[a];
+            f[3 + a] = t[a];
+        }
+        for (int a = 0; a < 9; a++) f[6 + a] = L[a];
+        double emax = 0.0;
+        for (tcc_idx q = s; q < e; q++) {
+            double r = fit_residual(x, prev, order[q], f);
+            emax = r > emax || r != r ? r : emax;
+        }
+        /* pure translation (L = 0) when that bounds tighter: a fit that only follows noise */
+        double emax0 = 0.0;
+        for (int a = 0; a < 9; a++) f[6 + a] = 0.0;
+        for (tcc_idx q = s; q < e; q++) {
+            double r = fit_residual(x, prev, order[q], f);
+            emax0 = r > emax0 || r != r ? r : emax0;
+        }
+        if (emax + ln * reach < emax0) {
+            for (int a = 0; a < 9; a++) f[6 + a] = L[a];
+        } else {
+            emax = emax0;
+            ln = 0.0;
+        }
+        f[15] = emax;
+        f[16] = ln;
+    }
+    return TCC_OK;
+}
+
+/* max over the members of cluster `ca` (of the object x_a / prev_a) of |d_x - A_b(x)|, + e_b + |L_b| reach */
+static double one_way(const double *xa, const double *pa, const tcc_idx *oa, const tcc_idx *pta, tcc_idx ca,
+                      const double *fb, double reach)
+{
+    double m = 0.0;
+    for (tcc_idx q = pta[ca]; q < pta[ca + 1]; q++) {
+        double r = fit_residual(xa, pa, oa[q], fb);
+        m = r > m || r != r ? r : m;
+    }
+    return m + fb[15] + fb[16] * reach;
+}
+
+int tcc_pair_motion(const tcc_idx *pi, const tcc_idx *pj, tcc_idx np, const double *xa, const double *pa,
+                    const tcc_idx *oa, const tcc_idx *pta, const double *fa, tcc_idx ka, const double *xb,
+                    const double *pb, const tcc_idx *ob, const tcc_idx *ptb, const double *fb, tcc_idx kb,
+                    double reach, double *m, tcc_error *err)
+{
+    /* members were checked by tcc_cluster_fit against the same order / ptr arrays */
+    for (tcc_idx p = 0; p < np; p++) {
+        tcc_idx i = pi[p], j = pj[p];
+        if (i < 0 || i >= ka || j < 0 || j >= kb)
+            return tcc_fail(err, TCC_ERR_INDEX, "pair %lld = (%lld, %lld) is not a cluster pair of [0, %lld) x [0, %lld)",
+                            (long long)p, (long long)i, (long long)j, (long long)ka, (long long)kb);
+        double ab = one_way(xa, pa, oa, pta, i, fb + TCC_FIT * j, reach);
+        double ba = one_way(xb, pb, ob, ptb, j, fa + TCC_FIT * i, reach);
+        double v = ab < ba ? ab : ba;
+        m[p] = v == v ? v : INFINITY; /* NaN motion: unbounded, full detection */
+    }
+    return TCC_OK;
+}
+
+/* Euclidean distance between two boxes given inflated by `inflate` (0 when they overlap; NaN
+ * boxes give 0, the conservative answer) */
+static double box_gap(const double *la, const double *ha, const double *lb, const double *hb, double inflate)
+{
+    double g2 = 0.0;
+    for (int a = 0; a < 3; a++) {
+        double g1 = lb[a] - ha[a] + 2.0 * inflate, g2a = la[a] - hb[a] + 2.0 * inflate;
+        double g = g1 > g2a ? g1 : g2a;
+        if (g > 0.0) g2 += g * g;
+    }
+    return sqrt(g2);
+}
+
+int tcc_trip_measure(const tcc_idx *old_keys, const double *old_used, tcc_idx nold, const tcc_idx *pi,
+                     const tcc_idx *pj, tcc_idx np, const double *m, const double *lo_a, const double *hi_a,
+                     tcc_idx ka, const double *lo_b, const double *hi_b, tcc_idx kb, double inflate, double budget,
+                     double thickness, const uint8_t *force, double lookahead, tcc_idx *keys, double *used,
+                     double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err)
+{
+    int sorted, rc = check_pairs(pi, pj, np, ka, kb, old_keys, nold, &sorted, err);
+    if (rc != TCC_OK) return rc;
+    if (!sorted)
+        return tcc_fail(err, TCC_ERR_VALUE, "the pairs must come in row-major order, each once (tcc_box_pairs' order)");
+    tcc_idx o = 0, nf = 0;
+    for (tcc_idx p = 0; p < np; p++) {
+        tcc_idx i = pi[p], j = pj[p], key = (i << 32) | j;
+        keys[p] = key;
+        while (o < nold && old_keys[o] < key) o++;
+        /* the clearance the boxes prove now: no vertex of a is nearer than the gap to b */
+        double fresh = budget - (box_gap(lo_a + 3 * i, hi_a + 3 * i, lo_b + 3 * j, hi_b + 3 * j, inflate) - thickness);
+        fresh = fresh > 0.0 ? fresh : 0.0;
+        /* a known pair spends this step's bound; a new one starts from what its boxes prove */
+        double u = (o < nold && old_keys[o] == key) ? old_used[o] + m[p] : fresh;
+        if (fresh < u) u = fresh;
+        if (u != u) u = INFINITY;
+        int f = u > budget || (force && force[p]);
+        amplitude[p] = u;
+        if (f) nf++;
+        full[p] = (uint8_t)f;
+        used[p] = f ? 0.0 : u;
+    }
+    /* batching (measure.py): a step that runs full detection anyway takes the pairs that at this
+     * step's bound would spend their clearance within `lookahead` steps */
+    if (nf > 0 && lookahead > 0.0)
+        for (tcc_idx p = 0; p < np; p++)
+            if (!full[p] && amplitude[p] + lookahead * m[p] > budget) {
+                full[p] = 1;
+                used[p] = 0.0;
+                nf++;
+            }
     *nfull = nf;
     return TCC_OK;
 }

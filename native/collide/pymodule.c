@@ -322,6 +322,161 @@ fail:
     return NULL;
 }
 
+/* the trip rule (measure.c): cluster fits, pair bounds, the spent clearance */
+static const pyarg_spec CLUSTER_FIT[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("previous", PA_F64, 0, 2, 3, 0),
+    ARR("order", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    VAL("reach", PA_DOUBLE),
+    ARR("fit", PA_F64, OUT, 2, TCC_FIT_LEN, 0),
+};
+enum { CF_X, CF_PREV, CF_ORDER, CF_PTR, CF_REACH, CF_FIT, CF_N };
+
+static PyObject *py_cluster_fit(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("cluster_fit", CLUSTER_FIT, CF_N);
+    double reach = s.v[CF_REACH].d;
+    if (finite_param(reach, "reach", 1)) goto fail;
+    Py_ssize_t n = ROWS(CF_X);
+    CHECK_ROWS(CF_PREV, n);
+    if (!bounds_ok(ROWS(CF_PTR), "ptr", "cluster")) goto fail;
+    Py_ssize_t k = ROWS(CF_PTR) - 1;
+    CHECK_ROWS(CF_FIT, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_cluster_fit(D(CF_X), D(CF_PREV), n, D(CF_ORDER), ROWS(CF_ORDER), D(CF_PTR), k, reach, D(CF_FIT), &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec PAIR_MOTION[] = {
+    ARR("i", PA_I64, 0, 1, 0, 0),
+    ARR("j", PA_I64, 0, 1, 0, 0),
+    ARR("positions_a", PA_F64, 0, 2, 3, 0),
+    ARR("previous_a", PA_F64, 0, 2, 3, 0),
+    ARR("order_a", PA_I64, 0, 1, 0, 0),
+    ARR("ptr_a", PA_I64, 0, 1, 0, 0),
+    ARR("fit_a", PA_F64, 0, 2, TCC_FIT_LEN, 0),
+    ARR("positions_b", PA_F64, 0, 2, 3, 0),
+    ARR("previous_b", PA_F64, 0, 2, 3, 0),
+    ARR("order_b", PA_I64, 0, 1, 0, 0),
+    ARR("ptr_b", PA_I64, 0, 1, 0, 0),
+    ARR("fit_b", PA_F64, 0, 2, TCC_FIT_LEN, 0),
+    VAL("reach", PA_DOUBLE),
+    ARR("bound", PA_F64, OUT, 1, 0, 0),
+};
+enum { PM_I, PM_J, PM_XA, PM_PA, PM_OA, PM_PTA, PM_FA, PM_XB, PM_PB, PM_OB, PM_PTB, PM_FB, PM_REACH, PM_M, PM_N };
+
+/* members of one side: every order entry a vertex, ptr non-decreasing within order (so the kernel,
+ * which trusts them, reads nothing out of bounds) */
+static int members_ok(pyarg_set *p, int x, int order, int ptr, int fit, const char *side)
+{
+    Py_ssize_t n = pyarg_nrows(p, x), no = pyarg_nrows(p, order), np1 = pyarg_nrows(p, ptr);
+    if (np1 < 1 || pyarg_nrows(p, fit) != np1 - 1) {
+        PyErr_Format(PyExc_ValueError, "side %s: ptr must hold k + 1 bounds for the k fitted clusters", side);
+        return 0;
+    }
+    const tcc_idx *o = pyarg_data(p, order), *q = pyarg_data(p, ptr);
+    for (Py_ssize_t i = 0; i < no; i++)
+        if (o[i] < 0 || o[i] >= n) {
+            PyErr_Format(PyExc_IndexError, "side %s: order[%zd] = %lld is not a vertex index", side, i, (long long)o[i]);
+            return 0;
+        }
+    for (Py_ssize_t c = 0; c + 1 < np1; c++)
+        if (q[c] < 0 || q[c + 1] < q[c] || q[c + 1] > no) {
+            PyErr_Format(PyExc_IndexError, "side %s: cluster %zd spans [%lld, %lld), outside the %zd members", side, c,
+                         (long long)q[c], (long long)q[c + 1], no);
+            return 0;
+        }
+    return 1;
+}
+
+static PyObject *py_pair_motion(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("pair_motion", PAIR_MOTION, PM_N);
+    double reach = s.v[PM_REACH].d;
+    if (finite_param(reach, "reach", 1)) goto fail;
+    Py_ssize_t np_ = ROWS(PM_I);
+    CHECK_ROWS(PM_J, np_);
+    CHECK_ROWS(PM_M, np_);
+    CHECK_ROWS(PM_PA, ROWS(PM_XA));
+    CHECK_ROWS(PM_PB, ROWS(PM_XB));
+    if (!members_ok(&s, PM_XA, PM_OA, PM_PTA, PM_FA, "a") || !members_ok(&s, PM_XB, PM_OB, PM_PTB, PM_FB, "b")) goto fail;
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_pair_motion(D(PM_I), D(PM_J), np_, D(PM_XA), D(PM_PA), D(PM_OA), D(PM_PTA), D(PM_FA), ROWS(PM_FA), D(PM_XB),
+                        D(PM_PB), D(PM_OB), D(PM_PTB), D(PM_FB), ROWS(PM_FB), reach, D(PM_M), &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec TRIP_MEASURE[] = {
+    ARR("old_keys", PA_I64, 0, 1, 0, 0),
+    ARR("old_used", PA_F64, 0, 1, 0, 0),
+    ARR("i", PA_I64, 0, 1, 0, 0),
+    ARR("j", PA_I64, 0, 1, 0, 0),
+    ARR("bound", PA_F64, 0, 1, 0, 0),
+    ARR("lo_a", PA_F64, 0, 2, 3, 0),
+    ARR("hi_a", PA_F64, 0, 2, 3, 0),
+    ARR("lo_b", PA_F64, 0, 2, 3, 0),
+    ARR("hi_b", PA_F64, 0, 2, 3, 0),
+    VAL("inflate", PA_DOUBLE),
+    VAL("budget", PA_DOUBLE),
+    VAL("thickness", PA_DOUBLE),
+    ARR("force", PA_BOOL, OPT, 1, 0, 0),
+    VAL("lookahead", PA_DOUBLE),
+    ARR("keys", PA_I64, OUT, 1, 0, 0),
+    ARR("used", PA_F64, OUT, 1, 0, 0),
+    ARR("amplitude", PA_F64, OUT, 1, 0, 0),
+    ARR("full", PA_BOOL, OUT, 1, 0, 0),
+};
+enum { TM_OK, TM_OU, TM_I, TM_J, TM_M, TM_LOA, TM_HIA, TM_LOB, TM_HIB, TM_INFLATE, TM_BUDGET, TM_TH, TM_FORCE,
+       TM_LOOKAHEAD, TM_KEYS, TM_USED, TM_AMP, TM_FULL, TM_N };
+
+static PyObject *py_trip_measure(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("trip_measure", TRIP_MEASURE, TM_N);
+    double inflate = s.v[TM_INFLATE].d, budget = s.v[TM_BUDGET].d, th = s.v[TM_TH].d, la = s.v[TM_LOOKAHEAD].d;
+    if (finite_param(inflate, "inflate", 1) || finite_param(budget, "budget", 1) || finite_param(th, "thickness", 1) ||
+        finite_param(la, "lookahead", 1))
+        goto fail;
+    Py_ssize_t nold = ROWS(TM_OK), np_ = ROWS(TM_I);
+    CHECK_ROWS(TM_OU, nold);
+    CHECK_ROWS(TM_J, np_);
+    CHECK_ROWS(TM_M, np_);
+    CHECK_ROWS(TM_HIA, ROWS(TM_LOA));
+    CHECK_ROWS(TM_HIB, ROWS(TM_LOB));
+    CHECK_ROWS(TM_FORCE, np_);
+    CHECK_ROWS(TM_KEYS, np_);
+    CHECK_ROWS(TM_USED, np_);
+    CHECK_ROWS(TM_AMP, np_);
+    CHECK_ROWS(TM_FULL, np_);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    tcc_idx nfull = 0;
+    int rc;
+    RUN(tcc_trip_measure(D(TM_OK), D(TM_OU), nold, D(TM_I), D(TM_J), np_, D(TM_M), D(TM_LOA), D(TM_HIA), ROWS(TM_LOA),
+                         D(TM_LOB), D(TM_HIB), ROWS(TM_LOB), inflate, budget, th, D(TM_FORCE), la, D(TM_KEYS),
+                         D(TM_USED), D(TM_AMP), D(TM_FULL), &nfull, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return PyLong_FromLongLong(nfull);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
 static const pyarg_spec RIGID_FIT[] = {
     ARR("positions", PA_F64, 0, 2, 3, 0),
     ARR("triangles", PA_I64, 0, 2, 3, 0),
@@ -1232,6 +1387,15 @@ static PyMethodDef methods[] = {
     KERNEL(relative_measure,
            "relative_measure(old_keys, old_avg, old_dev, i, j, avg_a, dev_a, avg_b, dev_b, force, threshold, keys, "
            "rel_avg, rel_dev, amplitude, full, lookahead=0) -> number of full pairs."),
+    KERNEL(cluster_fit,
+           "cluster_fit(positions, previous, order, ptr, reach, fit): affine fit of each cluster's displacement, "
+           "its largest residual and |L| (the trip rule, measure.c)."),
+    KERNEL(pair_motion,
+           "pair_motion(i, j, positions_a, previous_a, order_a, ptr_a, fit_a, positions_b, previous_b, order_b, "
+           "ptr_b, fit_b, reach, bound): per pair, the step's bound on a vertex's motion towards the other cluster."),
+    KERNEL(trip_measure,
+           "trip_measure(old_keys, old_used, i, j, bound, lo_a, hi_a, lo_b, hi_b, inflate, budget, thickness, force, "
+           "lookahead, keys, used, amplitude, full) -> number of full pairs (the clearance each pair spent)."),
     KERNEL(rigid_fit,
            "rigid_fit(positions, triangles, ref_corners, scene_triangles, R, centre, ref_centre, row) -> max "
            "residual^2."),

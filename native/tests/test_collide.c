@@ -83,6 +83,10 @@ static void test_measure_and_detection_steps(mesh *m)
     tcc_idx old_keys[K * KB], keys[K * KB], pi[K * KB], pj[K * KB], np_ = 0, nold = 0, nfull;
     double old_avg[3 * K * KB], old_dev[K * KB], rel_avg[3 * K * KB], rel_dev[K * KB], amp[K * KB];
     uint8_t full[K * KB];
+    /* the trip rule's state beside the paper's (measure.c) */
+    double fit_c[TCC_FIT_LEN * K], fit_b[TCC_FIT_LEN * KB], bound[K * KB], t_used_old[K * KB], t_used[K * KB];
+    tcc_idx t_keys_old[K * KB], t_keys[K * KB], t_nold = 0, t_nfull = 0;
+    int t_tripped = 0;
     tcc_error err = {0};
     memcpy(prev, m->x, sizeof(double) * 3 * m->nv);
     box_at(bx, 0.0, 0.0, -0.2);
@@ -105,6 +109,22 @@ static void test_measure_and_detection_steps(mesh *m)
                                    NULL, 0.01, 3.0, keys, rel_avg, rel_dev, amp, full, &nfull, &err) == TCC_OK,
               "measure: %s", err.what);
         tripped += nfull > 0;
+        CHECK(tcc_cluster_fit(m->x, prev, m->nv, order, m->nv, ptr, K, 0.01, fit_c, &err) == TCC_OK, "fit: %s",
+              err.what);
+        CHECK(tcc_cluster_fit(bx, bprev, 8, border, 8, bptr, KB, 0.01, fit_b, &err) == TCC_OK, "body fit");
+        CHECK(tcc_pair_motion(pi, pj, np_, m->x, prev, order, ptr, fit_c, K, bx, bprev, border, bptr, fit_b, KB, 0.01,
+                              bound, &err) == TCC_OK, "pair motion: %s", err.what);
+        /* the box rises 10 mm per step, the cloth's wave moves it by at most 1.5 mm: every pair's bound
+         * covers the 8.5 mm left of relative motion */
+        for (tcc_idx p = 0; p < np_; p++) CHECK(bound[p] >= 0.0 && (step == 0 || bound[p] >= 0.0085), "bound %g", bound[p]);
+        CHECK(tcc_trip_measure(t_keys_old, t_used_old, t_nold, pi, pj, np_, bound, lo, hi, K, blo, bhi, KB, 0.002,
+                               0.0015, 0.002, NULL, 1.0, t_keys, t_used, amp, full, &t_nfull, &err) == TCC_OK,
+              "trip measure: %s", err.what);
+        for (tcc_idx p = 0; p < np_; p++) CHECK(t_used[p] >= 0.0 && t_used[p] <= 0.0015, "spent clearance in range");
+        t_tripped += t_nfull > 0;
+        memcpy(t_keys_old, t_keys, sizeof(tcc_idx) * np_);
+        memcpy(t_used_old, t_used, sizeof(double) * np_);
+        t_nold = np_;
         memcpy(old_keys, keys, sizeof(tcc_idx) * np_);
         memcpy(old_avg, rel_avg, sizeof(double) * 3 * np_);
         memcpy(old_dev, rel_dev, sizeof(double) * np_);
@@ -180,6 +200,7 @@ static void test_measure_and_detection_steps(mesh *m)
         memcpy(bprev, bx, sizeof bx);
     }
     CHECK(tripped > 0, "the rising body trips full detection");
+    CHECK(t_tripped > 0, "the rising body trips the trip rule too");
     CHECK(refined > 0, "rays found the body and were refined on it");
     /* bad indices are errors */
     order[0] = m->nv + 5;
