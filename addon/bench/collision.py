@@ -94,7 +94,7 @@ def collision_experiment(
     for k, fr in enumerate(frames):
         for name, det in dets.items():
             det.update_body("body", fr.body, fr.body_velocity)
-            c = det.detect(fr.cloth, fr.triangles, fr.velocity)
+            c = det.detect(fr.cloth, fr.triangles, fr.velocity, fr.dt)
             if fr.events is not None:  # the tear of this step, as the session hands it on
                 det.on_topology(fr.events, fr.after, fr.after_triangles)
             if k < warmup:
@@ -125,15 +125,18 @@ def collision_experiment(
 class _Recorded:
     """One step of a replayed scene: what the detector is given at its start (body vertices and
     velocities, cloth positions, velocities, triangles) and, when the step tore the cloth, the
-    events with the positions and triangles after it (``on_topology``'s arguments)."""
+    events with the positions and triangles after it (``on_topology``'s arguments), and the step's
+    dt (s; the swept stage sweeps over it)."""
 
-    __slots__ = ("body", "cloth", "triangles", "body_velocity", "velocity", "events", "after", "after_triangles")
+    __slots__ = ("body", "cloth", "triangles", "body_velocity", "velocity", "events", "after", "after_triangles",
+                 "dt")
 
     def __init__(self, body, cloth, triangles, body_velocity=None, velocity=None, events=None, after=None,
-                 after_triangles=None):
+                 after_triangles=None, dt=None):
         self.body, self.cloth, self.triangles = body, cloth, triangles
         self.body_velocity, self.velocity = body_velocity, velocity
         self.events, self.after, self.after_triangles = events, after, after_triangles
+        self.dt = dt
 
 
 def _cylinder(radius, height, around, rings, capped=True):
@@ -265,10 +268,11 @@ class _Recording:
         self._body_vel = None if velocities is None else np.array(velocities, np.float64)
         return self._det.update_body(name, vertices, velocities)
 
-    def detect(self, positions, triangles, velocities=None):
+    def detect(self, positions, triangles, velocities=None, dt=None):
         self.steps.append(_Recorded(self._body, np.array(positions, np.float64), np.array(triangles, np.int32),
-                                    self._body_vel, None if velocities is None else np.array(velocities, np.float64)))
-        out = self._det.detect(positions, triangles, velocities)
+                                    self._body_vel, None if velocities is None else np.array(velocities, np.float64),
+                                    dt=dt))
+        out = self._det.detect(positions, triangles, velocities, dt)
         self.detect_ms.append(self._det.stats["ms"]["total"])
         self.full_share.append(self._det.stats["full_share"])
         return out

@@ -37,7 +37,7 @@ def compare(steps: int = 120, warmup: int = 3) -> dict:
             det = dets[mode]
             det.update_body("body", fr.body, fr.body_velocity)
             c0 = time.process_time()
-            c = det.detect(fr.cloth, fr.triangles, fr.velocity)
+            c = det.detect(fr.cloth, fr.triangles, fr.velocity, fr.dt)
             cpu = time.process_time() - c0
             if fr.events is not None:
                 det.on_topology(fr.events, fr.after, fr.after_triangles)
