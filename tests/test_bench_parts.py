@@ -215,3 +215,30 @@ def test_scaling_fits_converged_points_only_and_reports_memory_precisely(monkeyp
         assert 0 < p["peak_mb"] < p["peak_rss_mb"] - 20 and p["rss_before_mb"] > 20
         assert p["bytes_per_triangle"] == pytest.approx(p["peak_mb"] * 2**20 / p["triangles"])
     assert "bytes_per_triangle_100k" in r and "VmRSS just before the cloth" in r["settings"]["memory"]
+
+
+def test_a_simulated_shirt_that_blows_up_ends_its_run_and_says_so(monkeypatch):
+    """The collision experiment's simulated shirt: a step the core rolls back even at its finest
+    sub-steps ends the run where it is (the frame10 scene blew up at its step ~100 in 2026-12), and
+    the bench keeps the steps before it and the error instead of failing as a whole."""
+    from tearcloth.bench import collision as bc
+    from tearcloth.cloth import SimulationError
+    from tearcloth.session import Session
+
+    calls = {"n": 0}
+    real = Session.step
+
+    def step(self, dt):
+        calls["n"] += 1
+        if calls["n"] == 8:  # as a real blow-up: detected first, then the cloth's step rolls back
+            self.detector.detect(self.cloth.positions, self.cloth.triangles, self.cloth.velocities, dt)
+            raise SimulationError("step rolled back: exploding strain (test)")
+        return real(self, dt)
+
+    monkeypatch.setattr(Session, "step", step)
+    body, shirt, rec, ms, share, tears = bc.simulate_worn_shirt(1 / 240, 20, True, settle_s=1 / 240)
+    assert len(rec) == len(ms) == len(share) == 6  # steps 2..7 recorded; the 8th rolled back, dropped
+    assert bc.LAST_STOP["step"] == 6 and bc.LAST_STOP["of"] == 20 and "exploding" in bc.LAST_STOP["error"]
+    calls["n"] = -10**9  # a run that completes leaves no stop behind
+    bc.simulate_worn_shirt(1 / 240, 3, False, settle_s=1 / 240)
+    assert bc.LAST_STOP == {}

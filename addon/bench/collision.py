@@ -291,10 +291,15 @@ def simulate_worn_shirt(dt, steps, moving, *, settle_s=0.1, fps=24, start_time=0
     first settles onto the shoulders for ``settle_s`` seconds (not recorded), then ``steps`` steps
     of ``dt`` seconds are recorded. The body is keyed once per ``fps`` frame, as an animation
     reaches a bake. Returns (body, shirt, recorded steps, the session's own detection ms per
-    recorded step, its share of close pairs fully detected per step, tears)."""
-    from ..cloth import Cloth
+    recorded step, its share of close pairs fully detected per step, tears). A step the core rolls
+    back even at its finest sub-steps (SimulationError) ends the run there: what was recorded is
+    returned and the error kept in ``LAST_STOP`` (the bench prints it beside the figures), so one
+    scene that blows up does not take the whole bench down with it, and never passes unseen."""
+    from ..cloth import Cloth, SimulationError
     from ..materials import material
     from ..session import CollisionSettings, Session
+
+    LAST_STOP.clear()
 
     body = body if body is not None else examples.mannequin()
     shirt = shirt if shirt is not None else examples.tshirt(body)
@@ -315,8 +320,21 @@ def simulate_worn_shirt(dt, steps, moving, *, settle_s=0.1, fps=24, start_time=0
             rec.steps.clear()
             rec.detect_ms.clear()
             rec.full_share.clear()
-        session.step(dt)
+        try:
+            session.step(dt)
+        except SimulationError as exc:
+            if k < settle + 2:
+                raise  # nothing to measure
+            del rec.steps[-1]  # detected, but its step rolled back: not a step of the run
+            del rec.detect_ms[-1], rec.full_share[-1]
+            LAST_STOP.update(step=k - settle, of=steps, dt_s=dt, moving=moving, error=str(exc))
+            break
     return body, shirt, rec.steps, rec.detect_ms, rec.full_share, int(cloth.stats().get("tears_started", 0))
+
+
+# How the last simulate_worn_shirt run ended early, if it did (step, of, dt_s, moving, error); empty
+# when it ran all its steps.
+LAST_STOP: dict = {}
 
 
 SIMULATED_CASES = {"dt1ms": 1e-3, "frame10": 1.0 / 24 / 10}
@@ -334,6 +352,7 @@ def simulated_figures(steps: int = 120, cases=SIMULATED_CASES, body=None, shirt=
         for name in ("immobile", "moving"):
             _, _, rec, own_ms, own_share, tears = simulate_worn_shirt(dt, steps, name == "moving", body=body,
                                                                        shirt=shirt)
+            stopped = dict(LAST_STOP)
             first = rec[0]
             r = collision_experiment(first.cloth, first.triangles, lambda k, rec=rec: rec[k], len(rec),
                                      body_triangles=body.triangles, thickness=_SESSION_THICKNESS,
@@ -350,6 +369,9 @@ def simulated_figures(steps: int = 120, cases=SIMULATED_CASES, body=None, shirt=
             row["session_detect_ms"] = float(np.mean(own_ms))
             row["session_full_share"] = float(np.mean(own_share))
             row["tears"] = tears
+            row["recorded_steps"] = len(rec)
+            if stopped:  # the simulation blew up: these figures cover the steps before it
+                row["stopped"] = stopped
             row["contacts"] = r["contacts"]
             out[case][name] = row
     return out
@@ -402,6 +424,12 @@ def format_collision(c: dict) -> str:
                  f"({sim['body_triangles']}), mean ms per step over {sim['steps']} steps",
                  [(f"{case} {name}", sim[case][name], name) for case in SIMULATED_CASES if case in sim
                   for name in ("immobile", "moving")])
+    for case in SIMULATED_CASES:
+        for name in ("immobile", "moving"):
+            st = sim.get(case, {}).get(name, {}).get("stopped")
+            if st:
+                rows.append(f"  {case} {name}: the simulation stopped at recorded step {st['step']} of {st['of']} "
+                            f"({st['error'][:120]}); its figures cover the steps before")
     rows += table("collision, the shirt skinned rigidly to the body (not simulated; the former experiment)",
                   [(name, rig[name], name) for name in ("immobile", "moving")])
     return "\n".join(rows)

@@ -67,6 +67,12 @@ def benchmarks_markdown(r: dict) -> str:
                          f"{x['relative_ms']:.2f} ({PAPER_COLLISION[name]['relative_ms']}) | "
                          f"{x['absolute_over_relative']:.2f} | {x['full_share']:.3f} |")
         lines.append("")
+        for case, name in ((case, name) for case in ("dt1ms", "frame10") for name in ("immobile", "moving")):
+            st = c[case][name].get("stopped")
+            if st:  # the simulated shirt blew up: say so beside the figures it leaves
+                lines.append(f"- {case} {name}: **the simulation stopped** at recorded step {st['step']} of "
+                             f"{st['of']} ({st['error']}); the figures cover the steps before.")
+        lines.append("")
     if "servo" in r:
         s = r["servo"]
         lines += ["## Servo loop", "", f"{s['rate_hz']:.1f} Hz, period p50 {s['p50_ms']:.3f} ms, "
