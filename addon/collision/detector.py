@@ -353,6 +353,7 @@ class CollisionDetector:
         # saved before the trip rule's bound: its budget and reach as __init__ sets them
         self.__dict__.setdefault("trip_budget", self.displacement_threshold)
         self.__dict__.setdefault("trip_reach", 2.0 * self.track_range)
+        self.__dict__.setdefault("self_scenes", "bvh")  # saved before the cloth's BVHs: they are used from the next set_cloth
         for collider in (self.cloth, *self.bodies.values()):
             if collider is not None:
                 collider.scenes.rebuild(collider.triangles)
@@ -404,7 +405,7 @@ class CollisionDetector:
         v, t = _check_mesh(positions, triangles, "cloth")
         # the cloth's own clusters deform every step: refitted native BVHs, not Embree scenes
         # (narrow.ClusterBVH); 'embree' keeps the former scenes, for comparison
-        scenes = ClusterBVH() if getattr(self, "self_scenes", "bvh") == "bvh" else None
+        scenes = ClusterBVH() if self.self_scenes == "bvh" else None
         self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.scene_tolerance, self.friction, scenes)
         self._cloth_prev = v.copy()
         self._rest = v.copy()  # the swept stage's per-pair gaps come from this (rest) geometry
