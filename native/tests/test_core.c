@@ -143,6 +143,75 @@ static void test_snapshot(tc_cloth *c)
 
 /* material NULL: the default (isotropic, elastic); else e.g. a woven plastic sheet, whose
  * per-triangle state the tears must carry (no UVs: the fallback axes, then per-triangle angles) */
+
+static double max_rel_diff(const double *a, const double *ref, size_t n)
+{
+    double d = 0.0, m = 0.0;
+    for (size_t k = 0; k < n; k++) {
+        double e = fabs(a[k] - ref[k]);
+        if (!(e <= d)) d = e;  /* NaN counts as a difference */
+        if (fabs(ref[k]) > m) m = fabs(ref[k]);
+    }
+    return m > 0 ? d / m : d;
+}
+
+/* fem.c's batched element pass and assembly (alone and fused) against its one-triangle-at-a-time
+ * reference loops, at positions off equilibrium (tension and compression) with one triangle
+ * collapsed onto a line: forces, rotations, stresses, principal values and directions, and the
+ * product A p, within 1e-12 relative. Called on the current mesh, so after a tear it checks the
+ * slot table rebuilt for it. */
+static void check_batches_against_reference(tc_cloth *c, const char *when)
+{
+    const size_t nv = (size_t)c->nv, nt = (size_t)c->nt;
+    double *xp = malloc(3 * nv * sizeof *xp), *p = malloc(3 * nv * sizeof *p), *rot0 = malloc(6 * nt * sizeof *rot0);
+    memcpy(xp, tc_vec_ptr(&c->x), 3 * nv * sizeof *xp);
+    uint64_t r = 12345;
+    for (size_t k = 0; k < 3 * nv; k++) {
+        r = r * 6364136223846793005ull + 1442695040888963407ull;
+        double u = (double)(r >> 11) / 9007199254740992.0 - 0.5;
+        xp[k] += 2e-3 * u;
+        p[k] = u;
+    }
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    const int32_t tc = (int32_t)(nt / 2);  /* collapsed: its third corner on the line of the others */
+    for (int k = 0; k < 3; k++) xp[3 * T[3 * tc + 2] + k] = 2.0 * xp[3 * T[3 * tc] + k] - xp[3 * T[3 * tc + 1] + k];
+    memcpy(rot0, tc_vec_ptr(&c->rot), 6 * nt * sizeof *rot0);
+    const tc_vec *outs[6] = {&c->fel, &c->rot, &c->sig, &c->stress, &c->principal, &c->pdir};
+    const size_t per[6] = {3 * nv, 6 * nt, 3 * nt, 9 * nt, 2 * nt, 3 * nt};
+    double *ref[6], *y_ref = malloc(3 * nv * sizeof *y_ref), *y = malloc(3 * nv * sizeof *y);
+    const int was = tc_fem_reference;
+    tc_fem_reference = 1;
+    double worst_ref = tc_element_pass(c, xp);
+    for (int a = 0; a < 6; a++) {
+        ref[a] = malloc(per[a] * sizeof **ref);
+        memcpy(ref[a], tc_vec_ptr(outs[a]), per[a] * sizeof **ref);
+    }
+    CHECK(tc_assemble(c, 1e-3) == TC_OK, "%s: reference assembly", when);
+    tc_matvec(c, p, y_ref);
+    for (int fused = 0; fused < 2; fused++) {
+        tc_fem_reference = 0;
+        memcpy(tc_vec_ptr(&c->rot), rot0, 6 * nt * sizeof *rot0);
+        double worst = 0.0;
+        if (fused) CHECK(tc_element_assemble(c, xp, 1e-3, &worst) == TC_OK, "%s: fused pass", when);
+        else worst = tc_element_pass(c, xp);
+        CHECK(fabs(worst - worst_ref) <= 1e-12 * worst_ref, "%s: largest stretch %.17g vs %.17g", when, worst, worst_ref);
+        for (int a = 0; a < 6; a++) {
+            double d = max_rel_diff(tc_vec_ptr(outs[a]), ref[a], per[a]);
+            CHECK(d <= 1e-12, "%s (%s): element output %d differs from the reference by %g relative", when,
+                  fused ? "fused" : "alone", a, d);
+        }
+        if (!fused) CHECK(tc_assemble(c, 1e-3) == TC_OK, "%s: batched assembly", when);
+        tc_matvec(c, p, y);
+        double d = max_rel_diff(y, y_ref, 3 * nv);
+        CHECK(d <= 1e-12, "%s (%s): A p differs from the reference by %g relative", when, fused ? "fused" : "alone", d);
+    }
+    tc_fem_reference = was;
+    memcpy(tc_vec_ptr(&c->rot), rot0, 6 * nt * sizeof *rot0);
+    c->dirty = true;  /* the element state of the cloth's own positions again at the next use */
+    for (int a = 0; a < 6; a++) free(ref[a]);
+    free(xp); free(p); free(rot0); free(y_ref); free(y);
+}
+
 static void strip_and_tear(const tc_material *material)
 {
     double *V; int32_t *T, n, m;
@@ -194,7 +263,9 @@ static void strip_and_tear(const tc_material *material)
     CHECK(st.cuts > 0, "some cuts");
     int32_t cuts = 0;
     double dir[3] = {0, 1, 0};
+    check_batches_against_reference(c, "before a scripted tear");
     CHECK(tc_cloth_scripted_tear(c, 5 * 11, dir, 0.05, &cuts) == TC_OK, "scripted: %s", tc_cloth_error(c));
+    check_batches_against_reference(c, "after a scripted tear");
     CHECK(tc_cloth_scripted_tear(c, -1, dir, 0.05, &cuts) == TC_ERR_INPUT, "scripted bad vertex");
     double zero[3] = {0, 0, 0};
     CHECK(tc_cloth_scripted_tear(c, 0, zero, 0.05, &cuts) == TC_ERR_INPUT, "scripted zero dir");
