@@ -390,11 +390,34 @@ static int tslots_update(tc_cloth *c)
     return TC_OK;
 }
 
-/* What the stiffness of a batch reads: per lane rotation R (3x2 by columns), local stress, shape
- * gradients, rest area, warp axis (general element). */
-typedef struct fem_lanes {
-    double R[6][TC_LANES], sig[3][TC_LANES], g[4][TC_LANES], A[TC_LANES], ax[2][TC_LANES];
-} fem_lanes;
+/* What the stiffness of a batch reads, for TC_LANES consecutive triangles as stored (rotation R
+ * 3x2 by columns, local stress, shape gradients, rest area, warp axis); the last, partial batch
+ * points into a padded copy. */
+typedef struct fem_batch {
+    const double *R, *sig, *g, *A, *ax;
+} fem_batch;
+
+typedef struct fem_tail {
+    double R[6 * TC_LANES], sig[3 * TC_LANES], g[4 * TC_LANES], A[TC_LANES], ax[2 * TC_LANES];
+} fem_tail;
+
+/* batch of triangles t0 .. t0 + nl - 1; lanes past nl repeat the first (computed, never written) */
+static fem_batch batch_at(const tc_cloth *c, int32_t t0, int nl, bool general, fem_tail *tail)
+{
+    const double *R = tc_vec_ptr(&c->rot), *S = tc_vec_ptr(&c->sig), *G = tc_vec_ptr(&c->grad);
+    const double *A = tc_vec_ptr(&c->area), *AX = tc_vec_ptr(&c->taxis);
+    const size_t t = (size_t)t0;
+    if (nl == TC_LANES) return (fem_batch){R + 6 * t, S + 3 * t, G + 4 * t, A + t, general ? AX + 2 * t : NULL};
+    for (int l = 0; l < TC_LANES; l++) {
+        const size_t u = t + (size_t)(l < nl ? l : 0);
+        memcpy(tail->R + 6 * l, R + 6 * u, 6 * sizeof(double));
+        memcpy(tail->sig + 3 * l, S + 3 * u, 3 * sizeof(double));
+        memcpy(tail->g + 4 * l, G + 4 * u, 4 * sizeof(double));
+        tail->A[l] = A[u];
+        if (general) memcpy(tail->ax + 2 * l, AX + 2 * u, 2 * sizeof(double));
+    }
+    return (fem_batch){tail->R, tail->sig, tail->g, tail->A, general ? tail->ax : NULL};
+}
 
 typedef struct fem_params {
     double lambda, mu, Q[4], h, ks, ms, kb;
@@ -412,16 +435,28 @@ static void fem_params_get(const tc_cloth *c, double dt, fem_params *p)
 
 /* The six blocks A_{va,vb} (a <= b, in the order (0,0) (0,1) (0,2) (1,1) (1,2) (2,2)) of each lane,
  * row-major: the reference's B, same formulas (see assemble_reference for the why of each term). */
-TC_INLINE void stiffness_lanes(const fem_lanes *in, const fem_params *pp, double B[6][9][TC_LANES], const bool general)
+TC_INLINE void stiffness_lanes(const fem_batch *in, const fem_params *pp, double B[6][9][TC_LANES], const bool general)
 {
     const double lambda = pp->lambda, mu = pp->mu, ks = pp->ks, h = pp->h;
+    /* by lane first (the compiler vectorises loops over lanes, not strided reads of the batch) */
+    double Rl[6][TC_LANES], Sl[3][TC_LANES], Gl[4][TC_LANES], Al[TC_LANES], Xl[2][TC_LANES];
+    for (int l = 0; l < TC_LANES; l++) {
+        TC_UNROLL
+        for (int k = 0; k < 6; k++) Rl[k][l] = in->R[6 * l + k];
+        TC_UNROLL
+        for (int k = 0; k < 3; k++) Sl[k][l] = in->sig[3 * l + k];
+        TC_UNROLL
+        for (int k = 0; k < 4; k++) Gl[k][l] = in->g[4 * l + k];
+        Al[l] = in->A[l];
+        if (general) { Xl[0][l] = in->ax[2 * l]; Xl[1][l] = in->ax[2 * l + 1]; }
+    }
     for (int l = 0; l < TC_LANES; l++) {
         double R[6];
         TC_UNROLL
-        for (int k = 0; k < 6; k++) R[k] = in->R[k][l];
-        const double g0 = in->g[0][l], g1 = in->g[1][l], g2 = in->g[2][l], g3 = in->g[3][l];
+        for (int k = 0; k < 6; k++) R[k] = Rl[k][l];
+        const double g0 = Gl[0][l], g1 = Gl[1][l], g2 = Gl[2][l], g3 = Gl[3][l];
         const double gg[3][2] = {{-g0 - g2, -g1 - g3}, {g0, g1}, {g2, g3}};
-        const double w = ks * in->A[l] * h, wm = w * mu, wl = w * lambda;
+        const double w = ks * Al[l] * h, wm = w * mu, wl = w * lambda;
         double r[3][3], P[9];
         TC_UNROLL
         for (int a = 0; a < 3; a++)
@@ -432,7 +467,7 @@ TC_INLINE void stiffness_lanes(const fem_lanes *in, const fem_params *pp, double
             TC_UNROLL
             for (int k = 0; k < 3; k++) P[3 * i + k] = R[i] * R[k] + R[3 + i] * R[3 + k];
         /* the tensile part of the stress, branch-free (the reference's cases as selects) */
-        const double sa = in->sig[0][l], sd = in->sig[1][l], sb = in->sig[2][l];
+        const double sa = Sl[0][l], sd = Sl[1][l], sb = Sl[2][l];
         const double m = 0.5 * (sa + sd), q = sqrt(0.25 * (sa - sd) * (sa - sd) + sb * sb);
         const double l1 = m + q, l2 = m - q;
         double ex = l1 - sd, ey = sb;
@@ -449,7 +484,7 @@ TC_INLINE void stiffness_lanes(const fem_lanes *in, const fem_params *pp, double
         const double sp01 = all ? sb : part ? q01 : 0.0;
         const double sp11 = all ? sd : part ? q11 : 0.0;
         double C[6] = {0};
-        if (general) ortho_rest_moduli(pp->Q, in->ax[0][l], in->ax[1][l], C);
+        if (general) ortho_rest_moduli(pp->Q, Xl[0][l], Xl[1][l], C);
         int e = 0;
         TC_UNROLL
         for (int a = 0; a < 3; a++)
@@ -576,7 +611,7 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
     for (int32_t t0 = 0; t0 < nt; t0 += TC_LANES) {
         const int nl = nt - t0 < TC_LANES ? nt - t0 : TC_LANES;
         /* lanes past the last triangle repeat the batch's first: computed, never written */
-        fem_lanes in;
+        struct { double R[6][TC_LANES], sig[3][TC_LANES], g[4][TC_LANES], A[TC_LANES], ax[2][TC_LANES]; } in;
         double F[6][TC_LANES], pl[3][TC_LANES];
         for (int l = 0; l < TC_LANES; l++) {
             const int32_t t = t0 + (l < nl ? l : 0);
@@ -673,8 +708,6 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
             TC_UNROLL
             for (int k = 0; k < 3; k++) dir[k][l] = R[k] * ex + R[3 + k] * ey;
         }
-        double B[6][9][TC_LANES];
-        if (fuse) stiffness_lanes(&in, &pp, B, general);
         /* out, triangle by triangle in order (the force sums as the reference's) */
         for (int l = 0; l < nl; l++) {
             const size_t t = (size_t)(t0 + l);
@@ -697,7 +730,17 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
                 f[3 * i0 + k] -= fa + fb;
                 carried2 += fa * fa + fb * fb + (fa + fb) * (fa + fb);
             }
-            if (fuse) scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
+        }
+        if (fuse) {
+            /* the stiffness from the rotations and stresses just stored (still in cache) */
+            fem_tail tail;
+            const fem_batch bt = batch_at(c, t0, nl, general, &tail);
+            double B[6][9][TC_LANES];
+            stiffness_lanes(&bt, &pp, B, general);
+            for (int l = 0; l < nl; l++) {
+                const size_t t = (size_t)(t0 + l);
+                scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
+            }
         }
     }
     c->carried2 = isfinite(carried2) ? carried2 : 0.0;
@@ -710,27 +753,14 @@ TC_INLINE void assemble_lanes(tc_cloth *c, double dt, const bool general)
     fem_params pp;
     fem_params_get(c, dt, &pp);
     assemble_begin(c, &pp);
-    const double kbend = pp.ks * pp.kb;
-    const double *AX = tc_vec_ptr(&c->taxis), *pb = tc_vec_ptr(&c->pbend);
+    const double kbend = pp.ks * pp.kb, *pb = tc_vec_ptr(&c->pbend);
     const int32_t *T = tc_vec_ptr(&c->tri);
-    const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area), *Rall = tc_vec_ptr(&c->rot);
-    const double *S2 = tc_vec_ptr(&c->sig);
     double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk);
     const int32_t nt = c->nt;
     for (int32_t t0 = 0; t0 < nt; t0 += TC_LANES) {
         const int nl = nt - t0 < TC_LANES ? nt - t0 : TC_LANES;
-        fem_lanes in;
-        for (int l = 0; l < TC_LANES; l++) {
-            const size_t t = (size_t)(t0 + (l < nl ? l : 0));
-            TC_UNROLL
-            for (int k = 0; k < 6; k++) in.R[k][l] = Rall[6 * t + k];
-            TC_UNROLL
-            for (int k = 0; k < 3; k++) in.sig[k][l] = S2[3 * t + k];
-            TC_UNROLL
-            for (int k = 0; k < 4; k++) in.g[k][l] = G[4 * t + k];
-            in.A[l] = A[t];
-            if (general) { in.ax[0][l] = AX[2 * t]; in.ax[1][l] = AX[2 * t + 1]; }
-        }
+        fem_tail tail;
+        const fem_batch in = batch_at(c, t0, nl, general, &tail);
         double B[6][9][TC_LANES];
         stiffness_lanes(&in, &pp, B, general);
         for (int l = 0; l < nl; l++) {
