@@ -193,6 +193,47 @@ TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
     }
 }
 
+/* the small loops inside a lane loop unrolled before the vectoriser runs, which then sees one
+   straight-line body per lane (it vectorises innermost loops only) */
+#if defined(__GNUC__) && !defined(__clang__)
+#define TC_UNROLL _Pragma("GCC unroll 16")
+#elif defined(__clang__)
+#define TC_UNROLL _Pragma("unroll")
+#else
+#define TC_UNROLL
+#endif
+
+/* The stiffness block A_{va,vb} (a <= b) of one triangle, row-major, times the sub-step's
+ * (dt^2 + dt beta): w = that times A h, wm = w mu, wl = w lambda; r_a = R g_a, P = R R^T,
+ * sp the tensile part of the stress, C the general element's moduli (see assemble_reference). */
+TC_INLINE void element_block(const double gg[3][2], const double r[3][3], const double P[9], const double R[6],
+                             const double C[6], double w, double wm, double wl, double sp00, double sp01, double sp11,
+                             int a, int b, const bool general, double B[9])
+{
+    const double dab = gg[a][0] * gg[b][0] + gg[a][1] * gg[b][1];
+    const double kg = w * (gg[a][0] * (sp00 * gg[b][0] + sp01 * gg[b][1]) + gg[a][1] * (sp01 * gg[b][0] + sp11 * gg[b][1]));
+    if (!general) {
+        TC_UNROLL
+        for (int i = 0; i < 3; i++)
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) B[3 * i + k] = wm * (dab * P[3 * i + k] + r[b][i] * r[a][k]) + wl * r[a][i] * r[b][k];
+    } else {
+        const double a0 = gg[a][0], a1 = gg[a][1], b0 = gg[b][0], b1 = gg[b][1];
+        /* C B_b, its two columns (xx, yy, xy rows) */
+        const double u0 = C[0] * b0 + C[3] * b1, u1 = C[2] * b0 + C[4] * b1, u2 = C[3] * b0 + C[5] * b1;
+        const double v0 = C[2] * b1 + C[3] * b0, v1 = C[1] * b1 + C[4] * b0, v2 = C[4] * b1 + C[5] * b0;
+        const double k00 = w * (a0 * u0 + a1 * u2), k01 = w * (a0 * v0 + a1 * v2);
+        const double k10 = w * (a1 * u1 + a0 * u2), k11 = w * (a1 * v1 + a0 * v2);
+        TC_UNROLL
+        for (int i = 0; i < 3; i++) {
+            const double p0 = k00 * R[i] + k10 * R[3 + i], p1 = k01 * R[i] + k11 * R[3 + i];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) B[3 * i + k] = p0 * R[k] + p1 * R[3 + k];
+        }
+    }
+    B[0] += kg; B[4] += kg; B[8] += kg;
+}
+
 /* System matrix A = (1 + dt alpha) M + (dt^2 + dt beta) (K + B), into the rows of core.h. */
 TC_INLINE void assemble_reference(tc_cloth *c, double dt, const bool general)
 {
@@ -266,27 +307,8 @@ TC_INLINE void assemble_reference(tc_cloth *c, double dt, const bool general)
         if (general) ortho_rest_moduli(Q, AX[2 * t], AX[2 * t + 1], C);
         for (int a = 0; a < 3; a++) {
             for (int b = a; b < 3; b++) {
-                const double dab = gg[a][0] * gg[b][0] + gg[a][1] * gg[b][1];
-                const double kg = wg * (gg[a][0] * (sp00 * gg[b][0] + sp01 * gg[b][1]) +
-                                        gg[a][1] * (sp01 * gg[b][0] + sp11 * gg[b][1]));
                 double B[9];
-                if (!general) {
-                    for (int i = 0; i < 3; i++)
-                        for (int l = 0; l < 3; l++)
-                            B[3 * i + l] = wm * (dab * P[3 * i + l] + r[b][i] * r[a][l]) + wl * r[a][i] * r[b][l];
-                } else {
-                    const double a0 = gg[a][0], a1 = gg[a][1], b0 = gg[b][0], b1 = gg[b][1];
-                    /* C B_b, its two columns (xx, yy, xy rows) */
-                    const double u0 = C[0] * b0 + C[3] * b1, u1 = C[2] * b0 + C[4] * b1, u2 = C[3] * b0 + C[5] * b1;
-                    const double v0 = C[2] * b1 + C[3] * b0, v1 = C[1] * b1 + C[4] * b0, v2 = C[4] * b1 + C[5] * b0;
-                    const double k00 = w * (a0 * u0 + a1 * u2), k01 = w * (a0 * v0 + a1 * v2);
-                    const double k10 = w * (a1 * u1 + a0 * u2), k11 = w * (a1 * v1 + a0 * v2);
-                    for (int i = 0; i < 3; i++) {
-                        const double p0 = k00 * R[i] + k10 * R[3 + i], p1 = k01 * R[i] + k11 * R[3 + i];
-                        for (int l = 0; l < 3; l++) B[3 * i + l] = p0 * R[l] + p1 * R[3 + l];
-                    }
-                }
-                B[0] += kg; B[4] += kg; B[8] += kg;
+                element_block(gg, r, P, R, C, wg, wm, wl, sp00, sp01, sp11, a, b, general, B);
                 const int32_t va = T[3 * t + a];
                 /* B is A_{va,vb}, row-major; a row slot holds its block column by column (core.h):
                    A_{va,vb} at [3k + r] = B[3r + k], A_{vb,va} = B^T at [3k + r] = B[3k + r]; the
@@ -337,15 +359,7 @@ static bool fem_reference(void)
 }
 
 enum { TC_LANES = 4, TSLOT = 9 };
-/* the small loops inside a lane loop unrolled before the vectoriser runs, which then sees one
-   straight-line body per lane (it vectorises innermost loops only) */
-#if defined(__GNUC__) && !defined(__clang__)
-#define TC_UNROLL _Pragma("GCC unroll 16")
-#elif defined(__clang__)
-#define TC_UNROLL _Pragma("unroll")
-#else
-#define TC_UNROLL
-#endif
+
 /* triangle edge e joins local vertices EA[e] and EB[e]; its pair is tpair[3 - EA - EB] */
 static const int EA[3] = {0, 0, 1}, EB[3] = {1, 2, 2};
 
@@ -490,30 +504,8 @@ TC_INLINE void stiffness_lanes(const fem_batch *in, const fem_params *pp, double
         for (int a = 0; a < 3; a++)
             TC_UNROLL
             for (int b = a; b < 3; b++, e++) {
-                const double dab = gg[a][0] * gg[b][0] + gg[a][1] * gg[b][1];
-                const double kg = w * (gg[a][0] * (sp00 * gg[b][0] + sp01 * gg[b][1]) +
-                                       gg[a][1] * (sp01 * gg[b][0] + sp11 * gg[b][1]));
                 double Bl[9];
-                if (!general) {
-                    TC_UNROLL
-                    for (int i = 0; i < 3; i++)
-                        TC_UNROLL
-                        for (int k = 0; k < 3; k++)
-                            Bl[3 * i + k] = wm * (dab * P[3 * i + k] + r[b][i] * r[a][k]) + wl * r[a][i] * r[b][k];
-                } else {
-                    const double a0 = gg[a][0], a1 = gg[a][1], b0 = gg[b][0], b1 = gg[b][1];
-                    const double u0 = C[0] * b0 + C[3] * b1, u1 = C[2] * b0 + C[4] * b1, u2 = C[3] * b0 + C[5] * b1;
-                    const double v0 = C[2] * b1 + C[3] * b0, v1 = C[1] * b1 + C[4] * b0, v2 = C[4] * b1 + C[5] * b0;
-                    const double k00 = w * (a0 * u0 + a1 * u2), k01 = w * (a0 * v0 + a1 * v2);
-                    const double k10 = w * (a1 * u1 + a0 * u2), k11 = w * (a1 * v1 + a0 * v2);
-                    TC_UNROLL
-                    for (int i = 0; i < 3; i++) {
-                        const double p0 = k00 * R[i] + k10 * R[3 + i], p1 = k01 * R[i] + k11 * R[3 + i];
-                        TC_UNROLL
-                        for (int k = 0; k < 3; k++) Bl[3 * i + k] = p0 * R[k] + p1 * R[3 + k];
-                    }
-                }
-                Bl[0] += kg; Bl[4] += kg; Bl[8] += kg;
+                element_block(gg, r, P, R, C, w, wm, wl, sp00, sp01, sp11, a, b, general, Bl);
                 TC_UNROLL
                 for (int k = 0; k < 9; k++) B[e][k][l] = Bl[k];
             }
@@ -590,20 +582,36 @@ static void assemble_begin(tc_cloth *c, const fem_params *pp)
     }
 }
 
+/* The stiffness of triangles t0 .. t0 + nl - 1 (from their stored R and sigma) into the rows. */
+TC_INLINE void assemble_batch(tc_cloth *c, const fem_params *pp, int32_t t0, int nl, const bool general)
+{
+    fem_tail tail;
+    const fem_batch in = batch_at(c, t0, nl, general, &tail);
+    double B[6][9][TC_LANES];
+    stiffness_lanes(&in, pp, B, general);
+    const double kbend = pp->ks * pp->kb, *pb = tc_vec_ptr(&c->pbend);
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk);
+    for (int l = 0; l < nl; l++) {
+        const size_t t = (size_t)(t0 + l);
+        scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
+    }
+}
+
 /* The element pass by batches (see element_pass_reference for the physics), and with `fuse` the
  * assembly of the system matrix for a sub-step of length dt from the same batch. */
 TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool general, const bool fuse, double dt)
 {
     fem_params pp;
     fem_params_get(c, dt, &pp);
-    const double lambda = pp.lambda, mu = pp.mu, h = pp.h, kbend = pp.ks * pp.kb;
+    const double lambda = pp.lambda, mu = pp.mu, h = pp.h;
     const bool plastic = general && c->mat.plastic;
     const double *AX = tc_vec_ptr(&c->taxis), *PL = tc_vec_ptr(&c->tplast);
     const int32_t *T = tc_vec_ptr(&c->tri);
-    const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area), *pb = tc_vec_ptr(&c->pbend);
+    const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
     double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *S3 = tc_vec_ptr(&c->stress);
     double *pr = tc_vec_ptr(&c->principal), *pd = tc_vec_ptr(&c->pdir);
-    double *f = tc_vec_ptr(&c->fel), *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk);
+    double *f = tc_vec_ptr(&c->fel);
     double worst2 = 0.0, carried2 = 0.0;
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
     if (fuse) assemble_begin(c, &pp);
@@ -731,17 +739,7 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
                 carried2 += fa * fa + fb * fb + (fa + fb) * (fa + fb);
             }
         }
-        if (fuse) {
-            /* the stiffness from the rotations and stresses just stored (still in cache) */
-            fem_tail tail;
-            const fem_batch bt = batch_at(c, t0, nl, general, &tail);
-            double B[6][9][TC_LANES];
-            stiffness_lanes(&bt, &pp, B, general);
-            for (int l = 0; l < nl; l++) {
-                const size_t t = (size_t)(t0 + l);
-                scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
-            }
-        }
+        if (fuse) assemble_batch(c, &pp, t0, nl, general);  /* from the R and sigma just stored (in cache) */
     }
     c->carried2 = isfinite(carried2) ? carried2 : 0.0;
     return isfinite(worst2) ? sqrt(worst2) : NAN;
@@ -753,21 +751,8 @@ TC_INLINE void assemble_lanes(tc_cloth *c, double dt, const bool general)
     fem_params pp;
     fem_params_get(c, dt, &pp);
     assemble_begin(c, &pp);
-    const double kbend = pp.ks * pp.kb, *pb = tc_vec_ptr(&c->pbend);
-    const int32_t *T = tc_vec_ptr(&c->tri);
-    double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk);
-    const int32_t nt = c->nt;
-    for (int32_t t0 = 0; t0 < nt; t0 += TC_LANES) {
-        const int nl = nt - t0 < TC_LANES ? nt - t0 : TC_LANES;
-        fem_tail tail;
-        const fem_batch in = batch_at(c, t0, nl, general, &tail);
-        double B[6][9][TC_LANES];
-        stiffness_lanes(&in, &pp, B, general);
-        for (int l = 0; l < nl; l++) {
-            const size_t t = (size_t)(t0 + l);
-            scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
-        }
-    }
+    for (int32_t t0 = 0; t0 < c->nt; t0 += TC_LANES)
+        assemble_batch(c, &pp, t0, c->nt - t0 < TC_LANES ? c->nt - t0 : TC_LANES, general);
 }
 
 TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
