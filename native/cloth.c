@@ -42,6 +42,7 @@ void tc_cloth_destroy(tc_cloth *c)
     FOR_EACH_VEC(c, FREE_VEC)
 #undef FREE_VEC
     free(c->hkeys_i); free(c->hkeys_j); free(c->hvals);
+    free(c->tslot); free(c->pcover);
     for (int32_t h = 0; h < c->nh; h++) { free(c->handles[h].verts); free(c->handles[h].grasp); }
     free(c->handles);
     tc_amg_free(c->amg);

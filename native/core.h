@@ -192,6 +192,15 @@ struct tc_cloth {
     int amg_age;              /* sub-steps since its numeric refresh */
     int amg_fresh_iterations; /* iterations of the first solve after it (-1: none yet) */
     bool amg_stale;           /* a later solve needed many more: refresh at the next sub-step */
+
+    /* fem.c's per-triangle slot table (derived from the rows, never part of a snapshot: rebuilt
+     * when tslot_version, the rows_version it was built for, or the counts no longer match) */
+    int32_t *tslot;           /* 9 per triangle: per edge, offsets in rblk of its two blocks, 2 pair + first */
+    uint8_t *pcover;          /* per pair: some triangle writes its edge blocks */
+    size_t tslot_cap, pcover_cap;
+    uint64_t tslot_version;
+    int32_t tslot_nt, tslot_nv;
+    bool tslot_built;
 };
 
 /* Every array of a cloth (cloth.c's FOR_EACH_VEC as a table): its name, where it sits in the struct
@@ -268,6 +277,12 @@ int tc_event_changed_triangle(tc_cloth *c, int32_t t);  /* once per step; never 
 double tc_element_pass(tc_cloth *c, const double *x);  /* returns the largest stretch (NaN if not finite) */
 void tc_bending_force(const tc_cloth *c, const double *x, double *f);
 int tc_assemble(tc_cloth *c, double dt);  /* TC_ERR_NOMEM if the rows could not grow */
+/* tc_element_pass at x and tc_assemble for a sub-step of dt in one pass over the triangles; the
+ * largest stretch in *worst */
+int tc_element_assemble(tc_cloth *c, const double *x, double dt, double *worst);
+/* 1: the one-triangle-at-a-time reference loops instead of the batched ones (TEARCLOTH_FEM=reference
+ * sets it at the first use; tests and comparisons switch it); -1: not read yet */
+extern int tc_fem_reference;
 /* y = A p; returns p . y (the CG's curvature, fused into the product). */
 double tc_matvec(const tc_cloth *c, const double *p, double *y);
 

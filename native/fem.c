@@ -98,7 +98,7 @@ static void corotate(const double *F0, const double *F1, double *R, double eps[3
 #define TC_INLINE static inline
 #endif
 
-TC_INLINE double element_pass(tc_cloth *c, const double *x, const bool general)
+TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool general)
 {
     double worst2 = 0.0;
     double lambda, mu, Q[4];
@@ -172,11 +172,6 @@ TC_INLINE double element_pass(tc_cloth *c, const double *x, const bool general)
     return isfinite(worst2) ? sqrt(worst2) : NAN;
 }
 
-TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
-{
-    return tc_material_general(&c->mat) ? element_pass(c, x, true) : element_pass(c, x, false);
-}
-
 TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
 {
     const double k = c->mat.bending;
@@ -198,8 +193,49 @@ TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
     }
 }
 
+/* the small loops inside a lane loop unrolled before the vectoriser runs, which then sees one
+   straight-line body per lane (it vectorises innermost loops only) */
+#if defined(__GNUC__) && !defined(__clang__)
+#define TC_UNROLL _Pragma("GCC unroll 16")
+#elif defined(__clang__)
+#define TC_UNROLL _Pragma("unroll")
+#else
+#define TC_UNROLL
+#endif
+
+/* The stiffness block A_{va,vb} (a <= b) of one triangle, row-major, times the sub-step's
+ * (dt^2 + dt beta): w = that times A h, wm = w mu, wl = w lambda; r_a = R g_a, P = R R^T,
+ * sp the tensile part of the stress, C the general element's moduli (see assemble_reference). */
+TC_INLINE void element_block(const double gg[3][2], const double r[3][3], const double P[9], const double R[6],
+                             const double C[6], double w, double wm, double wl, double sp00, double sp01, double sp11,
+                             int a, int b, const bool general, double B[9])
+{
+    const double dab = gg[a][0] * gg[b][0] + gg[a][1] * gg[b][1];
+    const double kg = w * (gg[a][0] * (sp00 * gg[b][0] + sp01 * gg[b][1]) + gg[a][1] * (sp01 * gg[b][0] + sp11 * gg[b][1]));
+    if (!general) {
+        TC_UNROLL
+        for (int i = 0; i < 3; i++)
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) B[3 * i + k] = wm * (dab * P[3 * i + k] + r[b][i] * r[a][k]) + wl * r[a][i] * r[b][k];
+    } else {
+        const double a0 = gg[a][0], a1 = gg[a][1], b0 = gg[b][0], b1 = gg[b][1];
+        /* C B_b, its two columns (xx, yy, xy rows) */
+        const double u0 = C[0] * b0 + C[3] * b1, u1 = C[2] * b0 + C[4] * b1, u2 = C[3] * b0 + C[5] * b1;
+        const double v0 = C[2] * b1 + C[3] * b0, v1 = C[1] * b1 + C[4] * b0, v2 = C[4] * b1 + C[5] * b0;
+        const double k00 = w * (a0 * u0 + a1 * u2), k01 = w * (a0 * v0 + a1 * v2);
+        const double k10 = w * (a1 * u1 + a0 * u2), k11 = w * (a1 * v1 + a0 * v2);
+        TC_UNROLL
+        for (int i = 0; i < 3; i++) {
+            const double p0 = k00 * R[i] + k10 * R[3 + i], p1 = k01 * R[i] + k11 * R[3 + i];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) B[3 * i + k] = p0 * R[k] + p1 * R[3 + k];
+        }
+    }
+    B[0] += kg; B[4] += kg; B[8] += kg;
+}
+
 /* System matrix A = (1 + dt alpha) M + (dt^2 + dt beta) (K + B), into the rows of core.h. */
-TC_INLINE void assemble(tc_cloth *c, double dt, const bool general)
+TC_INLINE void assemble_reference(tc_cloth *c, double dt, const bool general)
 {
     double lambda, mu, Q[4];
     lame(&c->mat, &lambda, &mu);
@@ -271,27 +307,8 @@ TC_INLINE void assemble(tc_cloth *c, double dt, const bool general)
         if (general) ortho_rest_moduli(Q, AX[2 * t], AX[2 * t + 1], C);
         for (int a = 0; a < 3; a++) {
             for (int b = a; b < 3; b++) {
-                const double dab = gg[a][0] * gg[b][0] + gg[a][1] * gg[b][1];
-                const double kg = wg * (gg[a][0] * (sp00 * gg[b][0] + sp01 * gg[b][1]) +
-                                        gg[a][1] * (sp01 * gg[b][0] + sp11 * gg[b][1]));
                 double B[9];
-                if (!general) {
-                    for (int i = 0; i < 3; i++)
-                        for (int l = 0; l < 3; l++)
-                            B[3 * i + l] = wm * (dab * P[3 * i + l] + r[b][i] * r[a][l]) + wl * r[a][i] * r[b][l];
-                } else {
-                    const double a0 = gg[a][0], a1 = gg[a][1], b0 = gg[b][0], b1 = gg[b][1];
-                    /* C B_b, its two columns (xx, yy, xy rows) */
-                    const double u0 = C[0] * b0 + C[3] * b1, u1 = C[2] * b0 + C[4] * b1, u2 = C[3] * b0 + C[5] * b1;
-                    const double v0 = C[2] * b1 + C[3] * b0, v1 = C[1] * b1 + C[4] * b0, v2 = C[4] * b1 + C[5] * b0;
-                    const double k00 = w * (a0 * u0 + a1 * u2), k01 = w * (a0 * v0 + a1 * v2);
-                    const double k10 = w * (a1 * u1 + a0 * u2), k11 = w * (a1 * v1 + a0 * v2);
-                    for (int i = 0; i < 3; i++) {
-                        const double p0 = k00 * R[i] + k10 * R[3 + i], p1 = k01 * R[i] + k11 * R[3 + i];
-                        for (int l = 0; l < 3; l++) B[3 * i + l] = p0 * R[l] + p1 * R[3 + l];
-                    }
-                }
-                B[0] += kg; B[4] += kg; B[8] += kg;
+                element_block(gg, r, P, R, C, wg, wm, wl, sp00, sp01, sp11, a, b, general, B);
                 const int32_t va = T[3 * t + a];
                 /* B is A_{va,vb}, row-major; a row slot holds its block column by column (core.h):
                    A_{va,vb} at [3k + r] = B[3r + k], A_{vb,va} = B^T at [3k + r] = B[3k + r]; the
@@ -315,11 +332,469 @@ TC_INLINE void assemble(tc_cloth *c, double dt, const bool general)
     }
 }
 
+/* ---------------- the element pass and the assembly, by batches of triangles ----------------
+ *
+ * The loops above are the reference: one triangle at a time, each stiffness block found through
+ * its pair (which slot of the two is row va's) and added into an rblk cleared first. The loops
+ * below compute TC_LANES triangles at once, every quantity an array over the batch, so the
+ * compiler keeps one vector register per quantity (4 doubles in the AVX2/FMA clone of TC_HOT, 2
+ * in SSE2, NEON on arm64) with no branch inside (the collapsed elements, rare, are redone one by
+ * one through corotate()); then the batch is written out triangle by triangle, in the reference's
+ * order, into slots looked up in a table built once per row pattern (tslots_update). The element
+ * pass and the assembly share the batch: when both are due on the same positions (a sub-step
+ * whose element state was stale) one pass over the triangles does both (tc_element_assemble).
+ * They differ from the reference only in rounding (FMA): tests/test_fem_batches.py and
+ * native/tests/test_core.c hold them to 1e-12 relative. TEARCLOTH_FEM=reference selects the
+ * reference loops (for comparisons; tc_fem_reference). */
+
+int tc_fem_reference = -1;  /* -1: not read yet from TEARCLOTH_FEM */
+
+static bool fem_reference(void)
+{
+    if (tc_fem_reference < 0) {
+        const char *env = getenv("TEARCLOTH_FEM");
+        tc_fem_reference = env && !strcmp(env, "reference");
+    }
+    return tc_fem_reference != 0;
+}
+
+enum { TC_LANES = 4, TSLOT = 9 };
+
+/* triangle edge e joins local vertices EA[e] and EB[e]; its pair is tpair[3 - EA - EB] */
+static const int EA[3] = {0, 0, 1}, EB[3] = {1, 2, 2};
+
+/* The slot table: for edge e of triangle t, tslot[9 t + 3 e ..] = the offset in rblk of
+ * A_{va,vb} in row va, that of A_{vb,va} in row vb, and 2 p + first (p the pair; first when t is
+ * the lowest-numbered triangle on the edge: it stores the block where the others add, as the
+ * reference's sum does after its clearing, so rblk is never cleared). pcover[p]: some triangle
+ * writes edge pair p (else the assembly writes its bending part alone). Rebuilt when the row
+ * pattern was (a tear, a split, a fragment removed) or the triangles changed in number. */
+static int tslots_update(tc_cloth *c)
+{
+    if (c->tslot_built && c->tslot_version == c->rows_version && c->tslot_nt == c->nt && c->tslot_nv == c->nv) return TC_OK;
+    const size_t np = c->pi.len, nt = (size_t)c->nt;
+    if (TSLOT * nt > c->tslot_cap) {
+        int32_t *ts = realloc(c->tslot, TSLOT * nt * sizeof *ts);
+        if (!ts) return TC_ERR_NOMEM;
+        c->tslot = ts; c->tslot_cap = TSLOT * nt;
+    }
+    if (np > c->pcover_cap) {
+        uint8_t *pc = realloc(c->pcover, np);
+        if (!pc) return TC_ERR_NOMEM;
+        c->pcover = pc; c->pcover_cap = np;
+    }
+    memset(c->pcover, 0, np);
+    const int32_t *T = tc_vec_ptr(&c->tri), *TP = tc_vec_ptr(&c->tpair), *pi = tc_vec_ptr(&c->pi);
+    const int32_t *slot = tc_vec_ptr(&c->pslot);
+    for (size_t t = 0; t < nt; t++)
+        TC_UNROLL
+        for (int e = 0; e < 3; e++) {
+            const int32_t p = TP[3 * t + (3 - EA[e] - EB[e])];
+            const int own = T[3 * t + EA[e]] == pi[p] ? 0 : 1;  /* which of the pair's slots is row va's */
+            int32_t *ts = c->tslot + TSLOT * t + 3 * e;
+            ts[0] = 9 * slot[2 * p + own];
+            ts[1] = 9 * slot[2 * p + 1 - own];
+            ts[2] = 2 * p + (c->pcover[p] == 0);
+            c->pcover[p] = 1;
+        }
+    c->tslot_built = true;
+    c->tslot_version = c->rows_version;
+    c->tslot_nt = c->nt;
+    c->tslot_nv = c->nv;
+    return TC_OK;
+}
+
+/* What the stiffness of a batch reads, for TC_LANES consecutive triangles as stored (rotation R
+ * 3x2 by columns, local stress, shape gradients, rest area, warp axis); the last, partial batch
+ * points into a padded copy. */
+typedef struct fem_batch {
+    const double *R, *sig, *g, *A, *ax;
+} fem_batch;
+
+typedef struct fem_tail {
+    double R[6 * TC_LANES], sig[3 * TC_LANES], g[4 * TC_LANES], A[TC_LANES], ax[2 * TC_LANES];
+} fem_tail;
+
+/* batch of triangles t0 .. t0 + nl - 1; lanes past nl repeat the first (computed, never written) */
+static fem_batch batch_at(const tc_cloth *c, int32_t t0, int nl, bool general, fem_tail *tail)
+{
+    const double *R = tc_vec_ptr(&c->rot), *S = tc_vec_ptr(&c->sig), *G = tc_vec_ptr(&c->grad);
+    const double *A = tc_vec_ptr(&c->area), *AX = tc_vec_ptr(&c->taxis);
+    const size_t t = (size_t)t0;
+    if (nl == TC_LANES) return (fem_batch){R + 6 * t, S + 3 * t, G + 4 * t, A + t, general ? AX + 2 * t : NULL};
+    for (int l = 0; l < TC_LANES; l++) {
+        const size_t u = t + (size_t)(l < nl ? l : 0);
+        memcpy(tail->R + 6 * l, R + 6 * u, 6 * sizeof(double));
+        memcpy(tail->sig + 3 * l, S + 3 * u, 3 * sizeof(double));
+        memcpy(tail->g + 4 * l, G + 4 * u, 4 * sizeof(double));
+        tail->A[l] = A[u];
+        if (general) memcpy(tail->ax + 2 * l, AX + 2 * u, 2 * sizeof(double));
+    }
+    return (fem_batch){tail->R, tail->sig, tail->g, tail->A, general ? tail->ax : NULL};
+}
+
+typedef struct fem_params {
+    double lambda, mu, Q[4], h, ks, ms, kb;
+} fem_params;
+
+static void fem_params_get(const tc_cloth *c, double dt, fem_params *p)
+{
+    lame(&c->mat, &p->lambda, &p->mu);
+    tc_ortho_moduli(&c->mat, p->Q);
+    p->h = c->mat.thickness;
+    p->kb = c->mat.bending;
+    p->ks = dt * dt + dt * c->mat.damping_stiffness;
+    p->ms = 1.0 + dt * c->mat.damping_mass;
+}
+
+/* The six blocks A_{va,vb} (a <= b, in the order (0,0) (0,1) (0,2) (1,1) (1,2) (2,2)) of each lane,
+ * row-major: the reference's B, same formulas (see assemble_reference for the why of each term). */
+TC_INLINE void stiffness_lanes(const fem_batch *in, const fem_params *pp, double B[6][9][TC_LANES], const bool general)
+{
+    const double lambda = pp->lambda, mu = pp->mu, ks = pp->ks, h = pp->h;
+    /* by lane first (the compiler vectorises loops over lanes, not strided reads of the batch) */
+    double Rl[6][TC_LANES], Sl[3][TC_LANES], Gl[4][TC_LANES], Al[TC_LANES], Xl[2][TC_LANES];
+    for (int l = 0; l < TC_LANES; l++) {
+        TC_UNROLL
+        for (int k = 0; k < 6; k++) Rl[k][l] = in->R[6 * l + k];
+        TC_UNROLL
+        for (int k = 0; k < 3; k++) Sl[k][l] = in->sig[3 * l + k];
+        TC_UNROLL
+        for (int k = 0; k < 4; k++) Gl[k][l] = in->g[4 * l + k];
+        Al[l] = in->A[l];
+        if (general) { Xl[0][l] = in->ax[2 * l]; Xl[1][l] = in->ax[2 * l + 1]; }
+    }
+    for (int l = 0; l < TC_LANES; l++) {
+        double R[6];
+        TC_UNROLL
+        for (int k = 0; k < 6; k++) R[k] = Rl[k][l];
+        const double g0 = Gl[0][l], g1 = Gl[1][l], g2 = Gl[2][l], g3 = Gl[3][l];
+        const double gg[3][2] = {{-g0 - g2, -g1 - g3}, {g0, g1}, {g2, g3}};
+        const double w = ks * Al[l] * h, wm = w * mu, wl = w * lambda;
+        double r[3][3], P[9];
+        TC_UNROLL
+        for (int a = 0; a < 3; a++)
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) r[a][k] = R[k] * gg[a][0] + R[3 + k] * gg[a][1];
+        TC_UNROLL
+        for (int i = 0; i < 3; i++)
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) P[3 * i + k] = R[i] * R[k] + R[3 + i] * R[3 + k];
+        /* the tensile part of the stress, branch-free (the reference's cases as selects) */
+        const double sa = Sl[0][l], sd = Sl[1][l], sb = Sl[2][l];
+        const double m = 0.5 * (sa + sd), q = sqrt(0.25 * (sa - sd) * (sa - sd) + sb * sb);
+        const double l1 = m + q, l2 = m - q;
+        double ex = l1 - sd, ey = sb;
+        const double fx = sb, fy = l1 - sa;
+        const bool other = ex * ex + ey * ey < fx * fx + fy * fy;
+        ex = other ? fx : ex; ey = other ? fy : ey;
+        const double el = sqrt(ex * ex + ey * ey), eld = el > 0 ? el : 1.0;
+        ex = ex / eld; ey = ey / eld;
+        const bool all = l2 >= 0.0, part = !all && l1 > 0.0 && el > 0;
+        /* every value computed, then selected: a conditional flop would keep the compiler from
+           vectorising (it may not assume floating-point operations never trap) */
+        const double q00 = l1 * ex * ex, q01 = l1 * ex * ey, q11 = l1 * ey * ey;
+        const double sp00 = all ? sa : part ? q00 : 0.0;
+        const double sp01 = all ? sb : part ? q01 : 0.0;
+        const double sp11 = all ? sd : part ? q11 : 0.0;
+        double C[6] = {0};
+        if (general) ortho_rest_moduli(pp->Q, Xl[0][l], Xl[1][l], C);
+        int e = 0;
+        TC_UNROLL
+        for (int a = 0; a < 3; a++)
+            TC_UNROLL
+            for (int b = a; b < 3; b++, e++) {
+                double Bl[9];
+                element_block(gg, r, P, R, C, w, wm, wl, sp00, sp01, sp11, a, b, general, Bl);
+                TC_UNROLL
+                for (int k = 0; k < 9; k++) B[e][k][l] = Bl[k];
+            }
+    }
+}
+
+/* Lane l's blocks into the rows: diagonal blocks added (columns padded to 4), edge blocks stored
+ * by the edge's first triangle with the pair's bending part, added by the other (core.h's slot
+ * layout: A_{va,vb} at [3k + r] = B[3r + k] in row va, its transpose in row vb). */
+TC_INLINE void scatter_lane(double *restrict D, double *restrict RB, const int32_t *tri, const int32_t *ts,
+                            const double *pb, double kbend, const double B[6][9][TC_LANES], int l)
+{
+    static const int diag_e[3] = {0, 3, 5}, edge_e[3] = {1, 2, 4};  /* (a,a); (0,1) (0,2) (1,2) */
+    TC_UNROLL
+    for (int a = 0; a < 3; a++) {
+        double *d = D + 12 * (size_t)tri[a];
+        const int e = diag_e[a];
+        TC_UNROLL
+        for (int r = 0; r < 3; r++)
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) d[4 * k + r] += B[e][3 * r + k][l];
+    }
+    TC_UNROLL
+    for (int q = 0; q < 3; q++) {
+        const int32_t *s = ts + 3 * q;
+        double *sa = RB + s[0], *sb = RB + s[1];
+        const int e = edge_e[q];
+        if (s[2] & 1) {
+            const double bend = kbend * pb[s[2] >> 1];
+            TC_UNROLL
+            for (int r = 0; r < 3; r++)
+                TC_UNROLL
+                for (int k = 0; k < 3; k++) {
+                    const double dg = r == k ? bend : 0.0;
+                    sa[3 * k + r] = dg + B[e][3 * r + k][l];
+                    sb[3 * k + r] = dg + B[e][3 * k + r][l];
+                }
+        } else {
+            TC_UNROLL
+            for (int r = 0; r < 3; r++)
+                TC_UNROLL
+                for (int k = 0; k < 3; k++) {
+                    sa[3 * k + r] += B[e][3 * r + k][l];
+                    sb[3 * k + r] += B[e][3 * k + r][l];
+                }
+        }
+    }
+}
+
+/* Before the triangles: diagonal blocks cleared to mass and bending, flaps and the edge pairs no
+ * triangle writes (none in a consistent mesh) set to their bending part. */
+static void assemble_begin(tc_cloth *c, const fem_params *pp)
+{
+    const double ks = pp->ks, kb = pp->kb, ms = pp->ms;
+    c->mass_scale = ms;
+    const double *m = tc_vec_ptr(&c->mass), *vb = tc_vec_ptr(&c->vbend), *pb = tc_vec_ptr(&c->pbend);
+    double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
+    const int32_t *pi = tc_vec_ptr(&c->pi), *slot = tc_vec_ptr(&c->pslot);
+    memset(D, 0, 12 * (size_t)c->nv * sizeof *D);
+    for (int32_t v = 0; v < c->nv; v++) {
+        double *d = D + 12 * v, s = m[v] * ms + ks * kb * vb[v];
+        d[0] = s; d[5] = s; d[10] = s;
+    }
+    const size_t np = c->pi.len;
+    for (size_t p = 0; p < np; p++) {
+        if (pi[p] < 0) continue;
+        const double s = ks * kb * pb[p];
+        if (!tc_pair_is_edge(c, p)) { FV[slot[2 * p]] = s; FV[slot[2 * p + 1]] = s; continue; }
+        if (c->pcover[p]) continue;
+        double *a = RB + 9 * (size_t)slot[2 * p], *b = RB + 9 * (size_t)slot[2 * p + 1];
+        memset(a, 0, 9 * sizeof *a); memset(b, 0, 9 * sizeof *b);
+        a[0] = s; a[4] = s; a[8] = s;
+        b[0] = s; b[4] = s; b[8] = s;
+    }
+}
+
+/* The stiffness of triangles t0 .. t0 + nl - 1 (from their stored R and sigma) into the rows. */
+TC_INLINE void assemble_batch(tc_cloth *c, const fem_params *pp, int32_t t0, int nl, const bool general)
+{
+    fem_tail tail;
+    const fem_batch in = batch_at(c, t0, nl, general, &tail);
+    double B[6][9][TC_LANES];
+    stiffness_lanes(&in, pp, B, general);
+    const double kbend = pp->ks * pp->kb, *pb = tc_vec_ptr(&c->pbend);
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk);
+    for (int l = 0; l < nl; l++) {
+        const size_t t = (size_t)(t0 + l);
+        scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
+    }
+}
+
+/* The element pass by batches (see element_pass_reference for the physics), and with `fuse` the
+ * assembly of the system matrix for a sub-step of length dt from the same batch. */
+TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool general, const bool fuse, double dt)
+{
+    fem_params pp;
+    fem_params_get(c, dt, &pp);
+    const double lambda = pp.lambda, mu = pp.mu, h = pp.h;
+    const bool plastic = general && c->mat.plastic;
+    const double *AX = tc_vec_ptr(&c->taxis), *PL = tc_vec_ptr(&c->tplast);
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
+    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *S3 = tc_vec_ptr(&c->stress);
+    double *pr = tc_vec_ptr(&c->principal), *pd = tc_vec_ptr(&c->pdir);
+    double *f = tc_vec_ptr(&c->fel);
+    double worst2 = 0.0, carried2 = 0.0;
+    memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
+    if (fuse) assemble_begin(c, &pp);
+    const int32_t nt = c->nt;
+    for (int32_t t0 = 0; t0 < nt; t0 += TC_LANES) {
+        const int nl = nt - t0 < TC_LANES ? nt - t0 : TC_LANES;
+        /* lanes past the last triangle repeat the batch's first: computed, never written */
+        struct { double R[6][TC_LANES], sig[3][TC_LANES], g[4][TC_LANES], A[TC_LANES], ax[2][TC_LANES]; } in;
+        double F[6][TC_LANES], pl[3][TC_LANES];
+        for (int l = 0; l < TC_LANES; l++) {
+            const int32_t t = t0 + (l < nl ? l : 0);
+            const double *x0 = x + 3 * (size_t)T[3 * t], *x1 = x + 3 * (size_t)T[3 * t + 1], *x2 = x + 3 * (size_t)T[3 * t + 2];
+            const double *g = G + 4 * (size_t)t;
+            TC_UNROLL
+            for (int k = 0; k < 4; k++) in.g[k][l] = g[k];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) {
+                const double e1 = x1[k] - x0[k], e2 = x2[k] - x0[k];
+                F[k][l] = e1 * g[0] + e2 * g[2];
+                F[3 + k][l] = e1 * g[1] + e2 * g[3];
+            }
+            in.A[l] = A[t];
+            if (general) { in.ax[0][l] = AX[2 * t]; in.ax[1][l] = AX[2 * t + 1]; }
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) pl[k][l] = plastic ? PL[4 * (size_t)t + k] : 0.0;
+        }
+        /* co-rotation of the regular elements (corotate()'s first branch) */
+        double s2[TC_LANES], eps[3][TC_LANES];
+        double collapsed[TC_LANES];  /* 1 or 0: a double, as the lanes' other values (a bool would keep the loop scalar) */
+        for (int l = 0; l < TC_LANES; l++) {
+            const double F0[3] = {F[0][l], F[1][l], F[2][l]}, F1[3] = {F[3][l], F[4][l], F[5][l]};
+            const double a = dot3(F0, F0), b = dot3(F0, F1), d = dot3(F1, F1);
+            s2[l] = 0.5 * (a + d) + sqrt(0.25 * (a - d) * (a - d) + b * b);
+            const double det = a * d - b * b;
+            const bool regular = det > TC_COLLAPSE_DET * (a + d) * (a + d);
+            collapsed[l] = regular ? 0.0 : 1.0;
+            const double s = sqrt(regular ? det : 1.0), t = sqrt(a + d + 2.0 * s);
+            const double S00 = (a + s) / t, S01 = b / t, S11 = (d + s) / t;
+            const double i00 = S11 / s, i01 = -S01 / s, i11 = S00 / s;
+            double R[6];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) {
+                R[k] = F0[k] * i00 + F1[k] * i01;
+                R[3 + k] = F0[k] * i01 + F1[k] * i11;
+            }
+            TC_UNROLL
+            for (int k = 0; k < 6; k++) in.R[k][l] = R[k];
+            eps[0][l] = dot3(R, F0) - 1.0;
+            eps[1][l] = dot3(R + 3, F1) - 1.0;
+            eps[2][l] = 0.5 * (dot3(R, F1) + dot3(R + 3, F0));
+        }
+        /* collapsed ones (rare) one by one, from their last rotation as the reference does */
+        for (int l = 0; l < nl; l++) {
+            if (collapsed[l] == 0.0) continue;
+            const double F0[3] = {F[0][l], F[1][l], F[2][l]}, F1[3] = {F[3][l], F[4][l], F[5][l]};
+            double R[6], e3[3];
+            memcpy(R, Rall + 6 * (size_t)(t0 + l), sizeof R);
+            corotate(F0, F1, R, e3);
+            TC_UNROLL
+            for (int k = 0; k < 6; k++) in.R[k][l] = R[k];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) eps[k][l] = e3[k];
+        }
+        /* stress, forces, world stress, principal stresses and direction */
+        double fab[6][TC_LANES], S[9][TC_LANES], prin[2][TC_LANES], dir[3][TC_LANES];
+        for (int l = 0; l < TC_LANES; l++) {
+            double sxx, syy, sxy;
+            const double e0 = eps[0][l], e1 = eps[1][l], e2 = eps[2][l];
+            if (!general) {
+                const double tr = e0 + e1;
+                sxx = lambda * tr + 2.0 * mu * e0; syy = lambda * tr + 2.0 * mu * e1; sxy = 2.0 * mu * e2;
+            } else {
+                const double ee[3] = {e0, e1, e2}, pp3[3] = {pl[0][l], pl[1][l], pl[2][l]};
+                ortho_stress(pp.Q, in.ax[0][l], in.ax[1][l], pp3, ee, &sxx, &syy, &sxy);
+            }
+            in.sig[0][l] = sxx; in.sig[1][l] = syy; in.sig[2][l] = sxy;
+            double R[6];
+            TC_UNROLL
+            for (int k = 0; k < 6; k++) R[k] = in.R[k][l];
+            const double g0 = in.g[0][l], g1 = in.g[1][l], g2 = in.g[2][l], g3 = in.g[3][l];
+            const double w = in.A[l] * h;
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) {
+                const double P0 = R[k] * sxx + R[3 + k] * sxy, P1 = R[k] * sxy + R[3 + k] * syy;
+                fab[k][l] = -w * (P0 * g0 + P1 * g1);
+                fab[3 + k][l] = -w * (P0 * g2 + P1 * g3);
+            }
+            TC_UNROLL
+            for (int i = 0; i < 3; i++)
+                TC_UNROLL
+                for (int j = 0; j < 3; j++)
+                    S[3 * i + j][l] = R[i] * (sxx * R[j] + sxy * R[3 + j]) + R[3 + i] * (sxy * R[j] + syy * R[3 + j]);
+            const double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), rad = sqrt(dd * dd + sxy * sxy);
+            prin[0][l] = mean + rad; prin[1][l] = mean - rad;
+            const double l1 = mean + rad, fx = sxy, fy = l1 - sxx;
+            double ex = l1 - syy, ey = sxy;
+            const bool other = ex * ex + ey * ey < fx * fx + fy * fy;
+            ex = other ? fx : ex; ey = other ? fy : ey;
+            const double el = sqrt(ex * ex + ey * ey), eld = el > 0 ? el : 1.0;
+            const double ux = ex / eld, uy = ey / eld;
+            ex = el > 0 ? ux : 1.0; ey = el > 0 ? uy : 0.0;
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) dir[k][l] = R[k] * ex + R[3 + k] * ey;
+        }
+        /* out, triangle by triangle in order (the force sums as the reference's) */
+        for (int l = 0; l < nl; l++) {
+            const size_t t = (size_t)(t0 + l);
+            if (!(s2[l] <= worst2)) worst2 = s2[l];  /* also takes NaN */
+            TC_UNROLL
+            for (int k = 0; k < 6; k++) Rall[6 * t + k] = in.R[k][l];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) sig[3 * t + k] = in.sig[k][l];
+            TC_UNROLL
+            for (int k = 0; k < 9; k++) S3[9 * t + k] = S[k][l];
+            pr[2 * t] = prin[0][l]; pr[2 * t + 1] = prin[1][l];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) pd[3 * t + k] = dir[k][l];
+            const int32_t i0 = T[3 * t], i1 = T[3 * t + 1], i2 = T[3 * t + 2];
+            TC_UNROLL
+            for (int k = 0; k < 3; k++) {
+                const double fa = fab[k][l], fb = fab[3 + k][l];
+                f[3 * i1 + k] += fa;
+                f[3 * i2 + k] += fb;
+                f[3 * i0 + k] -= fa + fb;
+                carried2 += fa * fa + fb * fb + (fa + fb) * (fa + fb);
+            }
+        }
+        if (fuse) assemble_batch(c, &pp, t0, nl, general);  /* from the R and sigma just stored (in cache) */
+    }
+    c->carried2 = isfinite(carried2) ? carried2 : 0.0;
+    return isfinite(worst2) ? sqrt(worst2) : NAN;
+}
+
+/* The assembly alone by batches, from the rotations and stresses of the last element pass. */
+TC_INLINE void assemble_lanes(tc_cloth *c, double dt, const bool general)
+{
+    fem_params pp;
+    fem_params_get(c, dt, &pp);
+    assemble_begin(c, &pp);
+    for (int32_t t0 = 0; t0 < c->nt; t0 += TC_LANES)
+        assemble_batch(c, &pp, t0, c->nt - t0 < TC_LANES ? c->nt - t0 : TC_LANES, general);
+}
+
+TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
+{
+    const bool general = tc_material_general(&c->mat);
+    if (fem_reference()) return general ? element_pass_reference(c, x, true) : element_pass_reference(c, x, false);
+    return general ? element_pass_lanes(c, x, true, false, 0.0) : element_pass_lanes(c, x, false, false, 0.0);
+}
+
+static int rows_ready(tc_cloth *c)
+{
+    if (tc_rows_update(c) || tslots_update(c)) {
+        tc_set_err(c, "out of memory building the rows of the system matrix");
+        return TC_ERR_NOMEM;
+    }
+    return TC_OK;
+}
+
 TC_HOT int tc_assemble(tc_cloth *c, double dt)
 {
-    if (tc_rows_update(c)) { tc_set_err(c, "out of memory building the rows of the system matrix"); return TC_ERR_NOMEM; }
-    if (tc_material_general(&c->mat)) assemble(c, dt, true);
-    else assemble(c, dt, false);
+    if (rows_ready(c)) return TC_ERR_NOMEM;
+    const bool general = tc_material_general(&c->mat);
+    if (fem_reference()) {
+        if (general) assemble_reference(c, dt, true);
+        else assemble_reference(c, dt, false);
+    } else if (general) {
+        assemble_lanes(c, dt, true);
+    } else {
+        assemble_lanes(c, dt, false);
+    }
+    return TC_OK;
+}
+
+TC_HOT int tc_element_assemble(tc_cloth *c, const double *x, double dt, double *worst)
+{
+    if (rows_ready(c)) return TC_ERR_NOMEM;
+    const bool general = tc_material_general(&c->mat);
+    if (fem_reference()) {
+        *worst = tc_element_pass(c, x);
+        return tc_assemble(c, dt);
+    }
+    *worst = general ? element_pass_lanes(c, x, true, true, dt) : element_pass_lanes(c, x, false, true, dt);
     return TC_OK;
 }
 

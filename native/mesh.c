@@ -343,7 +343,11 @@ void tc_stencil_remove(tc_cloth *c, int32_t ep)
     tc_stencil s = ((tc_stencil *)tc_vec_ptr(&c->stencils))[id];
     stencil_apply(c, &s, -1.0);
     pst[ep] = -1;
-    ((tc_stencil *)tc_vec_ptr(&c->stencils))[id].pair = -1;
+    /* a freed slot names no vertex: fragment.c's renumbering skips freed slots, so ids kept here
+       went stale when a removal compacted the vertices (past nv: snapshots of it were refused) */
+    tc_stencil *freed = (tc_stencil *)tc_vec_ptr(&c->stencils) + id;
+    freed->pair = -1;
+    for (int k = 0; k < 4; k++) freed->v[k] = -1;
     int32_t fp = tc_pair_find(c, s.v[2], s.v[3]);
     if (fp >= 0) tc_pair_release(c, fp);
     if (tc_vec_resize(&c->sfree, c->sfree.len + 1) == TC_OK)

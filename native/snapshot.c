@@ -190,9 +190,12 @@ static const char *check(const tc_cloth *c)
     if (!in_range(&c->ev_newt, 0, c->nt)) return "ev_newt";
     const tc_stencil *st = tc_vec_ptr(&c->stencils);
     for (size_t s = 0; s < ns; s++) {
-        for (int k = 0; k < 4; k++)
-            if (st[s].v[k] < -1 || st[s].v[k] >= c->nv) return "stencils";
         if (st[s].pair < -1 || st[s].pair >= (int64_t)np) return "stencils";
+        /* a freed slot (pair -1) is never read, only overwritten when reused: states written before
+           mesh.c cleared its vertices may hold ids a fragment removal left past nv */
+        if (st[s].pair >= 0)
+            for (int k = 0; k < 4; k++)
+                if (st[s].v[k] < 0 || st[s].v[k] >= c->nv) return "stencils";
     }
     if (c->rows_built) {
         if (c->rptr.len != (size_t)c->rows_nv + 1 || c->fptr.len != (size_t)c->rows_nv + 1 || c->rows_nv > c->nv)

@@ -49,7 +49,15 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     const size_t n3 = 3 * (size_t)n;
     double *x = tc_vec_ptr(&c->x), *v = tc_vec_ptr(&c->v);
     double *x0 = tc_vec_ptr(&c->x0), *v0 = tc_vec_ptr(&c->v0), *b = tc_vec_ptr(&c->sb);
-    tc_refresh(c);
+    /* element state stale (first sub-step, after a tear, a yield, a setter): its pass and this
+       sub-step's assembly share one pass over the triangles (the positions do not move between) */
+    const bool fused = c->dirty;
+    if (fused) {
+        double worst;
+        if (tc_element_assemble(c, x, dt, &worst)) return TC_ERR_NOMEM;
+        tc_total_force(c, x);
+        c->dirty = false;
+    }
     memcpy(x0, x, n3 * sizeof(double));
     memcpy(v0, v, n3 * sizeof(double));
     tc_constraints_begin(c, dt, alpha_target);
@@ -60,7 +68,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     for (int32_t i = 0; i < n; i++)
         for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * f[3 * i + q];
 
-    if (tc_assemble(c, dt)) return TC_ERR_NOMEM;
+    if (!fused && tc_assemble(c, dt)) return TC_ERR_NOMEM;
     tc_precondition_build(c);
     /* warm start: the velocity change of the last step (constant acceleration), exact for a
        falling cloth and close for any smooth motion; pcg projects it onto this step's constraints */
