@@ -386,8 +386,8 @@ int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc
  * out; without (a predicted motion) it is only read. quad[q] = (vertex, a, b, c) with split 1
  * (vertex-triangle) or (a, b, c, d) with split 2 (edge-edge). */
 /* One pair range [q0, q1) of tcc_ccd_cull, its bounds lowered by debt first (a block's motion not
- * yet charged to its pairs, tcc_ccd_cull_blocks); returns the smallest bound left (update) or
- * -1 on an index error. */
+ * yet charged to its pairs, tcc_ccd_cull_blocks). With update, *min_out is the smallest bound
+ * left in the range (NaN if a degenerate pair has none: its block is then read every step). */
 static int cull_range(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx q0, tcc_idx q1, int split,
                       const double *disp, const double *gap, double *slack, int update, double debt, tcc_idx *out,
                       tcc_idx *m_io, double *min_out, tcc_error *err)
@@ -465,14 +465,35 @@ int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int
  * one as tcc_ccd_cull does (their bounds lowered by the debt first), and with update the debt is
  * charged, the bounds carried or made exact, and block_min recomputed. The blocks are the pair
  * ranges [block_ptr[b], block_ptr[b+1]); every bound read is a lower bound of the pair's
- * distance - gap as in tcc_ccd_cull, so no pair that the pairwise cull hands out is kept back. */
+ * distance - gap as in tcc_ccd_cull, so no pair that can come within its gap is kept back.
+ * disp2 (or NULL): a second motion from x, culled without update into out2 (*nout2) - the same
+ * as a second call, in the same pass over the blocks (the swept stage's prediction). */
+/* Diagonal of the box of the displacements of vertices vert[0..count): no two points of elements
+ * spanned by these vertices move apart by more. */
+static double block_spread(const double *disp, const tcc_idx *vert, tcc_idx count)
+{
+    if (count == 0) return 0.0;
+    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (tcc_idx i = 0; i < count; i++) {
+        const double *d = disp + 3 * vert[i];
+        for (int c = 0; c < 3; c++) {
+            if (d[c] < lo[c]) lo[c] = d[c];
+            if (d[c] > hi[c]) hi[c] = d[c];
+        }
+    }
+    double e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    return sqrt(dot3(e, e));
+}
+
 int tcc_ccd_cull_blocks(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
                         const double *gap, double *slack, int update, const tcc_idx *block_ptr, tcc_idx nb,
                         const tcc_idx *block_vptr, const tcc_idx *block_vertices, tcc_idx nbv, double *block_min,
-                        double *block_debt, tcc_idx *out, tcc_idx *nout, tcc_error *err)
+                        double *block_debt, tcc_idx *out, tcc_idx *nout, const double *disp2, tcc_idx *out2,
+                        tcc_idx *nout2, tcc_error *err)
 {
     int rc = cull_check(split, disp, n, err);
     if (rc) return rc;
+    if (disp2 && (rc = cull_check(split, disp2, n, err))) return rc;
     if (block_ptr[0] != 0 || block_ptr[nb] != k || block_vptr[0] != 0 || block_vptr[nb] != nbv)
         return tcc_fail(err, TCC_ERR_VALUE, "block_ptr must run from 0 to %lld pairs and block_vptr from 0 to %lld vertices",
                         (long long)k, (long long)nbv);
@@ -482,35 +503,30 @@ int tcc_ccd_cull_blocks(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx
     for (tcc_idx i = 0; i < nbv; i++)
         if (block_vertices[i] < 0 || block_vertices[i] >= n)
             return tcc_fail(err, TCC_ERR_INDEX, "block vertex %lld is not in [0, %lld)", (long long)block_vertices[i], (long long)n);
-    tcc_idx m = 0;
+    tcc_idx m = 0, m2 = 0;
     for (tcc_idx b = 0; b < nb; b++) {
-        double lo3[3] = {INFINITY, INFINITY, INFINITY}, hi3[3] = {-INFINITY, -INFINITY, -INFINITY};
-        for (tcc_idx i = block_vptr[b]; i < block_vptr[b + 1]; i++) {
-            const double *d = disp + 3 * block_vertices[i];
-            for (int c = 0; c < 3; c++) {
-                if (d[c] < lo3[c]) lo3[c] = d[c];
-                if (d[c] > hi3[c]) hi3[c] = d[c];
+        const tcc_idx *vert = block_vertices + block_vptr[b];
+        tcc_idx count = block_vptr[b + 1] - block_vptr[b];
+        double spread = block_spread(disp, vert, count), lo;
+        if (block_min[b] - block_debt[b] - spread > 0) {  /* NaN or -inf: read the pairs */
+            if (update) block_debt[b] += spread;
+        } else {
+            rc = cull_range(x, n, quad, block_ptr[b], block_ptr[b + 1], split, disp, gap, slack, update, block_debt[b],
+                            out, &m, &lo, err);
+            if (rc) return rc;
+            if (update) {
+                block_debt[b] = 0.0;
+                block_min[b] = lo;
             }
         }
-        double diag = 0.0;
-        if (block_vptr[b + 1] > block_vptr[b]) {
-            double e[3] = {hi3[0] - lo3[0], hi3[1] - lo3[1], hi3[2] - lo3[2]};
-            diag = sqrt(dot3(e, e));
-        }
-        double left = block_min[b] - block_debt[b] - diag;
-        if (left > 0) {  /* NaN or -inf: read the pairs */
-            if (update) block_debt[b] += diag;
-            continue;
-        }
-        double lo;
-        rc = cull_range(x, n, quad, block_ptr[b], block_ptr[b + 1], split, disp, gap, slack, update, block_debt[b], out,
-                        &m, &lo, err);
+        /* the second motion reads this block as a call of its own after this one would: a block
+           depends on nothing but its own state */
+        if (!disp2 || block_min[b] - block_debt[b] - block_spread(disp2, vert, count) > 0) continue;
+        rc = cull_range(x, n, quad, block_ptr[b], block_ptr[b + 1], split, disp2, gap, slack, 0, block_debt[b], out2,
+                        &m2, &lo, err);
         if (rc) return rc;
-        if (update) {
-            block_debt[b] = 0.0;
-            block_min[b] = lo;
-        }
     }
     *nout = m;
+    if (disp2) *nout2 = m2;
     return TCC_OK;
 }
