@@ -416,4 +416,16 @@ int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc
 int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
                  const double *gap, double *slack, int update, tcc_idx *out, tcc_idx *nout, tcc_error *err);
 
+/* tcc_ccd_cull by blocks of pairs (pair ranges block_ptr (nb + 1), each with the vertices
+ * block_vertices[block_vptr[b] .. block_vptr[b + 1]) that its pairs' corners are among): a block
+ * whose bound block_min (nb, in/out; -inf: unknown) minus its uncharged motion block_debt (nb,
+ * in/out; start at 0) and this step's relative motion of its vertices stays positive is skipped
+ * without reading its pairs (see ccd.c). Like tcc_ccd_cull, it hands out every pair that can come within its gap. disp2 (n, 3) or
+ * NULL: a second motion culled after the first without update, into out2 (k) and *nout2. */
+int tcc_ccd_cull_blocks(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
+                        const double *gap, double *slack, int update, const tcc_idx *block_ptr, tcc_idx nb,
+                        const tcc_idx *block_vptr, const tcc_idx *block_vertices, tcc_idx nbv, double *block_min,
+                        double *block_debt, tcc_idx *out, tcc_idx *nout, const double *disp2, tcc_idx *out2,
+                        tcc_idx *nout2, tcc_error *err);
+
 #endif

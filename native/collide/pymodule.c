@@ -1345,8 +1345,18 @@ static const pyarg_spec CCD_CULL[] = {
     ARR("slack", PA_F64, OUT, 1, 0, 0),
     VAL("update", PA_FLAG),
     ARR("out", PA_I64, OUT, 1, 0, 0),
+    /* the blocks of tcc_ccd_cull_blocks: all four or none */
+    ARR("block_ptr", PA_I64, OPT, 1, 0, 0),
+    ARR("block_vptr", PA_I64, OPT, 1, 0, 0),
+    ARR("block_vertices", PA_I64, OPT, 1, 0, 0),
+    ARR("block_min", PA_F64, OUT | OPT, 1, 0, 0),
+    ARR("block_debt", PA_F64, OUT | OPT, 1, 0, 0),
+    /* with the blocks: a second motion from positions, culled after the first without update */
+    ARR("predicted", PA_F64, OPT, 2, 3, 0),
+    ARR("predicted_out", PA_I64, OUT | OPT, 1, 0, 0),
 };
-enum { CU_X, CU_Q, CU_SPLIT, CU_MOVE, CU_GAP, CU_SLACK, CU_UPD, CU_OUT, CU_N };
+enum { CU_X, CU_Q, CU_SPLIT, CU_MOVE, CU_GAP, CU_SLACK, CU_UPD, CU_OUT, CU_BPTR, CU_BVPTR, CU_BV, CU_BMIN, CU_BDEBT,
+       CU_PRED, CU_PRED_OUT, CU_N };
 
 static PyObject *py_ccd_cull(PyObject *self, PyObject *args, PyObject *kw)
 {
@@ -1356,14 +1366,45 @@ static PyObject *py_ccd_cull(PyObject *self, PyObject *args, PyObject *kw)
     CHECK_ROWS(CU_GAP, k);
     CHECK_ROWS(CU_SLACK, k);
     CHECK_ROWS(CU_OUT, k);
+    int blocks = D(CU_BPTR) != NULL;
+    if (blocks != (D(CU_BVPTR) != NULL) || blocks != (D(CU_BV) != NULL) || blocks != (D(CU_BMIN) != NULL) ||
+        blocks != (D(CU_BDEBT) != NULL)) {
+        PyErr_SetString(PyExc_ValueError, "ccd_cull: block_ptr, block_vptr, block_vertices, block_min and block_debt "
+                                          "go together (all or none)");
+        goto fail;
+    }
+    int pred = D(CU_PRED) != NULL;
+    if (pred != (D(CU_PRED_OUT) != NULL) || (pred && !blocks)) {
+        PyErr_SetString(PyExc_ValueError, "ccd_cull: predicted and predicted_out go together, and with the blocks");
+        goto fail;
+    }
+    CHECK_ROWS(CU_PRED, n);
+    CHECK_ROWS(CU_PRED_OUT, k);
+    Py_ssize_t nb = 0;
+    if (blocks) {
+        nb = ROWS(CU_BPTR) - 1;
+        if (nb < 0) {
+            PyErr_SetString(PyExc_ValueError, "ccd_cull: block_ptr needs at least one entry (0)");
+            goto fail;
+        }
+        CHECK_ROWS(CU_BVPTR, nb + 1);
+        CHECK_ROWS(CU_BMIN, nb);
+        CHECK_ROWS(CU_BDEBT, nb);
+    }
     if (pyarg_no_overlap(&s)) goto fail;
     tcc_error err = {0};
-    tcc_idx count = 0;
+    tcc_idx count = 0, count2 = 0;
     int rc;
-    RUN(tcc_ccd_cull(D(CU_X), n, D(CU_Q), k, s.v[CU_SPLIT].i, D(CU_MOVE), D(CU_GAP), D(CU_SLACK), s.v[CU_UPD].i,
-                     D(CU_OUT), &count, &err));
+    if (blocks)
+        RUN(tcc_ccd_cull_blocks(D(CU_X), n, D(CU_Q), k, s.v[CU_SPLIT].i, D(CU_MOVE), D(CU_GAP), D(CU_SLACK),
+                                s.v[CU_UPD].i, D(CU_BPTR), nb, D(CU_BVPTR), D(CU_BV), ROWS(CU_BV), D(CU_BMIN),
+                                D(CU_BDEBT), D(CU_OUT), &count, D(CU_PRED), D(CU_PRED_OUT), &count2, &err));
+    else
+        RUN(tcc_ccd_cull(D(CU_X), n, D(CU_Q), k, s.v[CU_SPLIT].i, D(CU_MOVE), D(CU_GAP), D(CU_SLACK), s.v[CU_UPD].i,
+                         D(CU_OUT), &count, &err));
     pyarg_release(&s);
     if (rc) return kernel_error(&err);
+    if (pred) return Py_BuildValue("LL", (long long)count, (long long)count2);
     return PyLong_FromLongLong(count);
 fail:
     pyarg_release(&s);
@@ -1448,7 +1489,12 @@ static PyMethodDef methods[] = {
     KERNEL(ccd_cull,
            "ccd_cull(positions, quads, split, displacement, gap, slack, update, out) -> count: the pairs that may "
            "come within their gap over a motion of the given displacement per vertex (their indices into out), from a lower "
-           "bound slack of distance - gap carried per pair (updated and recomputed at positions with update)."),
+           "bound slack of distance - gap carried per pair (updated and recomputed at positions with update). "
+           "block_ptr=None, block_vptr=None, block_vertices=None, block_min=None, block_debt=None: the same by "
+           "blocks of pairs, a block whose vertices moved less relative to each other than its bound allows is "
+           "skipped unread (ccd.c tcc_ccd_cull_blocks). predicted=None, predicted_out=None (with the blocks): a "
+           "second motion culled after the first without update, in the same pass; the result is then the pair "
+           "(count, predicted count)."),
     KERNEL(edge_edge_state,
            "edge_edge_state(positions, edge_a, edge_b, sd, dist, params, normal): signed distance along the unit "
            "common normal, distance and closest-point parameters of each edge pair."),

@@ -306,6 +306,92 @@ static void test_ccd(const mesh *m)
         disp[4] = 0.0;
         quad[4 * (k - 1) + 2] = m->nv;
         CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 2, disp, gapq, slack, 0, out, &nout, &c3) == TCC_ERR_INDEX, "a vertex out of range is an index error");
+        quad[4 * (k - 1) + 2] = m->tri[3 * pt[k - 1] + 1];
+        /* by blocks (tcc_ccd_cull_blocks) of 3 pairs, each with its pairs' corners: unknown bounds hand
+           every pair out; still, the same pairs as pairwise; a block moved rigidly is skipped unread
+           (its debt grows by 0, a corrupt quad in it goes unnoticed) while a block whose vertices move
+           apart is read; bad blocks are errors */
+        tcc_idx nb = (k + 2) / 3, *bptr = malloc(sizeof(tcc_idx) * (size_t)(nb + 1));
+        tcc_idx *bvptr = malloc(sizeof(tcc_idx) * (size_t)(nb + 1)), *bv = malloc(sizeof(tcc_idx) * 4 * (size_t)k);
+        double *bmin = malloc(sizeof(double) * (size_t)nb), *bdebt = calloc((size_t)nb, sizeof(double));
+        tcc_idx nbv = 0;
+        for (tcc_idx b = 0; b < nb; b++) {
+            bptr[b] = 3 * b;
+            bvptr[b] = nbv;
+            for (tcc_idx q = 3 * b; q < 3 * b + 3 && q < k; q++)
+                for (int j = 0; j < 4; j++) bv[nbv++] = quad[4 * q + j];  /* repeats are allowed */
+            bmin[b] = -INFINITY;
+        }
+        bptr[nb] = k;
+        bvptr[nb] = nbv;
+        for (tcc_idx q = 0; q < k; q++) slack[q] = -INFINITY;
+        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
+                                 &nout, NULL, NULL, NULL, &err);
+        CHECK(rc == TCC_OK && nout == k, "blocks, unknown bounds: rc %d, %lld of %lld handed out", rc, (long long)nout, (long long)k);
+        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
+                                 &nout, NULL, NULL, NULL, &err);
+        CHECK(rc == TCC_OK && nout == close, "blocks, still: rc %d, %lld handed out, %lld within their gap", rc,
+              (long long)nout, (long long)close);
+        tcc_idx open_blocks = 0;
+        for (tcc_idx b = 0; b < nb; b++) open_blocks += !(bmin[b] > 0);
+        CHECK(open_blocks < nb, "%lld of %lld blocks hold a pair within its gap: nothing to skip", (long long)open_blocks, (long long)nb);
+        for (tcc_idx v = 0; v < m->nv; v++) disp[3 * v] = 1e-3;  /* a rigid shift: no relative motion */
+        tcc_idx far_b = 0;
+        while (far_b < nb - 1 && !(bmin[far_b] > 1e-3)) far_b++;
+        CHECK(bmin[far_b] > 1e-3, "no block 1 mm clear of its gaps");
+        tcc_idx saved = quad[4 * bptr[far_b]];
+        quad[4 * bptr[far_b]] = m->nv;  /* read, this would be an index error */
+        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
+                                 &nout, NULL, NULL, NULL, &err);
+        CHECK(rc == TCC_OK && nout == close && bdebt[far_b] == 0.0, "blocks, rigid shift: rc %d, %lld handed out, debt %g",
+              rc, (long long)nout, bdebt[far_b]);
+        quad[4 * bptr[far_b]] = saved;
+        double before = bmin[far_b];
+        for (tcc_idx v = 0; v < m->nv; v++) disp[3 * v] = 1e-4 * (double)(v % 2);  /* neighbours 0.1 mm apart */
+        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
+                                 &nout, NULL, NULL, NULL, &err);
+        CHECK(rc == TCC_OK && nout >= close && bmin[far_b] == before && bdebt[far_b] == 0.0,
+              "blocks, predicted (nothing carried): rc %d, %lld handed out", rc, (long long)nout);
+        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
+                                 &nout, NULL, NULL, NULL, &err);
+        int parity[2] = {0, 0};
+        for (tcc_idx i = bvptr[far_b]; i < bvptr[far_b + 1]; i++) parity[bv[i] % 2] = 1;
+        double want = (parity[0] && parity[1]) ? 1e-4 : 0.0;
+        CHECK(rc == TCC_OK && nout >= close && fabs(bdebt[far_b] - want) < 1e-12,
+              "blocks, relative motion charged as debt: rc %d, debt %g, want %g", rc, bdebt[far_b], want);
+        /* a second (predicted) motion in the same pass: the same as a second call without update */
+        {
+            double *slack2 = malloc(sizeof(double) * (size_t)k), *bmin2 = malloc(sizeof(double) * (size_t)nb);
+            double *bdebt2 = malloc(sizeof(double) * (size_t)nb), *pred = malloc(sizeof(double) * nx);
+            tcc_idx *outa = malloc(sizeof(tcc_idx) * (size_t)k), *outb = malloc(sizeof(tcc_idx) * (size_t)k);
+            tcc_idx *outc = malloc(sizeof(tcc_idx) * (size_t)k), na = 0, nb2 = 0, nc = 0;
+            memcpy(slack2, slack, sizeof(double) * (size_t)k);
+            memcpy(bmin2, bmin, sizeof(double) * (size_t)nb);
+            memcpy(bdebt2, bdebt, sizeof(double) * (size_t)nb);
+            for (size_t i = 0; i < nx; i++) pred[i] = 2e-2 * sin(0.7 * (double)i);  /* 2 cm: some blocks open */
+            rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt,
+                                     out, &nout, pred, outa, &na, &err);
+            int rc2 = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack2, 1, bptr, nb, bvptr, bv, nbv, bmin2,
+                                          bdebt2, outb, &nb2, NULL, NULL, NULL, &err);
+            rc2 |= tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, pred, gapq, slack2, 0, bptr, nb, bvptr, bv, nbv, bmin2,
+                                       bdebt2, outc, &nc, NULL, NULL, NULL, &err);
+            int same = rc == TCC_OK && rc2 == TCC_OK && nout == nb2 && na == nc && na > 0;
+            for (tcc_idx i = 0; same && i < nout; i++) same = out[i] == outb[i];
+            for (tcc_idx i = 0; same && i < na; i++) same = outa[i] == outc[i];
+            for (tcc_idx q = 0; same && q < k; q++) same = slack[q] == slack2[q];
+            CHECK(same, "blocks, predicted in the same pass: %lld / %lld and %lld / %lld handed out", (long long)nout,
+                  (long long)nb2, (long long)na, (long long)nc);
+            free(slack2); free(bmin2); free(bdebt2); free(pred); free(outa); free(outb); free(outc);
+        }
+        tcc_error c4 = {0}, c5 = {0};
+        bptr[nb] = k - 1;
+        CHECK(tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
+                                  &nout, NULL, NULL, NULL, &c4) == TCC_ERR_VALUE, "blocks not covering the pairs are a value error");
+        bptr[nb] = k;
+        bv[nbv - 1] = -1;
+        CHECK(tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
+                                  &nout, NULL, NULL, NULL, &c5) == TCC_ERR_INDEX, "a block vertex out of range is an index error");
+        free(bptr); free(bvptr); free(bv); free(bmin); free(bdebt);
         free(quad); free(out); free(gapq); free(slack); free(disp);
     }
     /* edge (0, 1), across an edge of the far triangle, driven along the normal through it */
