@@ -687,6 +687,74 @@ static void test_solve_against_direct(void)
 }
 
 
+/* A few CG iterations of each kernel against the scalar one's: the product (its p.Ap) and the
+ * fused update / preconditioning pass (its r.z, r.r and z, each kernel's own pass) are the same
+ * arithmetic up to rounding, so the iterates after 1, 2, 3 and 10 iterations (stopped at the cap,
+ * counted as not converged) must agree to 1e-12 of their size: a kernel that read a wrong entry
+ * or a neighbour's lane is off by far more at the first or second iteration. An odd vertex count exercises the last-vertex and odd-row paths. */
+static void test_cg_iterations_agree_across_kernels(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(7, 5, 0.06, 0.04, &V, &T, &n, &m);
+    for (int32_t i = 0; i < n; i++) V[3 * i + 2] = 0.002 * sin(3.0 * V[3 * i] + 40.0 * V[3 * i + 1]);  /* not flat */
+    char msg[512];
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    if (!c) { CHECK(0, "create: %s", msg); free(V); free(T); return; }
+    const int32_t pins[3] = {0, 1, 2};
+    tc_cloth_pin(c, pins, 3, 1);
+    tc_solver_settings s = tc_cloth_solver(c);
+    s.preconditioner = TC_PRECOND_JACOBI;
+    CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
+    for (int k = 0; k < 5; k++) CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+    /* the assembled diagonal blocks are symmetric up to the assembly's rounding (w x r_i x r_l is
+       evaluated in either order on the two sides), so tc_precondition_build's symmetrising them (for
+       the AVX2 pass, which reads the inverse's rows as its columns) is a rounding-level change of
+       the preconditioner, not a different one */
+    const double *Dg = tc_vec_ptr(&c->diag);
+    double asym = 0.0;
+    for (int32_t i = 0; i < n; i++) {
+        const double *d = Dg + 12 * (size_t)i;
+        const double scale = fmax(fabs(d[0]), fmax(fabs(d[5]), fabs(d[10])));
+        asym = fmax(asym, fmax(fabs(d[4] - d[1]), fmax(fabs(d[8] - d[2]), fabs(d[9] - d[6]))) / scale);
+    }
+    CHECK(asym <= 1e-14, "diagonal blocks asymmetric by %.3g of their diagonal", asym);
+    printf("diagonal blocks symmetric to %.3g of their diagonal\n", asym);
+    const int N = 3 * n, caps[4] = {1, 2, 3, 10};
+    double *b = malloc((size_t)N * sizeof *b), *v0 = calloc((size_t)N, sizeof *v0);
+    double *v = malloc((size_t)N * sizeof *v), *ref = malloc((size_t)N * sizeof *ref);
+    for (int k = 0; k < N; k++) b[k] = 1e-4 * sin(0.7 * k + 0.3) + (k % 3 == 2 ? -2e-4 : 0.0);
+    const int level = tc_simd_level();
+    for (int ci = 0; ci < 4; ci++) {
+        tc_solver_settings t = s;
+        t.cg_tolerance = 1e-14;
+        t.cg_max_iterations = caps[ci];
+        CHECK(tc_cloth_set_solver(c, &t) == TC_OK, "solver settings: %s", tc_cloth_error(c));
+        double vs = 0.0;
+        for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_LAST; l++) {
+            if (tc_simd_select(l) < 0) continue;
+            memset(v, 0, (size_t)N * sizeof *v);
+            int it = 0;
+            const int ok = tc_solve_dv(c, v, v0, b, 1e-3, &it);
+            CHECK(!ok && it == caps[ci], "%s: %d iterations (cap %d), %s", tc_simd_name(l), it, caps[ci],
+                  ok ? "converged" : "not converged");
+            if (l == TC_SIMD_SCALAR) {
+                memcpy(ref, v, (size_t)N * sizeof *v);
+                for (int k = 0; k < N; k++) vs = fmax(vs, fabs(v[k]));
+                continue;
+            }
+            double worst = 0.0;
+            for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - ref[k]));
+            CHECK(vs > 0 && worst <= 1e-12 * vs, "%s after %d CG iterations: off the scalar kernel by %.3g of %.3g",
+                  tc_simd_name(l), caps[ci], worst, vs);
+            if (ci == 3) printf("%s after %d CG iterations: off the scalar kernel by %.3g of %.3g\n", tc_simd_name(l), caps[ci], worst, vs);
+        }
+    }
+    tc_simd_select(level);
+    free(b); free(v0); free(v); free(ref); free(V); free(T);
+    tc_cloth_destroy(c);
+}
+
+
 int main(void)
 {
     printf("kernel %s\n", tc_simd_name(tc_simd_level()));  /* TEARCLOTH_SIMD, or the CPU's best */
@@ -696,6 +764,7 @@ int main(void)
     test_contacts_and_arrays();
     test_solver();
     test_solve_against_direct();
+    test_cg_iterations_agree_across_kernels();
     test_amg();
     test_fragment_removal();
     test_fragment_removal_keeps_pairs_ordered();
