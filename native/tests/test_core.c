@@ -667,6 +667,163 @@ static void test_fragment_removal_keeps_pairs_ordered(void)
         free(V); free(T);
     }
 }
+/* Dense Gaussian elimination with partial pivoting: x = A^-1 b (A n x n, overwritten). */
+static int dense_solve(double *A, double *b, int n)
+{
+    for (int k = 0; k < n; k++) {
+        int piv = k;
+        for (int i = k + 1; i < n; i++) if (fabs(A[i * n + k]) > fabs(A[piv * n + k])) piv = i;
+        if (!(fabs(A[piv * n + k]) > 0)) return -1;
+        if (piv != k) {
+            for (int j = 0; j < n; j++) { double t = A[k * n + j]; A[k * n + j] = A[piv * n + j]; A[piv * n + j] = t; }
+            double t = b[k]; b[k] = b[piv]; b[piv] = t;
+        }
+        for (int i = k + 1; i < n; i++) {
+            const double l = A[i * n + k] / A[k * n + k];
+            for (int j = k; j < n; j++) A[i * n + j] -= l * A[k * n + j];
+            b[i] -= l * b[k];
+        }
+    }
+    for (int k = n - 1; k >= 0; k--) {
+        double s = b[k];
+        for (int j = k + 1; j < n; j++) s -= A[k * n + j] * b[j];
+        b[k] = s / A[k * n + k];
+    }
+    return 0;
+}
+
+/* The block-Jacobi PCG (solver.c, each kernel's preconditioning pass) against a direct solve of the same
+ * system: the matrix of the last sub-step read column by column through the product, the pinned
+ * vertices' rows and columns eliminated (the filter keeps them at their prescribed zero), then a
+ * cloth with no constraint (its translation correction included). Every kernel; a tolerance tight
+ * enough that the iterative answer must equal the direct one to 1e-7 of its size. */
+static void test_solve_against_direct(void)
+{
+    for (int pinned = 1; pinned >= 0; pinned--) {
+        double *V; int32_t *T, n, m;
+        grid(7, 4, 0.06, 0.03, &V, &T, &n, &m);
+        char msg[512];
+        tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+        if (!c) { CHECK(0, "create: %s", msg); free(V); free(T); return; }
+        if (pinned) { const int32_t pins[4] = {0, 1, 2, 3}; tc_cloth_pin(c, pins, 4, 1); }
+        tc_solver_settings s = tc_cloth_solver(c);
+        s.preconditioner = TC_PRECOND_JACOBI;
+        s.cg_tolerance = 1e-12;
+        s.cg_max_iterations = 5000;
+        CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
+        CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+        const int N = 3 * n;
+        double *A = calloc((size_t)N * N, sizeof *A), *e = calloc((size_t)N, sizeof *e), *col = malloc((size_t)N * sizeof *col);
+        double *b = malloc((size_t)N * sizeof *b), *v = calloc((size_t)N, sizeof *v), *v0 = calloc((size_t)N, sizeof *v0);
+        double *x = malloc((size_t)N * sizeof *x);
+        for (int k = 0; k < N; k++) {
+            e[k] = 1.0;
+            tc_cloth_product(c, e, n, col);
+            e[k] = 0.0;
+            for (int i = 0; i < N; i++) A[i * N + k] = col[i];
+        }
+        for (int k = 0; k < N; k++) b[k] = 1e-4 * sin(0.7 * k + 0.3) + (k % 3 == 2 ? -2e-4 : 0.0);
+        /* the reduced system: pinned components are 0 (sfix of a pin), so their columns drop out */
+        const int8_t *fl = tc_vec_ptr(&c->vflag);
+        int nf = 0, *map = malloc((size_t)N * sizeof *map);
+        for (int k = 0; k < N; k++) if (fl[k / 3] == VC_FREE) map[nf++] = k;
+        CHECK(nf == (pinned ? N - 12 : N), "free components %d of %d", nf, N);
+        double *Ar = malloc((size_t)nf * nf * sizeof *Ar), *br = malloc((size_t)nf * sizeof *br);
+        for (int i = 0; i < nf; i++) {
+            br[i] = b[map[i]];
+            for (int j = 0; j < nf; j++) Ar[i * nf + j] = A[map[i] * N + map[j]];
+        }
+        CHECK(dense_solve(Ar, br, nf) == 0, "direct solve");
+        memset(x, 0, (size_t)N * sizeof *x);
+        for (int i = 0; i < nf; i++) x[map[i]] = br[i];
+        double xs = 0.0;
+        for (int k = 0; k < N; k++) xs = fmax(xs, fabs(x[k]));
+        const int level = tc_simd_level();
+        for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_LAST; l++) {
+            if (tc_simd_select(l) < 0) continue;
+            memset(v, 0, (size_t)N * sizeof *v);
+            int it = 0;
+            const int ok = tc_solve_dv(c, v, v0, b, 1e-3, &it);
+            double worst = 0.0;
+            for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - x[k]));
+            CHECK(ok && it > 0 && worst <= 1e-7 * xs, "%s, %s: CG off the direct solve by %.3g of %.3g (%d iterations, %s)",
+                  pinned ? "pinned" : "free", tc_simd_name(l), worst, xs, it, ok ? "converged" : "not converged");
+            if (l == level) printf("solve vs direct (%s): %d iterations, off by %.3g of %.3g\n", pinned ? "pinned" : "free", it, worst, xs);
+        }
+        tc_simd_select(level);
+        free(A); free(e); free(col); free(b); free(v); free(v0); free(x); free(map); free(Ar); free(br); free(V); free(T);
+        tc_cloth_destroy(c);
+    }
+}
+
+
+/* A few CG iterations of each kernel against the scalar one's: the product (its p.Ap) and the
+ * fused update / preconditioning pass (its r.z, r.r and z, each kernel's own pass) are the same
+ * arithmetic up to rounding, so the iterates after 1, 2, 3 and 10 iterations (stopped at the cap,
+ * counted as not converged) must agree to 1e-12 of their size: a kernel that read a wrong entry
+ * or a neighbour's lane is off by far more at the first or second iteration. An odd vertex count exercises the last-vertex and odd-row paths. */
+static void test_cg_iterations_agree_across_kernels(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(7, 5, 0.06, 0.04, &V, &T, &n, &m);
+    for (int32_t i = 0; i < n; i++) V[3 * i + 2] = 0.002 * sin(3.0 * V[3 * i] + 40.0 * V[3 * i + 1]);  /* not flat */
+    char msg[512];
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    if (!c) { CHECK(0, "create: %s", msg); free(V); free(T); return; }
+    const int32_t pins[3] = {0, 1, 2};
+    tc_cloth_pin(c, pins, 3, 1);
+    tc_solver_settings s = tc_cloth_solver(c);
+    s.preconditioner = TC_PRECOND_JACOBI;
+    CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
+    for (int k = 0; k < 5; k++) CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+    /* the assembled diagonal blocks are symmetric up to the assembly's rounding (w x r_i x r_l is
+       evaluated in either order on the two sides), so tc_precondition_build's symmetrising them (for
+       the AVX2 pass, which reads the inverse's rows as its columns) is a rounding-level change of
+       the preconditioner, not a different one */
+    const double *Dg = tc_vec_ptr(&c->diag);
+    double asym = 0.0;
+    for (int32_t i = 0; i < n; i++) {
+        const double *d = Dg + 12 * (size_t)i;
+        const double scale = fmax(fabs(d[0]), fmax(fabs(d[5]), fabs(d[10])));
+        asym = fmax(asym, fmax(fabs(d[4] - d[1]), fmax(fabs(d[8] - d[2]), fabs(d[9] - d[6]))) / scale);
+    }
+    CHECK(asym <= 1e-14, "diagonal blocks asymmetric by %.3g of their diagonal", asym);
+    printf("diagonal blocks symmetric to %.3g of their diagonal\n", asym);
+    const int N = 3 * n, caps[4] = {1, 2, 3, 10};
+    double *b = malloc((size_t)N * sizeof *b), *v0 = calloc((size_t)N, sizeof *v0);
+    double *v = malloc((size_t)N * sizeof *v), *ref = malloc((size_t)N * sizeof *ref);
+    for (int k = 0; k < N; k++) b[k] = 1e-4 * sin(0.7 * k + 0.3) + (k % 3 == 2 ? -2e-4 : 0.0);
+    const int level = tc_simd_level();
+    for (int ci = 0; ci < 4; ci++) {
+        tc_solver_settings t = s;
+        t.cg_tolerance = 1e-14;
+        t.cg_max_iterations = caps[ci];
+        CHECK(tc_cloth_set_solver(c, &t) == TC_OK, "solver settings: %s", tc_cloth_error(c));
+        double vs = 0.0;
+        for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_LAST; l++) {
+            if (tc_simd_select(l) < 0) continue;
+            memset(v, 0, (size_t)N * sizeof *v);
+            int it = 0;
+            const int ok = tc_solve_dv(c, v, v0, b, 1e-3, &it);
+            CHECK(!ok && it == caps[ci], "%s: %d iterations (cap %d), %s", tc_simd_name(l), it, caps[ci],
+                  ok ? "converged" : "not converged");
+            if (l == TC_SIMD_SCALAR) {
+                memcpy(ref, v, (size_t)N * sizeof *v);
+                for (int k = 0; k < N; k++) vs = fmax(vs, fabs(v[k]));
+                continue;
+            }
+            double worst = 0.0;
+            for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - ref[k]));
+            CHECK(vs > 0 && worst <= 1e-12 * vs, "%s after %d CG iterations: off the scalar kernel by %.3g of %.3g",
+                  tc_simd_name(l), caps[ci], worst, vs);
+            if (ci == 3) printf("%s after %d CG iterations: off the scalar kernel by %.3g of %.3g\n", tc_simd_name(l), caps[ci], worst, vs);
+        }
+    }
+    tc_simd_select(level);
+    free(b); free(v0); free(v); free(ref); free(V); free(T);
+    tc_cloth_destroy(c);
+}
+
 
 static double max_position_diff(tc_cloth *a, tc_cloth *b)
 {
@@ -759,6 +916,8 @@ int main(void)
     test_strip_and_tear();
     test_contacts_and_arrays();
     test_solver();
+    test_solve_against_direct();
+    test_cg_iterations_agree_across_kernels();
     test_amg();
     test_fragment_removal();
     test_fragment_removal_keeps_pairs_ordered();
