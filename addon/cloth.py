@@ -333,7 +333,13 @@ class Cloth:
         steps, tears_started, cuts, contacts, vertices, triangles. Tiny fragments (so far):
         fragments_removed, fragment_triangles_removed, fragment_vertices_removed, and
         fragments_kept (below min_fragment_area but hanging on the rest by a vertex), amg_bytes
-        (bytes the multigrid hierarchy holds, 0 with block Jacobi)."""
+        (bytes the multigrid hierarchy holds, 0 with block Jacobi). Contacts (so far):
+        contact_directions_merged (directions of a vertex's contact normals left free because two
+        of its contacts were nearly parallel or opposite, a squeeze: they share the others),
+        contact_speed_clamps (vertex contact solves bounded to the speed their contacts ask),
+        friction_slips (held vertices whose static friction would have exceeded mu times the
+        normal reaction: they slid), friction_cone_exceeded (held vertices still outside the
+        Coulomb cone after the sub-step's last re-solve, left held)."""
         return self._c.stats()
 
     def energy(self) -> dict:

@@ -37,14 +37,25 @@
 /* ---- constraints (constraints.c) ---- */
 /* A contact normal is accepted when its length is within this of 1 (then renormalised). (1) */
 #define TC_UNIT_NORMAL_TOLERANCE 1e-3
-/* A new contact normal adds a direction to a vertex's contact basis only when its part orthogonal
- * to the directions already there is at least this long; a smaller part (a vertex squeezed between
- * two nearly parallel layers) would make an ill-conditioned basis, so it shares the speed of the
- * closest existing direction instead. (1, |n| = 1) */
-#define TC_CONTACT_NEW_DIRECTION 0.25
-/* Share of the disagreement moved when two contacts prescribe different speeds along one
- * direction: halfway, so neither layer wins. (1) */
-#define TC_CONTACT_SHARE 0.5
+/* A direction of a vertex's contact basis is kept when the sum of its contacts' normals' outer
+ * products, M = sum n n^T, has at least this eigenvalue along it; a smaller one (two normals within
+ * ~26 degrees of parallel, or of opposite: 1 - |n1 . n2| < 0.1) would prescribe a speed up to
+ * 1/sqrt(lambda) > 3 times what the contacts ask, so it is left free and the contacts share the
+ * directions that are kept (constraints.c, contact_solve). (1, |n| = 1) */
+#define TC_CONTACT_MIN_EIGEN 0.1
+/* An eigenvalue of M below this is numerically zero (duplicate or exactly parallel normals):
+ * leaving it free is no compromise and is not counted in tc_stats.contact_directions_merged. (1) */
+#define TC_CONTACT_SAME_DIRECTION 1e-9
+
+/* A contact is released when its reaction pulls by more than this fraction of the vertex's
+ * momentum terms (|J_i| + |b_i| + m_i (|surface velocity| + contact_max_push)): less is rounding
+ * of a zero reaction. (1) */
+#define TC_RELEASE_ROUNDING 1e-9
+/* Solves of one sub-step that turn held contact vertices whose static friction is exceeded into
+ * sliding ones (and release pulling contacts): the load moves on to the next held row of a stiff
+ * cloth each round. A vertex still outside its cone after them stays held, counted in
+ * tc_stats.friction_cone_exceeded. (solves) */
+#define TC_CONTACT_ROUNDS 8
 
 /* ---- linear solver (solver.c) ---- */
 /* A 3x3 diagonal block with |det| below this is singular (cannot happen with positive masses):

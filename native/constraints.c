@@ -7,9 +7,11 @@
  * its normal to the touched surface's (inelastic), and a vertex touching several things keeps an
  * orthonormal basis of their normals (snorm, scount). The solver then works on the manifold
  * {v_i = S_i v_i + z_i}: tc_constraint_filter applies S, tc_constraint_project puts a vector on
- * the manifold. After the solve, contacts whose reaction pulls (adhesion) are released, friction
- * caps the tangential velocity change at mu times the normal impulse, and the bounded extra
- * normal speed used to recover a penetration is taken back out of the velocity (no bounce).
+ * the manifold. A contact vertex with friction starts each sub-step held (tangentially too); after
+ * the solve, held vertices whose reaction leaves the Coulomb cone slide (kinetic friction joins
+ * the right-hand side) and contacts whose reaction pulls (adhesion) are released, then the step is
+ * solved again; the bounded extra normal speed used to recover a penetration is taken back out of
+ * the velocity (no bounce).
  */
 #include "core.h"
 
@@ -211,61 +213,175 @@ void tc_constraint_filter(const tc_cloth *c, double *r)
     }
 }
 
-/* Per vertex, an orthonormal basis of its active contact normals with the normal velocity each
- * one prescribes (inelastic: the touched surface's). A vertex may touch several things at once -
- * a body and another layer of cloth over it - and must respect all of them: keeping only the
- * deepest let the layers push each other through the body in turn, which pumped energy. Normals
- * that add no new direction (a vertex squeezed between two layers) share the prescribed speed. */
+/* Eigen-decomposition of the symmetric 3x3 A (cyclic Jacobi): A = E diag(l) E^T, the columns of E
+ * (E[3 * row + col]) orthonormal. A holds sums of unit normals' outer products (entries <= the
+ * number of contacts), so a fixed sweep count reaches double precision. */
+static void sym3_eigen(double A[9], double l[3], double E[9])
+{
+    static const double I3[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+    memcpy(E, I3, sizeof I3);
+    for (int sweep = 0; sweep < 16; sweep++) {
+        double off = A[1] * A[1] + A[2] * A[2] + A[5] * A[5];
+        double tr = A[0] * A[0] + A[4] * A[4] + A[8] * A[8];
+        if (!(off > 1e-30 * tr)) break;
+        for (int p = 0; p < 2; p++)
+            for (int q = p + 1; q < 3; q++) {
+                double apq = A[3 * p + q];
+                if (apq == 0.0) continue;
+                double th = (A[3 * q + q] - A[3 * p + p]) / (2.0 * apq);
+                double t = (th >= 0 ? 1.0 : -1.0) / (fabs(th) + sqrt(th * th + 1.0));
+                double cs = 1.0 / sqrt(t * t + 1.0), sn = t * cs;
+                for (int k = 0; k < 3; k++) {  /* A <- A G (columns p, q) */
+                    double akp = A[3 * k + p], akq = A[3 * k + q];
+                    A[3 * k + p] = cs * akp - sn * akq; A[3 * k + q] = sn * akp + cs * akq;
+                }
+                for (int k = 0; k < 3; k++) {  /* A <- G^T A (rows p, q) */
+                    double apk = A[3 * p + k], aqk = A[3 * q + k];
+                    A[3 * p + k] = cs * apk - sn * aqk; A[3 * q + k] = sn * apk + cs * aqk;
+                }
+                for (int k = 0; k < 3; k++) {
+                    double ekp = E[3 * k + p], ekq = E[3 * k + q];
+                    E[3 * k + p] = cs * ekp - sn * ekq; E[3 * k + q] = sn * ekp + cs * ekq;
+                }
+            }
+    }
+    l[0] = A[0]; l[1] = A[4]; l[2] = A[8];
+}
+
+/* One vertex's contacts, summed as M = sum n_k n_k^T, r = sum z_k n_k and zz = sum z_k^2, become
+ * its basis (cnt orthonormal directions in N) and prescribed velocity fix: the least-squares
+ * velocity min sum (n_k . f - z_k)^2 over the directions M resolves, no faster than |z| = sqrt(zz).
+ * Contacts are inequalities v . n_k >= z_k that the release step turns into an active set; two of
+ * them with near-opposite normals (a vertex squeezed between two layers, or a layer and the body)
+ * or near-parallel ones leave M an eigenvalue near 0 along their bisector (opposite) or their
+ * difference (parallel). Prescribing that direction too (as Gram-Schmidt did) satisfied both
+ * equalities with a sideways speed of up to |z| / sqrt(lambda): metres per second that flung torn
+ * slivers and pumped energy into the walking shirt until it blew up. Such a direction is left free
+ * instead (the vertex slides between the layers, as squeezed cloth does), and the resolved ones
+ * take the compromise of what the contacts ask (their mean when they disagree). stick (non-NULL:
+ * the surface velocity of a vertex held by static friction) fixes the remaining, tangential
+ * directions to its components; they follow the normal ones in N. Returns 1 when the speed bound
+ * was applied; *merged gets the directions left free. */
+static int contact_solve(const double *acc, double zz, const double *stick, double *N, double *fix, int8_t *cnt,
+                         int *merged)
+{
+    double A[9] = {acc[0], acc[1], acc[2], acc[1], acc[3], acc[4], acc[2], acc[4], acc[5]};
+    const double *r = acc + 6;
+    double l[3], E[9], g[3], lam[3], dir[3][3];
+    sym3_eigen(A, l, E);
+    int m = 0;
+    *merged = 0;
+    for (int j = 0; j < 3; j++) {
+        if (!(l[j] >= TC_CONTACT_MIN_EIGEN)) {
+            if (l[j] > TC_CONTACT_SAME_DIRECTION) (*merged)++;  /* not a duplicate normal: counted */
+            continue;
+        }
+        for (int q = 0; q < 3; q++) dir[m][q] = E[3 * q + j];
+        g[m] = dot3(r, dir[m]);
+        lam[m] = l[j];
+        m++;
+    }
+    /* the least-squares speeds g / lambda, or if they exceed the bound the trust-region solution
+       g / (lambda + mu) with |f(mu)| = bound (|f| falls monotonically in mu; bisection on a
+       bracket [0, |g| / bound] where |f| <= |g| / mu <= bound) */
+    double bound = sqrt(zz), f2 = 0.0, gg = 0.0, mu = 0.0;
+    for (int j = 0; j < m; j++) { f2 += g[j] * g[j] / (lam[j] * lam[j]); gg += g[j] * g[j]; }
+    int clamped = 0;
+    if (f2 > bound * bound * (1.0 + 1e-12)) {
+        clamped = 1;
+        double lo = 0.0, hi = sqrt(gg) / (bound > 0 ? bound : TC_TINY);
+        for (int it = 0; it < 60; it++) {
+            mu = 0.5 * (lo + hi);
+            double s = 0.0;
+            for (int j = 0; j < m; j++) s += g[j] * g[j] / ((lam[j] + mu) * (lam[j] + mu));
+            if (s > bound * bound) lo = mu; else hi = mu;
+        }
+        mu = hi;  /* the side of the bracket within the bound */
+    }
+    fix[0] = fix[1] = fix[2] = 0.0;
+    for (int j = 0; j < m; j++) {
+        double s = g[j] / (lam[j] + mu);
+        memcpy(N + 3 * j, dir[j], 3 * sizeof(double));
+        for (int q = 0; q < 3; q++) fix[q] += s * dir[j][q];
+    }
+    /* static friction: the tangential directions too, at the touched surface's velocity; the
+       reaction that holding takes is checked against the Coulomb cone after the solve */
+    if (stick) {
+        for (int j = 0; j < 3; j++) {
+            if (l[j] >= TC_CONTACT_MIN_EIGEN) continue;
+            double *e = N + 3 * m;
+            for (int q = 0; q < 3; q++) e[q] = E[3 * q + j];
+            double s = dot3(stick, e);
+            for (int q = 0; q < 3; q++) fix[q] += s * e[q];
+            m++;
+        }
+    }
+    *cnt = (int8_t)m;
+    return clamped;
+}
+
+/* Per vertex, an orthonormal basis of its active contact normals with the normal velocity they
+ * prescribe (inelastic: the touched surface's). A vertex may touch several things at once - a body
+ * and another layer of cloth over it - and must respect all of them: keeping only the deepest let
+ * the layers push each other through the body in turn, which pumped energy. contact_solve turns
+ * each vertex's contacts into its basis and speed, whatever their order. */
 void tc_contact_basis(tc_cloth *c, double dt)
 {
     int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
     double *fix = tc_vec_ptr(&c->sfix), *N = tc_vec_ptr(&c->snorm);
     const int32_t nc = (int32_t)c->cvert.len;
     const int32_t *cv = tc_vec_ptr(&c->cvert);
-    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel);
+    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel), *cd = tc_vec_ptr(&c->cdepth);
     const int8_t *act = tc_vec_ptr(&c->cactive);
+    const double *cf = tc_vec_ptr(&c->cfric);
+    double *sv = tc_vec_ptr(&c->sp);  /* solver scratch, free between solves: summed surface velocity */
+    /* 1: the touched vertices start free, with their sums zero until pass 3 replaces them by the
+       basis: snorm holds M's six entries and r, sfix zz, the largest friction coefficient (-1: a
+       contact slides) and the number of contacts, sp their summed surface velocity */
     for (int32_t k = 0; k < nc; k++) {
         int32_t i = cv[k];
-        if (fl[i] != VC_FREE) continue;  /* pins and handles keep their prescribed velocity */
+        if (fl[i] != VC_FREE && fl[i] != VC_CONTACT) continue;  /* pins and handles keep their prescribed velocity */
+        fl[i] = VC_FREE;  /* a rebuild after a release or a slip: free unless a contact stays active */
         cnt[i] = 0;
         fix[3 * i] = fix[3 * i + 1] = fix[3 * i + 2] = 0.0;
+        sv[3 * i] = sv[3 * i + 1] = sv[3 * i + 2] = 0.0;
+        memset(N + 9 * i, 0, 9 * sizeof(double));
     }
+    /* 2: sums of the active contacts; cnt = -1 marks a vertex whose basis is still to be solved */
     for (int32_t k = 0; k < nc; k++) {
         if (!act[k]) continue;
         int32_t i = cv[k];
         if (fl[i] != VC_FREE && fl[i] != VC_CONTACT) continue;
         fl[i] = VC_CONTACT;
+        cnt[i] = -1;
         const double *n = cn + 3 * k;
         /* the touched surface's normal speed, plus a bounded share of the depth per step: the
            penetration is recovered through the solve, so the membrane around the vertex follows
            consistently (moving only the vertex's position stretched its stiff neighbourhood and
            flung it at metres per second) */
-        double push = c->solver.contact_correction * ((const double *)tc_vec_ptr(&c->cdepth))[k] / dt;
+        double push = c->solver.contact_correction * cd[k] / dt;
         if (push > c->solver.contact_max_push) push = c->solver.contact_max_push;
         double z = dot3(cvel + 3 * k, n) + push;
-        double u[3] = {n[0], n[1], n[2]};
-        int best = -1;
-        double bestd = 0.0;
-        for (int j = 0; j < cnt[i]; j++) {
-            const double *e = N + 9 * i + 3 * j;
-            double d = dot3(n, e);
-            u[0] -= d * e[0]; u[1] -= d * e[1]; u[2] -= d * e[2];
-            if (fabs(d) > fabs(bestd)) { bestd = d; best = j; }
-        }
-        double lu = sqrt(dot3(u, u));
-        if (lu > TC_CONTACT_NEW_DIRECTION && cnt[i] < 3) {
-            double e[3] = {u[0] / lu, u[1] / lu, u[2] / lu};
-            double zf = z - dot3(fix + 3 * i, n);  /* what the earlier components leave to do */
-            double ze = zf / lu;
-            memcpy(N + 9 * i + 3 * cnt[i], e, sizeof e);
-            cnt[i]++;
-            for (int q = 0; q < 3; q++) fix[3 * i + q] += ze * e[q];
-        } else if (best >= 0) {
-            const double *e = N + 9 * i + 3 * best;
-            double cur = dot3(fix + 3 * i, e), want = z / bestd;
-            double delta = TC_CONTACT_SHARE * (want - cur);
-            for (int q = 0; q < 3; q++) fix[3 * i + q] += delta * e[q];
-        }
+        double *a = N + 9 * i;
+        a[0] += n[0] * n[0]; a[1] += n[0] * n[1]; a[2] += n[0] * n[2];
+        a[3] += n[1] * n[1]; a[4] += n[1] * n[2]; a[5] += n[2] * n[2];
+        a[6] += z * n[0]; a[7] += z * n[1]; a[8] += z * n[2];
+        fix[3 * i] += z * z;
+        if (fix[3 * i + 1] >= 0.0) fix[3 * i + 1] = act[k] == TC_CONTACT_SLIDING ? -1.0 : fmax(fix[3 * i + 1], cf[k]);
+        fix[3 * i + 2] += 1.0;
+        for (int q = 0; q < 3; q++) sv[3 * i + q] += cvel[3 * k + q];
+    }
+    /* 3: each pending vertex's basis and speed */
+    for (int32_t k = 0; k < nc; k++) {
+        int32_t i = cv[k];
+        if (fl[i] != VC_CONTACT || cnt[i] != -1) continue;
+        double acc[9], stick[3];
+        memcpy(acc, N + 9 * i, sizeof acc);
+        for (int q = 0; q < 3; q++) stick[q] = sv[3 * i + q] / fix[3 * i + 2];  /* the mean surface velocity */
+        int merged;
+        c->stats.contact_speed_clamps += contact_solve(acc, fix[3 * i], fix[3 * i + 1] > 0.0 ? stick : NULL,
+                                                       N + 9 * i, fix + 3 * i, cnt + i, &merged);
+        c->stats.contact_directions_merged += merged;
     }
 }
 
@@ -346,7 +462,7 @@ int tc_contacts_release(tc_cloth *c, const double *J, const double *b)
 {
     const int32_t nc = (int32_t)c->cvert.len;
     const int32_t *cv = tc_vec_ptr(&c->cvert);
-    const double *cn = tc_vec_ptr(&c->cnormal);
+    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel), *m = tc_vec_ptr(&c->mass);
     int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive);
     int released = 0;
     for (int32_t k = 0; k < nc; k++) {
@@ -354,41 +470,94 @@ int tc_contacts_release(tc_cloth *c, const double *J, const double *b)
         if (fl[i] != VC_CONTACT) continue;
         double jn = 0.0;
         for (int q = 0; q < 3; q++) jn += (J[3 * i + q] - b[3 * i + q]) * cn[3 * k + q];
-        if (jn < 0.0) { act[k] = 0; released++; }
+        /* pulling means more than rounding: a vertex squeezed to rest between two contacts that
+           ask the same (contact_solve's compromise) has a zero reaction, and releasing one on its
+           rounding noise let the other push it through */
+        double scale = sqrt(dot3(J + 3 * i, J + 3 * i)) + sqrt(dot3(b + 3 * i, b + 3 * i)) +
+                       m[i] * (sqrt(dot3(cvel + 3 * k, cvel + 3 * k)) + c->solver.contact_max_push);
+        if (jn < -TC_RELEASE_ROUNDING * scale) { act[k] = 0; released++; }
     }
     if (released)  /* every contact vertex is free again until tc_contact_basis rebuilds the basis */
         for (int32_t k = 0; k < nc; k++) if (fl[cv[k]] == VC_CONTACT) fl[cv[k]] = VC_FREE;
     return released;
 }
 
-/* Coulomb friction on the active contacts: the tangential velocity relative to the surface loses
- * at most mu times the normal impulse (per unit mass). Returns the number of active contacts. */
-int32_t tc_contacts_friction(tc_cloth *c, double *v, const double *J, const double *b)
+/* Coulomb friction. A contact vertex with friction starts the sub-step held (tc_contact_basis:
+ * all three directions fixed, tangentially at the surface's velocity); the solve then gives the
+ * reaction impulse R = J - b that holding it took, stiffness and neighbours included. Where the
+ * tangential part exceeds mu times the normal part, the vertex slides instead: its contacts are
+ * marked sliding (normal directions only) and the kinetic friction impulse, R_t scaled onto the
+ * cone, joins b for the re-solve. Judging the friction by the velocity left after a solve (its
+ * tangential part lost at most mu jn / m) let it hold any load: an implicit step leaves a stiff,
+ * light vertex little velocity to remove whatever pulls on it, so the shirt stuck to the walking
+ * body and was dragged until it tore (112 N of tangential pull against 9.5 N of normal reaction
+ * on one shoulder vertex). apply = 0 only counts the held vertices outside their cone (after the
+ * last solve of a sub-step). Returns the number of vertices newly sliding (apply) or outside. */
+int tc_contacts_slip(tc_cloth *c, const double *J, double *b, int apply)
 {
     const int32_t nc = (int32_t)c->cvert.len;
     const int32_t *cv = tc_vec_ptr(&c->cvert);
-    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel), *cf = tc_vec_ptr(&c->cfric);
-    const double *m = tc_vec_ptr(&c->mass);
-    const int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive);
-    int32_t active = 0;
+    const double *cn = tc_vec_ptr(&c->cnormal), *cf = tc_vec_ptr(&c->cfric), *N = tc_vec_ptr(&c->snorm);
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    int8_t *act = tc_vec_ptr(&c->cactive);
+    /* solver scratch, free between solves: per vertex the weight of its basis directions on its
+       contact normals (w, M's eigenvalues: normal or tangential), and (st) its largest friction
+       coefficient and its state: 0 to judge, 1 judged, 2 sliding from now, -1 not held */
+    double *w = tc_vec_ptr(&c->sp), *st = tc_vec_ptr(&c->sr);
+    for (int32_t k = 0; k < nc; k++) {
+        int32_t i = cv[k];
+        if (fl[i] != VC_CONTACT) continue;
+        w[3 * i] = w[3 * i + 1] = w[3 * i + 2] = 0.0;
+        st[3 * i] = 0.0; st[3 * i + 1] = cnt[i] == 3 ? 0.0 : -1.0;
+    }
     for (int32_t k = 0; k < nc; k++) {
         int32_t i = cv[k];
         if (fl[i] != VC_CONTACT || !act[k]) continue;
-        active++;
-        if (cf[k] <= 0.0) continue;
-        double *vi = v + 3 * i;
-        const double *nn = cn + 3 * k, *vs = cvel + 3 * k;
-        double jn = 0.0;
-        for (int q = 0; q < 3; q++) jn += (J[3 * i + q] - b[3 * i + q]) * nn[q];
-        if (!(jn > 0.0)) continue;  /* no push, no friction (and a negative cap would accelerate) */
-        double rel[3] = {vi[0] - vs[0], vi[1] - vs[1], vi[2] - vs[2]};
-        double rn = dot3(rel, nn);
-        double vt[3] = {rel[0] - rn * nn[0], rel[1] - rn * nn[1], rel[2] - rn * nn[2]};
-        double lt = sqrt(dot3(vt, vt));
-        double cap = cf[k] * jn / m[i];  /* Coulomb: tangential impulse <= mu * normal impulse */
-        double s = lt > cap ? cap / lt : 1.0;
-        for (int q = 0; q < 3; q++) vi[q] -= s * vt[q];
+        if (act[k] == TC_CONTACT_SLIDING) st[3 * i + 1] = -1.0;
+        st[3 * i] = fmax(st[3 * i], cf[k]);
+        for (int j = 0; j < cnt[i]; j++) {
+            double d = dot3(cn + 3 * k, N + 9 * i + 3 * j);
+            w[3 * i + j] += d * d;
+        }
     }
+    int count = 0;
+    for (int32_t k = 0; k < nc; k++) {
+        int32_t i = cv[k];
+        if (fl[i] != VC_CONTACT || !act[k] || st[3 * i + 1] != 0.0) continue;
+        st[3 * i + 1] = 1.0;  /* judged once, whatever order its contacts come in */
+        double mu = st[3 * i];
+        if (!(mu > 0.0)) continue;  /* cannot happen: a held vertex has friction */
+        double R[3], Rn[3] = {0, 0, 0};
+        for (int q = 0; q < 3; q++) R[q] = J[3 * i + q] - b[3 * i + q];
+        for (int j = 0; j < 3; j++) {
+            if (w[3 * i + j] < TC_CONTACT_MIN_EIGEN) continue;  /* a tangential direction */
+            const double *e = N + 9 * i + 3 * j;
+            double d = dot3(R, e);
+            for (int q = 0; q < 3; q++) Rn[q] += d * e[q];
+        }
+        double Rt[3] = {R[0] - Rn[0], R[1] - Rn[1], R[2] - Rn[2]};
+        double ln = sqrt(dot3(Rn, Rn)), lt = sqrt(dot3(Rt, Rt));
+        if (lt <= mu * ln) continue;  /* static friction holds it */
+        count++;
+        if (!apply) continue;
+        double s = mu * ln / lt;  /* kinetic friction: the part of the holding impulse the cone allows */
+        for (int q = 0; q < 3; q++) b[3 * i + q] += s * Rt[q];
+        st[3 * i + 1] = 2.0;
+    }
+    if (apply && count)
+        for (int32_t k = 0; k < nc; k++)
+            if (fl[cv[k]] == VC_CONTACT && act[k] && st[3 * cv[k] + 1] == 2.0) act[k] = TC_CONTACT_SLIDING;
+    return count;
+}
+
+/* Active contacts (held or sliding) of vertices still in contact. */
+int32_t tc_contacts_active(const tc_cloth *c)
+{
+    const int32_t nc = (int32_t)c->cvert.len;
+    const int32_t *cv = tc_vec_ptr(&c->cvert);
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive);
+    int32_t active = 0;
+    for (int32_t k = 0; k < nc; k++) active += fl[cv[k]] == VC_CONTACT && act[k];
     return active;
 }
 

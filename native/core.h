@@ -67,6 +67,9 @@ int tc_vec_push_f64(tc_vec *v, double x);
 /* ---------------- the cloth ---------------- */
 
 enum { VC_FREE = 0, VC_PINNED = 1, VC_HANDLE = 2, VC_CONTACT = 3 };
+/* cactive of a contact: 0 released this sub-step, 1 active (its vertex may be held by static
+ * friction), TC_CONTACT_SLIDING active with its vertex sliding (tc_contacts_slip) */
+enum { TC_CONTACT_SLIDING = 2 };
 
 typedef struct tc_handle {
     bool active;
@@ -291,11 +294,13 @@ int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3
 /* vflag and sfix for one sub-step of length dt ending at fraction alpha of the handles' motion */
 void tc_constraints_begin(tc_cloth *c, double dt, double alpha);
 void tc_contact_basis(tc_cloth *c, double dt);
+void tc_precondition_constraints_changed(tc_cloth *c);  /* solver.c: after a re-built contact basis */
 void tc_constraint_filter(const tc_cloth *c, double *r);             /* r := S r */
 void tc_constraint_project(const tc_cloth *c, double *v, const double *fix);  /* v := S v + fix */
 void tc_constraint_offsets(const tc_cloth *c, const double *v0, double *fix);  /* fix -= (I - S) v0 */
 int tc_contacts_release(tc_cloth *c, const double *J, const double *b);   /* pulling contacts off */
-int32_t tc_contacts_friction(tc_cloth *c, double *v, const double *J, const double *b);
+int tc_contacts_slip(tc_cloth *c, const double *J, double *b, int apply);   /* static friction to sliding */
+int32_t tc_contacts_active(const tc_cloth *c);
 void tc_contacts_take_back_push(const tc_cloth *c, double *v, double dt);
 void tc_handle_forces(tc_cloth *c);
 

@@ -477,7 +477,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:i,s:i,s:i,s:i,s:L}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:i,s:i,s:i,s:i,s:L,s:L,s:L,s:L,s:L}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
@@ -491,7 +491,11 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
                          (long long)s.amg_fallbacks, "fragments_removed",
                          (int)s.fragments_removed, "fragment_triangles_removed", (int)s.fragment_triangles_removed,
                          "fragment_vertices_removed", (int)s.fragment_vertices_removed, "fragments_kept",
-                         (int)s.fragments_kept, "amg_bytes", (long long)s.amg_bytes);
+                         (int)s.fragments_kept, "amg_bytes", (long long)s.amg_bytes,
+                         "contact_directions_merged", (long long)s.contact_directions_merged,
+                         "contact_speed_clamps", (long long)s.contact_speed_clamps,
+                         "friction_slips", (long long)s.friction_slips,
+                         "friction_cone_exceeded", (long long)s.friction_cone_exceeded);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the

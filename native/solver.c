@@ -93,6 +93,18 @@ void tc_precondition_build(tc_cloth *c)
     amg_prepare(c);
 }
 
+/* The constraints changed within a sub-step (contacts released or sliding, step.c): a multigrid
+ * hierarchy built on the old filter S can lose definiteness on the new one (a held vertex, S = 0,
+ * that now slides), so its numbers are refreshed for the re-solve; block Jacobi needs nothing. */
+void tc_precondition_constraints_changed(tc_cloth *c)
+{
+    if (!use_amg(c) || !tc_amg_valid(c->amg, c)) return;
+    const double t0 = tc_now();
+    if (tc_amg_build(c->amg, c, false)) c->stats.amg_fallbacks++;
+    c->amg_fresh_iterations = -1;
+    c->stats.amg_setup_seconds += tc_now() - t0;
+}
+
 static void precondition(const tc_cloth *c, const double *r, double *z)
 {
     const double *P = tc_vec_ptr(&c->pinv);

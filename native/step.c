@@ -82,14 +82,23 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         /* release contacts whose reaction pulls the cloth onto the surface, then friction */
         double *J = tc_vec_ptr(&c->sq);
         tc_matvec(c, v, J);
-        if (tc_contacts_release(c, J, b)) {
+        /* static friction that would need more than mu times the normal reaction slides
+           (kinetic friction joins b); its impulse is tangential, so the release test below
+           reads the same normal reactions */
+        for (int round = 0;; round++) {
+            int last = round == TC_CONTACT_ROUNDS;
+            int slid = tc_contacts_slip(c, J, b, !last);
+            if (last) { c->stats.friction_cone_exceeded += slid; break; }  /* said, left held */
+            c->stats.friction_slips += slid;
+            if (!(tc_contacts_release(c, J, b) + slid)) break;
             tc_contact_basis(c, dt);
+            tc_precondition_constraints_changed(c);
             converged &= tc_solve_dv(c, v, v0, b, dt, &it2);
             it += it2;
             if (c->solve_residual > res) { res = c->solve_residual; resf = c->solve_residual_force; fscale = c->solve_force_scale; }
             tc_matvec(c, v, J);
         }
-        c->stats.contacts = tc_contacts_friction(c, v, J, b);
+        c->stats.contacts = tc_contacts_active(c);
     } else {
         c->stats.contacts = 0;
     }

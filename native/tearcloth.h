@@ -196,6 +196,15 @@ typedef struct tc_stats {
     int32_t fragment_vertices_removed;  /* their vertices, so far */
     int32_t fragments_kept;             /* pieces below the size kept: they share a vertex with the rest */
     int64_t amg_bytes;        /* bytes the multigrid hierarchy holds after its last build or refresh (0: none) */
+    int64_t contact_directions_merged; /* so far: directions of a vertex's contact normals left free
+                                          because two contacts were nearly parallel or opposite (a
+                                          squeeze) and share the others (TC_CONTACT_MIN_EIGEN) */
+    int64_t contact_speed_clamps;      /* so far: vertex contact solves whose least-squares speed
+                                          exceeded |z| (what its contacts ask) and was bounded to it */
+    int64_t friction_slips;            /* so far: held contact vertices whose static friction would have
+                                          needed more than mu times the normal reaction: they slid */
+    int64_t friction_cone_exceeded;    /* so far: held vertices left outside the Coulomb cone by the
+                                          sub-step's re-solve (one re-solve per sub-step) */
 } tc_stats;
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:

@@ -908,6 +908,87 @@ static void test_batches_through_fragment_removal_and_restore(void)
     free(V); free(T);
 }
 
+/* A vertex squeezed between two contacts 157 degrees apart (|n1 x n2| = 0.4) that both push in at
+ * 0.5 m/s: satisfying both exactly needs ~2.4 m/s sideways (what a Gram-Schmidt basis prescribed);
+ * the vertex must stay within what they ask (|z| = 0.71 m/s), at rest along the squeeze axis (they
+ * ask the same), with the merged direction counted. Then a sheet on a 20 degree incline with
+ * mu = 0.2 slides as Coulomb says (held first, then sliding: tc_contacts_slip), and with mu = 0.5
+ * stays. */
+static void test_contact_squeeze_and_friction(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(3, 3, 0.02, 0.02, &V, &T, &n, &m);
+    char msg[512];
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    CHECK(c != NULL, "create: %s", msg);
+    if (!c) { free(V); free(T); return; }
+    tc_solver_settings s = tc_cloth_solver(c);
+    s.gravity[0] = s.gravity[1] = s.gravity[2] = 0.0;
+    CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver: %s", tc_cloth_error(c));
+    const double z = 0.5, l2 = sqrt(1.0 - 0.16);
+    double nrm[6] = {0, 0, 1, 0.4, 0, -l2}, dep[2] = {0, 0};
+    double vel[6] = {0, 0, z, 0.4 * z, 0, -l2 * z};
+    int32_t idx[2] = {4, 4};
+    CHECK(tc_cloth_set_contacts(c, idx, nrm, dep, vel, NULL, 2) == TC_OK, "squeeze contacts");
+    CHECK(tc_cloth_step(c, 1.0 / 240, 1) == TC_OK, "squeeze step: %s", tc_cloth_error(c));
+    size_t rows, cols, item;
+    tc_buf *vb = tc_cloth_array(c, TC_VELOCITIES, &rows, &cols, &item);
+    const double *v = (const double *)tc_buf_data(vb) + 3 * 4;
+    double speed = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    double ax[3] = {-0.4, 0, 1 + l2}, la = sqrt(ax[0] * ax[0] + ax[2] * ax[2]);
+    double along = (v[0] * ax[0] + v[2] * ax[2]) / la;
+    CHECK(speed <= sqrt(2.0) * z + 1e-9, "squeezed vertex within what its contacts ask: %g m/s", speed);
+    CHECK(fabs(along) < 1e-6, "at rest along the squeeze axis: %g m/s", along);
+    tc_buf_decref(vb);
+    tc_stats st = tc_cloth_stats(c);
+    CHECK(st.contact_directions_merged == 1, "merged directions %lld", (long long)st.contact_directions_merged);
+    tc_cloth_destroy(c);
+    free(V); free(T);
+
+    /* the incline: vertices rotated 20 degrees about y, all on the plane through the origin */
+    grid(6, 4, 0.1, 0.05, &V, &T, &n, &m);
+    const double th = 20.0 * 3.14159265358979323846 / 180.0, ct = cos(th), sn = sin(th);
+    for (int i = 0; i < n; i++) { double x = V[3 * i]; V[3 * i] = ct * x; V[3 * i + 2] = -sn * x; }
+    const double mus[2] = {0.2, 0.5};
+    int32_t *ci = malloc((size_t)n * sizeof(int32_t));
+    double *cn = malloc(3 * (size_t)n * sizeof(double)), *cd = calloc((size_t)n, sizeof(double));
+    double *cf = malloc((size_t)n * sizeof(double));
+    for (int t = 0; t < 2; t++) {
+        c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+        CHECK(c != NULL, "create: %s", msg);
+        if (!c) break;
+        s = tc_cloth_solver(c);
+        double g = -s.gravity[2], alpha = tc_cloth_material(c).damping_mass, dt = 1.0 / 240, expect = 0.0;
+        for (int i = 0; i < n; i++) {
+            ci[i] = i; cn[3 * i] = sn; cn[3 * i + 1] = 0; cn[3 * i + 2] = ct; cf[i] = mus[t];
+        }
+        int rc = TC_OK;
+        for (int k = 0; k < 40 && rc == TC_OK; k++) {
+            CHECK(tc_cloth_set_contacts(c, ci, cn, cd, NULL, cf, n) == TC_OK, "incline contacts");
+            rc = tc_cloth_step(c, dt, 1);
+            double a = g * (sn - mus[t] * ct);
+            expect = (expect + (a > 0 ? a : 0.0) * dt) / (1.0 + alpha * dt);  /* implicit Euler, mass damping */
+        }
+        CHECK(rc == TC_OK, "incline step: %s", tc_cloth_error(c));
+        vb = tc_cloth_array(c, TC_VELOCITIES, &rows, &cols, &item);
+        const double *w = tc_buf_data(vb);
+        double lo = 1e9, hi = -1e9;
+        for (int i = 0; i < n; i++) {
+            double d = ct * w[3 * i] - sn * w[3 * i + 2];  /* down the slope */
+            if (d < lo) lo = d;
+            if (d > hi) hi = d;
+        }
+        CHECK(lo > expect - 1e-3 * expect - 1e-6 && hi < expect + 1e-3 * expect + 1e-6,
+              "incline mu %g: down-slope speed in [%g, %g], Coulomb %g", mus[t], lo, hi, expect);
+        tc_buf_decref(vb);
+        st = tc_cloth_stats(c);
+        CHECK(mus[t] < 0.3 ? st.friction_slips > 0 : st.friction_slips == 0, "slips %lld", (long long)st.friction_slips);
+        tc_cloth_destroy(c);
+    }
+    free(ci); free(cn); free(cd); free(cf);
+    free(V); free(T);
+}
+
 int main(void)
 {
     printf("kernel %s\n", tc_simd_name(tc_simd_level()));  /* TEARCLOTH_SIMD, or the CPU's best */
@@ -915,6 +996,7 @@ int main(void)
     test_defaults_pass_their_checks();
     test_strip_and_tear();
     test_contacts_and_arrays();
+    test_contact_squeeze_and_friction();
     test_solver();
     test_solve_against_direct();
     test_cg_iterations_agree_across_kernels();
