@@ -206,6 +206,9 @@ typedef struct tc_stats {
     int64_t friction_cone_exceeded;    /* so far: held vertices left outside the Coulomb cone by the
                                           sub-step's re-solve (one re-solve per sub-step) */
 } tc_stats;
+/* the smallest tc_stats a snapshot may carry: the layout before contact_directions_merged (older
+ * states read with the counters after it at 0; snapshot.c) */
+#define TC_STATS_OLDEST_BYTES ((uint32_t)offsetof(tc_stats, contact_directions_merged))
 tc_stats tc_cloth_stats(const tc_cloth *c);
 /* y = A p (n*3 values each) with the system matrix A of the last sub-step, by the kernel in use:
  * for tests of the kernels and benchmarks of the product. TC_ERR_INPUT when no step has assembled

@@ -85,6 +85,48 @@ static unsigned char *reseal(const unsigned char *blob, size_t size)
     return b;
 }
 
+/* A state written before tc_stats grew its contact and friction counters (the same blob with the
+ * statistics cut at TC_STATS_OLDEST_BYTES, as that build wrote it) resumes with those counters at 0
+ * and everything else as written; statistics larger than this build's, or cut inside a field, are
+ * refused with a message. */
+static void test_snapshot_older_stats(const unsigned char *blob, size_t size)
+{
+    const size_t at = 32 + 7 * 4 + sizeof(tc_material) + sizeof(tc_solver_settings) + sizeof(tc_tear_settings);
+    const size_t full = sizeof(tc_stats), cut = full - TC_STATS_OLDEST_BYTES;
+    char msg[512];
+    unsigned char *old = malloc(size - cut);
+    memcpy(old, blob, at + TC_STATS_OLDEST_BYTES);
+    memcpy(old + at + TC_STATS_OLDEST_BYTES, blob + at + full, size - at - full);
+    uint32_t bytes = TC_STATS_OLDEST_BYTES;
+    memcpy(old + 32 + 3 * 4, &bytes, 4);
+    unsigned char *t = reseal(old, size - cut);
+    tc_cloth *e = tc_cloth_from_snapshot(t, size - cut, msg, sizeof msg);
+    CHECK(e != NULL, "a state with the older statistics is refused: %s", msg);
+    if (e) {
+        tc_stats s = tc_cloth_stats(e), ref;
+        memcpy(&ref, blob + at, sizeof ref);
+        CHECK(s.steps == ref.steps && s.cuts == ref.cuts && s.tears_started == ref.tears_started &&
+              s.cg_iterations == ref.cg_iterations && s.amg_bytes == ref.amg_bytes && s.steps > 0,
+              "older statistics read back as written");
+        CHECK(s.contact_directions_merged == 0 && s.contact_speed_clamps == 0 && s.friction_slips == 0 &&
+              s.friction_cone_exceeded == 0, "the counters the older build lacked start at 0");
+        CHECK(tc_cloth_step(e, 1e-3, 1) == TC_OK, "an older state steps");
+        tc_cloth_destroy(e);
+    }
+    free(t);
+    bytes = TC_STATS_OLDEST_BYTES + 4;  /* cut inside a field: no build wrote that */
+    memcpy(old + 32 + 3 * 4, &bytes, 4);
+    t = reseal(old, size - cut);
+    CHECK(!tc_cloth_from_snapshot(t, size - cut, msg, sizeof msg) && strstr(msg, "different build"), "odd statistics: %s", msg);
+    free(t); free(old);
+    unsigned char *newer = reseal(blob, size);
+    bytes = (uint32_t)full + 8;
+    memcpy(newer + 32 + 3 * 4, &bytes, 4);
+    unsigned char *n2 = reseal(newer, size);
+    CHECK(!tc_cloth_from_snapshot(n2, size, msg, sizeof msg) && strstr(msg, "newer build"), "newer statistics: %s", msg);
+    free(n2); free(newer);
+}
+
 /* Snapshot of a torn cloth: a copy steps bit for bit as the original; truncated, corrupted and
  * resealed blobs are refused or (a flipped value that is still valid) step without reading out
  * of bounds. */
@@ -138,6 +180,7 @@ static void test_snapshot(tc_cloth *c)
         free(t);
     }
     printf("snapshot %zu bytes; 60 resealed flips: %d refused, %d accepted and stepped\n", size, refused, accepted);
+    test_snapshot_older_stats(b, size);
     free(blob);
 }
 
