@@ -11,3 +11,26 @@ settings.register_profile("explore", deadline=None, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 sys.path.insert(0, os.path.dirname(__file__))  # tests/meshes.py
+
+
+# The files that take longest, longest first (seconds of test time, serial, at load ~10 on the
+# 2-core development machine; out of date numbers only cost balance, never a result). Under
+# pytest-xdist (tools/run.sh: --dist loadfile --no-loadscope-reorder) a worker takes the next
+# whole file when it is free, so starting the long ones first keeps both workers busy to the
+# end: in collection order the ~5-minute T-shirt file came last, or (xdist's default reorder by
+# test count) after every many-test file, and ran alone while the other worker idled.
+SLOW_FIRST = []
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers", "core_only: drives only the native core through numpy (the same C sources and abi3 build "
+        "on every interpreter): tools/run.sh's Python 3.13 half leaves it to the 3.11 half (-m 'not core_only'), "
+        "as it leaves the files of its CORE_ONLY list")
+
+
+def pytest_collection_modifyitems(session, config, items):
+    rank = {name: i for i, name in enumerate(SLOW_FIRST)}
+    # stable: the tests of one file keep their order, the other files theirs
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
