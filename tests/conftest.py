@@ -15,14 +15,16 @@ sys.path.insert(0, os.path.dirname(__file__))  # tests/meshes.py
 
 # The files that take longest, longest first (seconds of test time, serial, at load ~10 on the
 # 2-core development machine; out of date numbers only cost balance, never a result). Under
-# pytest-xdist (tools/run.sh: --dist loadfile --no-loadscope-reorder) a worker takes the next
-# whole file when it is free, so starting the long ones first keeps both workers busy to the
-# end: in collection order the ~5-minute T-shirt file came last, or (xdist's default reorder by
-# test count) after every many-test file, and ran alone while the other worker idled.
+# pytest-xdist (tools/run.sh: --dist loadfile) a worker takes the next whole file when it is
+# free, so starting the long ones first keeps both workers busy to the end: xdist's own order
+# (by test count, since 3.5) started the one-test ~5-minute T-shirt file after every many-test
+# file, and it ran alone while the other worker idled.
 SLOW_FIRST = []
 
 
 def pytest_configure(config):
+    if hasattr(config.option, "loadscopereorder"):  # xdist >= 3.8 (--no-loadscope-reorder): keep our order
+        config.option.loadscopereorder = False
     config.addinivalue_line(
         "markers", "core_only: drives only the native core through numpy (the same C sources and abi3 build "
         "on every interpreter): tools/run.sh's Python 3.13 half leaves it to the 3.11 half (-m 'not core_only'), "

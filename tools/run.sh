@@ -125,7 +125,7 @@ suite() {
     echo "== pytest on $("$venv/bin/python" -c 'import sys, bpy; print(f"Python {sys.version.split()[0]}, bpy {bpy.app.version_string}")'), $WORKERS worker(s)" >&2
     local par=()
     if [ "$WORKERS" -gt 1 ] && "$venv/bin/python" -c "import xdist" >/dev/null 2>&1; then
-        par=(-n "$WORKERS" --dist loadfile --no-loadscope-reorder)  # the order of tests/conftest.py: slow files first
+        par=(-n "$WORKERS" --dist loadfile)  # in the order of tests/conftest.py: the slow files first
     fi
     (cd tests && "../$venv/bin/python" -m pytest -q -p no:cacheprovider "${par[@]}" "${@:-.}")
 }
