@@ -19,7 +19,31 @@ sys.path.insert(0, os.path.dirname(__file__))  # tests/meshes.py
 # free, so starting the long ones first keeps both workers busy to the end: xdist's own order
 # (by test count, since 3.5) started the one-test ~5-minute T-shirt file after every many-test
 # file, and it ran alone while the other worker idled.
-SLOW_FIRST = []
+# test_platforms.py comes first because it builds the extension zips that test_extension.py, later,
+# then finds ready (tests/extension_build.py: one build per run, the other worker would wait).
+SLOW_FIRST = [
+    "test_platforms.py",              # 507 (with the build of the four zips)
+    "test_tearing_physics.py",        # 406
+    "test_bake_resume_tshirt.py",     # ~290
+    "test_blender_user_actions.py",   # 316
+    "test_blender_rebake.py",         # 166
+    "test_examples.py",
+    "test_bench_parts.py",            # 124
+    "test_blender_bake.py",           # 98
+    "test_blender_haptics.py",        # 95
+    "test_blender_fragments.py",      # 94
+    "test_farm.py",
+    "test_orthotropic.py",            # 80
+    "test_cache.py",                  # 70
+    "test_tearing.py",                # 69
+    "test_blender_attributes.py",     # 67
+    "test_scenes.py",                 # 64
+    "test_blender_addon.py",          # 61
+    "test_extension.py",
+    "test_collision_session.py",
+    "test_bake_resume_cli.py",        # 55
+    "test_bake_unconverged.py",       # 47
+]
 
 
 def pytest_configure(config):
