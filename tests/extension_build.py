@@ -43,7 +43,7 @@ def _wheels_build(tool, out_dir: Path) -> dict:
     cross builds of the same sources, fixed downloads: Blender 5.1+ installs the very cp311-abi3
     wheels 4.2 does); what depends on the session still happens in each: our host wheel by its
     pip, packaging and validation by its Blender's own extension tool."""
-    shared = os.environ.get("TEARCLOTH_TEST_WHEELS")
+    shared = os.environ.get("TEARCLOTH_TEST_WHEELS")  # tools/run.sh empties it when a run starts
     if not shared:
         return tool.build(out_dir=out_dir)
     shared = Path(shared)
