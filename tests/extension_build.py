@@ -39,10 +39,11 @@ def _wheels_build(tool, out_dir: Path) -> dict:
     """tool.build into ``out_dir``, sharing the wheels between the pytest runs of one tools/run.sh
     test (its halves on bpy 5.0.1, 4.2 and 5.3): TEARCLOTH_TEST_WHEELS names a folder; the first
     run fills it with the wheels it built, cross-compiled and downloaded, later runs take the
-    cross-compiled and downloaded ones from there (``--wheels-from``). Those wheels are the same bytes whichever interpreter builds them (zig
-    cross builds of the same sources, fixed downloads: Blender 5.1+ installs the very cp311-abi3
-    wheels 4.2 does); what depends on the session still happens in each: our host wheel by its
-    pip, packaging and validation by its Blender's own extension tool."""
+    cross-compiled and downloaded ones from there (``--wheels-from``). Those are the same bytes
+    whichever interpreter builds them (zig cross builds of the same sources, fixed downloads:
+    Blender 5.1+ installs the very cp311-abi3 wheels 4.2 does); what depends on the session still
+    happens in each: our host wheel by its pip, packaging and validation by its Blender's own
+    extension tool."""
     shared = os.environ.get("TEARCLOTH_TEST_WHEELS")  # tools/run.sh empties it when a run starts
     if not shared:
         return tool.build(out_dir=out_dir)
@@ -50,16 +51,22 @@ def _wheels_build(tool, out_dir: Path) -> dict:
     complete = shared / "complete"
     if complete.is_file():
         return tool.build(out_dir=out_dir, wheels_from=shared)
-    build_dir = Path(tempfile.mkdtemp(prefix="tearcloth-test-build-"))
-    try:
-        result = tool.build(out_dir=out_dir, build_dir=build_dir)
-        shared.mkdir(parents=True, exist_ok=True)
-        for wheel in (build_dir / "wheels").glob("*.whl"):
-            shutil.copy2(wheel, shared / wheel.name)
-        complete.write_text("\n".join(sorted(p.name for p in shared.glob("*.whl"))) + "\n")
-    finally:
-        shutil.rmtree(build_dir, ignore_errors=True)
-    return result
+    shared.mkdir(parents=True, exist_ok=True)
+    # tools/run.sh runs the 4.2 and 3.13 halves side by side: should neither find the wheels, one
+    # builds and fills the folder while the other waits here, then takes them
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if complete.is_file():
+            return tool.build(out_dir=out_dir, wheels_from=shared)
+        build_dir = Path(tempfile.mkdtemp(prefix="tearcloth-test-build-"))
+        try:
+            result = tool.build(out_dir=out_dir, build_dir=build_dir)
+            for wheel in (build_dir / "wheels").glob("*.whl"):
+                shutil.copy2(wheel, shared / wheel.name)
+            complete.write_text("\n".join(sorted(p.name for p in shared.glob("*.whl"))) + "\n")
+        finally:
+            shutil.rmtree(build_dir, ignore_errors=True)
+        return result
 
 
 def _build(tool) -> dict:
