@@ -161,7 +161,7 @@ case "$job" in
             PY313=""
             echo "tools/run.sh: NOT RUN: the Python 3.13 / bpy 5.3.0 half (Blender 5.1+): no Python 3.13 found (set PYTHON313=/path/to/python3.13)" >&2
         fi
-        rm -f out/setup42.rc out/setup313.rc
+        rm -f out/setup42.rc out/setup313.rc out/test42.rc
         (
             # errexit must hold inside setup, so no `|| rc=$?` around it (that would switch it off)
             set +e
