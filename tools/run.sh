@@ -144,8 +144,8 @@ case "$job" in
         export TEARCLOTH_TEST_WHEELS=$PWD/out/test-wheels
         rm -rf "$TEARCLOTH_TEST_WHEELS"
         # the other halves' environments (pip: mostly download and unpacking, one compile each) are
-        # set up in the background while the sanitizers and the first half run: their log is shown
-        # when their half starts; they run one after the other (one apt or pip at a time)
+        # set up in the background while the sanitizers and the first half run, one after the
+        # other (one apt or pip at a time); their logs are shown with their half's results
         want42=""
         if [ -n "${TEARCLOTH_SKIP_42:-}" ]; then
             echo "tools/run.sh: NOT RUN: the bpy 4.2 LTS half (TEARCLOTH_SKIP_42 is set)" >&2
