@@ -35,6 +35,40 @@ def load_tool(name: str = "build_extension", path: str = "tools/build_extension.
     return sys.modules[name]
 
 
+def _wheels_build(tool, out_dir: Path) -> dict:
+    """tool.build into ``out_dir``, sharing the wheels between the pytest runs of one tools/run.sh
+    test (its halves on bpy 5.0.1, 4.2 and 5.3): TEARCLOTH_TEST_WHEELS names a folder; the first
+    run fills it with the wheels it built, cross-compiled and downloaded, later runs take the
+    cross-compiled and downloaded ones from there (``--wheels-from``). Those are the same bytes
+    whichever interpreter builds them (zig cross builds of the same sources, fixed downloads:
+    Blender 5.1+ installs the very cp311-abi3 wheels 4.2 does); what depends on the session still
+    happens in each: our host wheel by its pip, packaging and validation by its Blender's own
+    extension tool."""
+    shared = os.environ.get("TEARCLOTH_TEST_WHEELS")  # tools/run.sh empties it when a run starts
+    if not shared:
+        return tool.build(out_dir=out_dir)
+    shared = Path(shared)
+    complete = shared / "complete"
+    if complete.is_file():
+        return tool.build(out_dir=out_dir, wheels_from=shared)
+    shared.mkdir(parents=True, exist_ok=True)
+    # tools/run.sh runs the 4.2 and 3.13 halves side by side: should neither find the wheels, one
+    # builds and fills the folder while the other waits here, then takes them
+    with open(shared / "lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if complete.is_file():
+            return tool.build(out_dir=out_dir, wheels_from=shared)
+        build_dir = Path(tempfile.mkdtemp(prefix="tearcloth-test-build-"))
+        try:
+            result = tool.build(out_dir=out_dir, build_dir=build_dir)
+            for wheel in (build_dir / "wheels").glob("*.whl"):
+                shutil.copy2(wheel, shared / wheel.name)
+            complete.write_text("\n".join(sorted(p.name for p in shared.glob("*.whl"))) + "\n")
+        finally:
+            shutil.rmtree(build_dir, ignore_errors=True)
+        return result
+
+
 def _build(tool) -> dict:
     """tool.build's result. Under pytest-xdist the workers of one run share one build: the first
     to get the lock builds into a folder named after the run, the others wait and read its result
@@ -43,7 +77,7 @@ def _build(tool) -> dict:
     if not run:
         out = Path(tempfile.mkdtemp(prefix="tearcloth-test-dist-"))
         atexit.register(shutil.rmtree, out, True)
-        return tool.build(out_dir=out)
+        return _wheels_build(tool, out)
     shared = Path(tempfile.gettempdir()) / f"tearcloth-test-dist-{run}"
     # no worker may delete the zips at exit (another may still install them): earlier runs' folders
     # go here instead, those whose lock nobody holds
@@ -65,7 +99,7 @@ def _build(tool) -> dict:
                 raise tool.BuildError(result["error"])
             return result
         try:
-            result = tool.build(out_dir=shared / "zips")
+            result = _wheels_build(tool, shared / "zips")
         except tool.BuildError as exc:  # the other workers fail (or skip) the same way, not rebuild
             done.write_text(json.dumps({"error": str(exc)}))
             raise

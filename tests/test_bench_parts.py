@@ -67,6 +67,7 @@ def test_scenes_hands_pull_apart_and_body_stays_clear(family):
 # ---- scaling on tiny inputs --------------------------------------------------------------------
 
 
+@pytest.mark.core_only  # the native core and numpy only: the 3.11 half runs it (conftest.py)
 def test_scaling_tiny_runs_every_configuration(tmp_path):
     r = bs.scaling(triangle_targets=(500, 2000), families=("square",), steps=3)
     assert len(r["points"]) == 2 * 2 * 2
@@ -175,6 +176,7 @@ def test_race_tiny_returns_the_documented_keys():
 
 # ---- Table I's "after" column (issue 13) -------------------------------------------------------
 
+@pytest.mark.core_only  # the native core and numpy only: the 3.11 half runs it (conftest.py)
 def test_table1_after_column_times_steps_with_a_tip_running():
     """The bench times only steps that begin with a tip running, counts them, and refuses to report
     a column where the tip did not run (measure_scenario raises)."""
@@ -217,6 +219,7 @@ def test_scaling_fits_converged_points_only_and_reports_memory_precisely(monkeyp
     assert "bytes_per_triangle_100k" in r and "VmRSS just before the cloth" in r["settings"]["memory"]
 
 
+@pytest.mark.core_only  # the native core and numpy only: the 3.11 half runs it (conftest.py)
 def test_a_simulated_shirt_that_blows_up_ends_its_run_and_says_so(monkeypatch):
     """The collision experiment's simulated shirt: a step the core rolls back even at its finest
     sub-steps ends the run where it is (the frame10 scene blew up at its step ~100 in 2026-12), and

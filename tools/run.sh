@@ -3,11 +3,13 @@
 # Debian machine with Python 3.11 (a virtual environment in .venv, the native extension built by
 # pip, Blender's bpy from PyPI), then run the main job or the tests.
 #   bash tools/run.sh demo    - tear the paper's square cloth, write pictures to out/demo
-#   bash tools/run.sh test    - sanitizer build of the native tests, then the pytest suite, on
-#                               Python 3.11 with bpy 5.0.1 (Blender 4.2-5.0), the Blender tests
-#                               again in .venv42 with bpy 4.2 LTS (BPY42 below) and, when a Python
+#   bash tools/run.sh test    - sanitizer build of the native tests and the pytest suite, on
+#                               Python 3.11 with bpy 5.0.1 (Blender 4.2-5.0), side by side; the Blender
+#                               tests again in .venv42 with bpy 4.2 LTS (BPY42 below) and, when a Python
 #                               3.13 is found, the suite again in .venv313 with bpy 5.3.0 (Blender 5.1+)
-#                               but for CORE_ONLY below; pytest runs one worker per core
+#                               but for CORE_ONLY below (both set up while the first half runs,
+#                               then run side by side);
+#                               pytest runs one worker per core; logs of the side jobs in out/
 #   bash tools/run.sh bench   - tearcloth bench --json out/bench.json
 # PYTHON picks the first interpreter (default python3), PYTHON313 the second;
 # TEARCLOTH_REQUIRE_313=1 makes a missing Python 3.13 a failure (CI) instead of a notice.
@@ -98,11 +100,18 @@ print("\n".join(r for r in t["project"]["optional-dependencies"]["test"] if not 
 
 # The test files the 3.13 half leaves to the 3.11 half: the native core driven through numpy (the
 # same C sources, the same abi3 build), heavy and blind to the interpreter: physics studies, the
-# long scenes, the cross and arm64 builds. Everything that touches bpy, the add-on, caches,
-# haptics or the farm runs on both.
+# long scenes, the cross and arm64 builds, the FEM, solver, SIMD-kernel, snapshot and tearing
+# tests, the collision kernels, CCD and clustering (C and numpy/scipy only). Everything that
+# touches bpy, the add-on, the extension, caches, haptics, the farm or the CLI runs on both, and so
+# do test_native_defaults.py (the C modules' messages through 3.13's C API) and the two collision
+# files that go through embreex, whose binary wheel is built per Python version
+# (test_collision_detect.py, test_collision_bvh.py). Single tests of mixed files are marked
+# core_only instead (tests/conftest.py).
 CORE_ONLY=(test_native_arm64.py test_platforms.py test_bake_resume_tshirt.py test_tearing_physics.py
            test_collision_session.py test_collision_recall.py test_solver_amg.py test_scenes.py
-           test_orthotropic.py test_plasticity.py test_fragments.py)
+           test_orthotropic.py test_plasticity.py test_fragments.py
+           test_fem.py test_solver.py test_solver_simd.py test_snapshot.py test_tearing.py
+           test_collision_kernels.py test_collision_ccd.py test_collision_clusters.py)
 # pytest workers (pytest-xdist): one per core, at most 4; files stay whole on one worker
 # (--dist loadfile) so module fixtures are built once; the extension zips are built once per run
 # for all workers (tests/extension_build.py). TEARCLOTH_TEST_WORKERS=1: serial.
@@ -117,7 +126,7 @@ suite() {
     echo "== pytest on $("$venv/bin/python" -c 'import sys, bpy; print(f"Python {sys.version.split()[0]}, bpy {bpy.app.version_string}")'), $WORKERS worker(s)" >&2
     local par=()
     if [ "$WORKERS" -gt 1 ] && "$venv/bin/python" -c "import xdist" >/dev/null 2>&1; then
-        par=(-n "$WORKERS" --dist loadfile)
+        par=(-n "$WORKERS" --dist loadfile)  # in the order of tests/conftest.py: the slow files first
     fi
     (cd tests && "../$venv/bin/python" -m pytest -q -p no:cacheprovider "${par[@]}" "${@:-.}")
 }
@@ -130,27 +139,81 @@ case "$job" in
     test)
         # qemu-user (13 MB from Debian) runs the arm64 build of the native tests (test_native_arm64.py)
         command -v qemu-aarch64 >/dev/null 2>&1 || command -v qemu-aarch64-static >/dev/null 2>&1 || apt_try qemu-user
-        bash native/tests/run_sanitizers.sh
-        status=0
-        suite "$VENV" || status=$?
+        mkdir -p out
+        # the halves share the extension's cross-compiled and downloaded wheels (tests/extension_build.py)
+        export TEARCLOTH_TEST_WHEELS=$PWD/out/test-wheels
+        rm -rf "$TEARCLOTH_TEST_WHEELS"
+        # the other halves' environments (pip: mostly download and unpacking, one compile each) are
+        # set up in the background while the sanitizers and the first half run, one after the
+        # other (one apt or pip at a time); their logs are shown with their half's results
+        want42=""
         if [ -n "${TEARCLOTH_SKIP_42:-}" ]; then
             echo "tools/run.sh: NOT RUN: the bpy 4.2 LTS half (TEARCLOTH_SKIP_42 is set)" >&2
         elif is_311 "$VENV/bin/python"; then
-            setup "$PY" "$VENV42" "$BPY42 numpy<2"
-            suite "$VENV42" "${TESTS42[@]}" || status=$?
+            want42=1
         else
             echo "tools/run.sh: NOT RUN: the bpy 4.2 LTS half: $PY is not Python 3.11 (Blender 4.2's)" >&2
         fi
+        PY313=""
         if is_313 "$VENV/bin/python"; then
             echo "tools/run.sh: $PY is Python 3.13 already: the suite ran once, on it" >&2
-        elif PY313=$(find_python313); then
-            setup "$PY313" "$VENV313"
-            ignores=()
-            for f in "${CORE_ONLY[@]}"; do ignores+=(--ignore "$f"); done
-            suite "$VENV313" "${ignores[@]}" . || status=$?
-        else
+        elif ! PY313=$(find_python313); then
+            PY313=""
             echo "tools/run.sh: NOT RUN: the Python 3.13 / bpy 5.3.0 half (Blender 5.1+): no Python 3.13 found (set PYTHON313=/path/to/python3.13)" >&2
+        fi
+        rm -f out/setup42.rc out/setup313.rc out/test42.rc
+        (
+            # errexit must hold inside setup, so no `|| rc=$?` around it (that would switch it off)
+            set +e
+            if [ -n "$want42" ]; then
+                (set -e; setup "$PY" "$VENV42" "$BPY42 numpy<2") >out/setup42.log 2>&1; echo $? >out/setup42.rc
+            fi
+            if [ -n "$PY313" ]; then
+                (set -e; setup "$PY313" "$VENV313") >out/setup313.log 2>&1; echo $? >out/setup313.rc
+            fi
+        ) &
+        others=$!
+        # the sanitizer build and run (one process, ~85 s of CPU) beside the first half too: alone it
+        # left the second core idle
+        bash native/tests/run_sanitizers.sh >out/sanitizers.log 2>&1 &
+        sanitizers=$!
+        status=0
+        suite "$VENV" || status=$?
+        san=0
+        wait "$sanitizers" || san=$?
+        echo "== the sanitizer build of the native tests (out/sanitizers.log)" >&2
+        cat out/sanitizers.log >&2
+        if [ "$san" != 0 ]; then echo "tools/run.sh: the sanitizer run FAILED (status $san)" >&2; status=1; fi
+        wait "$others" || true  # each setup left its status in out/setup*.rc
+        # the 4.2 half (six Blender files: on two workers its last file ran alone) runs beside the
+        # 3.13 half, its output in out/test42.log, shown when both are done
+        half42=""
+        if [ -n "$want42" ]; then
+            if [ "$(cat out/setup42.rc)" = 0 ]; then
+                (set +e; suite "$VENV42" "${TESTS42[@]}" >out/test42.log 2>&1; echo $? >out/test42.rc) &
+                half42=$!
+            else
+                cat out/setup42.log >&2
+                echo "tools/run.sh: setting up $VENV42 failed (out/setup42.log above)" >&2; status=1
+            fi
+        fi
+        if [ -n "$PY313" ]; then
+            cat out/setup313.log >&2
+            if [ "$(cat out/setup313.rc)" = 0 ]; then
+                ignores=()
+                for f in "${CORE_ONLY[@]}"; do ignores+=(--ignore "$f"); done
+                suite "$VENV313" "${ignores[@]}" -m "not core_only" . || status=$?
+            else
+                echo "tools/run.sh: setting up $VENV313 failed (out/setup313.log above)" >&2; status=1
+            fi
+        elif ! is_313 "$VENV/bin/python"; then
             [ -z "${TEARCLOTH_REQUIRE_313:-}" ] || status=1  # CI must test both Blender lines
+        fi
+        if [ -n "$half42" ]; then
+            wait "$half42" || true
+            echo "== the bpy 4.2 LTS half (out/setup42.log, out/test42.log)" >&2
+            cat out/setup42.log out/test42.log >&2
+            [ "$(cat out/test42.rc)" = 0 ] || status=1
         fi
         exit "$status"
         ;;
