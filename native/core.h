@@ -126,8 +126,9 @@ struct tc_cloth {
     tc_vec pstencil;         /* int32 stencil owned by this edge or -1 */
     tc_vec pbend;            /* double: bending scalar for the pair */
     tc_vec pfree;            /* int32 stack of free pair ids */
-    /* hash (min,max) -> pair id, open addressing, power-of-two capacity */
-    int32_t *hkeys_i, *hkeys_j, *hvals;
+    /* hash (min,max) -> pair id, open addressing, power-of-two capacity: a slot holds the pair id
+     * (-1 empty, -2 tombstone), its key is that pair's pi, pj (mesh.c) */
+    int32_t *hvals;
     size_t hcap, hcount, htomb;
 
     tc_vec stencils;         /* tc_stencil */
