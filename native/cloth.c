@@ -235,14 +235,24 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
     case TC_PLASTIC_STRAIN: v = &c->tplast; r = (size_t)c->nt; k = 4; break;
     case TC_TRIANGLES: v = &c->tri; r = (size_t)c->nt; *item = sizeof(int32_t); break;
     case TC_CORNER_UV: v = &c->uv; r = (size_t)c->nt; k = 6; break;
-    case TC_STRESS: v = &c->stress; r = (size_t)c->nt; k = 9; break;
+    case TC_STRESS: r = (size_t)c->nt; k = 9; break;
     case TC_PRINCIPAL: v = &c->principal; r = (size_t)c->nt; k = 2; break;
-    case TC_PRINCIPAL_DIR: v = &c->pdir; r = (size_t)c->nt; k = 3; break;
+    case TC_PRINCIPAL_DIR: r = (size_t)c->nt; k = 3; break;
     default: return NULL;
     }
     /* outputs must describe the current positions */
     if (id == TC_STRESS || id == TC_PRINCIPAL || id == TC_PRINCIPAL_DIR || id == TC_FORCES) tc_refresh(c);
     *rows = r; *cols = k;
+    if (!v) {  /* derived from R and sigma (core.h), into a block of the reader's own */
+        tc_buf *b = tc_buf_new(r * k * sizeof(double));
+        if (!b) { tc_set_err(c, "out of memory"); return NULL; }
+        double *o = (double *)b->data;
+        for (size_t t = 0; t < r; t++) {
+            if (id == TC_STRESS) tc_tri_world_stress(c, t, o + 9 * t);
+            else tc_tri_principal_dir(c, t, o + 3 * t);
+        }
+        return b;
+    }
     tc_buf_incref(v->buf);
     return v->buf;
 }

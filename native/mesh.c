@@ -159,8 +159,7 @@ int tc_reserve_triangles(tc_cloth *c, int32_t m)
     size_t M = (size_t)m;
     if (tc_vec_resize(&c->tri, 3 * M) || tc_vec_resize(&c->tpair, 3 * M) ||
         tc_vec_resize(&c->grad, 4 * M) || tc_vec_resize(&c->area, M) || tc_vec_resize(&c->rot, 6 * M) ||
-        tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->stress, 9 * M) || tc_vec_resize(&c->principal, 2 * M) ||
-        tc_vec_resize(&c->pdir, 3 * M) || tc_vec_resize(&c->uv, 6 * M))
+        tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->principal, 2 * M) || tc_vec_resize(&c->uv, 6 * M))
         return TC_ERR_NOMEM;
     size_t old = c->tgrain.len;
     if (tc_vec_resize(&c->tgrain, M) || tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M) ||

@@ -164,8 +164,8 @@ static const char *check(const tc_cloth *c)
         {&c->strength, nv, "strength"}, {&c->vtri, nv, "vtri"}, {&c->vflag, nv, "vflag"},
         {&c->vhandle, nv, "vhandle"}, {&c->vpin, nv, "vpin"}, {&c->groups, nv * (size_t)(c->ng ? c->ng : 1), "groups"},
         {&c->tri, 3 * nt, "tri"}, {&c->tpair, 3 * nt, "tpair"}, {&c->grad, 4 * nt, "grad"}, {&c->area, nt, "area"},
-        {&c->rot, 6 * nt, "rot"}, {&c->sig, 3 * nt, "sig"}, {&c->stress, 9 * nt, "stress"},
-        {&c->principal, 2 * nt, "principal"}, {&c->pdir, 3 * nt, "pdir"}, {&c->uv, 6 * nt, "uv"},
+        {&c->rot, 6 * nt, "rot"}, {&c->sig, 3 * nt, "sig"},
+        {&c->principal, 2 * nt, "principal"}, {&c->uv, 6 * nt, "uv"},
         {&c->pj, np, "pj"}, {&c->puse, np, "puse"}, {&c->ptris, 2 * np, "ptris"}, {&c->pstencil, np, "pstencil"},
         {&c->pbend, np, "pbend"}, {&c->tipdir, 3 * c->tips.len, "tipdir"}, {&c->tipadv, c->tips.len, "tipadv"},
         {&c->cactive, c->cvert.len, "cactive"}, {&c->cnormal, 3 * c->cvert.len, "cnormal"},
@@ -298,6 +298,10 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
         if (tc_vec_resize(v, (size_t)len)) FAIL("out of memory");
         GET(tc_vec_ptr(v), (size_t)len * item);
     }
+    /* a blob of the builds that stored the world stress and principal direction (derived now, see
+       core.h) carries them: nothing reads them, so they go */
+    tc_vec_free(&c->stress); tc_vec_free(&c->pdir);
+    if (tc_vec_init(&c->stress, sizeof(double), 1) || tc_vec_init(&c->pdir, sizeof(double), 1)) FAIL("out of memory");
     where = "the pair hash";
     uint64_t hcap, hcount, htomb;
     GET(&hcap, 8); GET(&hcount, 8); GET(&htomb, 8);
