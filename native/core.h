@@ -37,6 +37,7 @@
 #include "constants.h"
 #include "vecmath.h"
 
+#include <math.h>  /* sqrt in the inline helpers below */
 #include <stdatomic.h>
 #include <stdbool.h>
 
