@@ -211,9 +211,11 @@ class Cloth:
     forces = property(lambda self: self._array(_native.FORCES), doc="(n, 3) N: elastic + bending + gravity")
     triangles = property(lambda self: self._array(_native.TRIANGLES), doc="(m, 3) int32")
     corner_uv = property(lambda self: self._array(_native.CORNER_UV), doc="(m, 3, 2)")
-    stress = property(lambda self: self._array(_native.STRESS), doc="(m, 3, 3) Pa, world axes")
+    stress = property(lambda self: self._array(_native.STRESS),
+                      doc="(m, 3, 3) Pa, world axes; derived at each read (a copy later steps leave alone)")
     principal_stress = property(lambda self: self._array(_native.PRINCIPAL), doc="(m, 2) Pa, largest first")
-    principal_direction = property(lambda self: self._array(_native.PRINCIPAL_DIR), doc="(m, 3) unit")
+    principal_direction = property(lambda self: self._array(_native.PRINCIPAL_DIR),
+                                   doc="(m, 3) unit; derived at each read, as stress")
     tear_strength = property(lambda self: self._array(_native.TEAR_STRENGTH), doc="(n,) factor on tear_stress")
     grain_angles = property(lambda self: self._array(_native.GRAIN_ANGLES),
                             doc="(m,) rad: each triangle's own grain angle, NaN where the material's applies")

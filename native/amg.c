@@ -147,7 +147,7 @@ size_t tc_amg_bytes(const tc_amg *h)
         if (L->agg) s += n * 4;
         if (L->dinv) s += n * b * b * 8;
         if (L->B) s += n * b * NS * 8;
-        s += 4 * L->cap_vec * 8;
+        s += ((L->x != NULL) + (L->rhs != NULL) + (L->res != NULL) + (L->tmp != NULL)) * L->cap_vec * 8;
     }
     return s + h->cap_chol * 8 + h->cap_mark * 4 + h->cap_acc * 8;
 }
@@ -799,14 +799,18 @@ static int tentative(tc_amg *h, level *L, const double *B, bsr *T, double *Bc, i
 
 /* ---------------- per-level pieces ---------------- */
 
-static int level_vectors(level *L)
+/* The V-cycle's vectors of a level. The finest has no x and rhs of its own: the V-cycle gets them
+ * from the solver (its residual and output), and only the spectral radius needs an x there, for a
+ * moment (a scratch of its own): 2 of 4 vectors of 3 doubles per vertex, 2.4 MB at 100K triangles. */
+static int level_vectors(level *L, bool finest)
 {
     const size_t nb = (size_t)L->n * L->b;
-    if (nb <= L->cap_vec && L->x) return 0;
+    if (nb <= L->cap_vec && L->res) return 0;
     free(L->x); free(L->rhs); free(L->res); free(L->tmp);
-    L->x = malloc(nb * sizeof(double)); L->rhs = malloc(nb * sizeof(double)); L->res = malloc(nb * sizeof(double));
-    L->tmp = malloc(nb * sizeof(double));
-    L->cap_vec = (L->x && L->rhs && L->res && L->tmp) ? nb : 0;
+    L->x = L->rhs = NULL;
+    if (!finest) { L->x = malloc(nb * sizeof(double)); L->rhs = malloc(nb * sizeof(double)); }
+    L->res = malloc(nb * sizeof(double)); L->tmp = malloc(nb * sizeof(double));
+    L->cap_vec = ((finest || (L->x && L->rhs)) && L->res && L->tmp) ? nb : 0;
     return L->cap_vec ? 0 : -1;
 }
 
@@ -853,7 +857,8 @@ static void level_dinv(const tc_cloth *c, const level *L, int l, const double *x
 static double spectral_radius(const tc_cloth *c, level *L, int l)
 {
     const size_t nb = (size_t)L->n * L->b;
-    double *x = L->x, *y = L->res, *z = L->tmp;
+    double *x = L->x ? L->x : malloc((nb ? nb : 1) * sizeof(double)), *y = L->res, *z = L->tmp;  /* finest: no x */
+    if (!x) return -1.0;
     for (size_t k = 0; k < nb; k++) x[k] = 1.0 + 0.5 * sin(1.7 * (double)k);
     if (l == 0) tc_constraint_filter(c, x);
     double rho = 0.0;
@@ -867,6 +872,7 @@ static double spectral_radius(const tc_cloth *c, level *L, int l)
         const double s = 1.0 / sqrt(nz);
         for (size_t k = 0; k < nb; k++) x[k] = z[k] * s;
     }
+    if (x != L->x) free(x);
     return rho > 0 ? 1.1 * rho : 1.0;
 }
 /* inverse diagonal blocks of a coarse level; a dead unknown gets the live diagonal's scale first */
@@ -962,8 +968,10 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) { bsr_free(&h->lev[l].A); bsr_free(&h->lev[l].P); }
     h->nlev = 0;
     L0->n = c->nv; L0->b = 3;
-    if (level_vectors(L0)) goto out;
-    L0->omega = 4.0 / (3.0 * spectral_radius(c, L0, 0));
+    if (level_vectors(L0, true)) goto out;
+    const double rho0 = spectral_radius(c, L0, 0);
+    if (rho0 < 0) goto out;  /* out of memory */
+    L0->omega = 4.0 / (3.0 * rho0);
     int nlev = 1;
     for (int l = 0; l + 1 < TC_AMG_MAX_LEVELS; l++) {
         level *L = &h->lev[l], *N = &h->lev[l + 1];
@@ -1006,7 +1014,7 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         bsr_free(&T);
         if ((l == 0 ? galerkin_3 : galerkin_6)(h, &src, &L->P, &N->A)) goto out;
         N->n = na; N->b = NS;
-        if (coarse_diagonal(N, dead) || level_vectors(N)) goto out;
+        if (coarse_diagonal(N, dead) || level_vectors(N, false)) goto out;
         N->omega = 4.0 / (3.0 * spectral_radius(c, N, l + 1));
         nlev = l + 2;
     }

@@ -41,7 +41,7 @@ void tc_cloth_destroy(tc_cloth *c)
 #define FREE_VEC(name, type) tc_vec_free(&c->name);
     FOR_EACH_VEC(c, FREE_VEC)
 #undef FREE_VEC
-    free(c->hkeys_i); free(c->hkeys_j); free(c->hvals);
+    free(c->hvals);
     free(c->tslot); free(c->pcover);
     for (int32_t h = 0; h < c->nh; h++) { free(c->handles[h].verts); free(c->handles[h].grasp); }
     free(c->handles);
@@ -101,10 +101,9 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
 #undef INIT_VEC
     if (bad) FAIL("out of memory");
     c->hcap = TC_HASH_INITIAL;
-    c->hkeys_i = malloc(c->hcap * sizeof(int32_t)); c->hkeys_j = malloc(c->hcap * sizeof(int32_t));
     c->hvals = malloc(c->hcap * sizeof(int32_t));
-    if (!c->hkeys_i || !c->hkeys_j || !c->hvals) FAIL("out of memory");
-    for (size_t s = 0; s < c->hcap; s++) c->hkeys_i[s] = -1;
+    if (!c->hvals) FAIL("out of memory");
+    for (size_t s = 0; s < c->hcap; s++) c->hvals[s] = -1;
     c->nv = n; c->nt = m;
     if (tc_reserve_vertices(c, n) || tc_reserve_triangles(c, m)) FAIL("out of memory");
     memcpy(tc_vec_ptr(&c->x), positions, 3 * (size_t)n * sizeof(double));
@@ -151,6 +150,29 @@ int32_t tc_cloth_num_vertices(const tc_cloth *c) { return c->nv; }
 int32_t tc_cloth_num_triangles(const tc_cloth *c) { return c->nt; }
 int tc_cloth_num_groups(const tc_cloth *c) { return c->ng; }
 tc_stats tc_cloth_stats(const tc_cloth *c) { return c->stats; }
+
+/* The FOR_EACH_VEC arrays, then the storage outside them: one table is the whole account. */
+enum { MEMORY_EXTRA = 3 };
+size_t tc_cloth_memory_count(void) { return tc_vec_table_len + MEMORY_EXTRA; }
+const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *held)
+{
+    *used = *held = 0;
+    if (k < tc_vec_table_len) {
+        const tc_vec *v = (const tc_vec *)((const char *)c + tc_vec_table[k].offset);
+        *used = v->len * v->item;
+        *held = v->buf ? v->cap * v->item : 0;
+        return tc_vec_table[k].name;
+    }
+    switch (k - tc_vec_table_len) {
+    case 0: *used = (c->hcount + c->htomb) * sizeof(int32_t); *held = c->hcap * sizeof(int32_t); return "pair_hash";
+    case 1:
+        *used = (size_t)c->tslot_nt * 9 * sizeof(int32_t) + c->pi.len;
+        *held = c->tslot_cap * sizeof(int32_t) + c->pcover_cap;  /* tslot_cap counts int32s */
+        return "tslot";
+    case 2: *used = *held = tc_amg_bytes(c->amg); return "amg";
+    default: return NULL;
+    }
+}
 const char *tc_cloth_error(const tc_cloth *c) { return c->err; }
 
 static int check_finite(tc_cloth *c, const double *a, size_t k, const char *what)
@@ -213,14 +235,24 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
     case TC_PLASTIC_STRAIN: v = &c->tplast; r = (size_t)c->nt; k = 4; break;
     case TC_TRIANGLES: v = &c->tri; r = (size_t)c->nt; *item = sizeof(int32_t); break;
     case TC_CORNER_UV: v = &c->uv; r = (size_t)c->nt; k = 6; break;
-    case TC_STRESS: v = &c->stress; r = (size_t)c->nt; k = 9; break;
+    case TC_STRESS: r = (size_t)c->nt; k = 9; break;
     case TC_PRINCIPAL: v = &c->principal; r = (size_t)c->nt; k = 2; break;
-    case TC_PRINCIPAL_DIR: v = &c->pdir; r = (size_t)c->nt; k = 3; break;
+    case TC_PRINCIPAL_DIR: r = (size_t)c->nt; k = 3; break;
     default: return NULL;
     }
     /* outputs must describe the current positions */
     if (id == TC_STRESS || id == TC_PRINCIPAL || id == TC_PRINCIPAL_DIR || id == TC_FORCES) tc_refresh(c);
     *rows = r; *cols = k;
+    if (!v) {  /* derived from R and sigma (core.h), into a block of the reader's own */
+        tc_buf *b = tc_buf_new(r * k * sizeof(double));
+        if (!b) { tc_set_err(c, "out of memory"); return NULL; }
+        double *o = (double *)b->data;
+        for (size_t t = 0; t < r; t++) {
+            if (id == TC_STRESS) tc_tri_world_stress(c, t, o + 9 * t);
+            else tc_tri_principal_dir(c, t, o + 3 * t);
+        }
+        return b;
+    }
     tc_buf_incref(v->buf);
     return v->buf;
 }

@@ -37,6 +37,7 @@
 #include "constants.h"
 #include "vecmath.h"
 
+#include <math.h>  /* sqrt in the inline helpers below */
 #include <stdatomic.h>
 #include <stdbool.h>
 
@@ -113,9 +114,10 @@ struct tc_cloth {
     tc_vec area;             /* double: rest area */
     tc_vec rot;              /* double x6: current rotation R (3x2, column-major: col0 xyz, col1 xyz) */
     tc_vec sig;              /* double x3: local 2-D stress (xx, yy, xy) */
-    tc_vec stress;           /* double x9 world stress */
+    tc_vec stress;           /* empty: the world stress is derived from rot and sig (tc_world_stress); kept
+                                in the table so that the snapshots of the builds that stored it resume */
     tc_vec principal;        /* double x2 */
-    tc_vec pdir;             /* double x3 */
+    tc_vec pdir;             /* empty, as stress (tc_principal_dir) */
     tc_vec uv;               /* double x6 corner uv */
     tc_vec tgrain;           /* double: the triangle's own grain angle (rad), NaN: the material's */
     tc_vec twarp;            /* double x3: unit warp direction in the rest space (ortho.c) */
@@ -129,8 +131,9 @@ struct tc_cloth {
     tc_vec pstencil;         /* int32 stencil owned by this edge or -1 */
     tc_vec pbend;            /* double: bending scalar for the pair */
     tc_vec pfree;            /* int32 stack of free pair ids */
-    /* hash (min,max) -> pair id, open addressing, power-of-two capacity */
-    int32_t *hkeys_i, *hkeys_j, *hvals;
+    /* hash (min,max) -> pair id, open addressing, power-of-two capacity: a slot holds the pair id
+     * (-1 empty, -2 tombstone), its key is that pair's pi, pj (mesh.c) */
+    int32_t *hvals;
     size_t hcap, hcount, htomb;
 
     tc_vec stencils;         /* tc_stencil */
@@ -288,6 +291,33 @@ int tc_element_assemble(tc_cloth *c, const double *x, double dt, double *worst);
 extern int tc_fem_reference;
 /* y = A p; returns p . y (the CG's curvature, fused into the product). */
 double tc_matvec(const tc_cloth *c, const double *p, double *y);
+/* A triangle's world stress S = R sigma R^T (3x3 row-major) and the world direction of its largest
+ * principal stress, from its rotation R (3x2, rot) and 2-D stress sigma (xx, yy, xy; sig). Derived
+ * where read (tearing, the arrays of tc_cloth_array) instead of stored by the element pass: 12
+ * doubles per triangle, 96 bytes, a tenth of the memory target of a 100K-triangle cloth.
+ * tc_tri_world_stress is the one callers use: compiled as the element pass was when it stored them
+ * (TC_HOT: the same contraction into FMAs), it gives the stored values bit for bit. */
+void tc_tri_world_stress(const tc_cloth *c, size_t t, double S[9]);
+void tc_tri_principal_dir(const tc_cloth *c, size_t t, double d[3]);
+static inline void tc_world_stress(const double R[6], const double s[3], double S[9])
+{
+    for (int i = 0; i < 3; i++)
+        for (int j = 0; j < 3; j++)
+            S[3 * i + j] = R[i] * (s[0] * R[j] + s[2] * R[3 + j]) + R[3 + i] * (s[2] * R[j] + s[1] * R[3 + j]);
+}
+static inline void tc_principal_dir(const double R[6], const double s[3], double d[3])
+{
+    const double sxx = s[0], syy = s[1], sxy = s[2];
+    const double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), l1 = mean + sqrt(dd * dd + sxy * sxy);
+    /* eigenvector of the largest eigenvalue without trigonometry: (l1 - syy, sxy) or
+       (sxy, l1 - sxx), whichever is better conditioned */
+    double ex = l1 - syy, ey = sxy;
+    const double fx = sxy, fy = l1 - sxx;
+    if (ex * ex + ey * ey < fx * fx + fy * fy) { ex = fx; ey = fy; }
+    const double el = sqrt(ex * ex + ey * ey);
+    if (el > 0) { ex /= el; ey /= el; } else { ex = 1.0; ey = 0.0; }
+    for (int k = 0; k < 3; k++) d[k] = R[k] * ex + R[3 + k] * ey;
+}
 
 /* ---------------- constraints.c ---------------- */
 int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3]);

@@ -109,8 +109,7 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
     const double h = c->mat.thickness;
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
-    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *S3 = tc_vec_ptr(&c->stress);
-    double *pr = tc_vec_ptr(&c->principal), *pd = tc_vec_ptr(&c->pdir);
+    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *pr = tc_vec_ptr(&c->principal);
     double *f = tc_vec_ptr(&c->fel);
     double carried2 = 0.0;  /* the solver's scale of elastic forces (solver.c) */
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
@@ -154,22 +153,23 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
             f[3 * i0 + k] -= fa + fb;
             carried2 += fa * fa + fb * fb + (fa + fb) * (fa + fb);
         }
-        double *S = S3 + 9 * t;
-        for (int i = 0; i < 3; i++)
-            for (int j = 0; j < 3; j++)
-                S[3 * i + j] = R[i] * (sxx * R[j] + sxy * R[3 + j]) + R[3 + i] * (sxy * R[j] + syy * R[3 + j]);
+        /* the world stress and the principal direction are not stored: R and sigma give them
+           (tc_world_stress, tc_principal_dir), for tearing and the arrays' readers */
         double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), rad = sqrt(dd * dd + sxy * sxy);
         pr[2 * t] = mean + rad; pr[2 * t + 1] = mean - rad;
-        /* eigenvector of the largest eigenvalue without trigonometry: (l1 - syy, sxy) or
-           (sxy, l1 - sxx), whichever is better conditioned */
-        double l1 = mean + rad, ex = l1 - syy, ey = sxy, fx = sxy, fy = l1 - sxx;
-        if (ex * ex + ey * ey < fx * fx + fy * fy) { ex = fx; ey = fy; }
-        double el = sqrt(ex * ex + ey * ey);
-        if (el > 0) { ex /= el; ey /= el; } else { ex = 1.0; ey = 0.0; }
-        for (int k = 0; k < 3; k++) pd[3 * t + k] = R[k] * ex + R[3 + k] * ey;
     }
     c->carried2 = isfinite(carried2) ? carried2 : 0.0;
     return isfinite(worst2) ? sqrt(worst2) : NAN;
+}
+
+TC_HOT __attribute__((noinline)) void tc_tri_world_stress(const tc_cloth *c, size_t t, double S[9])
+{
+    tc_world_stress((const double *)tc_vec_ptr(&c->rot) + 6 * t, (const double *)tc_vec_ptr(&c->sig) + 3 * t, S);
+}
+
+TC_HOT __attribute__((noinline)) void tc_tri_principal_dir(const tc_cloth *c, size_t t, double d[3])
+{
+    tc_principal_dir((const double *)tc_vec_ptr(&c->rot) + 6 * t, (const double *)tc_vec_ptr(&c->sig) + 3 * t, d);
 }
 
 TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
@@ -609,8 +609,7 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
     const double *AX = tc_vec_ptr(&c->taxis), *PL = tc_vec_ptr(&c->tplast);
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
-    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *S3 = tc_vec_ptr(&c->stress);
-    double *pr = tc_vec_ptr(&c->principal), *pd = tc_vec_ptr(&c->pdir);
+    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *pr = tc_vec_ptr(&c->principal);
     double *f = tc_vec_ptr(&c->fel);
     double worst2 = 0.0, carried2 = 0.0;
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
@@ -675,8 +674,9 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
             TC_UNROLL
             for (int k = 0; k < 3; k++) eps[k][l] = e3[k];
         }
-        /* stress, forces, world stress, principal stresses and direction */
-        double fab[6][TC_LANES], S[9][TC_LANES], prin[2][TC_LANES], dir[3][TC_LANES];
+        /* stress, forces, principal stresses (the world stress and the principal direction: from
+           R and sigma where read, tc_world_stress / tc_principal_dir) */
+        double fab[6][TC_LANES], prin[2][TC_LANES];
         for (int l = 0; l < TC_LANES; l++) {
             double sxx, syy, sxy;
             const double e0 = eps[0][l], e1 = eps[1][l], e2 = eps[2][l];
@@ -699,22 +699,8 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
                 fab[k][l] = -w * (P0 * g0 + P1 * g1);
                 fab[3 + k][l] = -w * (P0 * g2 + P1 * g3);
             }
-            TC_UNROLL
-            for (int i = 0; i < 3; i++)
-                TC_UNROLL
-                for (int j = 0; j < 3; j++)
-                    S[3 * i + j][l] = R[i] * (sxx * R[j] + sxy * R[3 + j]) + R[3 + i] * (sxy * R[j] + syy * R[3 + j]);
             const double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), rad = sqrt(dd * dd + sxy * sxy);
             prin[0][l] = mean + rad; prin[1][l] = mean - rad;
-            const double l1 = mean + rad, fx = sxy, fy = l1 - sxx;
-            double ex = l1 - syy, ey = sxy;
-            const bool other = ex * ex + ey * ey < fx * fx + fy * fy;
-            ex = other ? fx : ex; ey = other ? fy : ey;
-            const double el = sqrt(ex * ex + ey * ey), eld = el > 0 ? el : 1.0;
-            const double ux = ex / eld, uy = ey / eld;
-            ex = el > 0 ? ux : 1.0; ey = el > 0 ? uy : 0.0;
-            TC_UNROLL
-            for (int k = 0; k < 3; k++) dir[k][l] = R[k] * ex + R[3 + k] * ey;
         }
         /* out, triangle by triangle in order (the force sums as the reference's) */
         for (int l = 0; l < nl; l++) {
@@ -724,11 +710,7 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
             for (int k = 0; k < 6; k++) Rall[6 * t + k] = in.R[k][l];
             TC_UNROLL
             for (int k = 0; k < 3; k++) sig[3 * t + k] = in.sig[k][l];
-            TC_UNROLL
-            for (int k = 0; k < 9; k++) S3[9 * t + k] = S[k][l];
             pr[2 * t] = prin[0][l]; pr[2 * t + 1] = prin[1][l];
-            TC_UNROLL
-            for (int k = 0; k < 3; k++) pd[3 * t + k] = dir[k][l];
             const int32_t i0 = T[3 * t], i1 = T[3 * t + 1], i2 = T[3 * t + 2];
             TC_UNROLL
             for (int k = 0; k < 3; k++) {

@@ -24,19 +24,29 @@ static inline size_t hslot(int32_t a, int32_t b, size_t cap)
 #define HEMPTY (-1)
 #define HTOMB (-2)
 
+/* A slot holds only the pair id (or HEMPTY / HTOMB): its key is that pair's ends, pi and pj, so
+ * keys kept beside the ids would be a copy (8 of the 12 bytes a slot took, 8 MB of a
+ * 100K-triangle cloth whose hash sits at a quarter load). A probe reads pi/pj of the candidate. */
+static inline bool hslot_is(const tc_cloth *c, int32_t v, int32_t a, int32_t b)
+{
+    return v >= 0 && ((const int32_t *)tc_vec_ptr(&c->pi))[v] == a && ((const int32_t *)tc_vec_ptr(&c->pj))[v] == b;
+}
+
 static int hash_rehash(tc_cloth *c, size_t ncap)
 {
-    int32_t *ki = malloc(ncap * sizeof *ki), *kj = malloc(ncap * sizeof *kj), *vv = malloc(ncap * sizeof *vv);
-    if (!ki || !kj || !vv) { free(ki); free(kj); free(vv); return TC_ERR_NOMEM; }
-    for (size_t s = 0; s < ncap; s++) ki[s] = HEMPTY;
+    int32_t *vv = malloc(ncap * sizeof *vv);
+    if (!vv) return TC_ERR_NOMEM;
+    const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
+    for (size_t s = 0; s < ncap; s++) vv[s] = HEMPTY;
     for (size_t s = 0; s < c->hcap; s++) {
-        if (c->hkeys_i[s] < 0) continue;
-        size_t t = hslot(c->hkeys_i[s], c->hkeys_j[s], ncap);
-        while (ki[t] != HEMPTY) t = (t + 1) & (ncap - 1);
-        ki[t] = c->hkeys_i[s]; kj[t] = c->hkeys_j[s]; vv[t] = c->hvals[s];
+        const int32_t p = c->hvals[s];
+        if (p < 0) continue;
+        size_t t = hslot(pi[p], pj[p], ncap);
+        while (vv[t] != HEMPTY) t = (t + 1) & (ncap - 1);
+        vv[t] = p;
     }
-    free(c->hkeys_i); free(c->hkeys_j); free(c->hvals);
-    c->hkeys_i = ki; c->hkeys_j = kj; c->hvals = vv; c->hcap = ncap; c->htomb = 0;
+    free(c->hvals);
+    c->hvals = vv; c->hcap = ncap; c->htomb = 0;
     return TC_OK;
 }
 
@@ -45,9 +55,9 @@ int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b)
     if (a > b) { int32_t t = a; a = b; b = t; }
     size_t s = hslot(a, b, c->hcap);
     for (;;) {
-        int32_t k = c->hkeys_i[s];
-        if (k == HEMPTY) return -1;
-        if (k == a && c->hkeys_j[s] == b) return c->hvals[s];
+        int32_t v = c->hvals[s];
+        if (v == HEMPTY) return -1;
+        if (hslot_is(c, v, a, b)) return v;
         s = (s + 1) & (c->hcap - 1);
     }
 }
@@ -80,9 +90,9 @@ int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b)
     ((int32_t *)tc_vec_ptr(&c->pstencil))[p] = -1;
     ((double *)tc_vec_ptr(&c->pbend))[p] = 0.0;
     size_t s = hslot(a, b, c->hcap);
-    while (c->hkeys_i[s] >= 0) s = (s + 1) & (c->hcap - 1);
-    if (c->hkeys_i[s] == HTOMB) c->htomb--;
-    c->hkeys_i[s] = a; c->hkeys_j[s] = b; c->hvals[s] = p;
+    while (c->hvals[s] >= 0) s = (s + 1) & (c->hcap - 1);
+    if (c->hvals[s] == HTOMB) c->htomb--;
+    c->hvals[s] = p;
     c->hcount++;
     return p;
 }
@@ -93,10 +103,9 @@ void tc_pair_release(tc_cloth *c, int32_t p)
     c->pair_version++;  /* an edge may become a flap, or the pair go */
     if (--use[p] > 0) return;
     int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
-    int32_t a = pi[p], b = pj[p];
-    size_t s = hslot(a, b, c->hcap);
-    while (!(c->hkeys_i[s] == a && c->hkeys_j[s] == b)) s = (s + 1) & (c->hcap - 1);
-    c->hkeys_i[s] = HTOMB; c->hcount--; c->htomb++;
+    size_t s = hslot(pi[p], pj[p], c->hcap);
+    while (c->hvals[s] != p) s = (s + 1) & (c->hcap - 1);
+    c->hvals[s] = HTOMB; c->hcount--; c->htomb++;
     pi[p] = -1; pj[p] = -1;
     ((double *)tc_vec_ptr(&c->pbend))[p] = 0.0;
     if (tc_vec_resize(&c->pfree, c->pfree.len + 1) == TC_OK)
@@ -108,13 +117,13 @@ void tc_pair_release(tc_cloth *c, int32_t p)
 void tc_pair_hash_rebuild(tc_cloth *c)
 {
     const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
-    for (size_t s = 0; s < c->hcap; s++) c->hkeys_i[s] = HEMPTY;
+    for (size_t s = 0; s < c->hcap; s++) c->hvals[s] = HEMPTY;
     c->hcount = 0; c->htomb = 0;
     for (size_t p = 0; p < c->pi.len; p++) {
         if (pi[p] < 0) continue;
         size_t s = hslot(pi[p], pj[p], c->hcap);
-        while (c->hkeys_i[s] != HEMPTY) s = (s + 1) & (c->hcap - 1);
-        c->hkeys_i[s] = pi[p]; c->hkeys_j[s] = pj[p]; c->hvals[s] = (int32_t)p;
+        while (c->hvals[s] != HEMPTY) s = (s + 1) & (c->hcap - 1);
+        c->hvals[s] = (int32_t)p;
         c->hcount++;
     }
 }
@@ -150,8 +159,7 @@ int tc_reserve_triangles(tc_cloth *c, int32_t m)
     size_t M = (size_t)m;
     if (tc_vec_resize(&c->tri, 3 * M) || tc_vec_resize(&c->tpair, 3 * M) ||
         tc_vec_resize(&c->grad, 4 * M) || tc_vec_resize(&c->area, M) || tc_vec_resize(&c->rot, 6 * M) ||
-        tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->stress, 9 * M) || tc_vec_resize(&c->principal, 2 * M) ||
-        tc_vec_resize(&c->pdir, 3 * M) || tc_vec_resize(&c->uv, 6 * M))
+        tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->principal, 2 * M) || tc_vec_resize(&c->uv, 6 * M))
         return TC_ERR_NOMEM;
     size_t old = c->tgrain.len;
     if (tc_vec_resize(&c->tgrain, M) || tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M) ||

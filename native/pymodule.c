@@ -604,6 +604,24 @@ static PyObject *Cloth_snapshot(PyObject *o, PyObject *unused)
     return out;
 }
 
+/* _memory() -> {name: (bytes used, bytes held)} of every array (tc_cloth_memory): private, for the
+ * memory accounting of the scaling bench and its tests. */
+static PyObject *Cloth_memory(PyObject *o, PyObject *unused)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    PyObject *d = PyDict_New();
+    if (!d) return NULL;
+    for (size_t k = 0; k < tc_cloth_memory_count(); k++) {
+        size_t used, held;
+        const char *name = tc_cloth_memory(self->c, k, &used, &held);
+        PyObject *v = Py_BuildValue("(nn)", (Py_ssize_t)used, (Py_ssize_t)held);
+        if (!v || PyDict_SetItemString(d, name, v)) { Py_XDECREF(v); Py_DECREF(d); return NULL; }
+        Py_DECREF(v);
+    }
+    return d;
+}
+
 static PyObject *Cloth_restore(PyObject *o, PyObject *arg)
 {
     ClothObject *self = (ClothObject *)o;
@@ -650,6 +668,7 @@ static PyMethodDef Cloth_methods[] = {
     {"events", Cloth_events, METH_NOARGS, "Topology events of the last step, as raw bytes."},
     {"vertex_stress", Cloth_vertex_stress, METH_O, "Largest principal stress at a vertex and its direction."},
     {"snapshot", Cloth_snapshot, METH_NOARGS, "The whole simulation state as bytes (restore() takes it back)."},
+    {"_memory", Cloth_memory, METH_NOARGS, "Private: {array: (bytes used, bytes held)} of the cloth (accounting)."},
     {"restore", Cloth_restore, METH_O, "Replace the whole simulation state by a snapshot() blob (validated)."},
     {NULL, NULL, 0, NULL},
 };

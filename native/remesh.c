@@ -221,14 +221,12 @@ static int32_t split_edge(tc_cloth *c, int32_t a, int32_t b, double s)
         T2[0] = o; T2[1] = p; T2[2] = e1;
         UV2[0] = uo[0]; UV2[1] = uo[1]; UV2[2] = up[0]; UV2[3] = up[1]; UV2[4] = u1[0]; UV2[5] = u1[1];
         /* the new element inherits the rotation so the first force evaluation starts from it, and
-           the stress so tearing later in this step (before the next element pass) reads its
-           parent's instead of zero */
-        double *R = tc_vec_ptr(&c->rot);
+           the stress (sigma, from which with R the world stress is derived: core.h) so tearing
+           later in this step (before the next element pass) reads its parent's instead of zero */
+        double *R = tc_vec_ptr(&c->rot), *SG = tc_vec_ptr(&c->sig), *P2 = tc_vec_ptr(&c->principal);
         memcpy(R + 6 * (size_t)t2, R + 6 * (size_t)t, 6 * sizeof(double));
-        double *S9 = tc_vec_ptr(&c->stress), *P2 = tc_vec_ptr(&c->principal), *PD = tc_vec_ptr(&c->pdir);
-        memcpy(S9 + 9 * (size_t)t2, S9 + 9 * (size_t)t, 9 * sizeof(double));
+        memcpy(SG + 3 * (size_t)t2, SG + 3 * (size_t)t, 3 * sizeof(double));
         memcpy(P2 + 2 * (size_t)t2, P2 + 2 * (size_t)t, 2 * sizeof(double));
-        memcpy(PD + 3 * (size_t)t2, PD + 3 * (size_t)t, 3 * sizeof(double));
         /* and the material: its warp (in the rest space, where both halves lie in the parent's
            plane), its own grain angle and its plastic strain (in the warp/weft axes), see ortho.c */
         double *TW = tc_vec_ptr(&c->twarp), *TG = tc_vec_ptr(&c->tgrain), *TL = tc_vec_ptr(&c->tplast);

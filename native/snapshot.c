@@ -95,9 +95,15 @@ int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
         put(&w, tc_vec_ptr(v), v->len * v->item);
     }
     put_u64(&w, c->hcap); put_u64(&w, c->hcount); put_u64(&w, c->htomb);
-    put(&w, c->hkeys_i, c->hcap * sizeof(int32_t));
-    put(&w, c->hkeys_j, c->hcap * sizeof(int32_t));
-    put(&w, c->hvals, c->hcap * sizeof(int32_t));
+    /* the layout of the builds that kept the keys beside the ids (key i, key j, id per slot; key i
+       -1 empty, -2 tombstone), so blobs of either build read in the other: the keys are the
+       pairs' ends (mesh.c) */
+    {
+        const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
+        for (size_t s = 0; s < c->hcap; s++) put_i32(&w, c->hvals[s] < 0 ? c->hvals[s] : pi[c->hvals[s]]);
+        for (size_t s = 0; s < c->hcap; s++) put_i32(&w, c->hvals[s] < 0 ? -1 : pj[c->hvals[s]]);
+        put(&w, c->hvals, c->hcap * sizeof(int32_t));
+    }
     put_i32(&w, c->nh);
     for (int32_t h = 0; h < c->nh; h++) {
         const tc_handle *H = &c->handles[h];
@@ -158,8 +164,8 @@ static const char *check(const tc_cloth *c)
         {&c->strength, nv, "strength"}, {&c->vtri, nv, "vtri"}, {&c->vflag, nv, "vflag"},
         {&c->vhandle, nv, "vhandle"}, {&c->vpin, nv, "vpin"}, {&c->groups, nv * (size_t)(c->ng ? c->ng : 1), "groups"},
         {&c->tri, 3 * nt, "tri"}, {&c->tpair, 3 * nt, "tpair"}, {&c->grad, 4 * nt, "grad"}, {&c->area, nt, "area"},
-        {&c->rot, 6 * nt, "rot"}, {&c->sig, 3 * nt, "sig"}, {&c->stress, 9 * nt, "stress"},
-        {&c->principal, 2 * nt, "principal"}, {&c->pdir, 3 * nt, "pdir"}, {&c->uv, 6 * nt, "uv"},
+        {&c->rot, 6 * nt, "rot"}, {&c->sig, 3 * nt, "sig"},
+        {&c->principal, 2 * nt, "principal"}, {&c->uv, 6 * nt, "uv"},
         {&c->pj, np, "pj"}, {&c->puse, np, "puse"}, {&c->ptris, 2 * np, "ptris"}, {&c->pstencil, np, "pstencil"},
         {&c->pbend, np, "pbend"}, {&c->tipdir, 3 * c->tips.len, "tipdir"}, {&c->tipadv, c->tips.len, "tipadv"},
         {&c->cactive, c->cvert.len, "cactive"}, {&c->cnormal, 3 * c->cvert.len, "cnormal"},
@@ -212,12 +218,9 @@ static const char *check(const tc_cloth *c)
     }
     /* the pair hash: probing stops at an empty slot, so there must be one */
     if (!c->hcap || (c->hcap & (c->hcap - 1)) || c->hcount + c->htomb >= c->hcap) return "pair hash";
-    for (size_t s = 0; s < c->hcap; s++) {
-        int32_t a = c->hkeys_i[s];
-        if (a < -2 || a >= c->nv) return "pair hash";
-        if (a >= 0 && (c->hkeys_j[s] < 0 || c->hkeys_j[s] >= c->nv || c->hvals[s] < 0 || c->hvals[s] >= (int64_t)np))
+    for (size_t s = 0; s < c->hcap; s++)  /* a live slot names a live pair (its key: mesh.c) */
+        if (c->hvals[s] < -2 || c->hvals[s] >= (int64_t)np || (c->hvals[s] >= 0 && ((const int32_t *)tc_vec_ptr(&c->pi))[c->hvals[s]] < 0))
             return "pair hash";
-    }
     for (int32_t h = 0; h < c->nh; h++)
         for (int32_t k = 0; k < c->handles[h].count; k++)
             if (c->handles[h].verts[k] < 0 || c->handles[h].verts[k] >= c->nv) return "handles";
@@ -231,6 +234,7 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
 #define GET(dst, k) do { if (get(&r, (dst), (k))) FAIL("snapshot is truncated (%zu bytes; it ends inside %s)", size, where); } while (0)
     const char *where = "the header";
     tc_cloth *c = NULL;
+    int32_t *keys = NULL;  /* the pair hash's keys while they are checked */
     const unsigned char *p = data;
     if (!p || size < HEADER_BYTES) { snprintf(msg, msz, "snapshot is truncated: %zu bytes, less than its %d-byte header", size, HEADER_BYTES); return NULL; }
     if (memcmp(p, MAGIC, 8)) { snprintf(msg, msz, "not a cloth snapshot (bad magic)"); return NULL; }
@@ -303,17 +307,34 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
         if (tc_vec_resize(v, (size_t)len)) FAIL("out of memory");
         GET(tc_vec_ptr(v), (size_t)len * item);
     }
+    /* a blob of the builds that stored the world stress and principal direction (derived now, see
+       core.h) carries them: nothing reads them, so they go */
+    tc_vec_free(&c->stress); tc_vec_free(&c->pdir);
+    if (tc_vec_init(&c->stress, sizeof(double), 1) || tc_vec_init(&c->pdir, sizeof(double), 1)) FAIL("out of memory");
     where = "the pair hash";
     uint64_t hcap, hcount, htomb;
     GET(&hcap, 8); GET(&hcount, 8); GET(&htomb, 8);
     if (!hcap || (hcap & (hcap - 1)) || hcap > (r.n - r.at) / (3 * sizeof(int32_t)))
         FAIL("snapshot is corrupted (pair hash of %llu slots)", (unsigned long long)hcap);
     c->hcap = (size_t)hcap; c->hcount = (size_t)hcount; c->htomb = (size_t)htomb;
-    c->hkeys_i = malloc(c->hcap * sizeof(int32_t)); c->hkeys_j = malloc(c->hcap * sizeof(int32_t));
+    /* keys and ids (see the writer): the ids kept, an empty or tombstone slot by its key; a live
+       slot's key must be its pair's ends, which the probes read in its place */
     c->hvals = malloc(c->hcap * sizeof(int32_t));
-    if (!c->hkeys_i || !c->hkeys_j || !c->hvals) FAIL("out of memory");
-    GET(c->hkeys_i, c->hcap * sizeof(int32_t)); GET(c->hkeys_j, c->hcap * sizeof(int32_t));
+    keys = malloc(2 * c->hcap * sizeof(int32_t));
+    if (!c->hvals || !keys) FAIL("out of memory");
+    GET(keys, 2 * c->hcap * sizeof(int32_t));
     GET(c->hvals, c->hcap * sizeof(int32_t));
+    {
+        const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj), np = (int32_t)c->pi.len;
+        for (size_t s = 0; s < c->hcap; s++) {
+            const int32_t a = keys[s], b = keys[c->hcap + s], p = c->hvals[s];
+            if (a < 0) { if (a < -2) FAIL("snapshot is corrupted (pair hash slot %zu)", s); c->hvals[s] = a; continue; }
+            if (p < 0 || p >= np || pi[p] != a || pj[p] != b)
+                FAIL("snapshot is corrupted (pair hash slot %zu names pair %d, not the pair of %d-%d)", s, (int)p, (int)a, (int)b);
+        }
+    }
+    free(keys);
+    keys = NULL;
     where = "the handles";
     int32_t nh;
     GET(&nh, 4);
@@ -344,6 +365,7 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
     if (bad) FAIL("snapshot is inconsistent (%s does not match the counts or points out of range)", bad);
     return c;
 fail:
+    free(keys);
     tc_cloth_destroy(c);
     return NULL;
 #undef GET

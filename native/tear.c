@@ -157,10 +157,12 @@ static double disc_stress(tc_cloth *c, int32_t v, double *dir, double *normal, d
     for (int q = 0; q < 3; q++) n[q] /= ln;
     int32_t m = disc_walk(c, (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)v, c->mat.tear_radius, fan, nf, BY_CENTROID);
     const int32_t *Q = tc_vec_ptr(&c->tqueue);
-    const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
+    const double *A = tc_vec_ptr(&c->area);
     double S[9] = {0}, wsum = 0.0;
     for (int32_t i = 0; i < m; i++) {
-        const double w = A[Q[i]], *st = S3 + 9 * (size_t)Q[i];
+        double st[9];
+        tc_tri_world_stress(c, (size_t)Q[i], st);
+        const double w = A[Q[i]];
         for (int q = 0; q < 9; q++) S[q] += w * st[q];
         wsum += w;
     }
@@ -323,11 +325,13 @@ static bool stress_ahead(tc_cloth *c, int32_t v, const double *lead, const int32
     for (int k = 0; k < 3; k++) P[k] = X[k] + t * e[k];
     int32_t m = disc_walk(c, P, c->mat.tear_radius, fan, nf, BY_CENTROID);
     const int32_t *Q = tc_vec_ptr(&c->tqueue);
-    const double *S3 = tc_vec_ptr(&c->stress), *A = tc_vec_ptr(&c->area);
+    const double *A = tc_vec_ptr(&c->area);
     double wsum = 0.0;
     memset(S, 0, 9 * sizeof(double));
     for (int32_t i = 0; i < m; i++) {
-        const double wt = A[Q[i]], *st = S3 + 9 * (size_t)Q[i];
+        double st[9];
+        tc_tri_world_stress(c, (size_t)Q[i], st);
+        const double wt = A[Q[i]];
         for (int q = 0; q < 9; q++) S[q] += wt * st[q];
         wsum += wt;
     }

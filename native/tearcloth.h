@@ -214,6 +214,11 @@ tc_stats tc_cloth_stats(const tc_cloth *c);
  * for tests of the kernels and benchmarks of the product. TC_ERR_INPUT when no step has assembled
  * one for the current mesh (a tear since, or no step yet). */
 int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y);
+/* Memory held by array k of the cloth (k < tc_cloth_memory_count(); the last entries are the pair
+ * hash, fem.c's slot table and the multigrid hierarchy): its name, the bytes its items use and the
+ * bytes it holds (capacity). For the memory accounting of the scaling bench and its tests. */
+size_t tc_cloth_memory_count(void);
+const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *held);
 
 typedef struct tc_energy {
     double kinetic, elastic, bending, gravity;
@@ -221,7 +226,9 @@ typedef struct tc_energy {
 tc_energy tc_cloth_energy(tc_cloth *c);
 
 /* Arrays, readable without copying; the returned block carries a new reference (tc_buf_decref it).
- * Sizes follow the current vertex / triangle counts. */
+ * Sizes follow the current vertex / triangle counts. TC_STRESS and TC_PRINCIPAL_DIR are derived
+ * at the call (the core keeps the rotation and 2-D stress only) into a block of the caller's own,
+ * which later steps do not update. */
 typedef enum tc_array_id {
     TC_POSITIONS,        /* n x 3 float64 */
     TC_VELOCITIES,       /* n x 3 float64 */

@@ -130,6 +130,44 @@ static void test_snapshot_older_stats(const unsigned char *blob, size_t size)
 /* Snapshot of a torn cloth: a copy steps bit for bit as the original; truncated, corrupted and
  * resealed blobs are refused or (a flipped value that is still valid) step without reading out
  * of bounds. */
+/* tc_cloth_memory's table, and the arrays derived at the call (TC_STRESS, TC_PRINCIPAL_DIR) */
+static void test_memory_and_derived(tc_cloth *c)
+{
+    size_t used, held, total = 0;
+    bool seen_amg = false;
+    for (size_t k = 0; k < tc_cloth_memory_count(); k++) {
+        const char *name = tc_cloth_memory(c, k, &used, &held);
+        CHECK(name && used <= held, "memory entry %zu (%s): %zu used of %zu", k, name ? name : "?", used, held);
+        if (name && (!strcmp(name, "stress") || !strcmp(name, "pdir"))) CHECK(used == 0, "%s is stored (%zu bytes)", name, used);
+        if (name && !strcmp(name, "amg")) seen_amg = true;
+        total += used;
+    }
+    CHECK(seen_amg && total > 0 && !tc_cloth_memory(c, tc_cloth_memory_count(), &used, &held), "memory table's end");
+    size_t r, k, item;
+    tc_buf *bs = tc_cloth_array(c, TC_STRESS, &r, &k, &item);
+    CHECK(bs && r == (size_t)tc_cloth_num_triangles(c) && k == 9 && item == sizeof(double), "stress array");
+    tc_buf *bd = tc_cloth_array(c, TC_PRINCIPAL_DIR, &r, &k, &item);
+    CHECK(bd && k == 3, "principal direction array");
+    tc_buf *bp = tc_cloth_array(c, TC_PRINCIPAL, &r, &k, &item);
+    if (bs && bd && bp) {
+        const double *S = tc_buf_data(bs), *d = tc_buf_data(bd), *p = tc_buf_data(bp);
+        double worst = 0.0, scale = 0.0;
+        for (size_t t = 0; t < r; t++)
+            for (int q = 0; q < 9; q++) scale = fmax(scale, fabs(S[9 * t + q]));
+        for (size_t t = 0; t < r; t++)
+            for (int i = 0; i < 3; i++) {  /* symmetric, and S d = p1 d */
+                double sd = 0.0;
+                for (int j = 0; j < 3; j++) {
+                    worst = fmax(worst, fabs(S[9 * t + 3 * i + j] - S[9 * t + 3 * j + i]));
+                    sd += S[9 * t + 3 * i + j] * d[3 * t + j];
+                }
+                worst = fmax(worst, fabs(sd - p[2 * t] * d[3 * t + i]));
+            }
+        CHECK(scale > 0 && worst <= 1e-9 * scale, "derived stress: %g off of %g", worst, scale);
+    }
+    tc_buf_decref(bs); tc_buf_decref(bd); tc_buf_decref(bp);
+}
+
 static void test_snapshot(tc_cloth *c)
 {
     void *blob; size_t size;
@@ -216,13 +254,14 @@ static void check_batches_against_reference(tc_cloth *c, const char *when)
     const int32_t tc = (int32_t)(nt / 2);  /* collapsed: its third corner on the line of the others */
     for (int k = 0; k < 3; k++) xp[3 * T[3 * tc + 2] + k] = 2.0 * xp[3 * T[3 * tc] + k] - xp[3 * T[3 * tc + 1] + k];
     memcpy(rot0, tc_vec_ptr(&c->rot), 6 * nt * sizeof *rot0);
-    const tc_vec *outs[6] = {&c->fel, &c->rot, &c->sig, &c->stress, &c->principal, &c->pdir};
-    const size_t per[6] = {3 * nv, 6 * nt, 3 * nt, 9 * nt, 2 * nt, 3 * nt};
-    double *ref[6], *y_ref = malloc(3 * nv * sizeof *y_ref), *y = malloc(3 * nv * sizeof *y);
+    /* the world stress and principal direction are derived from rot and sig (core.h) */
+    const tc_vec *outs[4] = {&c->fel, &c->rot, &c->sig, &c->principal};
+    const size_t per[4] = {3 * nv, 6 * nt, 3 * nt, 2 * nt};
+    double *ref[4], *y_ref = malloc(3 * nv * sizeof *y_ref), *y = malloc(3 * nv * sizeof *y);
     const int was = tc_fem_reference;
     tc_fem_reference = 1;
     double worst_ref = tc_element_pass(c, xp);
-    for (int a = 0; a < 6; a++) {
+    for (int a = 0; a < 4; a++) {
         ref[a] = malloc(per[a] * sizeof **ref);
         memcpy(ref[a], tc_vec_ptr(outs[a]), per[a] * sizeof **ref);
     }
@@ -235,7 +274,7 @@ static void check_batches_against_reference(tc_cloth *c, const char *when)
         if (fused) CHECK(tc_element_assemble(c, xp, 1e-3, &worst) == TC_OK, "%s: fused pass", when);
         else worst = tc_element_pass(c, xp);
         CHECK(fabs(worst - worst_ref) <= 1e-12 * worst_ref, "%s: largest stretch %.17g vs %.17g", when, worst, worst_ref);
-        for (int a = 0; a < 6; a++) {
+        for (int a = 0; a < 4; a++) {
             double d = max_rel_diff(tc_vec_ptr(outs[a]), ref[a], per[a]);
             CHECK(d <= 1e-12, "%s (%s): element output %d differs from the reference by %g relative", when,
                   fused ? "fused" : "alone", a, d);
@@ -248,7 +287,7 @@ static void check_batches_against_reference(tc_cloth *c, const char *when)
     tc_fem_reference = was;
     memcpy(tc_vec_ptr(&c->rot), rot0, 6 * nt * sizeof *rot0);
     c->dirty = true;  /* the element state of the cloth's own positions again at the next use */
-    for (int a = 0; a < 6; a++) free(ref[a]);
+    for (int a = 0; a < 4; a++) free(ref[a]);
     free(xp); free(p); free(rot0); free(y_ref); free(y);
 }
 
@@ -326,6 +365,7 @@ static void strip_and_tear(const tc_material *material)
         CHECK(st.plastic_unconverged == 0, "return mappings at their cap: %d", st.plastic_unconverged);
         tc_buf_decref(b);
     }
+    test_memory_and_derived(c);
     test_snapshot(c);
     tc_cloth_destroy(c);
     free(V); free(T);
