@@ -324,7 +324,6 @@ int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3
 /* vflag and sfix for one sub-step of length dt ending at fraction alpha of the handles' motion */
 void tc_constraints_begin(tc_cloth *c, double dt, double alpha);
 void tc_contact_basis(tc_cloth *c, double dt);
-void tc_precondition_constraints_changed(tc_cloth *c);  /* solver.c: after a re-built contact basis */
 void tc_constraint_filter(const tc_cloth *c, double *r);             /* r := S r */
 void tc_constraint_project(const tc_cloth *c, double *v, const double *fix);  /* v := S v + fix */
 void tc_constraint_offsets(const tc_cloth *c, const double *v0, double *fix);  /* fix -= (I - S) v0 */
@@ -349,6 +348,7 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 again
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);
+void tc_precondition_constraints_changed(tc_cloth *c);  /* after a re-built contact basis (step.c) */
 /* 1 when converged, 0 when stopped at the cap; iterations in *iterations (see solver.c) */
 int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations);
 

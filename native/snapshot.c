@@ -96,8 +96,8 @@ int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
     }
     put_u64(&w, c->hcap); put_u64(&w, c->hcount); put_u64(&w, c->htomb);
     /* the layout of the builds that kept the keys beside the ids (key i, key j, id per slot; key i
-       -1 empty, -2 tombstone), so blobs of either build read in the other: the keys are the
-       pairs' ends (mesh.c) */
+       -1 empty, -2 tombstone), so one reader takes the blobs of either: the keys are the pairs'
+       ends (mesh.c), checked against them when read */
     {
         const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
         for (size_t s = 0; s < c->hcap; s++) put_i32(&w, c->hvals[s] < 0 ? c->hvals[s] : pi[c->hvals[s]]);

@@ -373,18 +373,6 @@ int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc
     return TCC_OK;
 }
 
-/* Which pairs can come within their gap over a motion of displacement disp[v] per vertex: a lower
- * bound slack[q] of (distance - gap[q]) is kept per pair, and a pair is handed to the exact swept
- * test (out) only when that bound minus the pair's largest relative motion is not positive. Why:
- * the two-ring pairs of a sheet number ~60 per vertex and all are neighbours, so boxes overlap and
- * only the distance rejects them; the distance of two elements changes by at most
- * max_i |d_i - r| + max_j |d_j - r| over the corners i of one and j of the other, for any common
- * r (every point of a triangle or segment is a convex combination of its corners) - r = the first
- * vertex's displacement, so a sheet that falls or swings as a whole spends no slack. One bound per
- * pair and step replaces the exact distance until the pair has drawn close. With update (the real
- * motion, x = its end) the bound is carried on, and recomputed exactly at x for the pairs handed
- * out; without (a predicted motion) it is only read. quad[q] = (vertex, a, b, c) with split 1
- * (vertex-triangle) or (a, b, c, d) with split 2 (edge-edge). */
 /* One pair range [q0, q1) of tcc_ccd_cull, its bounds lowered by debt first (a block's motion not
  * yet charged to its pairs, tcc_ccd_cull_blocks). With update, *min_out is the smallest bound
  * left in the range (NaN if a degenerate pair has none: its block is then read every step). */
@@ -440,6 +428,18 @@ static int cull_check(int split, const double *disp, tcc_idx n, tcc_error *err)
     return TCC_OK;
 }
 
+/* Which pairs can come within their gap over a motion of displacement disp[v] per vertex: a lower
+ * bound slack[q] of (distance - gap[q]) is kept per pair, and a pair is handed to the exact swept
+ * test (out) only when that bound minus the pair's largest relative motion is not positive. Why:
+ * the two-ring pairs of a sheet number ~60 per vertex and all are neighbours, so boxes overlap and
+ * only the distance rejects them; the distance of two elements changes by at most
+ * max_i |d_i - r| + max_j |d_j - r| over the corners i of one and j of the other, for any common
+ * r (every point of a triangle or segment is a convex combination of its corners) - r = the first
+ * vertex's displacement, so a sheet that falls or swings as a whole spends no slack. One bound per
+ * pair and step replaces the exact distance until the pair has drawn close. With update (the real
+ * motion, x = its end) the bound is carried on, and recomputed exactly at x for the pairs handed
+ * out; without (a predicted motion) it is only read. quad[q] = (vertex, a, b, c) with split 1
+ * (vertex-triangle) or (a, b, c, d) with split 2 (edge-edge). */
 int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
                  const double *gap, double *slack, int update, tcc_idx *out, tcc_idx *nout, tcc_error *err)
 {
@@ -453,21 +453,6 @@ int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int
     return TCC_OK;
 }
 
-/* tcc_ccd_cull by blocks of pairs. Why: the two-ring of a 1,700-vertex shirt has ~105,000 pairs,
- * and reading four corners of each, four times a step, cost ~3 ms - most of a step in which
- * nothing came close. Every point of every element of block b moves by a convex combination of
- * the displacements of the block's vertices (block_vertices[block_vptr[b] .. block_vptr[b+1]),
- * a superset of its pairs' corners), so two such points move apart by at most the diagonal D of
- * those displacements' box: the same bound for every pair of the block, got from its ~30
- * vertices instead of its pairs' 4 * 64 corners. A block whose smallest bound block_min[b],
- * lowered by the motion not yet charged (block_debt[b]) and by D, stays positive hands nothing out:
- * with update its debt grows by D and its pairs are not read; otherwise its pairs are culled one by
- * one as tcc_ccd_cull does (their bounds lowered by the debt first), and with update the debt is
- * charged, the bounds carried or made exact, and block_min recomputed. The blocks are the pair
- * ranges [block_ptr[b], block_ptr[b+1]); every bound read is a lower bound of the pair's
- * distance - gap as in tcc_ccd_cull, so no pair that can come within its gap is kept back.
- * disp2 (or NULL): a second motion from x, culled without update into out2 (*nout2) - the same
- * as a second call, in the same pass over the blocks (the swept stage's prediction). */
 /* Diagonal of the box of the displacements of vertices vert[0..count): no two points of elements
  * spanned by these vertices move apart by more. */
 static double block_spread(const double *disp, const tcc_idx *vert, tcc_idx count)
@@ -485,6 +470,21 @@ static double block_spread(const double *disp, const tcc_idx *vert, tcc_idx coun
     return sqrt(dot3(e, e));
 }
 
+/* tcc_ccd_cull by blocks of pairs. Why: the two-ring of a 1,700-vertex shirt has ~105,000 pairs,
+ * and reading four corners of each, four times a step, cost ~3 ms - most of a step in which
+ * nothing came close. Every point of every element of block b moves by a convex combination of
+ * the displacements of the block's vertices (block_vertices[block_vptr[b] .. block_vptr[b+1]),
+ * a superset of its pairs' corners), so two such points move apart by at most the diagonal D of
+ * those displacements' box: the same bound for every pair of the block, got from its ~30
+ * vertices instead of its pairs' 4 * 64 corners. A block whose smallest bound block_min[b],
+ * lowered by the motion not yet charged (block_debt[b]) and by D, stays positive hands nothing out:
+ * with update its debt grows by D and its pairs are not read; otherwise its pairs are culled one by
+ * one as tcc_ccd_cull does (their bounds lowered by the debt first), and with update the debt is
+ * charged, the bounds carried or made exact, and block_min recomputed. The blocks are the pair
+ * ranges [block_ptr[b], block_ptr[b+1]); every bound read is a lower bound of the pair's
+ * distance - gap as in tcc_ccd_cull, so no pair that can come within its gap is kept back.
+ * disp2 (or NULL): a second motion from x, culled without update into out2 (*nout2) - the same
+ * as a second call, in the same pass over the blocks (the swept stage's prediction). */
 int tcc_ccd_cull_blocks(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
                         const double *gap, double *slack, int update, const tcc_idx *block_ptr, tcc_idx nb,
                         const tcc_idx *block_vptr, const tcc_idx *block_vertices, tcc_idx nbv, double *block_min,
