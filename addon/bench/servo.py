@@ -439,9 +439,17 @@ def kill_and_watch(sim: subprocess.Popen, shm_name: str, servo_pid: int, n_hands
     shared = None
     try:
         shared = _Shared(n_hands, shm_name)
-        before = [_read(shared.prox[i]) for i in watched]
-        if not all(np.any(b[_P_EFF : _P_EFF + 3]) and math.isnan(b[_P_ZERO]) for b in before):
-            raise RuntimeError(f"the devices did not feel a force before the kill: {before}")
+        # The force the devices feel passes through zero now and then (a proxy that has caught up
+        # with its handle, the ramp at the session's start): wait for a moment when every watched
+        # device is being pushed, so the zero seen after the kill can only be the kill's.
+        deadline = time.perf_counter() + wait_s
+        while True:
+            before = [_read(shared.prox[i]) for i in watched]
+            if all(np.any(b[_P_EFF : _P_EFF + 3]) and math.isnan(b[_P_ZERO]) for b in before):
+                break
+            if time.perf_counter() > deadline or sim.poll() is not None:
+                raise RuntimeError(f"the devices did not feel a force before the kill (waited {wait_s:.0f} s): {before}")
+            time.sleep(0.001)
         t_kill = time.perf_counter()  # CLOCK_MONOTONIC, as the servo's stamps
         os.kill(sim.pid, signal.SIGKILL)
         sim.wait(5.0)
