@@ -318,6 +318,13 @@ class Cloth:
     def clear_contacts(self) -> None:
         self._c.set_contacts(np.zeros(0, np.int32), np.zeros((0, 3)), np.zeros(0))
 
+    def forget_contacts(self) -> None:
+        """Drop the contact state each vertex carries from its last sub-step into the next (sliding,
+        with its kinetic friction, or lifted off: the guess the next solve starts from), so the next
+        sub-step judges every contact as on first touch. For a cut in the animation (a body or the
+        cloth moved elsewhere); the result agrees either way within the solve's tolerance."""
+        self._c.forget_contacts()
+
     # ---- time ----
     def step(self, dt: float, substeps: int = 1) -> None:
         """Advance dt seconds in `substeps` implicit steps (the GIL is released meanwhile).
@@ -340,8 +347,14 @@ class Cloth:
         of its contacts were nearly parallel or opposite, a squeeze: they share the others),
         contact_speed_clamps (vertex contact solves bounded to the speed their contacts ask),
         friction_slips (held vertices whose static friction would have exceeded mu times the
-        normal reaction: they slid), friction_cone_exceeded (held vertices still outside the
-        Coulomb cone after the sub-step's last re-solve, left held)."""
+        normal reaction: they slid), friction_sticks (sliding vertices whose slip stopped or turned
+        past a right angle: held from the next sub-step), friction_cone_exceeded (held vertices still outside the Coulomb cone when the
+        sub-step's contact rounds stopped at their cap, left held), slides_carried (contact vertices
+        that began a sub-step sliding as they ended the previous one), lifts_carried (contacts that
+        began a sub-step released, their vertex still lifting off), contact_rounds_capped
+        (sub-steps whose contacts still changed state after the last round, kept as solved). solves
+        (last step): linear solves summed over its sub-steps, one each and more when contacts
+        changed state."""
         return self._c.stats()
 
     def energy(self) -> dict:

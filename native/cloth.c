@@ -26,7 +26,8 @@
     X(vsa, double) X(tips, int32_t) X(tipdir, double) X(ev_newv, int32_t) X(ev_par, int32_t) X(ev_w, double)          \
     X(ev_chg, int32_t) X(ev_newt, int32_t) X(rptr, int32_t) X(rcol, int32_t) X(rblk, double) X(fptr, int32_t)  \
     X(fcol, int32_t) X(fval, double) X(pslot, int32_t) X(tipadv, double) X(tstamp, int32_t) X(vstamp, int32_t)     \
-    X(tqueue, int32_t) X(vqueue, int32_t) X(tgrain, double) X(twarp, double) X(taxis, double) X(tplast, double) X(ev_rmv, int32_t) X(ev_rmt, int32_t)
+    X(tqueue, int32_t) X(vqueue, int32_t) X(tgrain, double) X(twarp, double) X(taxis, double) X(tplast, double) X(ev_rmv, int32_t) X(ev_rmt, int32_t) \
+    X(vcstate, int8_t) X(vkinetic, double)
 
 /* The list above as data, for snapshot.c (which carries every array by it, so an array added to
  * the list is saved and restored with no change there). */

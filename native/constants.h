@@ -51,10 +51,11 @@
  * momentum terms (|J_i| + |b_i| + m_i (|surface velocity| + contact_max_push)): less is rounding
  * of a zero reaction. (1) */
 #define TC_RELEASE_ROUNDING 1e-9
-/* Solves of one sub-step that turn held contact vertices whose static friction is exceeded into
- * sliding ones (and release pulling contacts): the load moves on to the next held row of a stiff
- * cloth each round. A vertex still outside its cone after them stays held, counted in
- * tc_stats.friction_cone_exceeded. (solves) */
+/* Re-solves of one sub-step that turn held contact vertices whose static friction is exceeded into
+ * sliding ones, release pulling contacts and bring back lifted ones driven into the surface: the
+ * load moves on to the next held row of a stiff cloth each round. What still changes after them is
+ * left as solved, counted in tc_stats (friction_cone_exceeded: held vertices outside their cone;
+ * contact_rounds_capped: the sub-steps). (solves) */
 #define TC_CONTACT_ROUNDS 8
 
 /* ---- linear solver (solver.c) ---- */

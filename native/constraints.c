@@ -7,11 +7,16 @@
  * its normal to the touched surface's (inelastic), and a vertex touching several things keeps an
  * orthonormal basis of their normals (snorm, scount). The solver then works on the manifold
  * {v_i = S_i v_i + z_i}: tc_constraint_filter applies S, tc_constraint_project puts a vector on
- * the manifold. A contact vertex with friction starts each sub-step held (tangentially too); after
- * the solve, held vertices whose reaction leaves the Coulomb cone slide (kinetic friction joins
- * the right-hand side) and contacts whose reaction pulls (adhesion) are released, then the step is
- * solved again; the bounded extra normal speed used to recover a penetration is taken back out of
- * the velocity (no bounce).
+ * the manifold. After each solve of a sub-step, held contact vertices whose reaction leaves the
+ * Coulomb cone slide (kinetic friction joins the right-hand side), contacts whose reaction pulls
+ * (adhesion) are released, and the step is solved again (step.c's rounds). Every vertex carries
+ * how its contacts ended a sub-step into the next (vcstate, vkinetic): one that slid starts
+ * sliding, with the kinetic friction of its last normal reaction; one that touches down after a
+ * free sub-step starts sliding too (its friction follows, one sub-step late, as every sliding
+ * vertex's does); one that lifted off starts released; a held one, or one whose slip stopped,
+ * starts held. So the first solve is already right for most contacts and the rounds fix what
+ * changed. The bounded extra normal speed used to recover a penetration is taken back out of the
+ * velocity (no bounce).
  */
 #include "core.h"
 
@@ -320,6 +325,21 @@ static int contact_solve(const double *acc, double zz, const double *stick, doub
     return clamped;
 }
 
+/* The bounded extra normal speed that recovers a contact's penetration depth within the solve
+ * (contact_correction of it per step, at most contact_max_push). */
+static double recovery_push(const tc_cloth *c, double depth, double dt)
+{
+    double push = c->solver.contact_correction * depth / dt;
+    return push > c->solver.contact_max_push ? c->solver.contact_max_push : push;
+}
+
+/* The normal speed contact k asks of its vertex: the touched surface's, plus the recovery push. */
+static double contact_speed(const tc_cloth *c, int32_t k, double dt)
+{
+    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel), *cd = tc_vec_ptr(&c->cdepth);
+    return dot3(cvel + 3 * (size_t)k, cn + 3 * (size_t)k) + recovery_push(c, cd[k], dt);
+}
+
 /* Per vertex, an orthonormal basis of its active contact normals with the normal velocity they
  * prescribe (inelastic: the touched surface's). A vertex may touch several things at once - a body
  * and another layer of cloth over it - and must respect all of them: keeping only the deepest let
@@ -331,7 +351,7 @@ void tc_contact_basis(tc_cloth *c, double dt)
     double *fix = tc_vec_ptr(&c->sfix), *N = tc_vec_ptr(&c->snorm);
     const int32_t nc = (int32_t)c->cvert.len;
     const int32_t *cv = tc_vec_ptr(&c->cvert);
-    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel), *cd = tc_vec_ptr(&c->cdepth);
+    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel);
     const int8_t *act = tc_vec_ptr(&c->cactive);
     const double *cf = tc_vec_ptr(&c->cfric);
     double *sv = tc_vec_ptr(&c->sp);  /* solver scratch, free between solves: summed surface velocity */
@@ -359,9 +379,7 @@ void tc_contact_basis(tc_cloth *c, double dt)
            penetration is recovered through the solve, so the membrane around the vertex follows
            consistently (moving only the vertex's position stretched its stiff neighbourhood and
            flung it at metres per second) */
-        double push = c->solver.contact_correction * cd[k] / dt;
-        if (push > c->solver.contact_max_push) push = c->solver.contact_max_push;
-        double z = dot3(cvel + 3 * k, n) + push;
+        double z = contact_speed(c, k, dt);
         double *a = N + 9 * i;
         a[0] += n[0] * n[0]; a[1] += n[0] * n[1]; a[2] += n[0] * n[2];
         a[3] += n[1] * n[1]; a[4] += n[1] * n[2]; a[5] += n[2] * n[2];
@@ -385,6 +403,27 @@ void tc_contact_basis(tc_cloth *c, double dt)
     }
 }
 
+/* The state each contact starts the sub-step in, from how its vertex ended the last one (vcstate):
+ * a vertex that slid starts sliding (tc_contacts_kinetic_start gives it its kinetic friction), and
+ * so does one that touches down after a sub-step free (its friction follows from the next sub-step,
+ * once its normal reaction is known); one that lifted off starts released (tc_contacts_touch
+ * makes a contact active again if the solve drives the vertex into the surface). Held, or not
+ * known (NONE): held, judged on its reaction after the solve. This is the guess the rounds after
+ * the solve correct: starting every contact held cost the walking shirt, whose ~80 contacts all
+ * slide, a re-solve turning them to sliding every sub-step (issue 15). */
+static void carry_in(tc_cloth *c)
+{
+    const int32_t nc = (int32_t)c->cvert.len;
+    const int32_t *cv = tc_vec_ptr(&c->cvert);
+    const int8_t *cs = tc_vec_ptr(&c->vcstate);
+    int8_t *act = tc_vec_ptr(&c->cactive);
+    for (int32_t k = 0; k < nc; k++) {
+        const int8_t s = cs[cv[k]];
+        if (s == TC_CARRY_SLIDING || s == TC_CARRY_FREE) act[k] = TC_CONTACT_SLIDING;
+        else if (s == TC_CARRY_LIFTED) { act[k] = 0; c->stats.lifts_carried++; }
+    }
+}
+
 /* The constraints of one sub-step of length dt that ends at fraction alpha of the handles' motion
  * from their previous to their target map. */
 void tc_constraints_begin(tc_cloth *c, double dt, double alpha)
@@ -396,6 +435,7 @@ void tc_constraints_begin(tc_cloth *c, double dt, double alpha)
     double *fix = tc_vec_ptr(&c->sfix);
     memset(fl, VC_FREE, (size_t)n);
     memset(tc_vec_ptr(&c->cactive), 1, c->cvert.len);
+    carry_in(c);
     tc_contact_basis(c, dt);
     for (int32_t i = 0; i < n; i++)
         if (pin[i]) { fl[i] = VC_PINNED; fix[3 * i] = fix[3 * i + 1] = fix[3 * i + 2] = 0.0; }
@@ -456,18 +496,63 @@ void tc_constraint_offsets(const tc_cloth *c, const double *v0, double *fix)
     }
 }
 
-/* Marks inactive the contacts whose reaction (J - b along the normal, J = A v) pulls the cloth
- * onto the surface; returns how many. */
-int tc_contacts_release(tc_cloth *c, const double *J, const double *b)
+/* The largest friction coefficient of each vertex's active contacts, in mu (scratch, per vertex;
+ * only the entries of contact vertices are written). */
+static void vertex_friction(const tc_cloth *c, double *mu)
+{
+    const int32_t nc = (int32_t)c->cvert.len;
+    const int32_t *cv = tc_vec_ptr(&c->cvert);
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive);
+    const double *cf = tc_vec_ptr(&c->cfric);
+    for (int32_t k = 0; k < nc; k++) mu[cv[k]] = 0.0;
+    for (int32_t k = 0; k < nc; k++)
+        if (act[k] && fl[cv[k]] == VC_CONTACT) mu[cv[k]] = fmax(mu[cv[k]], cf[k]);
+}
+
+/* The kinetic friction of the vertices that start the sub-step sliding as they slid in the last
+ * one, into the right-hand side b: that sub-step's force (vkinetic: mu times its normal reaction
+ * then, against its slip then) turned into this sub-step's tangent plane, its size kept, times
+ * dt. Kinetic friction is thus explicit in the normal reaction (lagged one sub-step, as the
+ * element rotations are taken at the sub-step's start), which spares the re-solve a reaction
+ * measured after the solve would need; whether the vertex sticks or slides stays implicit (held
+ * vertices are judged after each solve, a slip that reverses holds it from the next sub-step).
+ * vkinetic then holds the force b carries, zero at every other vertex. */
+void tc_contacts_kinetic_start(tc_cloth *c, double *b, double dt)
+{
+    const int8_t *cs = tc_vec_ptr(&c->vcstate), *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    const double *N = tc_vec_ptr(&c->snorm);
+    double *F = tc_vec_ptr(&c->vkinetic), *mu = tc_vec_ptr(&c->sr);  /* sr: solver scratch, free here */
+    vertex_friction(c, mu);
+    for (int32_t i = 0; i < c->nv; i++) {
+        double *f = F + 3 * (size_t)i;
+        if (cs[i] != TC_CARRY_SLIDING || fl[i] != VC_CONTACT) { f[0] = f[1] = f[2] = 0.0; continue; }
+        const double l0 = sqrt(dot3(f, f));
+        for (int j = 0; j < cnt[i]; j++) {  /* a sliding vertex's basis is its normals */
+            const double *e = N + 9 * (size_t)i + 3 * j;
+            const double d = dot3(f, e);
+            f[0] -= d * e[0]; f[1] -= d * e[1]; f[2] -= d * e[2];
+        }
+        const double l = sqrt(dot3(f, f));
+        const double s = mu[i] > 0.0 && l > 0.0 ? l0 / l : 0.0;
+        for (int q = 0; q < 3; q++) { f[q] *= s; b[3 * (size_t)i + q] += dt * f[q]; }
+        c->stats.slides_carried++;
+    }
+}
+
+/* Contacts whose reaction (J - b along the normal, J = A v) pulls the cloth onto the surface are
+ * released; returns how many (apply = 0: only counts them). A release is final for the sub-step.
+ * The released contact's vertex is marked free until tc_contact_basis rebuilds its basis, so the
+ * friction of this round leaves it to the next (its reaction changes with the release). */
+int tc_contacts_release(tc_cloth *c, const double *J, const double *b, int apply)
 {
     const int32_t nc = (int32_t)c->cvert.len;
     const int32_t *cv = tc_vec_ptr(&c->cvert);
     const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel), *m = tc_vec_ptr(&c->mass);
-    int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive);
+    int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive), *cs = tc_vec_ptr(&c->vcstate);
     int released = 0;
     for (int32_t k = 0; k < nc; k++) {
         int32_t i = cv[k];
-        if (fl[i] != VC_CONTACT) continue;
+        if (fl[i] != VC_CONTACT || !act[k]) continue;
         double jn = 0.0;
         for (int q = 0; q < 3; q++) jn += (J[3 * i + q] - b[3 * i + q]) * cn[3 * k + q];
         /* pulling means more than rounding: a vertex squeezed to rest between two contacts that
@@ -475,79 +560,188 @@ int tc_contacts_release(tc_cloth *c, const double *J, const double *b)
            rounding noise let the other push it through */
         double scale = sqrt(dot3(J + 3 * i, J + 3 * i)) + sqrt(dot3(b + 3 * i, b + 3 * i)) +
                        m[i] * (sqrt(dot3(cvel + 3 * k, cvel + 3 * k)) + c->solver.contact_max_push);
-        if (jn < -TC_RELEASE_ROUNDING * scale) { act[k] = 0; released++; }
+        if (jn < -TC_RELEASE_ROUNDING * scale) {
+            released++;
+            if (apply) act[k] = -1;  /* released now: its vertex is marked below */
+        }
     }
-    if (released)  /* every contact vertex is free again until tc_contact_basis rebuilds the basis */
-        for (int32_t k = 0; k < nc; k++) if (fl[cv[k]] == VC_CONTACT) fl[cv[k]] = VC_FREE;
+    if (released && apply)
+        for (int32_t k = 0; k < nc; k++)
+            if (act[k] < 0) {
+                act[k] = 0;
+                fl[cv[k]] = VC_FREE;
+                /* final: not one that tc_contacts_touch may make active again */
+                if (cs[cv[k]] == TC_CARRY_LIFTED) cs[cv[k]] = TC_CARRY_FREE;
+            }
     return released;
 }
 
-/* Coulomb friction. A contact vertex with friction starts the sub-step held (tc_contact_basis:
- * all three directions fixed, tangentially at the surface's velocity); the solve then gives the
- * reaction impulse R = J - b that holding it took, stiffness and neighbours included. Where the
- * tangential part exceeds mu times the normal part, the vertex slides instead: its contacts are
- * marked sliding (normal directions only) and the kinetic friction impulse, R_t scaled onto the
- * cone, joins b for the re-solve. Judging the friction by the velocity left after a solve (its
- * tangential part lost at most mu jn / m) let it hold any load: an implicit step leaves a stiff,
- * light vertex little velocity to remove whatever pulls on it, so the shirt stuck to the walking
- * body and was dragged until it tore (112 N of tangential pull against 9.5 N of normal reaction
- * on one shoulder vertex). apply = 0 only counts the held vertices outside their cone (after the
- * last solve of a sub-step). Returns the number of vertices newly sliding (apply) or outside. */
-int tc_contacts_slip(tc_cloth *c, const double *J, double *b, int apply)
+/* A contact that began the sub-step released because its vertex lifted off in the last one
+ * (carry_in) was guessed wrong when the solve drives the vertex into the surface (slower along the
+ * normal than the contact asks, by more than rounding): it is made active again, sliding (it
+ * touches down: its friction follows from the next sub-step), and from then on is an ordinary
+ * contact (a release of it is final). Returns how many (apply = 0: only counts them). */
+int tc_contacts_touch(tc_cloth *c, const double *v, double dt, int apply)
 {
     const int32_t nc = (int32_t)c->cvert.len;
     const int32_t *cv = tc_vec_ptr(&c->cvert);
-    const double *cn = tc_vec_ptr(&c->cnormal), *cf = tc_vec_ptr(&c->cfric), *N = tc_vec_ptr(&c->snorm);
+    const double *cn = tc_vec_ptr(&c->cnormal), *cvel = tc_vec_ptr(&c->cvel);
+    int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive), *cs = tc_vec_ptr(&c->vcstate);
+    int touched = 0;
+    for (int32_t k = 0; k < nc; k++) {
+        const int32_t i = cv[k];
+        if (act[k] || cs[i] != TC_CARRY_LIFTED || (fl[i] != VC_FREE && fl[i] != VC_CONTACT)) continue;
+        const double *vi = v + 3 * (size_t)i;
+        const double scale = sqrt(dot3(vi, vi)) + sqrt(dot3(cvel + 3 * k, cvel + 3 * k)) + c->solver.contact_max_push;
+        if (dot3(vi, cn + 3 * k) >= contact_speed(c, k, dt) - TC_RELEASE_ROUNDING * scale) continue;
+        touched++;
+        if (apply) { act[k] = TC_CONTACT_SLIDING; fl[i] = VC_FREE; }
+    }
+    if (touched && apply)
+        for (int32_t k = 0; k < nc; k++)
+            if (act[k] && cs[cv[k]] == TC_CARRY_LIFTED) cs[cv[k]] = TC_CARRY_FREE;
+    return touched;
+}
+
+/* Coulomb friction, judged after each solve. A held vertex (all three directions fixed,
+ * tangentially at the touched surface's velocity) took the reaction R = J - b, stiffness and
+ * neighbours included; where its tangential part exceeds mu times its normal part, static friction
+ * cannot hold it and it slides, with the kinetic impulse R_t scaled onto the cone joining b (the
+ * re-solve follows). Judging by the velocity a solve leaves instead (its tangential part lost at
+ * most mu jn / m) let friction hold any load: an implicit step leaves a stiff, light vertex little
+ * velocity to remove whatever pulls on it, so the shirt stuck to the walking body and was dragged
+ * until it tore (112 N of tangential pull against 9.5 N of normal reaction on one shoulder vertex).
+ *
+ * A sliding vertex keeps the kinetic impulse b carries for this sub-step (tc_contacts_kinetic_start).
+ * Its slip u relative to the touched surface gives the next sub-step's: mu times this solve's
+ * normal reaction, against u; a slip the kinetic friction reversed (u . F > 0) or stopped (u = 0)
+ * means static friction takes over, and the vertex starts the next sub-step held. Both are left in
+ * solver scratch (sb2: force, sr: state) for tc_contacts_carry, which step.c calls right after the
+ * last round, before any solve.
+ *
+ * apply = 0 only counts. Returns the held vertices outside their cone (that slide now, if apply).
+ * A vertex left with no active contact (all released this round) gives its kinetic friction back. */
+int tc_contacts_friction(tc_cloth *c, const double *J, const double *v, double *b, double dt, int apply)
+{
+    const int32_t nc = (int32_t)c->cvert.len;
+    const int32_t *cv = tc_vec_ptr(&c->cvert);
+    const double *cn = tc_vec_ptr(&c->cnormal), *cf = tc_vec_ptr(&c->cfric), *cvel = tc_vec_ptr(&c->cvel);
+    const double *N = tc_vec_ptr(&c->snorm);
     const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
     int8_t *act = tc_vec_ptr(&c->cactive);
-    /* solver scratch, free between solves: per vertex the weight of its basis directions on its
-       contact normals (w, M's eigenvalues: normal or tangential), and (st) its largest friction
-       coefficient and its state: 0 to judge, 1 judged, 2 sliding from now, -1 not held */
-    double *w = tc_vec_ptr(&c->sp), *st = tc_vec_ptr(&c->sr);
+    double *F = tc_vec_ptr(&c->vkinetic);
+    /* solver scratch, free between solves, per vertex: w the weight of its basis directions on its
+       contact normals (M's eigenvalues: normal or tangential); st its largest friction coefficient,
+       its state (-1 not judged, 0 held and 2 sliding to judge, 1 judged, 4 to slide now, 5 stopped:
+       held from the next sub-step) and its active contacts; vs their summed surface velocity; next
+       the kinetic friction force it carries into the next sub-step */
+    double *w = tc_vec_ptr(&c->sp), *st = tc_vec_ptr(&c->sr), *vs = tc_vec_ptr(&c->sz), *next = tc_vec_ptr(&c->sb2);
     for (int32_t k = 0; k < nc; k++) {
-        int32_t i = cv[k];
-        if (fl[i] != VC_CONTACT) continue;
-        w[3 * i] = w[3 * i + 1] = w[3 * i + 2] = 0.0;
-        st[3 * i] = 0.0; st[3 * i + 1] = cnt[i] == 3 ? 0.0 : -1.0;
+        const size_t i = (size_t)cv[k];
+        if (fl[i] != VC_CONTACT && fl[i] != VC_FREE) continue;
+        for (int q = 0; q < 3; q++) { w[3 * i + q] = 0.0; vs[3 * i + q] = 0.0; next[3 * i + q] = 0.0; }
+        st[3 * i] = 0.0; st[3 * i + 1] = -1.0; st[3 * i + 2] = 0.0;
     }
     for (int32_t k = 0; k < nc; k++) {
-        int32_t i = cv[k];
-        if (fl[i] != VC_CONTACT || !act[k]) continue;
-        if (act[k] == TC_CONTACT_SLIDING) st[3 * i + 1] = -1.0;
+        const size_t i = (size_t)cv[k];
+        if ((fl[i] != VC_CONTACT && fl[i] != VC_FREE) || !act[k]) continue;
+        st[3 * i + 2] += 1.0;
+        for (int q = 0; q < 3; q++) vs[3 * i + q] += cvel[3 * k + q];
+        if (fl[i] != VC_CONTACT) continue;  /* its basis is rebuilt before the next solve: judged after it */
         st[3 * i] = fmax(st[3 * i], cf[k]);
+        if (act[k] == TC_CONTACT_SLIDING) st[3 * i + 1] = 2.0;
+        else if (st[3 * i + 1] == -1.0 && cnt[i] == 3) st[3 * i + 1] = 0.0;
         for (int j = 0; j < cnt[i]; j++) {
             double d = dot3(cn + 3 * k, N + 9 * i + 3 * j);
             w[3 * i + j] += d * d;
         }
     }
-    int count = 0;
+    int slips = 0;
     for (int32_t k = 0; k < nc; k++) {
-        int32_t i = cv[k];
-        if (fl[i] != VC_CONTACT || !act[k] || st[3 * i + 1] != 0.0) continue;
+        const size_t i = (size_t)cv[k];
+        if (fl[i] != VC_CONTACT || (st[3 * i + 1] != 0.0 && st[3 * i + 1] != 2.0)) continue;
+        const int sliding = st[3 * i + 1] == 2.0;
         st[3 * i + 1] = 1.0;  /* judged once, whatever order its contacts come in */
-        double mu = st[3 * i];
-        if (!(mu > 0.0)) continue;  /* cannot happen: a held vertex has friction */
+        const double mu = st[3 * i];
+        if (!(mu > 0.0)) continue;  /* frictionless: nothing held, no kinetic impulse */
+        const double *e = N + 9 * i;
         double R[3], Rn[3] = {0, 0, 0};
         for (int q = 0; q < 3; q++) R[q] = J[3 * i + q] - b[3 * i + q];
-        for (int j = 0; j < 3; j++) {
+        for (int j = 0; j < cnt[i]; j++) {
             if (w[3 * i + j] < TC_CONTACT_MIN_EIGEN) continue;  /* a tangential direction */
-            const double *e = N + 9 * i + 3 * j;
-            double d = dot3(R, e);
-            for (int q = 0; q < 3; q++) Rn[q] += d * e[q];
+            const double d = dot3(R, e + 3 * j);
+            for (int q = 0; q < 3; q++) Rn[q] += d * e[3 * j + q];
+        }
+        const double ln = sqrt(dot3(Rn, Rn));
+        if (sliding) {
+            /* its slip, tangential (the basis of a sliding vertex is its normals) */
+            double u[3];
+            for (int q = 0; q < 3; q++) u[q] = v[3 * i + q] - vs[3 * i + q] / st[3 * i + 2];
+            for (int j = 0; j < cnt[i]; j++) {
+                const double p = dot3(u, e + 3 * j);
+                for (int q = 0; q < 3; q++) u[q] -= p * e[3 * j + q];
+            }
+            const double lu = sqrt(dot3(u, u));
+            /* kinetic friction cannot push a vertex along its slip: one that turned more than a
+               right angle from it, or stopped, was caught by static friction on the way */
+            if (dot3(u, F + 3 * i) > 0.0 || !(lu > 0.0)) { st[3 * i + 1] = 5.0; continue; }
+            const double lf = sqrt(dot3(F + 3 * i, F + 3 * i));
+            for (int q = 0; q < 3; q++)
+                next[3 * i + q] = lf > 0.0 ? mu * ln * F[3 * i + q] / (lf * dt) : -mu * ln * u[q] / (lu * dt);
+            continue;
         }
         double Rt[3] = {R[0] - Rn[0], R[1] - Rn[1], R[2] - Rn[2]};
-        double ln = sqrt(dot3(Rn, Rn)), lt = sqrt(dot3(Rt, Rt));
+        const double lt = sqrt(dot3(Rt, Rt));
         if (lt <= mu * ln) continue;  /* static friction holds it */
-        count++;
+        slips++;
+        const double s = mu * ln / lt;  /* kinetic friction: the part of the holding impulse the cone allows */
+        for (int q = 0; q < 3; q++) next[3 * i + q] = s * Rt[q] / dt;
         if (!apply) continue;
-        double s = mu * ln / lt;  /* kinetic friction: the part of the holding impulse the cone allows */
-        for (int q = 0; q < 3; q++) b[3 * i + q] += s * Rt[q];
-        st[3 * i + 1] = 2.0;
+        for (int q = 0; q < 3; q++) { b[3 * i + q] += s * Rt[q]; F[3 * i + q] = s * Rt[q] / dt; }
+        st[3 * i + 1] = 4.0;
     }
-    if (apply && count)
-        for (int32_t k = 0; k < nc; k++)
-            if (fl[cv[k]] == VC_CONTACT && act[k] && st[3 * cv[k] + 1] == 2.0) act[k] = TC_CONTACT_SLIDING;
-    return count;
+    if (apply)
+        for (int32_t k = 0; k < nc; k++) {
+            const size_t i = (size_t)cv[k];
+            if (fl[i] != VC_CONTACT && fl[i] != VC_FREE) continue;
+            if (st[3 * i + 2] == 0.0 && (F[3 * i] != 0.0 || F[3 * i + 1] != 0.0 || F[3 * i + 2] != 0.0))
+                for (int q = 0; q < 3; q++) { b[3 * i + q] -= dt * F[3 * i + q]; F[3 * i + q] = 0.0; }
+            if (act[k] && fl[i] == VC_CONTACT && st[3 * i + 1] == 4.0) act[k] = TC_CONTACT_SLIDING;
+        }
+    return slips;
+}
+
+/* After the last round of a sub-step: the state each vertex's contacts ended in, for the next one
+ * to start from (carry_in), and the kinetic friction force a sliding one carries (from the round's
+ * last tc_contacts_friction). Pins and handles: not known. */
+void tc_contacts_carry(tc_cloth *c)
+{
+    const int32_t nc = (int32_t)c->cvert.len;
+    const int32_t *cv = tc_vec_ptr(&c->cvert);
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *act = tc_vec_ptr(&c->cactive);
+    int8_t *cs = tc_vec_ptr(&c->vcstate);
+    double *F = tc_vec_ptr(&c->vkinetic);
+    const double *next = tc_vec_ptr(&c->sb2), *st = tc_vec_ptr(&c->sr);
+    for (int32_t i = 0; i < c->nv; i++) cs[i] = fl[i] == VC_FREE ? TC_CARRY_FREE : TC_CARRY_NONE;
+    for (int32_t k = 0; k < nc; k++) {
+        const size_t i = (size_t)cv[k];
+        if (fl[i] == VC_FREE) cs[i] = TC_CARRY_LIFTED;  /* contacts, none active: all released */
+        else if (fl[i] == VC_CONTACT && cs[i] != TC_CARRY_SLIDING)
+            cs[i] = act[k] == TC_CONTACT_SLIDING ? TC_CARRY_SLIDING : TC_CARRY_HELD;
+    }
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (cs[i] == TC_CARRY_SLIDING && st[3 * (size_t)i + 1] == 5.0) {  /* its slip stopped */
+            cs[i] = TC_CARRY_HELD;
+            c->stats.friction_sticks++;
+        }
+        for (int q = 0; q < 3; q++) F[3 * (size_t)i + q] = cs[i] == TC_CARRY_SLIDING ? next[3 * (size_t)i + q] : 0.0;
+    }
+}
+
+void tc_cloth_forget_contacts(tc_cloth *c)
+{
+    memset(tc_vec_ptr(&c->vcstate), TC_CARRY_NONE, c->vcstate.len);
+    memset(tc_vec_ptr(&c->vkinetic), 0, c->vkinetic.len * sizeof(double));
 }
 
 /* Active contacts (held or sliding) of vertices still in contact. */
@@ -572,8 +766,7 @@ void tc_contacts_take_back_push(const tc_cloth *c, double *v, double dt)
     for (int32_t k = 0; k < nc; k++) {
         int32_t i = cv[k];
         if (fl[i] != VC_CONTACT || !act[k]) continue;  /* released: it is leaving by itself */
-        double push = c->solver.contact_correction * cd[k] / dt;
-        if (push > c->solver.contact_max_push) push = c->solver.contact_max_push;
+        double push = recovery_push(c, cd[k], dt);
         const double *nn = cn + 3 * k;
         double vn = dot3(v + 3 * i, nn) - dot3(cvel + 3 * k, nn);  /* relative normal speed */
         double take = vn < push ? (vn > 0 ? vn : 0.0) : push;

@@ -71,6 +71,12 @@ enum { VC_FREE = 0, VC_PINNED = 1, VC_HANDLE = 2, VC_CONTACT = 3 };
 /* cactive of a contact: 0 released this sub-step, 1 active (its vertex may be held by static
  * friction), TC_CONTACT_SLIDING active with its vertex sliding (tc_contacts_slip) */
 enum { TC_CONTACT_SLIDING = 2 };
+/* vcstate of a vertex: how its contacts ended its last kept sub-step, the state its next sub-step
+ * starts from (constraints.c). NONE: not known (a new cloth or vertex, a pin or handle, or after
+ * tc_cloth_forget_contacts): its contacts start held, as on first touch; FREE: it touched nothing;
+ * HELD: held by static friction, or its slip stopped; SLIDING: sliding, with the kinetic friction
+ * force vkinetic; LIFTED: every contact released (pulled away from the surface). */
+enum { TC_CARRY_NONE = 0, TC_CARRY_FREE = 1, TC_CARRY_HELD = 2, TC_CARRY_SLIDING = 3, TC_CARRY_LIFTED = 4 };
 
 typedef struct tc_handle {
     bool active;
@@ -145,6 +151,10 @@ struct tc_cloth {
 
     /* contacts, per step */
     tc_vec cvert, cactive, cnormal, cdepth, cvel, cfric;  /* cactive: not released this sub-step */
+    /* per vertex, carried from one sub-step to the next (constraints.c): the contact state it
+     * ended in (int8, TC_CARRY_*) and the kinetic friction force its contacts applied then (N,
+     * x3, zero unless sliding); during a sub-step, vkinetic is the force b carries */
+    tc_vec vcstate, vkinetic;
 
     /* solver scratch, sized to 3 * vertex capacity */
     tc_vec diag;             /* 9 per vertex */
@@ -324,11 +334,16 @@ int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3
 /* vflag and sfix for one sub-step of length dt ending at fraction alpha of the handles' motion */
 void tc_constraints_begin(tc_cloth *c, double dt, double alpha);
 void tc_contact_basis(tc_cloth *c, double dt);
+void tc_contacts_kinetic_start(tc_cloth *c, double *b, double dt);  /* carried kinetic friction into b */
 void tc_constraint_filter(const tc_cloth *c, double *r);             /* r := S r */
 void tc_constraint_project(const tc_cloth *c, double *v, const double *fix);  /* v := S v + fix */
 void tc_constraint_offsets(const tc_cloth *c, const double *v0, double *fix);  /* fix -= (I - S) v0 */
-int tc_contacts_release(tc_cloth *c, const double *J, const double *b);   /* pulling contacts off */
-int tc_contacts_slip(tc_cloth *c, const double *J, double *b, int apply);   /* static friction to sliding */
+/* the contact rounds after a solve (J = A v): each returns how many contacts (release, touch) or
+ * held vertices (friction) change state; apply = 0 only counts them */
+int tc_contacts_release(tc_cloth *c, const double *J, const double *b, int apply);  /* pulling contacts off */
+int tc_contacts_touch(tc_cloth *c, const double *v, double dt, int apply);  /* lifted contacts driven in: on */
+int tc_contacts_friction(tc_cloth *c, const double *J, const double *v, double *b, double dt, int apply);  /* Coulomb */
+void tc_contacts_carry(tc_cloth *c);  /* after the last round: vcstate and vkinetic for the next sub-step */
 int32_t tc_contacts_active(const tc_cloth *c);
 void tc_contacts_take_back_push(const tc_cloth *c, double *v, double dt);
 void tc_handle_forces(tc_cloth *c);

@@ -134,12 +134,12 @@ int tc_reserve_vertices(tc_cloth *c, int32_t n)
 {
     size_t N = (size_t)n;
     tc_vec *v3[] = {&c->x, &c->v, &c->rest, &c->force, &c->sb, &c->sr, &c->sz, &c->sp, &c->sq,
-                    &c->sfix, &c->sb2, &c->sfix2, &c->sdv, &c->x0, &c->v0, &c->fel};
+                    &c->sfix, &c->sb2, &c->sfix2, &c->sdv, &c->x0, &c->v0, &c->fel, &c->vkinetic};
     for (size_t i = 0; i < sizeof v3 / sizeof *v3; i++)
         if (tc_vec_resize(v3[i], 3 * N)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->diag, 12 * N) || tc_vec_resize(&c->pinv, 9 * N) ||
         tc_vec_resize(&c->snorm, 9 * N) || tc_vec_resize(&c->scount, N) ||
-        tc_vec_resize(&c->vsa, N))
+        tc_vec_resize(&c->vsa, N) || tc_vec_resize(&c->vcstate, N))
         return TC_ERR_NOMEM;
     size_t old = c->mass.len;
     if (tc_vec_resize(&c->mass, N) || tc_vec_resize(&c->vbend, N) || tc_vec_resize(&c->strength, N) ||

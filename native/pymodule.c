@@ -400,6 +400,14 @@ static PyObject *Cloth_release_handle(PyObject *o, PyObject *arg)
     Py_RETURN_NONE;
 }
 
+static PyObject *Cloth_forget_contacts(PyObject *o, PyObject *unused)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    tc_cloth_forget_contacts(self->c);
+    Py_RETURN_NONE;
+}
+
 static PyObject *Cloth_handle_force(PyObject *o, PyObject *arg)
 {
     ClothObject *self = (ClothObject *)o;
@@ -477,7 +485,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:i,s:i,s:i,s:i,s:L,s:L,s:L,s:L,s:L}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:i,s:i,s:i,s:i,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:i}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
@@ -495,7 +503,10 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
                          "contact_directions_merged", (long long)s.contact_directions_merged,
                          "contact_speed_clamps", (long long)s.contact_speed_clamps,
                          "friction_slips", (long long)s.friction_slips,
-                         "friction_cone_exceeded", (long long)s.friction_cone_exceeded);
+                         "friction_cone_exceeded", (long long)s.friction_cone_exceeded,
+                         "friction_sticks", (long long)s.friction_sticks, "slides_carried", (long long)s.slides_carried,
+                         "lifts_carried", (long long)s.lifts_carried, "contact_rounds_capped", (long long)s.contact_rounds_capped,
+                         "solves", (int)s.solves);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the
@@ -655,6 +666,8 @@ static PyMethodDef Cloth_methods[] = {
     {"add_handle", Cloth_add_handle, METH_O, "Create a handle from vertex indices; returns its id."},
     {"set_handle_target", Cloth_set_handle_target, METH_VARARGS, "Set a handle's 3x4 affine target."},
     {"release_handle", Cloth_release_handle, METH_O, "Let go of a handle."},
+    {"forget_contacts", Cloth_forget_contacts, METH_NOARGS,
+     "Drop the contact state carried from the last sub-step (who slid, with what friction; who lifted off)."},
     {"handle_force", Cloth_handle_force, METH_O, "Force of eq. (6) on a handle (N)."},
     {"pin_force", Cloth_pin_force, METH_NOARGS, "Sum of elastic + external forces on pinned vertices (N)."},
     {"set_contacts", (PyCFunction)(void (*)(void))Cloth_set_contacts, METH_VARARGS | METH_KEYWORDS, "Contacts for the next step."},

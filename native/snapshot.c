@@ -67,6 +67,19 @@ static void sizes(uint32_t out[7])
     out[6] = sizeof(double[12]);
 }
 
+/* Arrays appended to the table after the layout of the last release, from this one on: the contact
+ * state a vertex carries from one sub-step to the next (vcstate, vkinetic). A blob written before
+ * them lacks them and resumes with no state carried, so a bake killed under that release is not
+ * lost to the update. */
+static const char FIRST_APPENDED[] = "vcstate";
+
+static size_t first_appended(void)
+{
+    for (size_t k = 0; k < tc_vec_table_len; k++)
+        if (!strcmp(tc_vec_table[k].name, FIRST_APPENDED)) return k;
+    return tc_vec_table_len;
+}
+
 static tc_vec *vec_at(const tc_cloth *c, size_t k) { return (tc_vec *)((char *)c + tc_vec_table[k].offset); }
 
 int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
@@ -160,7 +173,7 @@ static const char *check(const tc_cloth *c)
         {&c->sq, 3 * nv, "sq"}, {&c->sfix, 3 * nv, "sfix"}, {&c->sb2, 3 * nv, "sb2"}, {&c->sfix2, 3 * nv, "sfix2"},
         {&c->sdv, 3 * nv, "sdv"}, {&c->x0, 3 * nv, "x0"}, {&c->v0, 3 * nv, "v0"}, {&c->fel, 3 * nv, "fel"},
         {&c->diag, 12 * nv, "diag"}, {&c->pinv, 9 * nv, "pinv"}, {&c->snorm, 9 * nv, "snorm"},
-        {&c->scount, nv, "scount"}, {&c->vsa, nv, "vsa"}, {&c->mass, nv, "mass"}, {&c->vbend, nv, "vbend"},
+        {&c->scount, nv, "scount"}, {&c->vsa, nv, "vsa"}, {&c->vcstate, nv, "vcstate"}, {&c->vkinetic, 3 * nv, "vkinetic"}, {&c->mass, nv, "mass"}, {&c->vbend, nv, "vbend"},
         {&c->strength, nv, "strength"}, {&c->vtri, nv, "vtri"}, {&c->vflag, nv, "vflag"},
         {&c->vhandle, nv, "vhandle"}, {&c->vpin, nv, "vpin"}, {&c->groups, nv * (size_t)(c->ng ? c->ng : 1), "groups"},
         {&c->tri, 3 * nt, "tri"}, {&c->tpair, 3 * nt, "tpair"}, {&c->grad, 4 * nt, "grad"}, {&c->area, nt, "area"},
@@ -178,6 +191,12 @@ static const char *check(const tc_cloth *c)
     if (!all_finite(&c->x)) return "x (not finite)";
     if (!all_finite(&c->v)) return "v (not finite)";
     if (!all_finite(&c->rest)) return "rest (not finite)";
+    if (!all_finite(&c->vkinetic)) return "vkinetic (not finite)";
+    {
+        const int8_t *cs = tc_vec_ptr(&c->vcstate);
+        for (size_t i = 0; i < c->vcstate.len; i++)
+            if (cs[i] < TC_CARRY_NONE || cs[i] > TC_CARRY_LIFTED) return "vcstate";
+    }
     if (!in_range(&c->tri, 0, c->nv)) return "tri";
     if (!in_range(&c->tpair, 0, (int64_t)np)) return "tpair";
     if (!in_range(&c->pi, -1, c->nv)) return "pi";
@@ -262,6 +281,9 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
      * a bake killed under the previous release is not lost to an update. Anything else must match. */
     uint32_t stats_bytes = got[3];
     got[3] = want[3];
+    /* so do the blobs written before the arrays appended from FIRST_APPENDED on (below) */
+    const size_t arrays = got[5];
+    if (arrays == first_appended()) got[5] = want[5];
     if (memcmp(want, got, sizeof want)) FAIL("snapshot was written by a different build of the core (struct sizes or array count differ)");
     if (stats_bytes > want[3])
         FAIL("snapshot was written by a newer build of the core (its statistics hold %u bytes, this build's %u)", stats_bytes, want[3]);
@@ -288,7 +310,7 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
     /* every array starts empty so that a failure half-way frees cleanly */
     for (size_t k = 0; k < tc_vec_table_len; k++)
         if (tc_vec_init(vec_at(c, k), tc_vec_table[k].item, 1)) FAIL("out of memory");
-    for (size_t k = 0; k < tc_vec_table_len; k++) {
+    for (size_t k = 0; k < arrays; k++) {
         where = tc_vec_table[k].name;
         tc_vec *v = vec_at(c, k);
         uint32_t nl, item;
@@ -307,6 +329,10 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
         if (tc_vec_resize(v, (size_t)len)) FAIL("out of memory");
         GET(tc_vec_ptr(v), (size_t)len * item);
     }
+    /* a blob from before the carried contact state: none carried (every vertex's next sub-step
+       judges its contacts afresh, as on first touch) */
+    if (arrays < tc_vec_table_len && (tc_vec_resize(&c->vcstate, (size_t)c->nv) || tc_vec_resize(&c->vkinetic, 3 * (size_t)c->nv)))
+        FAIL("out of memory");
     /* a blob of the builds that stored the world stress and principal direction (derived now, see
        core.h) carries them: nothing reads them, so they go */
     tc_vec_free(&c->stress); tc_vec_free(&c->pdir);

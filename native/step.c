@@ -5,8 +5,10 @@
  * solved by conjugate gradients preconditioned with the inverse 3x3 diagonal blocks and warm-started
  * from the last velocity change (solver.c). Constraints enter as velocity filters (constraints.c):
  * pins and handles fix all three components, a contact fixes the normal one to the touched surface's
- * (inelastic). A contact whose reaction would pull (adhesion) is released and the system solved
- * once more; friction then caps the tangential velocity change at mu times the normal impulse.
+ * (inelastic). Each contact starts the sub-step as its vertex ended the last one (held, sliding
+ * with kinetic friction, or released: constraints.c); after each solve, contacts whose reaction
+ * would pull (adhesion) are released, held vertices whose static friction would need more than mu
+ * times the normal reaction slide, and the system is solved once more (the rounds, below).
  * Penetration is recovered by a bounded extra normal speed inside the solve (contact_correction of
  * the depth per step, at most contact_max_push), taken back out of the velocity after the step, so
  * a vertex pushed out never keeps the speed to bounce away.
@@ -63,10 +65,11 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     tc_constraints_begin(c, dt, alpha_target);
     const int32_t nc = (int32_t)c->cvert.len;
 
-    /* right-hand side M v0 + dt f(x0) */
+    /* right-hand side M v0 + dt f(x0), and the kinetic friction of the vertices that slid */
     const double *m = tc_vec_ptr(&c->mass), *f = tc_vec_ptr(&c->force);
     for (int32_t i = 0; i < n; i++)
         for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * f[3 * i + q];
+    if (nc) tc_contacts_kinetic_start(c, b, dt);
 
     if (!fused && tc_assemble(c, dt)) return TC_ERR_NOMEM;
     tc_precondition_build(c);
@@ -76,24 +79,36 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     for (size_t k = 0; k < n3; k++) v[k] = v0[k] + dv_prev[k];
     int it = 0, it2 = 0;
     int converged = tc_solve_dv(c, v, v0, b, dt, &it);
+    c->stats.solves++;
     double res = c->solve_residual, resf = c->solve_residual_force, fscale = c->solve_force_scale;
 
     if (nc) {
-        /* release contacts whose reaction pulls the cloth onto the surface, then friction */
+        /* The contact rounds. Each solve is a guess of which contacts hold, slide or let go (the
+           first one's from how they ended the last sub-step: tc_constraints_begin); after it,
+           contacts whose reaction pulls are released, contacts guessed released that the solve
+           drove into the surface come back, and held vertices whose static friction would need
+           more than mu times the normal reaction slide (kinetic friction joins b, tangential, so
+           the release test reads the same normal reactions); then the sub-step is solved again
+           from this solution. Every re-solve costs about as much as the first (block-Jacobi CG
+           needs ~300 iterations for any change on the T-shirt: a contact's reaction reaches
+           across the whole membrane), hence the carried guess. */
         double *J = tc_vec_ptr(&c->sq);
         tc_matvec(c, v, J);
-        /* static friction that would need more than mu times the normal reaction slides
-           (kinetic friction joins b); its impulse is tangential, so the release test below
-           reads the same normal reactions */
         for (int round = 0;; round++) {
-            int last = round == TC_CONTACT_ROUNDS;
-            int slid = tc_contacts_slip(c, J, b, !last);
-            if (last) { c->stats.friction_cone_exceeded += slid; break; }  /* said, left held */
+            const int last = round == TC_CONTACT_ROUNDS;
+            const int changed = tc_contacts_release(c, J, b, !last) + tc_contacts_touch(c, v, dt, !last);
+            const int slid = tc_contacts_friction(c, J, v, b, dt, !last);
+            if (last) {  /* said, left as solved */
+                c->stats.friction_cone_exceeded += slid;
+                if (changed + slid) c->stats.contact_rounds_capped++;
+                break;
+            }
             c->stats.friction_slips += slid;
-            if (!(tc_contacts_release(c, J, b) + slid)) break;
+            if (!(changed + slid)) break;
             tc_contact_basis(c, dt);
             tc_precondition_constraints_changed(c);
             converged &= tc_solve_dv(c, v, v0, b, dt, &it2);
+            c->stats.solves++;
             it += it2;
             if (c->solve_residual > res) { res = c->solve_residual; resf = c->solve_residual_force; fscale = c->solve_force_scale; }
             tc_matvec(c, v, J);
@@ -102,6 +117,9 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     } else {
         c->stats.contacts = 0;
     }
+    /* straight after the rounds (it reads their scratch); a sub-step rolled back below leaves it
+       as the next attempt's first guess, as it leaves its velocity change as the warm start */
+    tc_contacts_carry(c);
 
     for (size_t k = 0; k < n3; k++) x[k] = x0[k] + dt * v[k];
     tc_contacts_take_back_push(c, v, dt);
@@ -173,6 +191,7 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     double t0 = tc_now();
     tc_events_clear(c);
     c->stats.cg_iterations = 0;
+    c->stats.solves = 0;
     c->stats.cg_residual = 0.0;
     c->stats.cg_residual_force = 0.0;
     c->stats.cg_force_scale = 0.0;

@@ -160,6 +160,11 @@ int tc_cloth_pin_force(const tc_cloth *c, double out[3]);
 int tc_cloth_set_contacts(tc_cloth *c, const int32_t *vertex, const double *normal,
                           const double *depth, const double *velocity, const double *friction,
                           int32_t k);
+/* Each vertex carries how its contacts ended the last sub-step (sliding, with its kinetic friction,
+ * or lifted off) into the next one as the state its solve starts from (constraints.c); this drops
+ * it, so the next sub-step judges every contact as on first touch (after a cut in the animation:
+ * a body or cloth moved elsewhere). The result agrees either way within the solve's tolerance. */
+void tc_cloth_forget_contacts(tc_cloth *c);
 
 /* Advances by dt seconds in `substeps` implicit Euler steps. The caller may release the GIL. */
 int tc_cloth_step(tc_cloth *c, double dt, int substeps);
@@ -203,8 +208,20 @@ typedef struct tc_stats {
                                           exceeded |z| (what its contacts ask) and was bounded to it */
     int64_t friction_slips;            /* so far: held contact vertices whose static friction would have
                                           needed more than mu times the normal reaction: they slid */
-    int64_t friction_cone_exceeded;    /* so far: held vertices left outside the Coulomb cone by the
-                                          sub-step's re-solve (one re-solve per sub-step) */
+    int64_t friction_cone_exceeded;    /* so far: held vertices left outside the Coulomb cone when a
+                                          sub-step's contact rounds stopped at TC_CONTACT_ROUNDS */
+    int64_t friction_sticks;           /* so far: sliding contact vertices whose slip stopped or turned
+                                          past a right angle from their kinetic friction (which cannot
+                                          push along a slip): held from the next sub-step */
+    int64_t slides_carried;            /* so far: contact vertices that began a sub-step sliding, as they
+                                          ended the previous one (its kinetic friction the first guess) */
+    int64_t lifts_carried;             /* so far: contacts that began a sub-step released, their vertex
+                                          having lifted off in the previous one and still separating */
+    int64_t contact_rounds_capped;     /* so far: sub-steps whose contacts were still changing state (or
+                                          their kinetic friction still off by more than the solve's
+                                          tolerance) after TC_CONTACT_ROUNDS re-solves: kept as solved */
+    int32_t solves;                    /* linear solves of the last step, summed over its sub-steps:
+                                          one each, more when its contacts changed state (rounds) */
 } tc_stats;
 /* the smallest tc_stats a snapshot may carry: the layout before contact_directions_merged (older
  * states read with the counters after it at 0; snapshot.c) */

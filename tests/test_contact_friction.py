@@ -1,8 +1,11 @@
 """Coulomb friction and the contact basis against truth: a sheet on an incline sticks below the
-friction angle and slides with a = g (sin t - mu cos t) above it; a sheet pulled over a table by one
-edge starts to slide when the pull reaches mu times the weight (static friction must not hold a
-stretched, stiff cloth: tc_contacts_slip); a vertex squeezed between two near-opposite contacts
-that ask incompatible speeds gets no faster than they ask (contact_solve)."""
+friction angle and slides with a = g (sin t - mu cos t) above it, with the contact state carried
+from step to step and without; one landing on it slides with its friction one step late (the
+carried kinetic friction's lag), a gap that halves with the step; the carried state is in the
+snapshot; a sheet pulled over a table by one edge starts to slide when the pull reaches mu times
+the weight (static friction must not hold a stretched, stiff cloth: tc_contacts_friction); a vertex
+squeezed between two near-opposite contacts that ask incompatible speeds gets no faster than they
+ask (contact_solve)."""
 import numpy as np
 import pytest
 
@@ -27,22 +30,34 @@ def _plane_contacts(cloth, n, mu, exclude=()):
     cloth.set_contacts(idx, np.tile(n, (idx.size, 1)), depth, np.zeros((idx.size, 3)), mu)
 
 
-@pytest.mark.parametrize("mu", [0.5, 0.2])
-def test_a_sheet_on_an_incline_sticks_or_slides_as_coulomb_says(mu):
-    theta = np.radians(20.0)  # tan = 0.364: mu 0.5 holds, mu 0.2 slides
+# tan 20 degrees = 0.364: mu 0.5 and 0.38 hold the sheet, 0.34 and 0.2 let it slide
+@pytest.mark.parametrize("mu", [0.5, 0.38, 0.34, 0.2])
+@pytest.mark.parametrize("carried", [True, False])
+def test_a_sheet_on_an_incline_sticks_or_slides_as_coulomb_says(mu, carried):
+    """With the contact state carried from step to step (a vertex that slid starts the next step
+    sliding, with the kinetic friction of its last normal reaction) and with it forgotten before
+    every step (each contact held first, judged on its reaction, then solved sliding): the same
+    Coulomb answer, to 1e-3."""
+    theta = np.radians(20.0)
     R = _rotate_y(theta)
     V, T = sheet(0.1, 0.05, 11, 6)
     cloth = Cloth(V @ R.T, T, material("cotton"))
     n, down = R @ [0, 0, 1.0], R @ [1.0, 0, 0]
     assert down[2] < 0
     steps = 60
+    solves = []
     for _ in range(steps):
         _plane_contacts(cloth, n, mu)
+        if not carried:
+            cloth.forget_contacts()
         cloth.step(DT)
+        solves.append(cloth.stats()["solves"])
     v = cloth.velocities @ down
     a = G * (np.sin(theta) - mu * np.cos(theta))
+    st = cloth.stats()
     if a <= 0.0:
         assert np.abs(v).max() < 1e-3, v.max()
+        assert st["friction_slips"] == 0
     else:
         # implicit Euler with the material's mass damping: v' = (v + a dt) / (1 + damping_mass dt)
         expect = 0.0
@@ -50,7 +65,88 @@ def test_a_sheet_on_an_incline_sticks_or_slides_as_coulomb_says(mu):
             expect = (expect + a * DT) / (1.0 + cloth.material.damping_mass * DT)
         assert v.mean() == pytest.approx(expect, rel=1e-3), (v.mean(), expect)
         assert v.std() < 1e-3 * expect  # a rigid slide
+        # carried, the sheet starts every step after the first sliding as it should: one solve;
+        # forgotten, it is held first and solved again sliding
+        assert solves[1:] == [1 if carried else 2] * (steps - 1), solves
+        assert (st["slides_carried"] > 0) == carried
     assert np.abs(cloth.velocities @ n).max() < 1e-3  # stays on the plane
+    assert st["contact_rounds_capped"] == 0
+
+
+def _landing(mu, dt, carried, duration=0.1):
+    """A sheet parallel to a 20 degree incline, 0.2 mm above it and at rest, falls onto it and
+    slides; a vertex is a contact once within 0.1 mm of the plane. The down-slope speeds."""
+    theta = np.radians(20.0)
+    R = _rotate_y(theta)
+    V, T = sheet(0.1, 0.05, 11, 6)
+    n, down = R @ [0, 0, 1.0], R @ [1.0, 0, 0]
+    cloth = Cloth(V @ R.T + 2e-4 * n, T, material("cotton"))
+    speeds, landed = [], None
+    for k in range(int(round(duration / dt))):
+        x = cloth.positions
+        idx = np.flatnonzero(x @ n < 1e-4).astype(np.int32)
+        depth = np.maximum(0.0, -(x[idx] @ n))
+        cloth.set_contacts(idx, np.tile(n, (idx.size, 1)), depth, np.zeros((idx.size, 3)), mu)
+        if not carried:
+            cloth.forget_contacts()
+        cloth.step(dt)
+        speeds.append(float(np.mean(cloth.velocities @ down)))
+        if landed is None and idx.size:
+            landed = k
+    return np.array(speeds), landed, G * (np.sin(theta) - mu * np.cos(theta)), G * mu * np.cos(theta)
+
+
+def test_a_sheet_landing_on_an_incline_slides_with_its_friction_one_step_late():
+    """A vertex touching down after a free step slides that step, its kinetic friction (mu times
+    that step's normal reaction) applied from the next on, as every sliding vertex's is: the slide
+    then runs one step of friction, mu g cos(theta) dt (damped since as any speed), faster than
+    when every contact is held first and judged within the step - a gap that halves with the step. Both slide as
+    Coulomb says (a = g (sin - mu cos), with the material's mass damping) once landed."""
+    mu, gaps = 0.2, []
+    for dt in (DT, DT / 2):
+        carried, landed, a, friction = _landing(mu, dt, True)
+        judged, landed_too, _, _ = _landing(mu, dt, False)
+        assert landed == landed_too and 0 < landed < len(carried) // 4
+        half = len(carried) // 2
+        damping = material("cotton").damping_mass
+        for v in (carried, judged):  # landed long before half-way: Coulomb's slide after
+            expect = v[half]
+            for _ in range(len(v) - 1 - half):
+                expect = (expect + a * dt) / (1.0 + damping * dt)
+            assert v[-1] == pytest.approx(expect, rel=1e-3), (v[-1], expect)
+        # the landing step's friction, missing, then damped as any speed is
+        gap = carried[-1] - judged[-1]
+        expect = friction * dt / (1.0 + damping * dt) ** (len(carried) - landed)
+        assert gap == pytest.approx(expect, rel=0.05), (gap, expect)
+        gaps.append(gap)
+    assert gaps[1] == pytest.approx(gaps[0] / 2, rel=0.05), gaps
+
+
+def test_the_carried_contact_state_is_in_the_snapshot():
+    """Killed mid-slide and resumed from its snapshot, the sheet slides on bit for bit as the
+    uninterrupted one; resumed without the carried state (forgotten), it does not."""
+    theta = np.radians(20.0)
+    R = _rotate_y(theta)
+    V, T = sheet(0.1, 0.05, 11, 6)
+    n = R @ [0, 0, 1.0]
+
+    def run(cloth, steps):
+        for _ in range(steps):
+            _plane_contacts(cloth, n, 0.2)
+            cloth.step(DT)
+
+    a = Cloth(V @ R.T, T, material("cotton"))
+    run(a, 20)
+    blob = a.snapshot()
+    b, c = Cloth(V @ R.T, T, material("cotton")), Cloth(V @ R.T, T, material("cotton"))
+    b.restore(blob)
+    c.restore(blob)
+    c.forget_contacts()
+    for cl in (a, b, c):
+        run(cl, 20)
+    assert np.array_equal(a.positions, b.positions) and np.array_equal(a.velocities, b.velocities)
+    assert a.stats()["slides_carried"] == b.stats()["slides_carried"] > 0
+    assert not np.array_equal(a.velocities, c.velocities)
 
 
 def test_a_sheet_pulled_by_one_edge_slides_at_mu_times_its_weight():

@@ -217,6 +217,7 @@ class _Ours:
             self.session.set_handle_keyframe(h, _translation(off), 0.0)
         self.parts = {"pose": 0.0, "collision": 0.0, "fem": 0.0, "tearing": 0.0}
         self.cg_iterations = []
+        self.solves = []  # linear solves per sub-step: one, more when contacts changed state (rounds)
         self.contacts = []
         self.full_share = []  # share of close cluster pairs fully detected, per sub-step
         self.cpu_s = 0.0
@@ -232,13 +233,15 @@ class _Ours:
         self.session.set_body_keyframe("body", pose, t)
         for h, off in zip(self.hands, hand_offsets(t, self.pull_speed)):
             self.session.set_handle_keyframe(h, _translation(off), t)
-        parts, iters, contacts = {"collision": 0.0, "fem": 0.0, "tearing": 0.0}, [], []
+        parts, iters, solves, contacts = {"collision": 0.0, "fem": 0.0, "tearing": 0.0}, [], [], []
         for _ in range(self.substeps):
             rep = self.session.step(self.dt)  # a SimulationError leaves the totals untouched
             parts["collision"] += rep.collision_s
             parts["fem"] += rep.fem_s
             parts["tearing"] += rep.tearing_s
-            iters.append(self.cloth.stats()["cg_iterations"])
+            st = self.cloth.stats()
+            iters.append(st["cg_iterations"])
+            solves.append(st["solves"])
             contacts.append(rep.contacts)
             self.full_share.append(float(self.session.detector.stats.get("full_share", float("nan"))))
         t2 = time.perf_counter()
@@ -247,6 +250,7 @@ class _Ours:
         for k, v in parts.items():
             self.parts[k] += v
         self.cg_iterations += iters
+        self.solves += solves
         self.contacts += contacts
         return t2 - t0
 
@@ -369,6 +373,7 @@ def race_blender_cloth(frames: int = 24, substeps: int = 10, *, fps: int = FPS, 
         "ours_triangles_end": int(ours.cloth.num_triangles),
         "ours_step_retries": int(ours.session.retries),
         "ours_cg_iterations_median": statistics.median(ours.cg_iterations) if ours.cg_iterations else 0,
+        "ours_solves_per_substep_mean": statistics.fmean(ours.solves) if ours.solves else 0,
         "ours_contacts_median": statistics.median(ours.contacts) if ours.contacts else 0,
         "ours_error": error,
         "blender_cg_iterations_mean": statistics.fmean(bl_iters) if bl_iters else None,
