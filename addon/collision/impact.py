@@ -9,7 +9,9 @@ Fedkiw & Anderson 2002; Provot 1997; Harmon et al. 2008), in one C call (native/
 
 1. every vertex-triangle and edge-edge pair of the cloth that comes within ``gap`` during the step
    while approaching, or that crosses, is found (one BVH over the cloth, built once per topology at
-   the rest positions and refitted to the step's swept boxes; exact swept tests of ccd.c);
+   the rest positions and refitted to the step's swept boxes; exact swept tests of ccd.c; patches
+   and vertex fans that provably cannot meet themselves during the step are skipped - normal cones
+   and simple projected boundaries, impact.c);
 2. inelastic impulses on the step's mean velocities, a few passes;
 3. rigid impact zones for what is left (each zone keeps its linear and angular momentum), until a
    detection finds nothing; at the pass cap the whole cloth moves rigidly (counted, and warned).
@@ -20,9 +22,16 @@ a gap of at most REST_FRACTION of its rest distance (as the swept stage). Vertic
 exactly in place (pinned, or held by static friction on a still body) are immovable.
 
 Positions and velocities are written back (Cloth.set_positions, which marks the element state
-stale, and set_velocities) only when something moved. The guard keeps no state that a step reads
-(its tree is rebuilt from the topology and rest positions), so a resumed bake equals an
-uninterrupted one; it keeps counts (``totals``) that are saved with the session.
+stale so that stresses, forces and the next step see the new positions, and set_velocities) only
+when something moved: a step the guard finds clean is left bit for bit as it was. The guard keeps
+no state that a step reads (its tables and tree are functions of the triangles and the rest shape,
+rebuilt when they change), so a resumed bake equals an uninterrupted one; it keeps counts
+(``totals``) that are saved with the session.
+
+Cost (measured, 2-core machine under load, thread CPU per step, median): 0.54 ms on the 1,800-
+triangle sheet over the thin bar, 0.80 ms on its 3,200-triangle version, ~2 ms on the race's shirt
+(3,305 triangles at 10 sub-steps per frame, where curvature keeps the provably free patches to ~60
+triangles and their borders are traversed); ~2.5x that without the culling.
 """
 from __future__ import annotations
 
@@ -170,8 +179,11 @@ class ImpactGuard:
     def _topology(self, triangles, rest):
         tri = np.asarray(triangles)
         topo = self._topo
-        if topo is not None and topo["source"].shape == tri.shape and topo["n"] == rest.shape[0] \
-                and np.array_equal(topo["source"], tri):
+        # the tree is a function of the triangles and the rest shape, rebuilt when either changed:
+        # an uninterrupted run and a resumed one then build the same tree at the same step, so
+        # they find the collisions in the same order (resume equality)
+        if topo is not None and topo["source"].shape == tri.shape and topo["rest"].shape == rest.shape \
+                and np.array_equal(topo["source"], tri) and np.array_equal(topo["rest"], rest):
             return topo
         t64 = np.ascontiguousarray(tri, np.int64).reshape(-1, 3)
         n, m = rest.shape[0], t64.shape[0]
@@ -187,7 +199,7 @@ class ImpactGuard:
         off = loop_offsets(node)
         # patch / loop: which tree nodes are disks and their boundary loops, found by impact.c when
         # first needed and kept until the topology changes
-        self._topo = {"source": tri.copy(), "n": n, "triangles": t64, **tab, "node": node, "prim": prim,
+        self._topo = {"source": tri.copy(), "rest": rest.copy(), "triangles": t64, **tab, "node": node, "prim": prim,
                       "patch": np.full(used, -1, np.int64), "loop": np.zeros(int(off[-1]), np.int64), "loop_off": off}
         return self._topo
 

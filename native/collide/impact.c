@@ -369,9 +369,9 @@ static void tri_normal(guard *g, tcc_idx t)
     cross3(u0, v1, m1);
     cross3(u1, v0, m2);
     for (int k = 0; k < 3; k++) P[3 + k] = 0.5 * (m1[k] + m2[k]);
-    double scale = fmax(sqrt(dot3(u0, u0) * dot3(v0, v0)), sqrt(dot3(u1, u1) * dot3(v1, v1)));
+    double scale2 = fmax(dot3(u0, u0) * dot3(v0, v0), dot3(u1, u1) * dot3(v1, v1));
     uint8_t ok = 1;
-    for (int j = 0; j < 3; j++) ok &= sqrt(dot3(P + 3 * j, P + 3 * j)) > SIN_MIN * scale;
+    for (int j = 0; j < 3; j++) ok &= dot3(P + 3 * j, P + 3 * j) > SIN_MIN * SIN_MIN * scale2;
     g->tvalid[t] = ok;
 }
 
@@ -666,6 +666,7 @@ static int patch_free(guard *g, tcc_idx i, int *free_)
 {
     *free_ = 0;
     const double *c = g->cone + CONE_LEN * i;
+    /* the merged cone, else the exact test triangle by triangle (the merges widen the cone) */
     if (!(c[8] > 0) || !(c[3] >= COS_MIN || normals_one_side(g, i))) return TCC_OK;
     int disk, rc = patch_disk(g, i, &disk);
     if (rc || !disk) return rc;
@@ -937,7 +938,6 @@ static int tri_pair(guard *g, tcc_idx ta, tcc_idx tb)
 
 static int is_leaf(const tcc_impact_in *in, tcc_idx i) { return in->node[2 * i] < 0; }
 
-static double box_size(const double *b) { return (b[3] - b[0]) + (b[4] - b[1]) + (b[5] - b[2]); }
 
 static int cross_nodes(guard *g, tcc_idx i, tcc_idx j, int depth)
 {
@@ -955,7 +955,8 @@ static int cross_nodes(guard *g, tcc_idx i, tcc_idx j, int depth)
         }
         return TCC_OK;
     }
-    if (!li && (lj || box_size(g->nbox + 6 * i) >= box_size(g->nbox + 6 * j))) {
+    /* descend the node with more triangles (a leaf never) */
+    if (!li && (lj || g->range[2 * i + 1] - g->range[2 * i] >= g->range[2 * j + 1] - g->range[2 * j])) {
         if ((rc = cross_nodes(g, in->node[2 * i], j, depth + 1))) return rc;
         return cross_nodes(g, in->node[2 * i + 1], j, depth + 1);
     }
