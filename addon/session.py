@@ -4,7 +4,8 @@ and the haptic loop all drive this one class.
 
 One step, as data flows (design.md): handle targets and body poses for the step's end time ->
 collision detection on the current positions (contacts) -> native step (FEM + contacts + handles,
-GIL released) -> tearing (topology events) -> clusters follow the events. Nothing calls back up.
+GIL released) -> tearing (topology events) -> the impact guard makes the motion the step made free of
+self-crossings (collision/impact.py) -> clusters follow the events. Nothing calls back up.
 
 Inputs that arrive per frame (a body's deformed mesh, an empty a handle follows) are given as
 keyframes at times in seconds; a step samples them at its own time by linear interpolation, so
@@ -43,6 +44,9 @@ class CollisionSettings:
     cluster_size: int = _C["cluster_size"]        # vertices per cluster
     measure: str = _C["measure"]                  # 'relative' (the paper), 'absolute' or 'full'
     self_collision: bool = _C["self_collision"]
+    # after each step, the step's motion made free of self-crossings (collision/impact.py); with
+    # self_collision only
+    impact_guard: bool = _C["impact_guard"]
 
     def validate(self) -> "CollisionSettings":
         _settings.validate("collision", ((f.name, getattr(self, f.name)) for f in fields(self)), who="collision")
@@ -97,6 +101,11 @@ class StepReport:
     # sub-steps the core accepted with the linear solve short of cg_tolerance after halving them
     # TC_SPLIT_DEPTH times (the iteration cap is too low for this mesh); 0 in a converged step
     unconverged_substeps: int = 0
+    # the impact guard's counts of this step (collision/impact.py COUNTS: collisions found in the
+    # motion the solve left, impulses, zones, ...; rigid_cloth = 1: its pass cap was hit) or None
+    # when it is off; its seconds are in collision_s and impact_s
+    impact: dict | None = None
+    impact_s: float = 0.0
 
     @property
     def total_s(self) -> float:
@@ -124,6 +133,7 @@ class Session:
         self._bodies: dict[str, _Body] = {}
         self._handle_tracks: dict[int, _Track] = {}
         self.detector = None
+        self.impact = None  # the impact guard (collision/impact.py), with self-collision
         self.last = StepReport()
         self.max_substeps = 16  # an exploding step is retried in up to this many sub-steps
         self.retries = 0        # steps that needed a retry, for reports
@@ -140,6 +150,10 @@ class Session:
                 self_collision=self.collision.self_collision,
             )
             self.detector.set_cloth(cloth.positions, cloth.triangles)
+            if self.collision.self_collision and self.collision.impact_guard:
+                from .collision.impact import ImpactGuard
+
+                self.impact = ImpactGuard(self.collision.thickness)
 
     # ---- bodies ----
     def add_body(self, name: str, vertices, triangles, friction: float | None = None) -> None:
@@ -181,7 +195,10 @@ class Session:
     # Everything a step reads, so that a session restored from it steps as this one would have
     # (a bake killed and resumed equals an uninterrupted one; tests/test_bake_resume_cli.py).
     _STATE_FIELDS = ("time", "_bodies", "_handle_tracks", "detector", "max_substeps", "retries",
-                     "unconverged_steps")
+                     "unconverged_steps", "impact")
+    # fields a state saved by an older build may lack: such a state keeps this session's own (the
+    # impact guard reads nothing from earlier steps; only its running counts start again)
+    _STATE_OPTIONAL = ("impact",)
 
     def save_state(self) -> bytes:
         """The whole state: the cloth's native snapshot and the Python side (``tearcloth.resume``)."""
@@ -196,11 +213,15 @@ class Session:
         from . import resume
 
         cloth_blob, state = resume.loads(blob)
+        state = {**{k: getattr(self, k) for k in self._STATE_OPTIONAL if k not in state}, **state}
         if set(state) != set(self._STATE_FIELDS):
             raise ValueError(f"session state holds {sorted(state)}, not {sorted(self._STATE_FIELDS)}")
         if (state["detector"] is None) != (self.detector is None):
             raise ValueError("session state was saved with collision " + ("off" if state["detector"] is None else "on")
                              + ", this session has it " + ("off" if self.detector is None else "on"))
+        if (state["impact"] is None) != (self.impact is None):
+            raise ValueError("session state was saved with the impact guard " + ("off" if state["impact"] is None else
+                             "on") + ", this session has it " + ("off" if self.impact is None else "on"))
         if sorted(state["_bodies"]) != sorted(self._bodies):
             raise ValueError(f"session state has the bodies {sorted(state['_bodies'])}, this session "
                              f"{sorted(self._bodies)}")
@@ -251,6 +272,8 @@ class Session:
                                     contacts.friction)
             rep.contacts = len(contacts.vertex)
             rep.collision_s = time.perf_counter() - t0
+        # the start of the step's motion, for the impact guard (a copy: the core writes in place)
+        x0 = np.array(self.cloth.positions) if self.impact is not None else None
         self._step_adaptive(dt)
         st = self.cloth.stats()
         rep.fem_s, rep.tearing_s = st["fem_seconds"], st["tear_seconds"]
@@ -260,6 +283,11 @@ class Session:
             self.unconverged_steps += 1
         ev = self.cloth.events()
         rep.events = ev
+        if self.impact is not None:
+            t0 = time.perf_counter()
+            rep.impact = self.impact.resolve(self.cloth, x0, ev, dt)
+            rep.impact_s = time.perf_counter() - t0
+            rep.collision_s += rep.impact_s
         if ev and self.detector is not None:
             t0 = time.perf_counter()
             self.detector.on_topology(ev, self.cloth.positions, self.cloth.triangles)

@@ -383,6 +383,12 @@ SETTINGS: tuple[Setting, ...] = (
        block="collision.contact", ui=dict(precision=2)),
     _b("collision", "self_collision", True, "Self Collision", "Keep the cloth from passing through itself",
        "the paper's scenes collide the cloth with itself", rna="use_self_collision", block="collision.contact"),
+    _b("collision", "impact_guard", True, "Impact Guard",
+       "After each step, stop any motion of the step that would carry the cloth through itself (inelastic "
+       "impulses, then rigid impact zones); acts with Self Collision on",
+       "Bridson, Fedkiw & Anderson 2002; Harmon et al. 2008: the contacts given to the solve are a prediction, "
+       "and a cloth flapping over a thin bar crossed itself on some trajectories without this check "
+       "(tests/test_collision_session.py)", block="collision.contact"),
     _i("collision", "cluster_size", "1", 100, "Cluster Size",
        "Vertices per cluster: collision detection skips cluster pairs that moved little",
        "the paper's clusters of about 100 vertices; the bounds are the property's clamps", _B(4, 100000), _B(10, 5000),

@@ -5,7 +5,6 @@ import trimesh
 
 from meshes import sheet
 from tearcloth import Cloth, material
-from tearcloth.cloth import SimulationError
 from tearcloth.session import CollisionSettings, Session
 
 TH = 0.004
@@ -75,55 +74,43 @@ def _self_intersections(P, T):
     return int((within & ~touches).sum())
 
 
-# Measured (s5c, 31 x 31, 1000 steps; the kernels' products agree to 1e-12, test_solver_simd): the
-# trajectory is chaotic. Two kernels' positions part from ~1e-25 m after one step to ~1e-9 m at step
-# 50 and cm from step ~200 (rounding, not a different answer: scalar and SSE2 agree bitwise), and an
-# initial perturbation of 1e-14 m grows alike. Whether the swept stage loses a crossing depends on
-# the trajectory, on every kernel: 6 of 11 runs crossed (SSE2 as built on main 984a6bc: 1731
-# crossings from step ~550, exploding at 833; SSE2 perturbed: 2 of 4; the six-chain AVX2: 3 of 4;
-# SSE2 here and the earlier AVX2 kernel unperturbed: none), and 25 x 25 crossed with the six-chain
-# AVX2 (2491 from step ~475). One run's pass or failure says nothing about a kernel, so a miss of the
-# claim is reported as an expected failure with its counts (the stage's open problem, as 41 x 41
-# was), and what holds on every run is still asserted.
-_FOLD_OPEN = ("open: the swept stage lets crossings through on some trajectories of this chaotic fold, on every "
-              "kernel (31 x 31: 6 of 11 runs; measured in s5c); needed: a post-step check that rolls the step back "
-              "and re-solves with the crossing pairs")
-
-
+# Measured (s5c, 31 x 31, 1000 steps): the trajectory is chaotic (two SIMD kernels' positions part
+# from ~1e-25 m after one step to cm from step ~200; an initial perturbation of 1e-14 m grows
+# alike), and without the impact guard the swept stage let crossings through on some trajectories
+# of every kernel (6 of 11 runs at 31 x 31, 25 x 25 and 41 x 41 too). The guard (collision/impact.py)
+# acts on the motion each step made, so the claim holds on every trajectory: a hard assertion.
 @pytest.mark.parametrize("n", [31, 25, 41])
 def test_cloth_folded_over_a_thin_bar_never_passes_through_itself(n):
     """A sheet folds over a 6 mm bar with almost no bending stiffness and flaps: the crease lies
     over one row of edges, whose mirror diagonals overshoot flat edge through edge inside the
     two-ring the rays skip (31 x 31: edges 850-880 / 881-911 from step ~194 without the swept
-    stage). The swept stage (collision/swept.py) must keep every sampled state free of
-    self-intersections, at two resolutions."""
+    stage). Every sampled state must be free of self-intersections at three resolutions, and the
+    impact guard must have found every step's motion free of crossings (or made it so)."""
     V, T = dropped_sheet(size=0.3, n=n, z=0.05, seed=3)
     s = Session(Cloth(V, T, material("cotton", bending=1e-6)), CollisionSettings(thickness=TH, self_collision=True))
     bar = trimesh.creation.box((0.5, 0.006, 0.006))
     s.add_body("bar", bar.vertices, bar.faces)
     crossings = []
-    swept_ms = []
+    swept_ms, guard_ms = [], []
     for i in range(1000):
-        try:
-            s.step(DT)
-        except SimulationError as e:
-            # a sheet threaded through itself ends in an exploding strain: that is the open failure
-            # only when crossings were seen first; an explosion of an untangled sheet fails the test
-            assert max(crossings, default=0) > 0, f"step {i} failed with no crossing seen: {e}"
-            pytest.xfail(f"{_FOLD_OPEN}: {n}x{n} crossed ({crossings}) and then exploded at step {i}")
+        s.step(DT)  # a SimulationError fails the test: the sheet never threads through itself now
         swept_ms.append(s.detector.stats["ms"]["swept"])
+        guard_ms.append(1e3 * s.last.impact_s)
         if i % 25 == 0:
             crossings.append(_self_intersections(s.cloth.positions, s.cloth.triangles))
     P = s.cloth.positions
     st = s.detector.stats
+    g = s.impact.totals
     print(f"bar fold {n}x{n}: self-intersections over time {crossings}; halves {P[:, 2].min():.3f} m down; "
           f"swept stage {np.median(swept_ms):.2f} ms median over {st['swept_pairs']} pairs, "
-          f"{st['swept_crossed']} crossings caught after the fact")
+          f"{st['swept_crossed']} crossings caught after the fact; impact guard {np.median(guard_ms):.2f} ms median, "
+          f"{g['collisions']} collisions in {g['steps']} steps, {g['impulses']} impulses, {g['zones']} zones "
+          f"({g['zone_vertices']} vertices), {g['rigid_cloth']} whole-cloth steps")
     assert P[:, 2].min() < -0.05, "the cloth did not fold over the bar"
     assert np.isfinite(P).all() and np.abs(s.cloth.velocities).max() < 10.0
     assert st["swept_pairs"] > 0
-    if max(crossings) > 0:
-        pytest.xfail(f"{_FOLD_OPEN}: {n}x{n} crossed: {crossings}")
+    assert max(crossings) == 0
+    assert g["steps"] == 1000
 
 
 def test_collision_settings_reject_bad_values():

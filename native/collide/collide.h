@@ -428,4 +428,66 @@ int tcc_ccd_cull_blocks(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx
                         double *block_debt, tcc_idx *out, tcc_idx *nout, const double *disp2, tcc_idx *out2,
                         tcc_idx *nout2, tcc_error *err);
 
+/* ---------------------------------------------------------------- impact.c */
+
+/* The impact guard (impact.c's module docs): the step's motion x0 -> x1 of the cloth made free of
+ * self-crossings by inelastic impulses, then rigid impact zones, then (the cap hit) one rigid
+ * cloth. x1 and v are corrected in place for the vertices whose motion changed. The tree is
+ * tcc_bvh_build's with one cluster (rows node (nnodes, 2), prim (nt): a node's triangles are a
+ * contiguous run of prim rows);
+ * vertex_owner[v] is the one triangle that tests v against others (-1: v is in none), edge_owner
+ * (nt, 3) is 1 where the triangle tests its edge k = (tri[k], tri[k+1 mod 3]) (one triangle per
+ * edge). */
+typedef struct {
+    const double *x0;      /* (n, 3) m: positions at the step's start */
+    double *x1;            /* (n, 3) m: at its end, in/out */
+    double *v;             /* (n, 3) m/s: velocities at its end, in/out */
+    const double *mass;    /* (n,) kg, > 0 */
+    const double *rest;    /* (n, 3) m: rest positions (twins of a cut share theirs) */
+    tcc_idx n;
+    const tcc_idx *tri;    /* (nt, 3) */
+    tcc_idx nt;
+    const tcc_idx *vowner; /* (n,) */
+    const uint8_t *eowner; /* (nt, 3) */
+    const tcc_idx *node;   /* (nnodes, 2) */
+    tcc_idx nnodes;
+    const tcc_idx *prim;   /* (nt,) */
+    const tcc_idx *adj;    /* (nt, 3) the triangle across edge k, -1 none, -2 an edge of more than two */
+    const uint8_t *flip;   /* (nt, 3) 1 when that neighbour's winding is opposite */
+    const uint8_t *interior; /* (n,) 1: every edge at the vertex has two consistently wound triangles */
+    const tcc_idx *vt_ptr; /* (n + 1) the vertex's triangles vt_tri[vt_ptr[v] .. vt_ptr[v+1]) */
+    const tcc_idx *vt_tri;
+    tcc_idx nvt;
+    tcc_idx *patch;        /* (nnodes,) in/out cache of the topology: -1 unknown, -2 not a disk, else the
+                              length of the node's boundary loop (start at -1 after a topology change) */
+    tcc_idx *loop;         /* (nloop,) in/out: node i's loop at loop_off[i] (room for its triangles + 2) */
+    const tcc_idx *loop_off; /* (nnodes + 1) */
+    tcc_idx nloop;
+    double dt;             /* s, > 0 */
+    double gap;            /* m, > 0: a pair this close during the step and approaching collides */
+    double rest_fraction;  /* a pair's gap is at most this share of its rest distance */
+    double min_rest;       /* m: pairs closer than this at rest are one piece (never collide) */
+    int impulse_passes, zone_passes; /* caps */
+} tcc_impact_in;
+
+typedef struct {
+    tcc_idx candidates;     /* element pairs given to the swept tests, over every detection */
+    tcc_idx collisions;     /* collisions of the step as the solve left it (the first detection) */
+    tcc_idx excluded;       /* pairs within the gap that coincide at rest (twins): never collisions */
+    tcc_idx crossing_only;  /* collisions of pairs that parted within their gap but crossed later */
+    tcc_idx impulses;       /* impulses applied */
+    tcc_idx impulse_passes; /* detections followed by impulses */
+    tcc_idx zone_passes;    /* detections followed by zone merges */
+    tcc_idx zones;          /* impact zones at the end */
+    tcc_idx zone_vertices;  /* vertices in them */
+    tcc_idx unresolved;     /* collisions left at the zone pass cap (then the cloth moved as one zone) */
+    tcc_idx rigid_cloth;    /* 1 when the cap was hit and the whole cloth moved rigidly */
+    tcc_idx moved;          /* vertices whose motion changed */
+    tcc_idx immovable;      /* vertices the step left exactly in place (infinite mass here) */
+    tcc_idx patches_free;   /* tree nodes not tested against themselves (normal cone and star contour) */
+} tcc_impact_counts;
+
+int tcc_impact_resolve(const tcc_impact_in *in, tcc_impact_counts *out, tcc_error *err);
+
+
 #endif

@@ -1411,6 +1411,78 @@ fail:
     return NULL;
 }
 
+/* ---------------------------------------------------------------- impact.c (the impact guard) */
+
+static const pyarg_spec IMPACT_RESOLVE[] = {
+    ARR("start", PA_F64, 0, 2, 3, 0),
+    ARR("end", PA_F64, OUT, 2, 3, 0),
+    ARR("velocity", PA_F64, OUT, 2, 3, 0),
+    ARR("mass", PA_F64, 0, 1, 0, 0),
+    ARR("rest", PA_F64, 0, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("vertex_owner", PA_I64, 0, 1, 0, 0),
+    ARR("edge_owner", PA_BOOL, 0, 2, 3, 0),
+    ARR("node", PA_I64, 0, 2, 2, 0),
+    ARR("prim", PA_I64, 0, 1, 0, 0),
+    ARR("adjacency", PA_I64, 0, 2, 3, 0),
+    ARR("flip", PA_BOOL, 0, 2, 3, 0),
+    ARR("interior", PA_BOOL, 0, 1, 0, 0),
+    ARR("vt_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("vt_tri", PA_I64, 0, 1, 0, 0),
+    ARR("patch", PA_I64, OUT, 1, 0, 0),
+    ARR("loop", PA_I64, OUT, 1, 0, 0),
+    ARR("loop_off", PA_I64, 0, 1, 0, 0),
+    VAL("dt", PA_DOUBLE),
+    VAL("gap", PA_DOUBLE),
+    VAL("rest_fraction", PA_DOUBLE),
+    VAL("min_rest", PA_DOUBLE),
+    VAL("impulse_passes", PA_INT),
+    VAL("zone_passes", PA_INT),
+};
+enum { IR_X0, IR_X1, IR_V, IR_M, IR_REST, IR_T, IR_VOWN, IR_EOWN, IR_NODE, IR_PRIM, IR_ADJ, IR_FLIP, IR_INT, IR_VTP,
+       IR_VTT, IR_PATCH, IR_LOOP, IR_LOFF, IR_DT, IR_GAP, IR_RF, IR_MR, IR_IP, IR_ZP, IR_N };
+
+static PyObject *py_impact_resolve(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("impact_resolve", IMPACT_RESOLVE, IR_N);
+    Py_ssize_t n = ROWS(IR_X0), nt = ROWS(IR_T);
+    CHECK_ROWS(IR_X1, n);
+    CHECK_ROWS(IR_V, n);
+    CHECK_ROWS(IR_M, n);
+    CHECK_ROWS(IR_REST, n);
+    CHECK_ROWS(IR_VOWN, n);
+    CHECK_ROWS(IR_EOWN, nt);
+    CHECK_ROWS(IR_PRIM, nt);
+    CHECK_ROWS(IR_ADJ, nt);
+    CHECK_ROWS(IR_FLIP, nt);
+    CHECK_ROWS(IR_INT, n);
+    CHECK_ROWS(IR_VTP, n + 1);
+    CHECK_ROWS(IR_PATCH, ROWS(IR_NODE));
+    CHECK_ROWS(IR_LOFF, ROWS(IR_NODE) + 1);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_impact_in in = {D(IR_X0), D(IR_X1), D(IR_V), D(IR_M), D(IR_REST), n, D(IR_T), nt, D(IR_VOWN), D(IR_EOWN),
+                        D(IR_NODE), ROWS(IR_NODE), D(IR_PRIM), D(IR_ADJ), D(IR_FLIP), D(IR_INT), D(IR_VTP),
+                        D(IR_VTT), ROWS(IR_VTT), D(IR_PATCH), D(IR_LOOP),
+                        D(IR_LOFF), ROWS(IR_LOOP), s.v[IR_DT].d, s.v[IR_GAP].d, s.v[IR_RF].d, s.v[IR_MR].d,
+                        s.v[IR_IP].i, s.v[IR_ZP].i};
+    tcc_impact_counts c;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_impact_resolve(&in, &c, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return Py_BuildValue("{sLsLsLsLsLsLsLsLsLsLsLsLsLsL}", "patches_free", (long long)c.patches_free, "candidates", (long long)c.candidates, "collisions",
+                         (long long)c.collisions, "excluded", (long long)c.excluded, "crossing_only",
+                         (long long)c.crossing_only, "impulses", (long long)c.impulses, "impulse_passes",
+                         (long long)c.impulse_passes, "zone_passes", (long long)c.zone_passes, "zones",
+                         (long long)c.zones, "zone_vertices", (long long)c.zone_vertices, "unresolved",
+                         (long long)c.unresolved, "rigid_cloth", (long long)c.rigid_cloth, "moved",
+                         (long long)c.moved, "immovable", (long long)c.immovable);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
 #define KERNEL(name, doc) {#name, (PyCFunction)(void (*)(void))py_##name, METH_VARARGS | METH_KEYWORDS, doc}
 
 static PyMethodDef methods[] = {
@@ -1512,6 +1584,10 @@ static PyMethodDef methods[] = {
            "prim, refit_step, step, ring, pair_a, pair_b, dist, backoff, ray_vertex, ray_slot, hit_triangle) -> "
            "(hits, rays): every close pair's rays cast into the target cluster's tree (refitted once per step), the "
            "two-ring skipped; the rays that hit (more than len(ray_vertex): call again, larger)."),
+    KERNEL(impact_resolve,
+           "impact_resolve(start, end, velocity, mass, rest, triangles, vertex_owner, edge_owner, node, prim, adjacency, "
+           "flip, interior, vt_ptr, vt_tri, patch, loop, loop_off, dt, gap, rest_fraction, min_rest, impulse_passes, zone_passes) -> counts: the step's motion start -> end made free "
+           "of self-crossings (impulses, rigid impact zones; impact.c), end and velocity corrected in place."),
     {NULL, NULL, 0, NULL},
 };
 
