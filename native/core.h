@@ -340,7 +340,12 @@ void tc_amg_free(tc_amg *h);
  * aggregates unless `aggregate_again` or the mesh changed. 0, or -1 when out of memory. */
 int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again);
 bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c);
-void tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r */
+double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r; r . z */
+/* the filter S changed since the hierarchy's first coarse operator was made: that operator updated
+ * over the rows that changed (the vertices that did; -1 out of memory: the hierarchy is dropped) */
+int tc_amg_update_filter(tc_amg *h, const tc_cloth *c);
+bool tc_amg_filter_changed(const tc_amg *h, const tc_cloth *c);
+void tc_amg_forget(tc_amg *h);  /* aggregate again at the next build (a snapshot was taken) */
 int tc_amg_levels(const tc_amg *h);
 bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
 size_t tc_amg_bytes(const tc_amg *h);
@@ -349,6 +354,9 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 again
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);
 void tc_precondition_constraints_changed(tc_cloth *c);  /* after a re-built contact basis (step.c) */
+/* a snapshot is being taken: the next sub-step builds the hierarchy from scratch, as a run resumed
+ * from it does (snapshot.c), so the two step alike to the bit */
+void tc_precondition_snapshot(const tc_cloth *c);
 /* 1 when converged, 0 when stopped at the cap; iterations in *iterations (see solver.c) */
 int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations);
 

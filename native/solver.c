@@ -51,11 +51,20 @@ static void amg_prepare(tc_cloth *c)
     if (!c->amg) c->amg = tc_amg_new();
     if (!c->amg) { c->stats.amg_fallbacks++; return; }
     const int every = amg_refresh();
-    if (tc_amg_levels(c->amg) == 0 || tc_amg_needs_aggregation(c->amg, c) || c->amg_age + 1 >= (every ? every : 1) ||
-        c->amg_stale) {
+    if (tc_amg_levels(c->amg) == 0 || !tc_amg_valid(c->amg, c) || tc_amg_needs_aggregation(c->amg, c) ||
+        c->amg_age + 1 >= (every ? every : 1) || c->amg_stale) {
         if (tc_amg_build(c->amg, c, every == 0)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
         c->amg_stale = false;
+        c->amg_fresh_iterations = -1;
+    } else if (tc_amg_filter_changed(c->amg, c)) {
+        /* kept, but this sub-step's contacts (or pins, handles) differ from those its first coarse
+           operator was made for: refreshed numerically. An update of the changed rows would take
+           the old filter's part out at this sub-step's matrix while the operator holds it at an
+           older one; the mismatch, of the order of the matrix's change times its stiffness ratio,
+           made the cycle indefinite on stiff sheets (CG broke down) */
+        if (tc_amg_build(c->amg, c, false)) c->stats.amg_fallbacks++;
+        c->amg_age = 0;
         c->amg_fresh_iterations = -1;
     } else {
         c->amg_age++;
@@ -93,16 +102,29 @@ void tc_precondition_build(tc_cloth *c)
     amg_prepare(c);
 }
 
-/* The constraints changed within a sub-step (contacts released or sliding, step.c): a multigrid
- * hierarchy built on the old filter S can lose definiteness on the new one (a held vertex, S = 0,
- * that now slides), so its numbers are refreshed for the re-solve; block Jacobi needs nothing. */
+/* The constraints changed within a sub-step (contacts released or sliding, step.c): the kept
+ * hierarchy's first coarse operator is updated over the vertices whose filter changed (amg.c), so
+ * the cycle is the Galerkin one of the re-solve's operator at the cost of those rows, not of a
+ * rebuild per contact round; block Jacobi needs nothing. */
 void tc_precondition_constraints_changed(tc_cloth *c)
 {
     if (!use_amg(c) || !tc_amg_valid(c->amg, c)) return;
     const double t0 = tc_now();
-    if (tc_amg_build(c->amg, c, false)) c->stats.amg_fallbacks++;
-    c->amg_fresh_iterations = -1;
+    if (c->amg_age == 0) {
+        /* the operator is of this sub-step's matrix: the update is exact */
+        if (tc_amg_update_filter(c->amg, c) < 0) c->stats.amg_fallbacks++;
+    } else {
+        /* of an older matrix: refreshed once (the next rounds of this sub-step update it) */
+        if (tc_amg_build(c->amg, c, false)) c->stats.amg_fallbacks++;
+        c->amg_age = 0;
+        c->amg_fresh_iterations = -1;
+    }
     c->stats.amg_setup_seconds += tc_now() - t0;
+}
+
+void tc_precondition_snapshot(const tc_cloth *c)
+{
+    tc_amg_forget(c->amg);
 }
 
 static void precondition(const tc_cloth *c, const double *r, double *z)
@@ -238,8 +260,7 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
     const size_t n3 = 3 * (size_t)c->nv;
     double *r = tc_vec_ptr(&c->sr), *z = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp), *q = tc_vec_ptr(&c->sq);
     double rr = *rr_inout;
-    tc_amg_apply(c, c->amg, r, z);
-    double rz = dotn(r, z, n3);
+    double rz = tc_amg_apply(c, c->amg, r, z);
     memcpy(p, z, n3 * sizeof(double));
     int it = 0;
     while (it < c->solver.cg_max_iterations && rr > stop2) {
@@ -258,8 +279,7 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
         rr = r0 + r1;
         it++;
         if (rr <= stop2) break;
-        tc_amg_apply(c, c->amg, r, z);
-        const double rz2 = dotn(r, z, n3);
+        const double rz2 = tc_amg_apply(c, c->amg, r, z);
         const double beta = rz2 / rz;
         for (size_t k = 0; k < n3; k++) p[k] = z[k] + beta * p[k];
         rz = rz2;

@@ -625,7 +625,8 @@ static void test_amg(void)
        the current matrix (a build for it, as a refresh does) and symmetric */
     CHECK(tc_amg_build(c->amg, c, false) == 0 && tc_amg_levels(c->amg) >= 2, "amg rebuild");
     const double gerr = tc_amg_galerkin_error(c, c->amg);
-    CHECK(gerr >= 0 && gerr < 1e-12, "Galerkin operator = P^T S A P: relative error %g", gerr);
+    /* stored in float32: the product agrees to its rounding (2^-24 = 6e-8 per value) */
+    CHECK(gerr >= 0 && gerr < 1e-6, "Galerkin operator = P^T A' P: relative error %g", gerr);
     /* switching to block Jacobi frees the hierarchy; switching back builds it again */
     tc_solver_settings sw = tc_cloth_solver(c);
     sw.preconditioner = TC_PRECOND_JACOBI;
