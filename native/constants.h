@@ -146,8 +146,18 @@
  * solve after the refresh: a held sheet pulled at 1 m/s went from 13 to 50 iterations one sub-step
  * after a refresh at rest (the tension it then carries changes the matrix most). */
 #define TC_AMG_STALE_FACTOR 1.5
-/* preconditioner "auto": multigrid from this many vertices. Same sheets, refresh 8: 1,681 vertices
- * 3.7 ms vs Jacobi 3.1 ms (68 iterations), 2,911 vertices 7.7 vs 10.4 ms (110 iterations). */
-#define TC_AMG_AUTO_VERTICES 2500
+/* preconditioner "auto": the multigrid cycle when the work block Jacobi is predicted to need
+ * exceeds the cycle's, i.e. when the stiffness ratio of the sub-step's matrix (solver.c: the median
+ * over free vertices of (dt^2 + dt beta) k_ii / ((1 + dt alpha) m_i)) is at least this. Measured
+ * (CPU, this machine): Jacobi takes ~2-3.5 sqrt(ratio) iterations (T-shirt 60 at dt 1 ms, ratio
+ * 630; 153 at 4.17 ms, ratio 10,700; the square 130 at 10K triangles, ratio 4,800; 590 at 100K,
+ * ratio 48,000) at ~65 us each on the T-shirt, while the cycle takes 11-23 iterations at ~5.5
+ * Jacobi iterations each plus its refresh (~35 Jacobi iterations per sub-step at TC_AMG_REFRESH):
+ * ~120-160 Jacobi iterations' worth, reached at ratio ~4,000 (the T-shirt at dt 4.17 ms: AMG 8.0 vs
+ * Jacobi 8.8 ms CPU per step; at dt 1 ms Jacobi 4.1 vs AMG 5.4 ms). Both costs grow with the
+ * matrix alike, so the size drops out of the rule but for tiny cloths: */
+#define TC_AMG_AUTO_STIFFNESS 4000.0
+/* ... below this many vertices a hierarchy has one coarse level at most and never pays. */
+#define TC_AMG_AUTO_MIN_VERTICES 500
 
 #endif

@@ -198,6 +198,7 @@ struct tc_cloth {
     int amg_age;              /* sub-steps since its numeric refresh */
     int amg_fresh_iterations; /* iterations of the first solve after it (-1: none yet) */
     bool amg_stale;           /* a later solve needed many more: refresh at the next sub-step */
+    bool amg_chosen;          /* this sub-step's solves use it (solver.c's choose_amg) */
 
     /* fem.c's per-triangle slot table (derived from the rows, never part of a snapshot: rebuilt
      * when tslot_version, the rows_version it was built for, or the counts no longer match) */

@@ -14,13 +14,59 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Whether this cloth's solves use the multigrid cycle. AUTO: from TC_AMG_AUTO_VERTICES vertices
- * (constants.h: the measured crossover, below which block Jacobi's cheaper iterations win). */
-static bool use_amg(const tc_cloth *c)
+/* Whether this cloth's solves use the multigrid cycle: chosen once per sub-step, in
+ * tc_precondition_build (choose_amg), and read by the solves and the contact rounds after it. */
+static bool use_amg(const tc_cloth *c) { return c->amg_chosen; }
+
+/* k-th smallest of v[0..n) (quickselect; v is reordered) */
+static double select_kth(double *v, int32_t n, int32_t k)
+{
+    int32_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        const double pivot = v[lo + (hi - lo) / 2];
+        int32_t i = lo, j = hi;
+        while (i <= j) {
+            while (v[i] < pivot) i++;
+            while (v[j] > pivot) j--;
+            if (i <= j) { const double t = v[i]; v[i] = v[j]; v[j] = t; i++; j--; }
+        }
+        if (k <= j) hi = j;
+        else if (k >= i) lo = i;
+        else return v[k];
+    }
+    return v[k];
+}
+
+/* The stiffness ratio of the sub-step's matrix: the median over the free vertices of
+ * tr(A_ii) / (3 (1 + dt alpha) m_i) - 1, i.e. (dt^2 + dt beta) k_ii / m_i, the stiffness a vertex
+ * feels in one sub-step against its inertia (it grows with dt^2 and, at a fixed sheet, with the
+ * square of the mesh's refinement). Block-Jacobi CG needs about 2-3.5 sqrt(ratio) iterations
+ * (constants.h); the multigrid cycle about ten whatever the ratio. Scratch: the solver's sz. */
+static double stiffness_ratio(tc_cloth *c)
+{
+    const double *D = tc_vec_ptr(&c->diag), *m = tc_vec_ptr(&c->mass);
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    double *q = tc_vec_ptr(&c->sz);
+    int32_t n = 0;
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (fl[i] == VC_PINNED || fl[i] == VC_HANDLE || !(m[i] > 0)) continue;
+        const double *d = D + 12 * (size_t)i;
+        q[n++] = (d[0] + d[5] + d[10]) / (3.0 * c->mass_scale * m[i]) - 1.0;
+    }
+    if (!n) return 0.0;
+    const double r = select_kth(q, n, n / 2);
+    return isfinite(r) ? r : 0.0;
+}
+
+/* AUTO: the multigrid cycle when the work block Jacobi is predicted to need is larger, i.e. when
+ * the stiffness ratio passes TC_AMG_AUTO_STIFFNESS (constants.h: the measured break-even) on a
+ * cloth of at least TC_AMG_AUTO_MIN_VERTICES vertices (below, a hierarchy has no level to speak of). */
+static bool choose_amg(tc_cloth *c)
 {
     if (c->solver.preconditioner == TC_PRECOND_JACOBI) return false;
     if (c->solver.preconditioner == TC_PRECOND_AMG) return true;
-    return c->nv >= TC_AMG_AUTO_VERTICES;
+    if (c->nv < TC_AMG_AUTO_MIN_VERTICES) return false;
+    return stiffness_ratio(c) >= TC_AMG_AUTO_STIFFNESS;
 }
 
 /* Sub-steps between numeric refreshes of the hierarchy (TC_AMG_REFRESH; the TEARCLOTH_AMG_REFRESH
@@ -99,6 +145,7 @@ void tc_precondition_build(tc_cloth *c)
         o[3] = c01 * id; o[4] = (a[0] * a[8] - a[2] * a[6]) * id; o[5] = (a[2] * a[3] - a[0] * a[5]) * id;
         o[6] = c02 * id; o[7] = (a[1] * a[6] - a[0] * a[7]) * id; o[8] = (a[0] * a[4] - a[1] * a[3]) * id;
     }
+    c->amg_chosen = choose_amg(c);
     amg_prepare(c);
 }
 

@@ -1,6 +1,7 @@
 """The multigrid preconditioner (native/amg.c) against block Jacobi: the same solutions within the
 tolerance on pinned, held and torn sheets, far fewer iterations that hardly grow with the mesh,
-the choice by size of the ``preconditioner`` row, and bad values refused with the row's name."""
+the choice by the predicted work (the stiffness ratio dt^2 k / m) of the ``preconditioner`` row's
+auto, and bad values refused with the row's name."""
 import numpy as np
 import pytest
 
@@ -57,11 +58,23 @@ def test_amg_iterations_hardly_grow_with_the_mesh():
     assert counts["amg", 3321] <= 25, counts
 
 
-def test_preconditioner_row_chooses_by_size_and_refuses_unknown_names():
-    small = held_sheet("auto", 21, 11, tol=1e-4)
+def test_preconditioner_row_chooses_by_the_predicted_work_and_refuses_unknown_names():
+    small = held_sheet("auto", 21, 11, tol=1e-4)  # 231 vertices: below TC_AMG_AUTO_MIN_VERTICES
     small.step(1e-3)
     assert small.solver["preconditioner"] == "auto" and small.stats()["amg_levels"] == 0
-    big = held_sheet("auto", 71, 41, tol=1e-4)  # 2,911 vertices: above the crossover of constants.h
+    # the same 861-vertex cotton sheet: a hundredth of the stiffness is a hundredth of the stiffness
+    # ratio dt^2 k / m (below TC_AMG_AUTO_STIFFNESS: block Jacobi), the cotton one is above it
+    soft = held_sheet("auto", 41, 21, tol=1e-4)
+    soft.set_material(young=soft.material.young / 100.0)
+    soft.step(1e-3)
+    assert soft.stats()["amg_levels"] == 0
+    stiff = held_sheet("auto", 41, 21, tol=1e-4)
+    stiff.step(1e-3)
+    assert stiff.stats()["amg_levels"] >= 2
+    # and the soft one turns to multigrid when its sub-steps are twenty times longer (ratio x 400)
+    soft.step(2e-2)
+    assert soft.stats()["amg_levels"] >= 2
+    big = held_sheet("auto", 71, 41, tol=1e-4)  # 2,911 vertices, cotton at 1 ms: multigrid
     big.step(1e-3)
     assert big.stats()["amg_levels"] >= 2
     with pytest.raises(InvalidInputError, match="preconditioner"):

@@ -168,7 +168,8 @@ def targets_markdown(r: dict) -> list:
     return ["## Targets", "", "| figure | this run | target | |", "|---|---|---|---|", *rows, "",
             "Where the time goes when a target is missed: the FEM solve. One step is an element pass "
             "(co-rotation, stress, forces), an assembly of 3x3 blocks into rows, and a conjugate-gradient "
-            "solve. Below 2,500 vertices (the T-shirt) it is preconditioned by the inverse diagonal blocks: "
+            "solve. On soft or coarse sheets at short steps (stiffness ratio dt^2 k / m below "
+            "TC_AMG_AUTO_STIFFNESS) it is preconditioned by the inverse diagonal blocks: "
             "a cotton sheet is stiff (E h = 2e4 N/m) against its areal mass, so that takes tens of "
             "iterations at 1 ms steps (17 for the square cloth, 51 for the T-shirt), each a matrix product "
             "about 2.5x its memory roofline. Above it the smoothed-aggregation multigrid of amg.c keeps the "
