@@ -153,9 +153,12 @@
  * 630; 153 at 4.17 ms, ratio 10,700; the square 130 at 10K triangles, ratio 4,800; 590 at 100K,
  * ratio 48,000) at ~65 us each on the T-shirt, while the cycle takes 11-23 iterations at ~5.5
  * Jacobi iterations each plus its refresh (~35 Jacobi iterations per sub-step at TC_AMG_REFRESH):
- * ~120-160 Jacobi iterations' worth, reached at ratio ~4,000 (the T-shirt at dt 4.17 ms: AMG 8.0 vs
- * Jacobi 8.8 ms CPU per step; at dt 1 ms Jacobi 4.1 vs AMG 5.4 ms). Both costs grow with the
- * matrix alike, so the size drops out of the rule but for tiny cloths: */
+ * ~120-160 Jacobi iterations' worth, reached at ratio ~4,000. Interleaved on the T-shirt at dt
+ * 4.17 ms (ratio 10,700) the cycle still lost, 8.7-8.8 vs 7.6-7.7 ms CPU per step (26 vs 174
+ * iterations; 2.8-3.0 ms of it the hierarchy's refresh): the break-even there lies above 10,700
+ * while the refresh costs what it does (open: raise this or cut the refresh). At dt 1 ms (ratio
+ * 630) Jacobi 4.0 vs the cycle 5.4 ms. Both costs grow with the matrix alike, so the size drops
+ * out of the rule but for tiny cloths: */
 #define TC_AMG_AUTO_STIFFNESS 4000.0
 /* ... below this many vertices a hierarchy has one coarse level at most and never pays. */
 #define TC_AMG_AUTO_MIN_VERTICES 500
