@@ -57,6 +57,7 @@
  * filter, one for the post-smoothing that also takes r . z for CG. No allocation in the cycle.
  */
 #include "core.h"
+#include "matvec.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -77,10 +78,11 @@ typedef struct level {
     bsr A;                 /* the operator (levels >= 1; level 0 is fem.c's rows) */
     bsr P;                 /* prolongator from the next level (restriction: its transpose) */
     double *dinv;          /* inverse diagonal blocks, b*b each (levels >= 1; level 0: c->pinv) */
-    double omega;          /* damping of the Jacobi step */
+    double omega;          /* the prolongator's smoothing step, 4 / (3 rho(D^-1 A)) */
     int32_t *agg;          /* aggregate of each block row, -1 none */
     int32_t nagg;
     double *B;             /* near-null space, n*b x NS row-major (levels >= 1) */
+    uint8_t *dead;         /* per unknown: a mode its aggregate could not carry (levels >= 1) */
     double *x, *rhs, *res; /* V-cycle vectors (levels >= 1; level 0 has res only) */
     size_t cap_vec;
 } level;
@@ -99,19 +101,11 @@ struct tc_amg {
     int64_t fixed_n, fixed_sum;  /* the pins and handles the aggregates were made with */
     int32_t fragment_vertices;   /* tc_stats.fragment_vertices_removed then (a removal renumbers) */
     bool forget;           /* aggregate again at the next build (tc_amg_forget) */
-    /* the filter the first coarse operator was made for (tc_amg_update_filter): per vertex its
-       kind and, for a contact vertex, an index into sn (its count then its 9 normals' values) */
-    int8_t *sflag;
-    int32_t *sidx;
-    double *sn;
-    size_t nsn, cap_sn;
-    int32_t *changed;      /* scratch of an update: the vertices whose filter changed */
-    uint8_t *inchg;
+    int refreshes;         /* numeric refreshes since the prolongators were made */
     /* scratch of the sparse products */
     int32_t *mark;
     double *acc;
     size_t cap_mark, cap_acc;
-    int32_t cap_nv;        /* sflag, sidx, changed, inchg are sized for this many vertices */
 };
 
 /* ---------------- memory ---------------- */
@@ -156,23 +150,14 @@ static void bsr_free(bsr *a)
     memset(a, 0, sizeof *a);
 }
 
-static void filter_store_free(tc_amg *h)
-{
-    free(h->sflag); free(h->sidx); free(h->sn); free(h->changed); free(h->inchg);
-    h->sflag = NULL; h->sidx = NULL; h->sn = NULL; h->changed = NULL; h->inchg = NULL;
-    h->nsn = h->cap_sn = 0;
-    h->cap_nv = 0;
-}
-
 void tc_amg_free(tc_amg *h)
 {
     if (!h) return;
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) {
         level *L = &h->lev[l];
         bsr_free(&L->A); bsr_free(&L->P);
-        free(L->dinv); free(L->agg); free(L->B); free(L->x); free(L->rhs); free(L->res);
+        free(L->dinv); free(L->agg); free(L->B); free(L->dead); free(L->x); free(L->rhs); free(L->res);
     }
-    filter_store_free(h);
     free(h->chol); free(h->mark); free(h->acc);
     free(h);
 }
@@ -190,9 +175,9 @@ size_t tc_amg_bytes(const tc_amg *h)
         if (L->agg) s += n * 4;
         if (L->dinv) s += n * b * b * 8;
         if (L->B) s += n * b * NS * 8;
+        if (L->dead) s += n * NS;
         s += ((L->x != NULL) + (L->rhs != NULL) + (L->res != NULL)) * L->cap_vec * 8;
     }
-    s += (size_t)h->cap_nv * (1 + 4 + 4 + 1) + h->cap_sn * 8;
     return s + h->cap_chol * 8 + h->cap_mark * 4 + h->cap_acc * 8;
 }
 
@@ -753,162 +738,310 @@ static inline int32_t find_slot(const bsr *C, int32_t I, int32_t J)
     return -1;
 }
 
-/* C = P^T A P (NS x NS blocks, columns sorted in each row). Its pattern first, from the patterns
- * alone (the rows of P^T: the fine rows of each aggregate); then one pass over the fine rows, each
- * making its row of A P once in a small accumulator and adding P_iI^T (A P)_iJ into C's upper
- * blocks (J >= I; the lower ones are their transposes). So neither A P nor P^T is ever stored.
- * C is summed in double (a buffer of its own, 288 bytes a block) and then narrowed in place to
- * float32: its values are sums of some fifty products each, which float would round 50 times. */
-#define GALERKIN(NAME, B)                                                                             \
-    TC_HOT static int NAME(tc_amg *h, rowsrc *s, const bsr *P, bsr *C)                                \
+/* The pattern of C = P^T A P (NS x NS blocks, columns sorted in each row), from the patterns alone
+ * (the rows of P^T: the fine rows of each aggregate, their columns, those columns' P blocks), in
+ * two passes (the count, then the columns), so C takes what it needs and no more. Made when P is
+ * made (an aggregation, a tear, a new prolongator); every numeric refresh reuses it. */
+static int galerkin_pattern(tc_amg *h, rowsrc *s, const bsr *P, bsr *C)
+{
+    const int32_t n = P->n, na = P->m;
+    int rc = -1;
+    int32_t *tptr = calloc((size_t)na + 1, sizeof(int32_t));
+    int32_t *trow = malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));
+    if (!tptr || !trow || scratch(h, na, 0)) goto done;
+    for (int32_t a = 0; a < P->ptr[n]; a++) tptr[P->col[a] + 1]++;
+    for (int32_t I = 0; I < na; I++) tptr[I + 1] += tptr[I];
+    for (int32_t i = 0; i < n; i++)
+        for (int32_t a = P->ptr[i]; a < P->ptr[i + 1]; a++) trow[tptr[P->col[a]]++] = i;
+    for (int32_t I = na; I > 0; I--) tptr[I] = tptr[I - 1];
+    tptr[0] = 0;
+    int32_t *mark = h->mark;
+    C->n = C->m = na; C->br = C->bc = NS;
+    size_t k = 0;
+    for (int pass = 0; pass < 2; pass++) {
+        if (pass == 1 && bsr_reserve(C, na, k)) goto done;
+        k = 0;
+        for (int32_t I = 0; I < na; I++) {
+            if (pass) C->ptr[I] = (int32_t)k;
+            const size_t s0 = k;
+            for (int32_t t = tptr[I]; t < tptr[I + 1]; t++) {
+                const int32_t *col;
+                const double *unused = NULL;
+                const int32_t len = row_get(s, trow[t], &col, &unused, false);
+                for (int32_t a = 0; a < len; a++) {
+                    const int32_t j = col[a];
+                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++) {
+                        const int32_t J = P->col[b];
+                        if (mark[J] == I) continue;
+                        mark[J] = I;
+                        if (pass) C->col[k] = J;
+                        k++;
+                    }
+                }
+            }
+            /* sorted columns (a few dozen: insertion sort) */
+            if (pass)
+                for (size_t a = s0 + 1; a < k; a++) {
+                    const int32_t v = C->col[a];
+                    size_t b = a;
+                    while (b > s0 && C->col[b - 1] > v) { C->col[b] = C->col[b - 1]; b--; }
+                    C->col[b] = v;
+                }
+        }
+        for (int32_t J = 0; J < na; J++) mark[J] = -1;
+    }
+    C->ptr[na] = (int32_t)k;
+    rc = 0;
+done:
+    free(tptr); free(trow);
+    return rc;
+}
+
+/* The numeric Galerkin product C = P^T A P on C's kept pattern (only numbers change between
+ * refreshes of the same prolongator). One pass over the fine rows: row i's (A P)_i is summed once
+ * in a small double accumulator (one 3 x 6 or 6 x 6 block per coarse column it reaches), then
+ * P_iI^T (A P)_iJ is added into C's upper blocks (J >= I; the lower ones are their transposes, so
+ * C is exactly symmetric). C is summed in double (a transient buffer, 288 bytes a block) and
+ * narrowed to float32 at the end: an entry sums some fifty products whose stiffness parts cancel
+ * on the near-null modes, which float sums would not resolve.
+ * The finest level is read from fem.c's rows in place: edge blocks column by column, bending flaps
+ * as the scalars they are (a flap's block is a multiple of I: a third of the work of a block), and
+ * unfiltered: P's rows of pins and handles are zero (the near-null space is filtered by the
+ * reference S), so P^T A P = P^T S A S P there, and contacts do not enter it (the cycle's fine
+ * Gauss-Seidel sweeps handle them exactly). The small block products are written out with AVX2
+ * (four doubles and two per row of six) where the CPU has it: the compiled loops stayed scalar. */
+
+/* acc (3 x 6) += A (3 x 3: A[r][q] = a[cs * q + r]) P (3 x 6, float) */
+static inline void blk3(double *restrict acc, const double *restrict a, int cs, const float *restrict pb)
+{
+    for (int r = 0; r < 3; r++)
+        for (int q = 0; q < 3; q++) {
+            const double x = a[cs * q + r];
+            for (int e = 0; e < NS; e++) acc[r * NS + e] += x * (double)pb[q * NS + e];
+        }
+}
+/* acc (3 x 6) += f P */
+static inline void flap3(double *restrict acc, double f, const float *restrict pb)
+{
+    for (int k = 0; k < 3 * NS; k++) acc[k] += f * (double)pb[k];
+}
+/* acc (6 x 6) += A (6 x 6 float, row-major) P (6 x 6 float) */
+static inline void blk6(double *restrict acc, const float *restrict a, const float *restrict pb)
+{
+    for (int r = 0; r < NS; r++)
+        for (int q = 0; q < NS; q++) {
+            const double x = a[r * NS + q];
+            for (int e = 0; e < NS; e++) acc[r * NS + e] += x * (double)pb[q * NS + e];
+        }
+}
+/* o (6 x 6) += P^T (B x 6)^T acc (B x 6), B = 3 and 6 */
+#define pta3(o, pb, acc) pta(o, pb, acc, 3)
+#define pta6(o, pb, acc) pta(o, pb, acc, NS)
+static inline void pta(double *restrict o, const double *restrict pb, const double *restrict acc, int B)
+{
+    for (int r = 0; r < B; r++)
+        for (int x = 0; x < NS; x++) {
+            const double p = pb[r * NS + x];
+            for (int e = 0; e < NS; e++) o[x * NS + e] += p * acc[r * NS + e];
+        }
+}
+
+#ifdef TC_AMG_AVX2
+#define AVX2F __attribute__((target("avx2,fma")))
+#define AVX2I __attribute__((target("avx2,fma"), always_inline))
+AVX2I static inline void blk3_avx2(double *restrict acc, const double *restrict a, int cs, const float *restrict pb)
+{
+    __m256d p4[3];
+    __m128d p2[3];
+    for (int q = 0; q < 3; q++) { p4[q] = ld4f(pb + q * NS); p2[q] = ld2f(pb + q * NS + 4); }
+    for (int r = 0; r < 3; r++) {
+        __m256d o4 = _mm256_loadu_pd(acc + r * NS);
+        __m128d o2 = _mm_loadu_pd(acc + r * NS + 4);
+        for (int q = 0; q < 3; q++) {
+            const __m256d x = _mm256_broadcast_sd(a + cs * q + r);
+            o4 = _mm256_fmadd_pd(x, p4[q], o4);
+            o2 = _mm_fmadd_pd(_mm256_castpd256_pd128(x), p2[q], o2);
+        }
+        _mm256_storeu_pd(acc + r * NS, o4);
+        _mm_storeu_pd(acc + r * NS + 4, o2);
+    }
+}
+AVX2I static inline void flap3_avx2(double *restrict acc, double f, const float *restrict pb)
+{
+    const __m256d x = _mm256_set1_pd(f);
+    for (int r = 0; r < 3; r++) {
+        _mm256_storeu_pd(acc + r * NS, _mm256_fmadd_pd(x, ld4f(pb + r * NS), _mm256_loadu_pd(acc + r * NS)));
+        _mm_storeu_pd(acc + r * NS + 4, _mm_fmadd_pd(_mm256_castpd256_pd128(x), ld2f(pb + r * NS + 4), _mm_loadu_pd(acc + r * NS + 4)));
+    }
+}
+AVX2I static inline void blk6_avx2(double *restrict acc, const float *restrict a, const float *restrict pb)
+{
+    __m256d p4[NS];
+    __m128d p2[NS];
+    for (int q = 0; q < NS; q++) { p4[q] = ld4f(pb + q * NS); p2[q] = ld2f(pb + q * NS + 4); }
+    for (int r = 0; r < NS; r++) {
+        __m256d o4 = _mm256_loadu_pd(acc + r * NS);
+        __m128d o2 = _mm_loadu_pd(acc + r * NS + 4);
+        for (int q = 0; q < NS; q++) {
+            const __m256d x = _mm256_set1_pd((double)a[r * NS + q]);
+            o4 = _mm256_fmadd_pd(x, p4[q], o4);
+            o2 = _mm_fmadd_pd(_mm256_castpd256_pd128(x), p2[q], o2);
+        }
+        _mm256_storeu_pd(acc + r * NS, o4);
+        _mm_storeu_pd(acc + r * NS + 4, o2);
+    }
+}
+#define pta3_avx2(o, pb, acc) pta_avx2(o, pb, acc, 3)
+#define pta6_avx2(o, pb, acc) pta_avx2(o, pb, acc, NS)
+AVX2I static inline void pta_avx2(double *restrict o, const double *restrict pb, const double *restrict acc, int B)
+{
+    __m256d a4[NS];
+    __m128d a2[NS];
+    for (int r = 0; r < B; r++) { a4[r] = _mm256_loadu_pd(acc + r * NS); a2[r] = _mm_loadu_pd(acc + r * NS + 4); }
+    for (int x = 0; x < NS; x++) {
+        __m256d o4 = _mm256_loadu_pd(o + x * NS);
+        __m128d o2 = _mm_loadu_pd(o + x * NS + 4);
+        for (int r = 0; r < B; r++) {
+            const __m256d p = _mm256_broadcast_sd(pb + r * NS + x);
+            o4 = _mm256_fmadd_pd(p, a4[r], o4);
+            o2 = _mm_fmadd_pd(_mm256_castpd256_pd128(p), a2[r], o2);
+        }
+        _mm256_storeu_pd(o + x * NS, o4);
+        _mm_storeu_pd(o + x * NS + 4, o2);
+    }
+}
+#endif
+
+/* one row's (A P) columns: mark[J] = its accumulator's index, cols its columns */
+typedef struct aprow {
+    int32_t *mark, *cols;
+    double *acc;
+    int32_t m;
+} aprow;
+
+/* the accumulator of coarse column J in the row being made (zeroed when new), B x NS */
+static inline double *ap_slot(aprow *w, int32_t J, int B)
+{
+    int32_t q = w->mark[J];
+    if (q < 0) {
+        q = w->mark[J] = w->m++;
+        w->cols[q] = J;
+        memset(w->acc + (size_t)q * B * NS, 0, (size_t)B * NS * sizeof(double));
+    }
+    return w->acc + (size_t)q * B * NS;
+}
+
+/* The fine rows' pass of the numeric Galerkin product, instantiated with the portable block
+ * products and with the AVX2 ones (one function per instruction set, so the small products inline
+ * into it): row i's (A P)_i, then C's blocks (I, J >= I) += P_iI^T (A P)_iJ into cv. */
+#define GALERKIN_ROWS(NAME, ATTR, BLK3, FLAP3, BLK6, PTA3, PTA6)                                             \
+    ATTR static int NAME(tc_amg *h, const tc_cloth *c, const level *L, int l, const bsr *C, double *cv, aprow *w) \
     {                                                                                                 \
-        enum { BS = B * NS, CS = NS * NS };                                                           \
-        const int32_t n = P->n, na = P->m;                                                            \
-        int rc = -1;                                                                                  \
-        double *cv = NULL;                                                                            \
-        int32_t *tptr = calloc((size_t)na + 1, sizeof(int32_t));                                      \
-        int32_t *trow = malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));                            \
-        int32_t *cols = malloc(((size_t)na + 1) * sizeof(int32_t)); /* one row's columns of A P */    \
-        double pd[64 * BS]; /* one fine row's P blocks in double (at most 64: else read as floats) */  \
-        if (!tptr || !trow || !cols || scratch(h, na, 64 * BS)) goto done;                            \
-        for (int32_t a = 0; a < P->ptr[n]; a++) tptr[P->col[a] + 1]++;                                \
-        for (int32_t I = 0; I < na; I++) tptr[I + 1] += tptr[I];                                      \
-        for (int32_t i = 0; i < n; i++)                                                               \
-            for (int32_t a = P->ptr[i]; a < P->ptr[i + 1]; a++) trow[tptr[P->col[a]]++] = i;          \
-        for (int32_t I = na; I > 0; I--) tptr[I] = tptr[I - 1];                                       \
-        tptr[0] = 0;                                                                                  \
-        int32_t *mark = h->mark;                                                                      \
-        C->n = C->m = na; C->br = C->bc = NS;                                                         \
-        /* two symbolic passes, the count then the columns, so C takes what it needs and no more */    \
-        size_t k = 0;                                                                                 \
-        for (int pass = 0; pass < 2; pass++) {                                                        \
-        if (pass == 1) {                                                                              \
-            free(C->val); C->val = NULL; C->cap_nnz = 0;                                              \
-            int32_t *cp = realloc(C->ptr, ((size_t)na + 1) * sizeof(int32_t));                       \
-            int32_t *cc = realloc(C->col, (k ? k : 1) * sizeof(int32_t));                             \
-            if (cp) C->ptr = cp;                                                                      \
-            if (cc) C->col = cc;                                                                      \
-            cv = calloc((k ? k : 1) * CS, sizeof(double));                                            \
-            if (!cp || !cc || !cv) goto done;                                                         \
-            C->cap_rows = (size_t)na + 1;                                                             \
+        const bsr *P = &L->P;                                                                         \
+        const int B = L->b;                                                                           \
+        const int32_t *rp = NULL, *rc = NULL, *fp = NULL, *fc = NULL;                                 \
+        const double *D = NULL, *RB = NULL, *FV = NULL;                                               \
+        if (l == 0) {                                                                                 \
+            rp = tc_vec_ptr(&c->rptr); rc = tc_vec_ptr(&c->rcol); fp = tc_vec_ptr(&c->fptr); fc = tc_vec_ptr(&c->fcol); \
+            D = tc_vec_ptr(&c->diag); RB = tc_vec_ptr(&c->rblk); FV = tc_vec_ptr(&c->fval);          \
         }                                                                                             \
-        k = 0;                                                                                        \
-        for (int32_t I = 0; I < na; I++) {                                                            \
-            if (pass) C->ptr[I] = (int32_t)k;                                                         \
-            const size_t s0 = k;                                                                      \
-            for (int32_t t = tptr[I]; t < tptr[I + 1]; t++) {                                         \
-                const int32_t *col;                                                                   \
-                const double *unused = NULL;                                                          \
-                const int32_t len = row_get(s, trow[t], &col, &unused, false);                        \
-                for (int32_t a = 0; a < len; a++) {                                                   \
-                    const int32_t j = col[a];                                                         \
-                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++) {                             \
-                        const int32_t J = P->col[b];                                                  \
-                        if (mark[J] == I) continue;                                                   \
-                        mark[J] = I;                                                                  \
-                        if (pass) C->col[k] = J;                                                      \
-                        k++;                                                                          \
-                    }                                                                                 \
-                }                                                                                     \
-            }                                                                                         \
-            /* sorted columns (a few dozen: insertion sort) */                                        \
-            if (pass) for (size_t a = s0 + 1; a < k; a++) {                                           \
-                const int32_t v = C->col[a];                                                          \
-                size_t b = a;                                                                         \
-                while (b > s0 && C->col[b - 1] > v) { C->col[b] = C->col[b - 1]; b--; }               \
-                C->col[b] = v;                                                                        \
-            }                                                                                         \
-        }                                                                                             \
-        for (int32_t J = 0; J < na; J++) mark[J] = -1;                                                \
-        }                                                                                             \
-        C->ptr[na] = (int32_t)k;                                                                      \
-        C->cap_nnz = k ? k : 1;                                                                       \
-        for (int32_t i = 0; i < n; i++) {                                                             \
+        for (int32_t i = 0; i < P->n; i++) {                                                          \
             if (P->ptr[i + 1] == P->ptr[i]) continue;                                                 \
-            const int32_t *col;                                                                       \
-            const double *val;                                                                        \
-            const int32_t len = row_get(s, i, &col, &val, true);                                      \
-            int32_t m = 0;                                                                            \
-            for (int32_t a = 0; a < len; a++) {                                                       \
-                const int32_t j = col[a];                                                             \
-                const double *ab = val + (size_t)a * B * B;                                           \
-                for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++) {                                 \
-                    const int32_t J = P->col[b];                                                      \
-                    if (mark[J] < 0) {                                                                \
-                        if (grow((void **)&h->acc, &h->cap_acc, ((size_t)m + 1) * BS, sizeof(double))) goto done; \
-                        mark[J] = m;                                                                  \
-                        cols[m] = J;                                                                  \
-                        memset(h->acc + (size_t)m * BS, 0, BS * sizeof(double));                      \
-                        m++;                                                                          \
-                    }                                                                                 \
-                    double *o = h->acc + (size_t)mark[J] * BS;                                        \
-                    const float *pb = P->val + (size_t)b * BS;                                        \
-                    for (int r = 0; r < B; r++)                                                       \
-                        for (int q = 0; q < B; q++) {                                                 \
-                            const double x = ab[r * B + q];                                           \
-                            for (int e = 0; e < NS; e++) o[r * NS + e] += x * (double)pb[q * NS + e]; \
-                        }                                                                             \
+            size_t reach = 0; /* room for every coarse column this row can reach */                   \
+            if (l == 0) {                                                                             \
+                reach = (size_t)(P->ptr[i + 1] - P->ptr[i]);                                          \
+                for (int32_t s = rp[i]; s < rp[i + 1]; s++) reach += (size_t)(P->ptr[rc[s] + 1] - P->ptr[rc[s]]); \
+                for (int32_t s = fp[i]; s < fp[i + 1]; s++) reach += (size_t)(P->ptr[fc[s] + 1] - P->ptr[fc[s]]); \
+            } else {                                                                                  \
+                for (int32_t a = L->A.ptr[i]; a < L->A.ptr[i + 1]; a++)                               \
+                    reach += (size_t)(P->ptr[L->A.col[a] + 1] - P->ptr[L->A.col[a]]);                 \
+            }                                                                                         \
+            if (reach * B * NS > h->cap_acc && grow((void **)&h->acc, &h->cap_acc, reach * B * NS, sizeof(double))) return -1; \
+            w->acc = h->acc;                                                                          \
+            if (l == 0) {                                                                             \
+                const double *d = D + 12 * (size_t)i;                                                 \
+                for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++)                                   \
+                    BLK3(ap_slot(w, P->col[b], 3), d, 4, P->val + (size_t)b * 3 * NS);                \
+                for (int32_t s = rp[i]; s < rp[i + 1]; s++) {                                         \
+                    const int32_t j = rc[s];                                                          \
+                    const double *a = RB + 9 * (size_t)s;                                             \
+                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                               \
+                        BLK3(ap_slot(w, P->col[b], 3), a, 3, P->val + (size_t)b * 3 * NS);            \
+                }                                                                                     \
+                for (int32_t s = fp[i]; s < fp[i + 1]; s++) {                                         \
+                    const int32_t j = fc[s];                                                          \
+                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                               \
+                        FLAP3(ap_slot(w, P->col[b], 3), FV[s], P->val + (size_t)b * 3 * NS);          \
+                }                                                                                     \
+            } else {                                                                                  \
+                for (int32_t a = L->A.ptr[i]; a < L->A.ptr[i + 1]; a++) {                             \
+                    const int32_t j = L->A.col[a];                                                    \
+                    const float *av = L->A.val + (size_t)a * NS * NS;                                 \
+                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                               \
+                        BLK6(ap_slot(w, P->col[b], NS), av, P->val + (size_t)b * NS * NS);            \
                 }                                                                                     \
             }                                                                                         \
-            const int32_t np = P->ptr[i + 1] - P->ptr[i];                                             \
-            for (int32_t b = 0; b < np && b < 64; b++)                                                \
-                for (int q = 0; q < BS; q++) pd[b * BS + q] = P->val[(size_t)(P->ptr[i] + b) * BS + q]; \
+            /* C's row I walked in order, each column's accumulator found by its mark (no search) */ \
             for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++) {                                     \
                 const int32_t I = P->col[b];                                                          \
-                double pl[BS];                                                                        \
-                const double *pb = pl;                                                                \
-                if (b - P->ptr[i] < 64) pb = pd + (size_t)(b - P->ptr[i]) * BS;                       \
-                else for (int q = 0; q < BS; q++) pl[q] = P->val[(size_t)b * BS + q];                 \
-                for (int32_t q = 0; q < m; q++) {                                                     \
-                    const int32_t J = cols[q];                                                        \
-                    if (J < I) continue;                                                              \
-                    const int32_t slot = find_slot(C, I, J);                                          \
-                    if (slot < 0) continue; /* cannot happen: the pattern has every (I, J) */         \
-                    double *o = cv + (size_t)slot * CS;                                               \
-                    const double *v = h->acc + (size_t)q * BS;                                        \
-                    for (int r = 0; r < B; r++)                                                       \
-                        for (int x = 0; x < NS; x++) {                                                \
-                            const double p = pb[r * NS + x];                                          \
-                            for (int e = 0; e < NS; e++) o[x * NS + e] += p * v[r * NS + e];          \
-                        }                                                                             \
+                double pb[NS * NS]; /* the block in double once, not once per column */               \
+                for (int q = 0; q < B * NS; q++) pb[q] = P->val[(size_t)b * B * NS + q];              \
+                for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {                                 \
+                    const int32_t J = C->col[a];                                                      \
+                    const int32_t q = J >= I ? w->mark[J] : -1;                                       \
+                    if (q < 0) continue;                                                              \
+                    if (B == 3) PTA3(cv + (size_t)a * NS * NS, pb, w->acc + (size_t)q * 3 * NS);      \
+                    else PTA6(cv + (size_t)a * NS * NS, pb, w->acc + (size_t)q * NS * NS);            \
                 }                                                                                     \
             }                                                                                         \
-            for (int32_t q = 0; q < m; q++) mark[cols[q]] = -1;                                       \
+            for (int32_t q = 0; q < w->m; q++) w->mark[w->cols[q]] = -1;                              \
+            w->m = 0;                                                                                 \
         }                                                                                             \
-        /* the lower blocks: transposes of the upper ones; the diagonal ones made exactly symmetric */ \
-        for (int32_t I = 0; I < na; I++)                                                              \
-            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {                                     \
-                const int32_t J = C->col[a];                                                          \
-                if (J == I) {                                                                         \
-                    double *u = cv + (size_t)a * CS;                                                  \
-                    for (int r = 0; r < NS; r++)                                                      \
-                        for (int q = r + 1; q < NS; q++)                                              \
-                            u[r * NS + q] = u[q * NS + r] = 0.5 * (u[r * NS + q] + u[q * NS + r]);    \
-                }                                                                                     \
-                if (J <= I) continue;                                                                 \
-                const int32_t t = find_slot(C, J, I);                                                 \
-                if (t < 0) continue;                                                                  \
-                const double *u = cv + (size_t)a * CS;                                                \
-                double *o = cv + (size_t)t * CS;                                                      \
-                for (int r = 0; r < NS; r++)                                                          \
-                    for (int q = 0; q < NS; q++) o[q * NS + r] = u[r * NS + q];                       \
-            }                                                                                         \
-        {   /* narrowed in place, front to back (float q sits below double q), then shrunk */        \
-            float *f = (float *)(void *)cv;                                                           \
-            for (size_t q = 0; q < k * CS; q++) { const double d = cv[q]; f[q] = (float)d; }          \
-            float *shrunk = realloc(cv, (k ? k : 1) * CS * sizeof(float));                            \
-            C->val = shrunk ? shrunk : f;                                                             \
-            cv = NULL;                                                                                \
-        }                                                                                             \
-        rc = 0;                                                                                       \
-    done:                                                                                             \
-        free(cv);                                                                                     \
-        free(tptr); free(trow); free(cols);                                                           \
-        return rc;                                                                                    \
+        return 0;                                                                                     \
     }
-GALERKIN(galerkin_3, 3)
-GALERKIN(galerkin_6, 6)
-#undef GALERKIN
+GALERKIN_ROWS(galerkin_rows_c, TC_HOT, blk3, flap3, blk6, pta3, pta6)
+#ifdef TC_AMG_AVX2
+GALERKIN_ROWS(galerkin_rows_avx2, AVX2F, blk3_avx2, flap3_avx2, blk6_avx2, pta3_avx2, pta6_avx2)
+#endif
+#undef GALERKIN_ROWS
+
+/* C = P^T A P on C's pattern (level l: 0 from fem.c's rows, else from the level's float operator) */
+static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
+{
+    const level *L = &h->lev[l];
+    bsr *C = &h->lev[l + 1].A;
+    const int32_t na = L->P.m, nnz = C->ptr[C->n];
+    double *cv = calloc((size_t)(nnz ? nnz : 1) * NS * NS, sizeof(double));
+    int32_t *cols = malloc(((size_t)na + 1) * sizeof(int32_t));
+    int rcode = -1;
+    if (!cv || !cols || scratch(h, na, 0)) goto out;
+    aprow w = {h->mark, cols, NULL, 0};
+#ifdef TC_AMG_AVX2
+    if (avx2()) { if (galerkin_rows_avx2(h, c, L, l, C, cv, &w)) goto out; } else
+#endif
+    if (galerkin_rows_c(h, c, L, l, C, cv, &w)) goto out;
+    /* the lower blocks: transposes of the upper ones; the diagonal ones made exactly symmetric */
+    for (int32_t I = 0; I < C->n; I++)
+        for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
+            const int32_t J = C->col[a];
+            double *u = cv + (size_t)a * NS * NS;
+            if (J == I) {
+                for (int r = 0; r < NS; r++)
+                    for (int q = r + 1; q < NS; q++) u[r * NS + q] = u[q * NS + r] = 0.5 * (u[r * NS + q] + u[q * NS + r]);
+            }
+            if (J <= I) continue;
+            const int32_t t = find_slot(C, J, I);
+            if (t < 0) continue;
+            double *o = cv + (size_t)t * NS * NS;
+            for (int r = 0; r < NS; r++)
+                for (int q = 0; q < NS; q++) o[q * NS + r] = u[r * NS + q];
+        }
+    for (size_t q = 0; q < (size_t)nnz * NS * NS; q++) C->val[q] = (float)cv[q];
+    rcode = 0;
+out:
+    free(cv); free(cols);
+    return rcode;
+}
 
 /* ---------------- aggregation ---------------- */
 
@@ -1175,8 +1308,9 @@ static bool coarse_diag_block(const level *L, int32_t I, double d[NS * NS], floa
 
 /* inverse diagonal blocks of a coarse level; a dead unknown gets the live diagonal's scale first
  * (written into the operator too, so an update of the row later reads the same block) */
-static int coarse_diagonal(level *L, const int32_t *dead)
+static int coarse_diagonal(level *L)
 {
+    const uint8_t *dead = L->dead;
     double *di = realloc(L->dinv, ((size_t)L->n * NS * NS + 1) * sizeof(double));
     if (!di) return -1;
     L->dinv = di;
@@ -1249,54 +1383,6 @@ static void fine_modes(const tc_cloth *c, const level *L, double *B)
     free(cen);
 }
 
-/* ---------------- the filter the first coarse operator was made for ---------------- */
-
-static int filter_store_size(tc_amg *h, int32_t nv)
-{
-    if (nv <= h->cap_nv && h->sflag) return 0;
-    filter_store_free(h);
-    const size_t n = (size_t)(nv ? nv : 1);
-    h->sflag = malloc(n);
-    h->sidx = malloc(n * sizeof(int32_t));
-    h->changed = malloc(n * sizeof(int32_t));
-    h->inchg = calloc(n, 1);
-    if (!h->sflag || !h->sidx || !h->changed || !h->inchg) { filter_store_free(h); return -1; }
-    h->cap_nv = nv;
-    return 0;
-}
-
-/* the stored filter of vertex i */
-static void stored_filter(const tc_amg *h, int32_t i, double S[9])
-{
-    const int8_t f = h->sflag[i];
-    const double *e = f == VC_CONTACT ? h->sn + 10 * (size_t)h->sidx[i] : NULL;
-    filter_of(f, e ? (int)e[0] : 0, e ? e + 1 : NULL, S);
-}
-
-/* store vertex i's current filter */
-static int store_vertex(tc_amg *h, const tc_cloth *c, int32_t i)
-{
-    const int8_t f = ((const int8_t *)tc_vec_ptr(&c->vflag))[i];
-    h->sflag[i] = f;
-    h->sidx[i] = -1;
-    if (f != VC_CONTACT) return 0;
-    if (grow((void **)&h->sn, &h->cap_sn, 10 * (h->nsn + 1), sizeof(double))) { h->sflag[i] = VC_PINNED; return -1; }
-    double *e = h->sn + 10 * h->nsn;
-    e[0] = ((const int8_t *)tc_vec_ptr(&c->scount))[i];
-    memcpy(e + 1, (const double *)tc_vec_ptr(&c->snorm) + 9 * (size_t)i, 9 * sizeof(double));
-    h->sidx[i] = (int32_t)h->nsn++;
-    return 0;
-}
-
-static int store_all(tc_amg *h, const tc_cloth *c)
-{
-    if (filter_store_size(h, c->nv)) return -1;
-    h->nsn = 0;
-    for (int32_t i = 0; i < c->nv; i++)
-        if (store_vertex(h, c, i)) return -1;
-    return 0;
-}
-
 /* ---------------- the hierarchy ---------------- */
 
 tc_amg *tc_amg_new(void)
@@ -1336,9 +1422,22 @@ bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c)
     return n != h->fixed_n || sum != h->fixed_sum;
 }
 
-/* Builds the hierarchy for the current matrix (after tc_assemble and tc_precondition_build), the
+/* The numeric part of a hierarchy, on its kept aggregates, prolongators and patterns: the Galerkin
+ * operators of the current matrix level by level, their smoothers' inverse diagonal blocks, the
+ * coarsest level's factor. */
+static int numeric(tc_amg *h, const tc_cloth *c)
+{
+    for (int l = 0; l + 1 < h->nlev; l++) {
+        level *N = &h->lev[l + 1];
+        if (galerkin_numeric(h, c, l) || coarse_diagonal(N)) return -1;
+    }
+    return coarsest_factor(h);
+}
+
+/* Builds the hierarchy for the current matrix (after tc_assemble and tc_precondition_build): the
  * aggregates anew when `aggregate_again` or tc_amg_needs_aggregation says so, else the kept ones
- * (extended to the vertices a tear added). */
+ * (extended to the vertices a tear added); the near-null space, the smoothed prolongators and the
+ * coarse operators' patterns from them; then the numeric part. */
 int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
 {
     aggregate_again = aggregate_again || tc_amg_needs_aggregation(h, c);
@@ -1350,15 +1449,12 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
     level *L0 = &h->lev[0];
     if (kept && c->nv > h->nv && extend_aggregates(h, c)) kept = 0;
     /* The old operators and prolongators go first: they are all made again, and kept they would
-     * sit under this build's scratch (the near-null space, T), the peak of a refresh. */
+     * sit under this build's scratch (the near-null space, T), the peak of a build. */
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) { bsr_free(&h->lev[l].A); bsr_free(&h->lev[l].P); }
     h->nlev = 0;
     h->agg_levels = 0;
     L0->n = c->nv; L0->b = 3;
     if (level_vectors(L0, true)) goto out;
-    const double rho0 = spectral_radius(c, L0, 0);
-    if (rho0 < 0) goto out;  /* out of memory */
-    L0->omega = 4.0 / (3.0 * rho0);
     int nlev = 1;
     for (int l = 0; l + 1 < TC_AMG_MAX_LEVELS; l++) {
         level *L = &h->lev[l], *N = &h->lev[l + 1];
@@ -1381,6 +1477,10 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         }
         const int32_t na = L->nagg;
         if (na == 0 || (double)na > TC_AMG_MIN_COARSENING * (double)n) break;
+        /* the prolongator's smoothing step: w = 4 / (3 rho(D^-1 A)) of this level */
+        const double rho = spectral_radius(c, L, l);
+        if (rho < 0) goto out;  /* out of memory */
+        L->omega = 4.0 / (3.0 * rho);
         /* near-null space and tentative prolongator */
         free(B); free(Tv);
         B = malloc((size_t)n * L->b * NS * sizeof(double));
@@ -1391,28 +1491,30 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         if (l == 0) fine_modes(c, L, B);
         else memcpy(B, L->B, (size_t)n * L->b * NS * sizeof(double));
         double *Bc = realloc(N->B, ((size_t)na * NS * NS + 1) * sizeof(double));
-        if (!Bc) goto out;
+        uint8_t *nd = realloc(N->dead, (size_t)na * NS + 1);
+        if (!Bc || !nd) { if (Bc) N->B = Bc; if (nd) N->dead = nd; goto out; }
         N->B = Bc;
+        N->dead = nd;
         if (tentative(L, B, Tv, Bc, dead)) goto out;
+        for (size_t k = 0; k < (size_t)na * NS; k++) nd[k] = (uint8_t)dead[k];
         free(B);  /* Tv holds it now, orthonormalised */
         B = NULL;
-        /* smoothed prolongator (reference filter), then the Galerkin operator of the current one */
         if ((l == 0 ? prolongator_3 : prolongator_6)(h, &src, L, l, Tv, &L->P)) goto out;
         free(Tv);
         Tv = NULL;
-        if (l == 0 && rowsrc_init(&src, c, L, l, false)) goto out;
-        if ((l == 0 ? galerkin_3 : galerkin_6)(h, &src, &L->P, &N->A)) goto out;
+        if (galerkin_pattern(h, &src, &L->P, &N->A)) goto out;
         N->n = na; N->b = NS;
-        if (coarse_diagonal(N, dead) || level_vectors(N, false)) goto out;
-        N->omega = 4.0 / (3.0 * spectral_radius(c, N, l + 1));
-        nlev = l + 2;
+        h->nlev = nlev = l + 2;
+        /* this level's operator now, for the next one's aggregation and prolongator */
+        if (galerkin_numeric(h, c, l) || coarse_diagonal(N) || level_vectors(N, false)) goto out;
     }
     h->nlev = nlev;
-    if (coarsest_factor(h) || store_all(h, c)) goto out;
+    if (coarsest_factor(h)) goto out;
     h->pair_version = c->pair_version;
     h->nv = c->nv;
     h->agg_levels = nlev - 1;
     h->numeric_builds = aggregate_again ? 0 : h->numeric_builds + 1;
+    h->refreshes = 0;
     if (aggregate_again) {
         fixed_signature(c, &h->fixed_n, &h->fixed_sum);
         h->fragment_vertices = c->stats.fragment_vertices_removed;
@@ -1426,164 +1528,15 @@ out:
     return rc;
 }
 
-/* ---------------- a changed filter: the first coarse operator updated ---------------- */
-
-/* C_IJ += P_iI^T X P_jJ over the blocks of P's rows i and j (X 3x3 row-major; mark[I] = 1 for
- * every row I touched), into C's upper blocks only (I <= J): a term of a lower block is the
- * transpose of the partner pair (j, i)'s term on its mirror, which the update adds too. The lower
- * blocks are copied from the upper ones afterwards, so C stays exactly symmetric (two terms summed
- * in two orders would differ in the last bit). */
-static void add_triple(const level *L0, bsr *C, int32_t i, int32_t j, const double X[9], int32_t *mark)
+int tc_amg_refresh(tc_amg *h, const tc_cloth *c)
 {
-    const bsr *P = &L0->P;
-    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++) {
-        /* X P_jJ (3x6) */
-        const float *pj = P->val + (size_t)b * 3 * NS;
-        double xp[3 * NS];
-        for (int r = 0; r < 3; r++)
-            for (int m = 0; m < NS; m++)
-                xp[r * NS + m] = X[3 * r] * pj[m] + X[3 * r + 1] * pj[NS + m] + X[3 * r + 2] * pj[2 * NS + m];
-        const int32_t J = P->col[b];
-        for (int32_t a = P->ptr[i]; a < P->ptr[i + 1]; a++) {
-            const int32_t I = P->col[a];
-            if (I > J) continue;  /* a lower block: its mirror gets the partner term (j, i) */
-            const int32_t slot = find_slot(C, I, J);
-            if (slot < 0) continue;  /* cannot happen: C's pattern has every (I, J) */
-            const float *pi = P->val + (size_t)a * 3 * NS;
-            float *o = C->val + (size_t)slot * NS * NS;
-            for (int x = 0; x < NS; x++)
-                for (int e = 0; e < NS; e++)
-                    o[x * NS + e] += (float)(pi[x] * xp[e] + pi[NS + x] * xp[NS + e] + pi[2 * NS + x] * xp[2 * NS + e]);
-            mark[I] = 1;
-        }
-    }
+    if (!tc_amg_valid(h, c)) return -1;
+    if (numeric(h, c)) { h->nlev = 0; h->agg_levels = 0; return -1; }
+    h->refreshes++;
+    return 0;
 }
 
-/* whether the filter S differs from the one the first coarse operator was made for */
-bool tc_amg_filter_changed(const tc_amg *h, const tc_cloth *c)
-{
-    if (!h || h->nlev < 2 || h->nv != c->nv || !h->sflag) return false;
-    const int8_t *fl = tc_vec_ptr(&c->vflag);
-    for (int32_t i = 0; i < c->nv; i++) {
-        if (fl[i] == VC_FREE && h->sflag[i] == VC_FREE) continue;
-        double a[9], b[9];
-        filter_matrix(c, i, a, false);
-        stored_filter(h, i, b);
-        if (memcmp(a, b, sizeof a)) return true;
-    }
-    return false;
-}
-
-/* The filter S changed at some vertices since the first coarse operator was made (or last
- * updated): A_1 += P^T (A'_new - A'_old) P over their rows and columns, with the current matrix A
- * for both (the old filter's part is taken out at the current A: between refreshes A_1 is that of
- * an older matrix anyway), then the touched rows' inverse diagonal blocks and, when A_1 is the
- * coarsest, its factor. Returns the vertices that changed, -1 when out of memory (the hierarchy is
- * then unusable: solver.c builds it anew). */
-int tc_amg_update_filter(tc_amg *h, const tc_cloth *c)
-{
-    if (!h || h->nlev < 2 || h->nv != c->nv || !h->sflag) return 0;
-    const int8_t *fl = tc_vec_ptr(&c->vflag);
-    int32_t nchg = 0;
-    for (int32_t i = 0; i < c->nv; i++) {
-        if (fl[i] == VC_FREE && h->sflag[i] == VC_FREE) continue;
-        double a[9], b[9];
-        filter_matrix(c, i, a, false);
-        stored_filter(h, i, b);
-        if (memcmp(a, b, sizeof a)) { h->changed[nchg++] = i; h->inchg[i] = 1; }
-    }
-    if (!nchg) return 0;
-    level *L0 = &h->lev[0], *L1 = &h->lev[1];
-    int rc = nchg;
-    rowsrc src = {0};
-    if (rowsrc_init(&src, c, L0, 0, false) || scratch(h, L1->n, 0)) { rc = -1; goto out; }
-    int32_t *touched = h->mark;  /* -1 everywhere between uses */
-    for (int32_t k = 0; k < nchg; k++) {
-        const int32_t i = h->changed[k];
-        const int32_t len = raw_row(c, i, src.col, src.val);
-        double Sn_i[9], So_i[9];
-        filter_matrix(c, i, Sn_i, false);
-        stored_filter(h, i, So_i);
-        for (int32_t a = 0; a < len; a++) {
-            const int32_t j = src.col[a];
-            const double *Aij = src.val + 9 * (size_t)a;
-            double Sn_j[9], So_j[9];
-            filter_matrix(c, j, Sn_j, false);
-            if (h->inchg[j]) stored_filter(h, j, So_j);
-            else memcpy(So_j, Sn_j, sizeof So_j);
-            /* X = Sn_i A Sn_j - So_i A So_j (+ (So_i - Sn_i) d_i on the diagonal) */
-            double t[9] = {0}, X[9] = {0}, u[9] = {0}, Y[9] = {0};
-            gemm_acc(t, Sn_i, Aij, 3, 3, 3);
-            gemm_acc(X, t, Sn_j, 3, 3, 3);
-            gemm_acc(u, So_i, Aij, 3, 3, 3);
-            gemm_acc(Y, u, So_j, 3, 3, 3);
-            for (int q = 0; q < 9; q++) X[q] -= Y[q];
-            if (j == i) {
-                const double d = off_range_scale(Aij);
-                for (int q = 0; q < 9; q++) X[q] += (So_i[q] - Sn_i[q]) * d;
-            }
-            bool zero = true;
-            for (int q = 0; q < 9 && zero; q++) zero = X[q] == 0.0;
-            if (zero) continue;
-            add_triple(L0, &L1->A, i, j, X, touched);
-            if (j != i && !h->inchg[j]) {  /* the block (j, i) = X^T: its row is not visited */
-                double XT[9];
-                for (int r = 0; r < 3; r++)
-                    for (int q = 0; q < 3; q++) XT[3 * q + r] = X[3 * r + q];
-                add_triple(L0, &L1->A, j, i, XT, touched);
-            }
-        }
-    }
-    /* the touched rows: lower blocks from the upper ones, diagonal blocks symmetric, and their
-       smoother blocks (a dead unknown's diagonal was set in A_1 and stays) */
-    bsr *C = &L1->A;
-    for (int32_t I = 0; I < L1->n; I++) {
-        if (touched[I] < 0) continue;
-        for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
-            const int32_t J = C->col[a];
-            float *u = C->val + (size_t)a * NS * NS;
-            if (J == I) {
-                for (int r = 0; r < NS; r++)
-                    for (int q = r + 1; q < NS; q++) u[r * NS + q] = u[q * NS + r] = 0.5f * (u[r * NS + q] + u[q * NS + r]);
-            } else if (J > I) {
-                const int32_t t = find_slot(C, J, I);
-                if (t < 0) continue;
-                float *o = C->val + (size_t)t * NS * NS;
-                for (int r = 0; r < NS; r++)
-                    for (int q = 0; q < NS; q++) o[q * NS + r] = u[r * NS + q];
-            }
-        }
-    }
-    for (int32_t I = 0; I < L1->n; I++) {
-        if (touched[I] < 0) continue;
-        touched[I] = -1;
-        double d[NS * NS];
-        if (coarse_diag_block(L1, I, d, NULL)) spd_inverse(d, NS, L1->dinv + (size_t)I * NS * NS);
-    }
-    if (h->nlev == 2 && coarsest_factor(h)) rc = -1;
-    /* the finest level's damping for the new operator (the rows that changed can move
-       rho(D^-1 A') either way; a stale w over-relaxed them and the cycle lost positivity) */
-    if (rc >= 0) {
-        const double rho0 = spectral_radius(c, L0, 0);
-        if (rho0 < 0) rc = -1;
-        else L0->omega = 4.0 / (3.0 * rho0);
-    }
-
-    /* the new filter is the stored one (the contact list is compacted when it grew past twice the
-       vertices in contact: each update appends the changed vertices' normals) */
-    for (int32_t k = 0; k < nchg && rc >= 0; k++)
-        if (store_vertex(h, c, h->changed[k])) rc = -1;
-    if (rc >= 0 && h->nsn > 2 * (size_t)nchg + 64) {
-        int32_t live = 0;
-        for (int32_t i = 0; i < c->nv; i++) live += h->sflag[i] == VC_CONTACT;
-        if (h->nsn > 2 * (size_t)live + 64 && store_all(h, c)) rc = -1;
-    }
-out:
-    for (int32_t k = 0; k < nchg; k++) h->inchg[h->changed[k]] = 0;
-    rowsrc_free(&src);
-    if (rc < 0) { h->nlev = 0; h->agg_levels = 0; }
-    return rc;
-}
+int tc_amg_refreshes(const tc_amg *h) { return h ? h->refreshes : 0; }
 
 /* ---------------- the V-cycle ---------------- */
 
@@ -1616,20 +1569,176 @@ static void vcycle(const tc_cloth *c, tc_amg *h, int l, const double *b, double 
     level_sweep(L, b, x, false);
 }
 
-/* x_i = w S_i (P_i b_i) (the pre-smoothing of the finest level from zero) */
-TC_HOT static void fine_presmooth(const tc_cloth *c, double w, const double *restrict b, double *restrict x)
+/* y = (S_i A_ii S_i + (I - S_i) d_i)^-1 S_i s for a constrained vertex i (pins and handles: 0): the
+ * filtered system's diagonal block maps the range of S_i onto itself, so y stays on it. */
+static void constrained_block_solve(const tc_cloth *c, int32_t i, const double *s, double *y)
 {
-    const double *Pv = tc_vec_ptr(&c->pinv);
-    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
-    const double *N = tc_vec_ptr(&c->snorm);
-    for (int32_t i = 0; i < c->nv; i++) {
-        const double *p = Pv + 9 * (size_t)i, *bi = b + 3 * (size_t)i;
-        double *o = x + 3 * (size_t)i;
-        o[0] = w * (p[0] * bi[0] + p[1] * bi[1] + p[2] * bi[2]);
-        o[1] = w * (p[3] * bi[0] + p[4] * bi[1] + p[5] * bi[2]);
-        o[2] = w * (p[6] * bi[0] + p[7] * bi[1] + p[8] * bi[2]);
-        if (fl[i] != VC_FREE) filter_vertex(fl[i], cnt[i], N + 9 * (size_t)i, o);
+    const int8_t f = ((const int8_t *)tc_vec_ptr(&c->vflag))[i];
+    if (f != VC_CONTACT) { y[0] = y[1] = y[2] = 0.0; return; }
+    double S[9], A[9], t[9] = {0}, M[9] = {0};
+    filter_matrix(c, i, S, false);
+    from_columns((const double *)tc_vec_ptr(&c->diag) + 12 * (size_t)i, 4, A);
+    for (int r = 0; r < 3; r++)
+        for (int q = r + 1; q < 3; q++) A[3 * r + q] = A[3 * q + r] = 0.5 * (A[3 * r + q] + A[3 * q + r]);
+    gemm_acc(t, S, A, 3, 3, 3);
+    gemm_acc(M, t, S, 3, 3, 3);
+    const double d = off_range_scale(A);
+    for (int k = 0; k < 9; k++) M[k] += d * ((k % 4 == 0 ? 1.0 : 0.0) - S[k]);
+    double Ss[3];
+    for (int r = 0; r < 3; r++) Ss[r] = S[3 * r] * s[0] + S[3 * r + 1] * s[1] + S[3 * r + 2] * s[2];
+    const double c00 = M[4] * M[8] - M[5] * M[7], c01 = M[5] * M[6] - M[3] * M[8], c02 = M[3] * M[7] - M[4] * M[6];
+    const double det = M[0] * c00 + M[1] * c01 + M[2] * c02;
+    if (!(fabs(det) > TC_SINGULAR_DET)) { y[0] = y[1] = y[2] = 0.0; return; }
+    const double id = 1.0 / det;
+    const double inv[9] = {c00 * id, (M[2] * M[7] - M[1] * M[8]) * id, (M[1] * M[5] - M[2] * M[4]) * id,
+                           c01 * id, (M[0] * M[8] - M[2] * M[6]) * id, (M[2] * M[3] - M[0] * M[5]) * id,
+                           c02 * id, (M[1] * M[6] - M[0] * M[7]) * id, (M[0] * M[4] - M[1] * M[3]) * id};
+    for (int r = 0; r < 3; r++) y[r] = inv[3 * r] * Ss[0] + inv[3 * r + 1] * Ss[1] + inv[3 * r + 2] * Ss[2];
+    filter_vertex(f, ((const int8_t *)tc_vec_ptr(&c->scount))[i], (const double *)tc_vec_ptr(&c->snorm) + 9 * (size_t)i, y);
+}
+
+/* One block Gauss-Seidel sweep of the finest level on the filtered system A' (fem.c's rows, read in
+ * place, matvec.h's view): x_i += A'_ii^-1 S_i (b_i - (A x)_i), rows in order (forward) or
+ * reversed, each with the newest x (x on the range of S, so S_i (A x)_i is row i of A' x).
+ * Gauss-Seidel converges on any SPD matrix, so it needs no damping estimate (a damped Jacobi
+ * step's went stale whenever the filter or the matrix changed), and the symmetric pair (forward
+ * before the coarse correction, backward after) keeps the cycle a symmetric positive operator
+ * whatever its coarse operator: the filter, contacts included, is handled exactly here.
+ * Returns b . x, accumulated as each x_i is final (a sweep visits each row once). */
+static inline double gs_row(const rows_view *m, const tc_cloth *c, const double *Pv, const int8_t *fl, int32_t i,
+                            const double *restrict b, double *restrict x)
+{
+    const double *d = m->D + 12 * (size_t)i, *xi = x + 3 * (size_t)i, *bi = b + 3 * (size_t)i;
+    double y0 = d[0] * xi[0] + d[4] * xi[1] + d[8] * xi[2];
+    double y1 = d[1] * xi[0] + d[5] * xi[1] + d[9] * xi[2];
+    double y2 = d[2] * xi[0] + d[6] * xi[1] + d[10] * xi[2];
+    for (int32_t s = m->rp[i]; s < m->rp[i + 1]; s++) {
+        const double *bl = m->RB + 9 * (size_t)s, *xj = x + 3 * (size_t)m->rc[s];
+        y0 += bl[0] * xj[0] + bl[3] * xj[1] + bl[6] * xj[2];
+        y1 += bl[1] * xj[0] + bl[4] * xj[1] + bl[7] * xj[2];
+        y2 += bl[2] * xj[0] + bl[5] * xj[1] + bl[8] * xj[2];
     }
+    for (int32_t s = m->fp[i]; s < m->fp[i + 1]; s++) {
+        const double f = m->FV[s], *xj = x + 3 * (size_t)m->fc[s];
+        y0 += f * xj[0]; y1 += f * xj[1]; y2 += f * xj[2];
+    }
+    const double r[3] = {bi[0] - y0, bi[1] - y1, bi[2] - y2};
+    double t[3];
+    if (fl[i] == VC_FREE) {
+        const double *p = Pv + 9 * (size_t)i;
+        t[0] = p[0] * r[0] + p[1] * r[1] + p[2] * r[2];
+        t[1] = p[3] * r[0] + p[4] * r[1] + p[5] * r[2];
+        t[2] = p[6] * r[0] + p[7] * r[1] + p[8] * r[2];
+    } else {
+        constrained_block_solve(c, i, r, t);
+    }
+    double *o = x + 3 * (size_t)i;
+    o[0] += t[0]; o[1] += t[1]; o[2] += t[2];
+    return bi[0] * o[0] + bi[1] * o[1] + bi[2] * o[2];
+}
+
+static rows_view fine_rows(const tc_cloth *c)
+{
+    const rows_view m = {tc_vec_ptr(&c->diag), tc_vec_ptr(&c->rblk), tc_vec_ptr(&c->fval), tc_vec_ptr(&c->rptr),
+                         tc_vec_ptr(&c->rcol), tc_vec_ptr(&c->fptr), tc_vec_ptr(&c->fcol), c->nv};
+    return m;
+}
+
+static double fine_gs_c(const tc_cloth *c, const double *restrict b, double *restrict x, bool forward)
+{
+    const rows_view m = fine_rows(c);
+    const double *Pv = tc_vec_ptr(&c->pinv);
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    double d0 = 0.0, d1 = 0.0;
+    for (int32_t k = 0; k < m.nv; k++) {
+        const double dd = gs_row(&m, c, Pv, fl, forward ? k : m.nv - 1 - k, b, x);
+        if (k & 1) d1 += dd; else d0 += dd;
+    }
+    return d0 + d1;
+}
+
+#ifdef TC_AMG_AVX2
+/* The sweep with AVX2 + FMA, as fem.c's product reads the rows: a block column is one 4-lane load
+ * (its fourth lane, the next column's first value, is never used), six accumulators (the FMA
+ * chains, not the bytes, bound a row). x_i is updated by one 4-lane load-add-store whose fourth
+ * lane (the next vertex's first value) is written back unchanged, so the next rows' 4-lane loads
+ * of it are forwarded from one store. The last vertex (whose 4-lane loads would pass the arrays)
+ * and the constrained ones take the scalar row. */
+__attribute__((target("avx2,fma"))) static double fine_gs_avx2(const tc_cloth *c, const double *restrict b,
+                                                               double *restrict x, bool forward)
+{
+    const rows_view m = fine_rows(c);
+    const double *restrict D = m.D, *restrict RB = m.RB, *restrict FV = m.FV;
+    const int32_t *restrict rp = m.rp, *restrict rc = m.rc, *restrict fp = m.fp, *restrict fc = m.fc;
+    const double *Pv = tc_vec_ptr(&c->pinv);
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    const __m256i m3 = _mm256_set_epi64x(0, -1, -1, -1);
+    const __m256d keep = _mm256_castsi256_pd(m3);
+    const int32_t last = m.nv - 1;
+    __m256d dot0 = _mm256_setzero_pd(), dot1 = _mm256_setzero_pd();
+    double dsc = 0.0;
+    for (int32_t k = 0; k < m.nv; k++) {
+        const int32_t i = forward ? k : last - k;
+        if (i == last || fl[i] != VC_FREE) { dsc += gs_row(&m, c, Pv, fl, i, b, x); continue; }
+        double *xi = x + 3 * (size_t)i;
+        const double *d = D + 12 * (size_t)i;
+        __m256d a0 = _mm256_mul_pd(_mm256_loadu_pd(d), _mm256_broadcast_sd(xi));
+        __m256d a1 = _mm256_mul_pd(_mm256_loadu_pd(d + 4), _mm256_broadcast_sd(xi + 1));
+        __m256d a2 = _mm256_mul_pd(_mm256_loadu_pd(d + 8), _mm256_broadcast_sd(xi + 2));
+        __m256d a3 = _mm256_setzero_pd(), a4 = _mm256_setzero_pd(), a5 = _mm256_setzero_pd();
+        int32_t s = rp[i];
+        const int32_t e = rp[i + 1];
+        for (; s + 1 < e; s += 2) {
+            const double *bl = RB + 9 * (size_t)s, *xj = x + 3 * (size_t)rc[s], *xk = x + 3 * (size_t)rc[s + 1];
+            a0 = _mm256_fmadd_pd(_mm256_loadu_pd(bl), _mm256_broadcast_sd(xj), a0);
+            a1 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 3), _mm256_broadcast_sd(xj + 1), a1);
+            a2 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 6), _mm256_broadcast_sd(xj + 2), a2);
+            a3 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 9), _mm256_broadcast_sd(xk), a3);
+            a4 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 12), _mm256_broadcast_sd(xk + 1), a4);
+            a5 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 15), _mm256_broadcast_sd(xk + 2), a5);
+        }
+        if (s < e) {
+            const double *bl = RB + 9 * (size_t)s, *xj = x + 3 * (size_t)rc[s];
+            a0 = _mm256_fmadd_pd(_mm256_loadu_pd(bl), _mm256_broadcast_sd(xj), a0);
+            a1 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 3), _mm256_broadcast_sd(xj + 1), a1);
+            a2 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 6), _mm256_broadcast_sd(xj + 2), a2);
+        }
+        int32_t f = fp[i];
+        const int32_t fe = fp[i + 1];
+        for (; f + 2 < fe; f += 3) {
+            const int32_t j0 = fc[f], j1 = fc[f + 1], j2 = fc[f + 2];
+            a3 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f), j0 < last ? _mm256_loadu_pd(x + 3 * (size_t)j0) : _mm256_maskload_pd(x + 3 * (size_t)j0, m3), a3);
+            a4 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f + 1), j1 < last ? _mm256_loadu_pd(x + 3 * (size_t)j1) : _mm256_maskload_pd(x + 3 * (size_t)j1, m3), a4);
+            a5 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f + 2), j2 < last ? _mm256_loadu_pd(x + 3 * (size_t)j2) : _mm256_maskload_pd(x + 3 * (size_t)j2, m3), a5);
+        }
+        for (; f < fe; f++) {
+            const int32_t j = fc[f];
+            a0 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f), j < last ? _mm256_loadu_pd(x + 3 * (size_t)j) : _mm256_maskload_pd(x + 3 * (size_t)j, m3), a0);
+        }
+        const __m256d y = _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(a0, a1), _mm256_add_pd(a2, a3)), _mm256_add_pd(a4, a5));
+        const __m256d bi = _mm256_loadu_pd(b + 3 * (size_t)i);  /* i < last: within the array */
+        const __m256d r = _mm256_sub_pd(bi, y);
+        const double *p = Pv + 9 * (size_t)i;  /* symmetric: its rows are its columns; i < last */
+        __m256d t = _mm256_mul_pd(_mm256_loadu_pd(p), _mm256_permute4x64_pd(r, 0x00));
+        t = _mm256_fmadd_pd(_mm256_loadu_pd(p + 3), _mm256_permute4x64_pd(r, 0x55), t);
+        t = _mm256_fmadd_pd(_mm256_loadu_pd(p + 6), _mm256_permute4x64_pd(r, 0xAA), t);
+        const __m256d xn = _mm256_add_pd(_mm256_loadu_pd(xi), _mm256_and_pd(t, keep));
+        _mm256_storeu_pd(xi, xn);
+        const __m256d bx = _mm256_and_pd(_mm256_mul_pd(bi, xn), keep);
+        if (k & 1) dot1 = _mm256_add_pd(dot1, bx); else dot0 = _mm256_add_pd(dot0, bx);
+    }
+    const __m256d dv = _mm256_add_pd(dot0, dot1);
+    const __m128d hh = _mm_add_pd(_mm256_castpd256_pd128(dv), _mm256_extractf128_pd(dv, 1));
+    return _mm_cvtsd_f64(_mm_add_sd(hh, _mm_unpackhi_pd(hh, hh))) + dsc;
+}
+#endif
+
+static double fine_gs(const tc_cloth *c, const double *restrict b, double *restrict x, bool forward)
+{
+#ifdef TC_AMG_AVX2
+    if (avx2()) return fine_gs_avx2(c, b, x, forward);
+#endif
+    return fine_gs_c(c, b, x, forward);
 }
 
 /* y_i = b_i - S_i y_i in place (the residual, y = A x on entry) */
@@ -1645,34 +1754,11 @@ TC_HOT static void fine_residual(const tc_cloth *c, const double *restrict b, do
     }
 }
 
-/* x_i += w S_i P_i (b_i - S_i y_i), and b . x (the post-smoothing, y = A x on entry) */
-TC_HOT static double fine_postsmooth(const tc_cloth *c, double w, const double *restrict b, double *restrict y,
-                                     double *restrict x)
-{
-    const double *Pv = tc_vec_ptr(&c->pinv);
-    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
-    const double *N = tc_vec_ptr(&c->snorm);
-    double d0 = 0.0, d1 = 0.0;
-    for (int32_t i = 0; i < c->nv; i++) {
-        const double *p = Pv + 9 * (size_t)i, *bi = b + 3 * (size_t)i;
-        double *yi = y + 3 * (size_t)i, *o = x + 3 * (size_t)i;
-        const bool con = fl[i] != VC_FREE;
-        if (con) filter_vertex(fl[i], cnt[i], N + 9 * (size_t)i, yi);
-        const double r0 = bi[0] - yi[0], r1 = bi[1] - yi[1], r2 = bi[2] - yi[2];
-        double t[3] = {p[0] * r0 + p[1] * r1 + p[2] * r2, p[3] * r0 + p[4] * r1 + p[5] * r2,
-                       p[6] * r0 + p[7] * r1 + p[8] * r2};
-        if (con) filter_vertex(fl[i], cnt[i], N + 9 * (size_t)i, t);
-        o[0] += w * t[0]; o[1] += w * t[1]; o[2] += w * t[2];
-        const double d = bi[0] * o[0] + bi[1] * o[1] + bi[2] * o[2];
-        if (i & 1) d1 += d; else d0 += d;
-    }
-    return d0 + d1;
-}
-
-/* For the tests: the largest relative error of u . A_1 v against (P u) . A' (P v) by the solver's
- * product (the current filter), over a few pseudo-random coarse u, v (the Galerkin product made
- * from the rows, stored in float32, must be that triple product), and of u . A_1 v against
- * v . A_1 u (its symmetry). -1 without a level 1. */
+/* For the tests: the largest relative error of u . A_1 v against (P u) . A (P v) by the solver's
+ * product (unfiltered: P is zero on pins and handles, and the coarse operators leave contacts to
+ * the fine sweeps), over a few pseudo-random coarse u, v (the Galerkin product made from the rows,
+ * stored in float32, must be that triple product), and of u . A_1 v against v . A_1 u (its
+ * symmetry). -1 without a level 1. */
 double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
 {
     if (!h || h->nlev < 2) return -1.0;
@@ -1683,7 +1769,6 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
     double worst = -1.0;
     if (u && v && w && pu && pv && apv) {
         worst = 0.0;
-        const int8_t *fl = tc_vec_ptr(&c->vflag);
         for (int trial = 0; trial < 3; trial++) {
             for (size_t k = 0; k < nc; k++) {
                 u[k] = sin(0.37 * (double)k + trial);
@@ -1691,23 +1776,7 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
             }
             bsr_apply(&L->P, u, pu, false);
             bsr_apply(&L->P, v, pv, false);
-            /* A' (P v) = S A S (P v) + (I - S) d (P v) */
-            memcpy(apv, pv, nf * sizeof(double));
-            tc_constraint_filter(c, apv);
-            double *spv = malloc(nf * sizeof(double));
-            if (!spv) { worst = -1.0; break; }
-            memcpy(spv, apv, nf * sizeof(double));
-            tc_matvec(c, spv, apv);
-            tc_constraint_filter(c, apv);
-            const double *Dg = tc_vec_ptr(&c->diag);
-            for (int32_t i = 0; i < L->n; i++) {
-                if (fl[i] == VC_FREE) continue;
-                double a[9];
-                from_columns(Dg + 12 * (size_t)i, 4, a);
-                const double d = off_range_scale(a);
-                for (int k = 0; k < 3; k++) apv[3 * i + k] += d * (pv[3 * i + k] - spv[3 * i + k]);
-            }
-            free(spv);
+            tc_matvec(c, pv, apv);
             double fine = 0.0, scale = 0.0;
             for (size_t k = 0; k < nf; k++) { fine += pu[k] * apv[k]; scale += fabs(pu[k] * apv[k]); }
             bsr_apply(&N->A, v, w, false);
@@ -1725,23 +1794,21 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
 }
 
 /* z = M^-1 r with M^-1 the V-cycle (r and z on the range of S); returns r . z */
+/* z = M^-1 r with M^-1 the V-cycle (r and z on the range of S); returns r . z. A forward Gauss-Seidel
+ * sweep from zero, the coarse correction of its residual (prolonged by S P), a backward sweep. */
 double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z)
 {
     level *L = &h->lev[0], *N = &h->lev[1];
-    const double w = L->omega;
     double *y = L->res;
-    fine_presmooth(c, w, r, z);
-    if (h->nlev < 2) {
+    memset(z, 0, 3 * (size_t)c->nv * sizeof(double));
+    fine_gs(c, r, z, true);
+    if (h->nlev >= 2) {
         tc_matvec(c, z, y);
-        return fine_postsmooth(c, w, r, y, z);
+        fine_residual(c, r, y);
+        bsr_apply_transposed(&L->P, y, N->rhs);
+        vcycle(c, h, 1, N->rhs, N->x);
+        bsr_apply(&L->P, N->x, z, true);
+        tc_constraint_filter(c, z);
     }
-    tc_matvec(c, z, y);
-    fine_residual(c, r, y);
-    bsr_apply_transposed(&L->P, y, N->rhs);
-    vcycle(c, h, 1, N->rhs, N->x);
-    /* prolongation: z += S P x_1 (z is on the range of S already) */
-    bsr_apply(&L->P, N->x, z, true);
-    tc_constraint_filter(c, z);
-    tc_matvec(c, z, y);
-    return fine_postsmooth(c, w, r, y, z);
+    return fine_gs(c, r, z, false);
 }

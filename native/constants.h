@@ -141,7 +141,9 @@
 /* Sub-steps between numeric refreshes (solver.c). Mean CPU per 1 ms step of a pinned 5,151-vertex
  * sheet: every sub-step 36-38 ms (5.5 iterations; aggregates too: 39.5 ms), every 4th 17.4 ms (6.0),
  * every 8th 12.6 ms (6.7), every 16th 15.7 ms (8.9); block Jacobi 19.2 ms (152 iterations). */
-#define TC_AMG_REFRESH 8
+#define TC_AMG_REFRESH 1
+/* numeric refreshes on one set of prolongators before they are made again (RESMOOTH) */
+#define TC_AMG_RESMOOTH 8
 /* ... or sooner, when a solve needs more than this factor (+2) times the iterations of the first
  * solve after the refresh: a held sheet pulled at 1 m/s went from 13 to 50 iterations one sub-step
  * after a refresh at rest (the tension it then carries changes the matrix most). */

@@ -342,15 +342,15 @@ void tc_amg_free(tc_amg *h);
 int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again);
 bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c);
 double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r; r . z */
-/* the filter S changed since the hierarchy's first coarse operator was made: that operator updated
- * over the rows that changed (the vertices that did; -1 out of memory: the hierarchy is dropped) */
-int tc_amg_update_filter(tc_amg *h, const tc_cloth *c);
-bool tc_amg_filter_changed(const tc_amg *h, const tc_cloth *c);
+/* the Galerkin operators of the current matrix on the kept prolongators (0; -1: not valid for this
+ * mesh, or out of memory: the hierarchy is dropped), and how many since the prolongators were made */
+int tc_amg_refresh(tc_amg *h, const tc_cloth *c);
+int tc_amg_refreshes(const tc_amg *h);
 void tc_amg_forget(tc_amg *h);  /* aggregate again at the next build (a snapshot was taken) */
 int tc_amg_levels(const tc_amg *h);
 bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
 size_t tc_amg_bytes(const tc_amg *h);
-double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 against P^T S A P */
+double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 against P^T A P */
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);

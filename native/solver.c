@@ -97,21 +97,18 @@ static void amg_prepare(tc_cloth *c)
     if (!c->amg) c->amg = tc_amg_new();
     if (!c->amg) { c->stats.amg_fallbacks++; return; }
     const int every = amg_refresh();
-    if (tc_amg_levels(c->amg) == 0 || !tc_amg_valid(c->amg, c) || tc_amg_needs_aggregation(c->amg, c) ||
-        c->amg_age + 1 >= (every ? every : 1) || c->amg_stale) {
+    if (tc_amg_levels(c->amg) == 0 || !tc_amg_valid(c->amg, c) || tc_amg_needs_aggregation(c->amg, c) || every == 0 ||
+        c->amg_stale || tc_amg_refreshes(c->amg) >= TC_AMG_RESMOOTH) {
+        /* new prolongators (and aggregates when due): after a tear, new pins or handles, a cycle
+           that lost its strength, or every TC_AMG_RESMOOTH refreshes (the near-null space follows
+           the cloth's rotations) */
         if (tc_amg_build(c->amg, c, every == 0)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
         c->amg_stale = false;
         c->amg_fresh_iterations = -1;
-    } else if (tc_amg_filter_changed(c->amg, c)) {
-        /* kept, but this sub-step's contacts (or pins, handles) differ from those its first coarse
-           operator was made for: refreshed numerically. An update of the changed rows would take
-           the old filter's part out at this sub-step's matrix while the operator holds it at an
-           older one; the mismatch, of the order of the matrix's change times its stiffness ratio,
-           made the cycle indefinite on stiff sheets (CG broke down) */
-        if (tc_amg_build(c->amg, c, false)) c->stats.amg_fallbacks++;
+    } else if (c->amg_age + 1 >= every) {
+        if (tc_amg_refresh(c->amg, c)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
-        c->amg_fresh_iterations = -1;
     } else {
         c->amg_age++;
     }
@@ -149,24 +146,14 @@ void tc_precondition_build(tc_cloth *c)
     amg_prepare(c);
 }
 
-/* The constraints changed within a sub-step (contacts released or sliding, step.c): the kept
- * hierarchy's first coarse operator is updated over the vertices whose filter changed (amg.c), so
- * the cycle is the Galerkin one of the re-solve's operator at the cost of those rows, not of a
- * rebuild per contact round; block Jacobi needs nothing. */
+/* The constraints changed within a sub-step (contacts released or sliding, step.c). Neither
+ * preconditioner needs anything: block Jacobi filters with the current S, and the multigrid cycle's
+ * fine Gauss-Seidel sweeps solve the filtered system exactly while its coarse operators, made with
+ * contact vertices free, stay a valid (symmetric positive) coarse correction whatever the contacts
+ * (amg.c). Kept as the step's one hook for a preconditioner that would. */
 void tc_precondition_constraints_changed(tc_cloth *c)
 {
-    if (!use_amg(c) || !tc_amg_valid(c->amg, c)) return;
-    const double t0 = tc_now();
-    if (c->amg_age == 0) {
-        /* the operator is of this sub-step's matrix: the update is exact */
-        if (tc_amg_update_filter(c->amg, c) < 0) c->stats.amg_fallbacks++;
-    } else {
-        /* of an older matrix: refreshed once (the next rounds of this sub-step update it) */
-        if (tc_amg_build(c->amg, c, false)) c->stats.amg_fallbacks++;
-        c->amg_age = 0;
-        c->amg_fresh_iterations = -1;
-    }
-    c->stats.amg_setup_seconds += tc_now() - t0;
+    (void)c;
 }
 
 void tc_precondition_snapshot(const tc_cloth *c)
