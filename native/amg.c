@@ -102,6 +102,9 @@ struct tc_amg {
     int32_t fragment_vertices;   /* tc_stats.fragment_vertices_removed then (a removal renumbers) */
     bool forget;           /* aggregate again at the next build (tc_amg_forget) */
     int refreshes;         /* numeric refreshes since the prolongators were made */
+    int32_t run_blocks;    /* a refresh's double buffer, in blocks (0: TC_AMG_GALERKIN_BLOCKS; tests) */
+    int8_t choice;         /* the preconditioner "auto" picked last (1 this cycle, 0 block Jacobi, -1
+                              none since this object was made or a snapshot: solver.c's hysteresis) */
     /* scratch of the sparse products */
     int32_t *mark;
     double *acc;
@@ -931,115 +934,151 @@ static inline double *ap_slot(aprow *w, int32_t J, int B)
     return w->acc + (size_t)q * B * NS;
 }
 
-/* The fine rows' pass of the numeric Galerkin product, instantiated with the portable block
- * products and with the AVX2 ones (one function per instruction set, so the small products inline
- * into it): row i's (A P)_i, then C's blocks (I, J >= I) += P_iI^T (A P)_iJ into cv. */
-#define GALERKIN_ROWS(NAME, ATTR, BLK3, FLAP3, BLK6, PTA3, PTA6)                                             \
-    ATTR static int NAME(tc_amg *h, const tc_cloth *c, const level *L, int l, const bsr *C, double *cv, aprow *w) \
+/* One fine row of the numeric Galerkin product, instantiated with the portable block products and
+ * with the AVX2 ones (one function per instruction set, so the small products inline into it):
+ * row i's (A P)_i, then C's blocks (I, J >= I) += P_iI^T (A P)_iJ for the rows I in [I0, I1), into
+ * cv (indexed from C->ptr[I0]). */
+#define GALERKIN_ROW(NAME, ATTR, BLK3, FLAP3, BLK6, PTA3, PTA6)                                       \
+    ATTR static int NAME(tc_amg *h, const tc_cloth *c, const level *L, int l, const bsr *C, double *cv, aprow *w, \
+                         int32_t i, int32_t I0, int32_t I1)                                           \
     {                                                                                                 \
         const bsr *P = &L->P;                                                                         \
         const int B = L->b;                                                                           \
-        const int32_t *rp = NULL, *rc = NULL, *fp = NULL, *fc = NULL;                                 \
-        const double *D = NULL, *RB = NULL, *FV = NULL;                                               \
+        size_t reach = 0; /* room for every coarse column this row can reach */                       \
         if (l == 0) {                                                                                 \
-            rp = tc_vec_ptr(&c->rptr); rc = tc_vec_ptr(&c->rcol); fp = tc_vec_ptr(&c->fptr); fc = tc_vec_ptr(&c->fcol); \
-            D = tc_vec_ptr(&c->diag); RB = tc_vec_ptr(&c->rblk); FV = tc_vec_ptr(&c->fval);          \
-        }                                                                                             \
-        for (int32_t i = 0; i < P->n; i++) {                                                          \
-            if (P->ptr[i + 1] == P->ptr[i]) continue;                                                 \
-            size_t reach = 0; /* room for every coarse column this row can reach */                   \
-            if (l == 0) {                                                                             \
-                reach = (size_t)(P->ptr[i + 1] - P->ptr[i]);                                          \
-                for (int32_t s = rp[i]; s < rp[i + 1]; s++) reach += (size_t)(P->ptr[rc[s] + 1] - P->ptr[rc[s]]); \
-                for (int32_t s = fp[i]; s < fp[i + 1]; s++) reach += (size_t)(P->ptr[fc[s] + 1] - P->ptr[fc[s]]); \
-            } else {                                                                                  \
-                for (int32_t a = L->A.ptr[i]; a < L->A.ptr[i + 1]; a++)                               \
-                    reach += (size_t)(P->ptr[L->A.col[a] + 1] - P->ptr[L->A.col[a]]);                 \
-            }                                                                                         \
-            if (reach * B * NS > h->cap_acc && grow((void **)&h->acc, &h->cap_acc, reach * B * NS, sizeof(double))) return -1; \
+            const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol);                     \
+            const int32_t *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);                     \
+            const double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval); \
+            reach = (size_t)(P->ptr[i + 1] - P->ptr[i]);                                              \
+            for (int32_t s = rp[i]; s < rp[i + 1]; s++) reach += (size_t)(P->ptr[rc[s] + 1] - P->ptr[rc[s]]); \
+            for (int32_t s = fp[i]; s < fp[i + 1]; s++) reach += (size_t)(P->ptr[fc[s] + 1] - P->ptr[fc[s]]); \
+            if (reach * 3 * NS > h->cap_acc && grow((void **)&h->acc, &h->cap_acc, reach * 3 * NS, sizeof(double))) return -1; \
             w->acc = h->acc;                                                                          \
-            if (l == 0) {                                                                             \
-                const double *d = D + 12 * (size_t)i;                                                 \
-                for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++)                                   \
-                    BLK3(ap_slot(w, P->col[b], 3), d, 4, P->val + (size_t)b * 3 * NS);                \
-                for (int32_t s = rp[i]; s < rp[i + 1]; s++) {                                         \
-                    const int32_t j = rc[s];                                                          \
-                    const double *a = RB + 9 * (size_t)s;                                             \
-                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                               \
-                        BLK3(ap_slot(w, P->col[b], 3), a, 3, P->val + (size_t)b * 3 * NS);            \
-                }                                                                                     \
-                for (int32_t s = fp[i]; s < fp[i + 1]; s++) {                                         \
-                    const int32_t j = fc[s];                                                          \
-                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                               \
-                        FLAP3(ap_slot(w, P->col[b], 3), FV[s], P->val + (size_t)b * 3 * NS);          \
-                }                                                                                     \
-            } else {                                                                                  \
-                for (int32_t a = L->A.ptr[i]; a < L->A.ptr[i + 1]; a++) {                             \
-                    const int32_t j = L->A.col[a];                                                    \
-                    const float *av = L->A.val + (size_t)a * NS * NS;                                 \
-                    for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                               \
-                        BLK6(ap_slot(w, P->col[b], NS), av, P->val + (size_t)b * NS * NS);            \
-                }                                                                                     \
+            const double *d = D + 12 * (size_t)i;                                                     \
+            for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++)                                       \
+                BLK3(ap_slot(w, P->col[b], 3), d, 4, P->val + (size_t)b * 3 * NS);                    \
+            for (int32_t s = rp[i]; s < rp[i + 1]; s++) {                                             \
+                const int32_t j = rc[s];                                                              \
+                const double *a = RB + 9 * (size_t)s;                                                 \
+                for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                                   \
+                    BLK3(ap_slot(w, P->col[b], 3), a, 3, P->val + (size_t)b * 3 * NS);                \
             }                                                                                         \
-            /* C's row I walked in order, each column's accumulator found by its mark (no search) */ \
-            for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++) {                                     \
-                const int32_t I = P->col[b];                                                          \
-                double pb[NS * NS]; /* the block in double once, not once per column */               \
-                for (int q = 0; q < B * NS; q++) pb[q] = P->val[(size_t)b * B * NS + q];              \
-                for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {                                 \
-                    const int32_t J = C->col[a];                                                      \
-                    const int32_t q = J >= I ? w->mark[J] : -1;                                       \
-                    if (q < 0) continue;                                                              \
-                    if (B == 3) PTA3(cv + (size_t)a * NS * NS, pb, w->acc + (size_t)q * 3 * NS);      \
-                    else PTA6(cv + (size_t)a * NS * NS, pb, w->acc + (size_t)q * NS * NS);            \
-                }                                                                                     \
+            for (int32_t s = fp[i]; s < fp[i + 1]; s++) {                                             \
+                const int32_t j = fc[s];                                                              \
+                for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                                   \
+                    FLAP3(ap_slot(w, P->col[b], 3), FV[s], P->val + (size_t)b * 3 * NS);              \
             }                                                                                         \
-            for (int32_t q = 0; q < w->m; q++) w->mark[w->cols[q]] = -1;                              \
-            w->m = 0;                                                                                 \
+        } else {                                                                                      \
+            for (int32_t a = L->A.ptr[i]; a < L->A.ptr[i + 1]; a++)                                   \
+                reach += (size_t)(P->ptr[L->A.col[a] + 1] - P->ptr[L->A.col[a]]);                     \
+            if (reach * NS * NS > h->cap_acc && grow((void **)&h->acc, &h->cap_acc, reach * NS * NS, sizeof(double))) return -1; \
+            w->acc = h->acc;                                                                          \
+            for (int32_t a = L->A.ptr[i]; a < L->A.ptr[i + 1]; a++) {                                 \
+                const int32_t j = L->A.col[a];                                                        \
+                const float *av = L->A.val + (size_t)a * NS * NS;                                     \
+                for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                                   \
+                    BLK6(ap_slot(w, P->col[b], NS), av, P->val + (size_t)b * NS * NS);                \
+            }                                                                                         \
         }                                                                                             \
+        /* C's row I walked in order, each column's accumulator found by its mark (no search) */     \
+        const int32_t base = C->ptr[I0];                                                              \
+        for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++) {                                         \
+            const int32_t I = P->col[b];                                                              \
+            if (I < I0 || I >= I1) continue;                                                          \
+            double pb[NS * NS]; /* the block in double once, not once per column */                   \
+            for (int q = 0; q < B * NS; q++) pb[q] = P->val[(size_t)b * B * NS + q];                  \
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {                                     \
+                const int32_t J = C->col[a];                                                          \
+                const int32_t q = J >= I ? w->mark[J] : -1;                                           \
+                if (q < 0) continue;                                                                  \
+                if (B == 3) PTA3(cv + (size_t)(a - base) * NS * NS, pb, w->acc + (size_t)q * 3 * NS); \
+                else PTA6(cv + (size_t)(a - base) * NS * NS, pb, w->acc + (size_t)q * NS * NS);       \
+            }                                                                                         \
+        }                                                                                             \
+        for (int32_t q = 0; q < w->m; q++) w->mark[w->cols[q]] = -1;                                  \
+        w->m = 0;                                                                                     \
         return 0;                                                                                     \
     }
-GALERKIN_ROWS(galerkin_rows_c, TC_HOT, blk3, flap3, blk6, pta3, pta6)
+GALERKIN_ROW(galerkin_row_c, TC_HOT, blk3, flap3, blk6, pta3, pta6)
 #ifdef TC_AMG_AVX2
-GALERKIN_ROWS(galerkin_rows_avx2, AVX2F, blk3_avx2, flap3_avx2, blk6_avx2, pta3_avx2, pta6_avx2)
+GALERKIN_ROW(galerkin_row_avx2, AVX2F, blk3_avx2, flap3_avx2, blk6_avx2, pta3_avx2, pta6_avx2)
 #endif
-#undef GALERKIN_ROWS
+#undef GALERKIN_ROW
 
-/* C = P^T A P on C's pattern (level l: 0 from fem.c's rows, else from the level's float operator) */
+/* C = P^T A P on C's pattern (level l: 0 from fem.c's rows, else from the level's float operator),
+ * by runs of C's rows of at most TC_AMG_GALERKIN_BLOCKS blocks: the double buffer is that big, not
+ * C's size (at 100K triangles C holds ~125K blocks: 36 MB in double beside its 18 MB in float, the
+ * peak of a refresh). A fine row whose P reaches two runs is made once for each (few: aggregates
+ * are numbered along the mesh). */
 static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
 {
     const level *L = &h->lev[l];
+    const bsr *P = &L->P;
     bsr *C = &h->lev[l + 1].A;
-    const int32_t na = L->P.m, nnz = C->ptr[C->n];
-    double *cv = calloc((size_t)(nnz ? nnz : 1) * NS * NS, sizeof(double));
+    const int32_t n = P->n, na = P->m, nnz = C->ptr[C->n];
+    const int32_t most = h->run_blocks > 0 ? h->run_blocks : TC_AMG_GALERKIN_BLOCKS;
+    int32_t run = nnz < most ? (nnz ? nnz : 1) : most;
+    for (int32_t I = 0; I < C->n; I++) run = C->ptr[I + 1] - C->ptr[I] > run ? C->ptr[I + 1] - C->ptr[I] : run;  /* a row at least */
+    double *cv = malloc((size_t)run * NS * NS * sizeof(double));
     int32_t *cols = malloc(((size_t)na + 1) * sizeof(int32_t));
+    int32_t *tptr = calloc((size_t)na + 1, sizeof(int32_t)), *trow = malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));
+    int32_t *seen = malloc(((size_t)n + 1) * sizeof(int32_t));
     int rcode = -1;
-    if (!cv || !cols || scratch(h, na, 0)) goto out;
+    if (!cv || !cols || !tptr || !trow || !seen || scratch(h, na, 0)) goto out;
+    /* the rows of P^T: the fine rows each coarse row gathers from */
+    for (int32_t a = 0; a < P->ptr[n]; a++) tptr[P->col[a] + 1]++;
+    for (int32_t I = 0; I < na; I++) tptr[I + 1] += tptr[I];
+    for (int32_t i = 0; i < n; i++)
+        for (int32_t a = P->ptr[i]; a < P->ptr[i + 1]; a++) trow[tptr[P->col[a]]++] = i;
+    for (int32_t I = na; I > 0; I--) tptr[I] = tptr[I - 1];
+    tptr[0] = 0;
+    for (int32_t i = 0; i < n; i++) seen[i] = -1;
     aprow w = {h->mark, cols, NULL, 0};
+    for (int32_t I0 = 0, I1 = 0; I0 < na; I0 = I1) {
+        /* the run [I0, I1): at least one row, at most `run` blocks */
+        I1 = I0 + 1;
+        while (I1 < na && C->ptr[I1 + 1] - C->ptr[I0] <= run) I1++;
+        const int32_t base = C->ptr[I0], nb = C->ptr[I1] - base;
+        memset(cv, 0, (size_t)nb * NS * NS * sizeof(double));
+        for (int32_t I = I0; I < I1; I++)
+            for (int32_t t = tptr[I]; t < tptr[I + 1]; t++) {
+                const int32_t i = trow[t];
+                if (seen[i] == I0) continue;
+                seen[i] = I0;
 #ifdef TC_AMG_AVX2
-    if (avx2()) { if (galerkin_rows_avx2(h, c, L, l, C, cv, &w)) goto out; } else
+                if (avx2()) { if (galerkin_row_avx2(h, c, L, l, C, cv, &w, i, I0, I1)) goto out; continue; }
 #endif
-    if (galerkin_rows_c(h, c, L, l, C, cv, &w)) goto out;
-    /* the lower blocks: transposes of the upper ones; the diagonal ones made exactly symmetric */
-    for (int32_t I = 0; I < C->n; I++)
-        for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
-            const int32_t J = C->col[a];
-            double *u = cv + (size_t)a * NS * NS;
-            if (J == I) {
-                for (int r = 0; r < NS; r++)
-                    for (int q = r + 1; q < NS; q++) u[r * NS + q] = u[q * NS + r] = 0.5 * (u[r * NS + q] + u[q * NS + r]);
+                if (galerkin_row_c(h, c, L, l, C, cv, &w, i, I0, I1)) goto out;
             }
-            if (J <= I) continue;
-            const int32_t t = find_slot(C, J, I);
-            if (t < 0) continue;
-            double *o = cv + (size_t)t * NS * NS;
-            for (int r = 0; r < NS; r++)
-                for (int q = 0; q < NS; q++) o[q * NS + r] = u[r * NS + q];
-        }
-    for (size_t q = 0; q < (size_t)nnz * NS * NS; q++) C->val[q] = (float)cv[q];
+        /* the run's upper blocks narrowed (the diagonal ones made exactly symmetric), its lower
+           blocks the transposes of their mirrors (rows before or in the run: final already), so C
+           is exactly symmetric */
+        for (int32_t I = I0; I < I1; I++)
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
+                const int32_t J = C->col[a];
+                if (J < I) continue;
+                double *u = cv + (size_t)(a - base) * NS * NS;
+                if (J == I)
+                    for (int r = 0; r < NS; r++)
+                        for (int q = r + 1; q < NS; q++) u[r * NS + q] = u[q * NS + r] = 0.5 * (u[r * NS + q] + u[q * NS + r]);
+                float *f = C->val + (size_t)a * NS * NS;
+                for (int q = 0; q < NS * NS; q++) f[q] = (float)u[q];
+            }
+        for (int32_t I = I0; I < I1; I++)
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
+                const int32_t J = C->col[a];
+                if (J >= I) continue;
+                const int32_t t = find_slot(C, J, I);
+                float *o = C->val + (size_t)a * NS * NS;
+                if (t < 0) { memset(o, 0, NS * NS * sizeof(float)); continue; }  /* cannot happen */
+                const float *u = C->val + (size_t)t * NS * NS;
+                for (int r = 0; r < NS; r++)
+                    for (int q = 0; q < NS; q++) o[r * NS + q] = u[q * NS + r];
+            }
+    }
     rcode = 0;
 out:
-    free(cv); free(cols);
+    free(cv); free(cols); free(tptr); free(trow); free(seen);
     return rcode;
 }
 
@@ -1387,7 +1426,9 @@ static void fine_modes(const tc_cloth *c, const level *L, double *B)
 
 tc_amg *tc_amg_new(void)
 {
-    return calloc(1, sizeof(tc_amg));
+    tc_amg *h = calloc(1, sizeof(tc_amg));
+    if (h) h->choice = -1;
+    return h;
 }
 
 int tc_amg_levels(const tc_amg *h) { return h ? h->nlev : 0; }
@@ -1400,7 +1441,32 @@ bool tc_amg_valid(const tc_amg *h, const tc_cloth *c)
 
 void tc_amg_forget(tc_amg *h)
 {
-    if (h) h->forget = true;
+    if (h) { h->forget = true; h->choice = -1; }
+}
+
+int tc_amg_choice(const tc_amg *h) { return h ? h->choice : -1; }
+
+void tc_amg_set_choice(tc_amg *h, bool amg)
+{
+    if (h) h->choice = amg ? 1 : 0;
+}
+
+void tc_amg_drop(tc_amg *h)
+{
+    if (!h) return;
+    const int8_t choice = h->choice;
+    const bool forget = h->forget;
+    const int32_t run = h->run_blocks;
+    for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) {
+        level *L = &h->lev[l];
+        bsr_free(&L->A); bsr_free(&L->P);
+        free(L->dinv); free(L->agg); free(L->B); free(L->dead); free(L->x); free(L->rhs); free(L->res);
+    }
+    free(h->chol); free(h->mark); free(h->acc);
+    memset(h, 0, sizeof *h);
+    h->choice = choice;
+    h->forget = forget;
+    h->run_blocks = run;
 }
 
 /* the pins and handles as two numbers (their count and the sum of their indices + 1) */
@@ -1537,6 +1603,11 @@ int tc_amg_refresh(tc_amg *h, const tc_cloth *c)
 }
 
 int tc_amg_refreshes(const tc_amg *h) { return h ? h->refreshes : 0; }
+
+void tc_amg_set_run_blocks(tc_amg *h, int32_t blocks)
+{
+    if (h) h->run_blocks = blocks > 0 ? blocks : 0;
+}
 
 /* ---------------- the V-cycle ---------------- */
 

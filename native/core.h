@@ -196,8 +196,10 @@ struct tc_cloth {
      * until a solve uses it */
     tc_amg *amg;
     int amg_age;              /* sub-steps since its numeric refresh */
-    int amg_fresh_iterations; /* iterations of the first solve after it (-1: none yet) */
-    bool amg_stale;           /* a later solve needed many more: refresh at the next sub-step */
+    int amg_last_iterations;  /* iterations of the last solve on it (how soon the next refresh pays) */
+    double amg_fresh_rate;    /* convergence of the first solve after its prolongators were made:
+                                 ln(|r0|^2 / |r|^2) per iteration (<= 0: none yet) */
+    bool amg_stale;           /* a later solve converged much slower: new prolongators next sub-step */
     bool amg_chosen;          /* this sub-step's solves use it (solver.c's choose_amg) */
 
     /* fem.c's per-triangle slot table (derived from the rows, never part of a snapshot: rebuilt
@@ -346,7 +348,11 @@ double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  
  * mesh, or out of memory: the hierarchy is dropped), and how many since the prolongators were made */
 int tc_amg_refresh(tc_amg *h, const tc_cloth *c);
 int tc_amg_refreshes(const tc_amg *h);
-void tc_amg_forget(tc_amg *h);  /* aggregate again at the next build (a snapshot was taken) */
+void tc_amg_set_run_blocks(tc_amg *h, int32_t blocks);  /* tests: the refresh's double buffer (0: default) */
+void tc_amg_forget(tc_amg *h);  /* aggregate again at the next build, no choice history (a snapshot was taken) */
+void tc_amg_drop(tc_amg *h);    /* the hierarchy's memory back; the object and its choice history kept */
+int tc_amg_choice(const tc_amg *h);             /* "auto"'s last pick: 1 multigrid, 0 Jacobi, -1 none */
+void tc_amg_set_choice(tc_amg *h, bool amg);
 int tc_amg_levels(const tc_amg *h);
 bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
 size_t tc_amg_bytes(const tc_amg *h);

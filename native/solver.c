@@ -58,37 +58,51 @@ static double stiffness_ratio(tc_cloth *c)
     return isfinite(r) ? r : 0.0;
 }
 
-/* AUTO: the multigrid cycle when the work block Jacobi is predicted to need is larger, i.e. when
- * the stiffness ratio passes TC_AMG_AUTO_STIFFNESS (constants.h: the measured break-even) on a
- * cloth of at least TC_AMG_AUTO_MIN_VERTICES vertices (below, a hierarchy has no level to speak of). */
+/* AUTO: the multigrid cycle when block Jacobi is predicted to cost more: its iterations grow with
+ * sqrt(stiffness ratio), and its cost per iteration against the cycle's falls behind as the cloth
+ * grows (the coarse levels' share of a cycle shrinks, the matrix leaves the cache), so the measure is
+ * the stiffness ratio times (vertices / TC_AMG_AUTO_VERTICES)^TC_AMG_AUTO_SIZE_EXPONENT against
+ * TC_AMG_AUTO_STIFFNESS (constants.h: the measured table it was fitted to), on cloths of at least
+ * TC_AMG_AUTO_MIN_VERTICES vertices. Hysteresis: the cycle, once picked, is kept down to
+ * 1/TC_AMG_AUTO_HYSTERESIS of the bar, so a cloth near it does not rebuild a hierarchy every few
+ * sub-steps as its tension moves the ratio. The history lives in the hierarchy's object, which a
+ * snapshot clears (tc_amg_forget), as a resumed run starts without one. */
 static bool choose_amg(tc_cloth *c)
 {
     if (c->solver.preconditioner == TC_PRECOND_JACOBI) return false;
     if (c->solver.preconditioner == TC_PRECOND_AMG) return true;
     if (c->nv < TC_AMG_AUTO_MIN_VERTICES) return false;
-    return stiffness_ratio(c) >= TC_AMG_AUTO_STIFFNESS;
+    const double measure = stiffness_ratio(c) * pow((double)c->nv / TC_AMG_AUTO_VERTICES, TC_AMG_AUTO_SIZE_EXPONENT);
+    if (!c->amg) c->amg = tc_amg_new();  /* small until built: it holds the history */
+    const double bar = tc_amg_choice(c->amg) == 1 ? TC_AMG_AUTO_STIFFNESS / TC_AMG_AUTO_HYSTERESIS : TC_AMG_AUTO_STIFFNESS;
+    const bool amg = measure >= bar;
+    tc_amg_set_choice(c->amg, amg);
+    return amg;
 }
 
-/* Sub-steps between numeric refreshes of the hierarchy (TC_AMG_REFRESH; the TEARCLOTH_AMG_REFRESH
- * environment variable overrides it, for the bench's comparison of the reuse policies; 0 there
- * means aggregates too are rebuilt every sub-step). */
-static int amg_refresh(void)
+/* Sub-steps between numeric refreshes of the hierarchy (TC_AMG_REFRESH) and refreshes between new
+ * prolongators (TC_AMG_RESMOOTH); the TEARCLOTH_AMG_REFRESH and TEARCLOTH_AMG_RESMOOTH environment
+ * variables override them, for the bench's comparison of the reuse policies (read at each sub-step,
+ * so two cloths of one process can be compared; 0 for REFRESH means a whole build, aggregates too,
+ * every sub-step). */
+static int env_count(const char *name, int fallback)
 {
-    static int value = -2;
-    if (value == -2) {
-        const char *e = getenv("TEARCLOTH_AMG_REFRESH");
-        int v = e ? atoi(e) : TC_AMG_REFRESH;
-        value = v >= 0 && v <= 100000 ? v : TC_AMG_REFRESH;
-    }
-    return value;
+    const char *e = getenv(name);
+    const int v = e ? atoi(e) : fallback;
+    return v >= 0 && v <= 100000 ? v : fallback;
 }
 
 static void amg_prepare(tc_cloth *c)
 {
     if (!use_amg(c)) {
-        /* switched to block Jacobi: the hierarchy's memory goes back (a switch back rebuilds it) */
-        tc_amg_free(c->amg);
-        c->amg = NULL;
+        /* block Jacobi: the hierarchy's memory goes back (a switch back rebuilds it); "auto" keeps
+           the empty object for its history */
+        if (c->solver.preconditioner == TC_PRECOND_AUTO) {
+            tc_amg_drop(c->amg);
+        } else {
+            tc_amg_free(c->amg);
+            c->amg = NULL;
+        }
         c->stats.amg_levels = 0;
         c->stats.amg_bytes = 0;
         return;
@@ -96,17 +110,18 @@ static void amg_prepare(tc_cloth *c)
     const double t0 = tc_now();
     if (!c->amg) c->amg = tc_amg_new();
     if (!c->amg) { c->stats.amg_fallbacks++; return; }
-    const int every = amg_refresh();
+    const int every = env_count("TEARCLOTH_AMG_REFRESH", TC_AMG_REFRESH);
+    const int resmooth = env_count("TEARCLOTH_AMG_RESMOOTH", TC_AMG_RESMOOTH);
     if (tc_amg_levels(c->amg) == 0 || !tc_amg_valid(c->amg, c) || tc_amg_needs_aggregation(c->amg, c) || every == 0 ||
-        c->amg_stale || tc_amg_refreshes(c->amg) >= TC_AMG_RESMOOTH) {
+        c->amg_stale || tc_amg_refreshes(c->amg) >= resmooth) {
         /* new prolongators (and aggregates when due): after a tear, new pins or handles, a cycle
            that lost its strength, or every TC_AMG_RESMOOTH refreshes (the near-null space follows
            the cloth's rotations) */
         if (tc_amg_build(c->amg, c, every == 0)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
         c->amg_stale = false;
-        c->amg_fresh_iterations = -1;
-    } else if (c->amg_age + 1 >= every) {
+        c->amg_fresh_rate = 0.0;
+    } else if (c->amg_age + 1 >= (c->amg_last_iterations >= TC_AMG_REFRESH_ITERATIONS ? 1 : every)) {
         if (tc_amg_refresh(c->amg, c)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
     } else {
@@ -336,12 +351,21 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     int it = 0;
     double rr = dotn(r, r, n3);
     if (use_amg(c) && tc_amg_valid(c->amg, c)) {
+        const double rr0 = rr;
         it = pcg_amg(c, v, stop2, &rr);
         if (it >= 0) {
-            /* a kept hierarchy whose cycle lost much of its strength (the tension or the contacts
-               changed a lot since) is refreshed at the next sub-step */
-            if (c->amg_fresh_iterations < 0) c->amg_fresh_iterations = it;
-            else if (it > TC_AMG_STALE_FACTOR * c->amg_fresh_iterations + 2) c->amg_stale = true;
+            /* a kept hierarchy whose cycle lost much of its strength (its residual falls by less than
+               1/TC_AMG_STALE_FACTOR of the rate per iteration of the first solve on its
+               prolongators: the cloth turned or stretched much since) gets new prolongators at the
+               next sub-step. The rate, not the iteration count: that one follows the warm start
+               and the load (a falling, accelerating sheet needed 2x more every other sub-step on
+               an unchanged hierarchy, and made a build every sub-step) */
+            c->amg_last_iterations = it;
+            if (it > 0 && rr > 0 && rr0 > rr) {
+                const double rate = log(rr0 / rr) / it;
+                if (!(c->amg_fresh_rate > 0)) c->amg_fresh_rate = rate;
+                else if (rate * TC_AMG_STALE_FACTOR < c->amg_fresh_rate) c->amg_stale = true;
+            }
             *rr_out = rr;
             return it;
         }

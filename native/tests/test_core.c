@@ -632,6 +632,12 @@ static void test_amg(void)
           "amg refresh");
     const double rerr = tc_amg_galerkin_error(c, c->amg);
     CHECK(rerr >= 0 && rerr < 1e-6, "refreshed Galerkin operator = P^T A P: relative error %g", rerr);
+    /* the same by runs of a few coarse rows (the double buffer's bound; fine rows made once per run) */
+    tc_amg_set_run_blocks(c->amg, 7);
+    CHECK(tc_amg_refresh(c->amg, c) == 0, "amg refresh by runs");
+    const double kerr = tc_amg_galerkin_error(c, c->amg);
+    CHECK(kerr >= 0 && kerr < 1e-6, "Galerkin operator by runs of 7 blocks: relative error %g", kerr);
+    tc_amg_set_run_blocks(c->amg, 0);
     /* switching to block Jacobi frees the hierarchy; switching back builds it again */
     tc_solver_settings sw = tc_cloth_solver(c);
     sw.preconditioner = TC_PRECOND_JACOBI;
