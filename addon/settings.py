@@ -328,9 +328,10 @@ SETTINGS: tuple[Setting, ...] = (
        "How the conjugate-gradient solve is preconditioned: the same answer within the tolerance, at "
        "different cost",
        _CORE + " (tc_solver_default): auto takes multigrid each sub-step when the stiffness ratio "
-       "(dt^2 k / m per vertex, median) reaches TC_AMG_AUTO_STIFFNESS on a cloth of at least "
-       "TC_AMG_AUTO_MIN_VERTICES vertices (native/constants.h: the measured break-even of the two "
-       "solvers' work)",
+       "(dt^2 k / m per vertex, median) times (vertices / TC_AMG_AUTO_VERTICES)^TC_AMG_AUTO_SIZE_EXPONENT "
+       "reaches TC_AMG_AUTO_STIFFNESS on a cloth of at least TC_AMG_AUTO_MIN_VERTICES vertices, and keeps "
+       "it down to 1/TC_AMG_AUTO_HYSTERESIS of that (native/constants.h: fitted to a measured table of "
+       "both solvers' time)",
        [("auto", "Auto", "Block Jacobi on soft or coarse sheets and short steps, multigrid on stiff or "
                          "fine ones and long steps (by the work each is predicted to need)"),
         ("jacobi", "Block Jacobi", "The inverse 3x3 diagonal blocks: cheap iterations, more of them as "

@@ -4,57 +4,58 @@
  * triangles, 590 at 100K), while a V-cycle keeps them near ten. solver.c decides when it pays.
  *
  * What this file owns: the hierarchy (aggregates, prolongators, Galerkin coarse operators, the
- * coarsest level's Cholesky factor), its updates (a changed constraint filter, a tear) and the
+ * coarsest level's Cholesky factor), its numeric refresh, its extension through a tear, and the
  * V-cycle.
  *
  * The operator is the constrained one of the solve, S A S on the range of the filter S
- * (constraints.c); it is made definite off that range by (I - S) times a diagonal scale, so the
- * fine level's operator A' = S A S + (I - S) d is SPD and equals S A S where CG works. A' is never
- * stored: the setup reads it row by row from fem.c's rows (fine_row), and the products it needs
- * (the smoothed prolongator, the Galerkin operator P^T A' P) are made row by row too, so the setup
- * holds no copy of the fine matrix and no A P.
+ * (constraints.c), made definite off that range by (I - S) times a diagonal scale: A' = S A S +
+ * (I - S) d. Only the finest level's smoother sees A' (below); the hierarchy is made for the
+ * reference filter, where pins and handles are fixed and contact vertices free. Nothing stores the
+ * fine matrix: the setup and the refresh read fem.c's rows in place.
  *   - Strength of connection on A's 3x3 (coarse: 6x6) blocks, |A_ij|_F >= theta sqrt(|A_ii| |A_jj|);
  *     fully constrained vertices (pins, handles) take no part: the smoother alone handles them.
  *   - Aggregation: the three passes of standard aggregation (pyamg's standard_aggregation).
  *   - Near-null space: the six rigid-body modes of a shell (3 translations, 3 rotations about the
- *     aggregate's centroid, from the vertex positions); the tentative prolongator is their QR per
- *     aggregate (modified Gram-Schmidt, twice), R the next level's near-null space. A mode an
- *     aggregate cannot carry (a two-vertex aggregate has no twist about its axis) gives a zero
- *     column: that coarse unknown is decoupled with a unit-scaled diagonal.
+ *     aggregate's centroid, from the vertex positions, zero on pins and handles); the tentative
+ *     prolongator is their QR per aggregate (modified Gram-Schmidt, twice), R the next level's
+ *     near-null space. A mode an aggregate cannot carry (a two-vertex aggregate has no twist about
+ *     its axis) gives a zero column: that coarse unknown is decoupled with a unit-scaled diagonal.
  *   - Prolongator smoothing by one damped Jacobi step P = (I - w D^-1 A) T, w = 4/(3 rho(D^-1 A)),
- *     rho from power iterations; coarse operators A_c = P^T A P, pattern first, then one pass over
- *     the fine rows scattering P_i^T (A P)_i into the blocks of C.
+ *     rho from power iterations; coarse operators A_c = P^T A P (P's rows of pins and handles are
+ *     zero, so no filter enters), their pattern made with P, their numbers by one pass over the
+ *     fine rows scattering P_i^T (A P)_i into C's blocks (flaps read as the scalars they are).
  *   - Coarsest level (at most TC_AMG_COARSEST unknowns): a dense Cholesky factor.
  * P and the coarse operators are stored in float32 (computed in double, read into double): the
  * V-cycle is a preconditioner, any fixed SPD approximation serves, and half the bytes are half the
  * memory (the target is 1 KB per triangle at 100K) and half the traffic of its products.
  *
- * Contacts. The prolongator is made on the reference filter, with contact vertices free (pins and
- * handles stay fixed: they do not change within a step); the cycle prolongs with S P, so its
- * coarse operator for the current filter is P^T A' P with A' of the current S. When S changes
- * (the contact rounds of a sub-step release or slide vertices; the next sub-step's contacts), only
- * the rows of the vertices whose S changed differ, so tc_amg_update_filter adds
- * P^T (A'_new - A'_old) P over those rows to the first coarse operator (and refreshes its touched
- * diagonal blocks, and the factor when it is the coarsest): a few dozen vertices' work instead of
- * a rebuild per contact round, and the cycle stays the Galerkin one of the operator CG solves (a
- * cycle on the old filter lost half its strength: 100-766 iterations in the artist's scene). The
- * levels below keep theirs (a coarse correction of the first coarse level's smoother from a
- * slightly older operator: still SPD, so the cycle stays a symmetric positive operator).
+ * Contacts. The V-cycle as a map of the residual is M^-T (M + M^T - A') M^-1 + W A_c^-1 W^T with
+ * W = (I - M^-T A') S P and M the forward sweep: symmetric positive for ANY symmetric positive
+ * coarse operator A_c, as long as the fine smoother converges on A'. So the fine level is smoothed
+ * by block Gauss-Seidel on A' itself (pins and handles held, a contact vertex's block solved on its
+ * free directions), which converges on any SPD matrix with no damping estimate, and the coarse
+ * operators, made with contact vertices free, serve unchanged whatever the contacts do: a changed
+ * contact set (the next sub-step's, or a contact round's releases and slides) costs nothing here.
+ * (Before, the first coarse operator was updated over the changed rows and a damped Jacobi fine
+ * smoother needed its damping re-estimated: its stale value made the cycle indefinite, and across
+ * sub-steps the update's mismatch with an older matrix did too, so every sub-step with contacts
+ * rebuilt the hierarchy.) The race scene took 53 iterations a sub-step with the exact update and
+ * 57 with contacts left to the sweeps.
  *
  * The matrix changes every sub-step (co-rotation, damping, contacts) while the mesh rarely does, so
- * the hierarchy is kept: the aggregates are made again only when vertices were removed or
- * renumbered, pins or handles changed, a snapshot was taken (tc_amg_forget: a resumed run must
- * build the same hierarchy as the uninterrupted one) or every TC_AMG_REAGGREGATE refreshes; after a
- * tear the new vertices join a neighbour's aggregate and the rest is refreshed numerically. The
- * numeric part (prolongators, coarse operators) is refreshed every `refresh` sub-steps (solver.c
- * says which). Between refreshes the finest level is still the current matrix; only the coarse
+ * the hierarchy is kept in three layers: the aggregates (made again when vertices were removed or
+ * renumbered, pins or handles changed, a snapshot was taken - tc_amg_forget: a resumed run must
+ * build the same hierarchy as the uninterrupted one - or every TC_AMG_REAGGREGATE builds; after a
+ * tear the new vertices join a neighbour's aggregate), the prolongators with the coarse operators'
+ * patterns (tc_amg_build), and the coarse operators' numbers (tc_amg_refresh, a third to a quarter
+ * of a build: only numbers change between refreshes of the same prolongators). solver.c says when
+ * each is due. Between refreshes the finest level is still the current matrix; only the coarse
  * correction is that of a slightly older one.
  *
- * The cycle: a V-cycle with one damped block Jacobi step before and after the coarse correction,
- * a symmetric operator, so CG stays CG. The finest level never uses a copy of A': its products are
- * fem.c's row product (tc_matvec) with the filter folded into the passes around it: one pass for
- * the pre-smoothing, one for residual, filter and restriction input, one for prolongation and
- * filter, one for the post-smoothing that also takes r . z for CG. No allocation in the cycle.
+ * The cycle: a forward Gauss-Seidel sweep from zero, the residual by fem.c's product
+ * (tc_matvec), its restriction, the coarse levels (forward Gauss-Seidel, correction, backward
+ * Gauss-Seidel on 6x6 blocks; the coarsest factored), the prolongation filtered by S, a backward
+ * sweep that also takes r . z for CG. No allocation in the cycle.
  */
 #include "core.h"
 #include "matvec.h"
@@ -81,7 +82,7 @@ typedef struct level {
     double omega;          /* the prolongator's smoothing step, 4 / (3 rho(D^-1 A)) */
     int32_t *agg;          /* aggregate of each block row, -1 none */
     int32_t nagg;
-    double *B;             /* near-null space, n*b x NS row-major (levels >= 1) */
+    double *B;             /* near-null space, n*b x NS row-major (levels >= 1, during a build) */
     uint8_t *dead;         /* per unknown: a mode its aggregate could not carry (levels >= 1) */
     double *x, *rhs, *res; /* V-cycle vectors (levels >= 1; level 0 has res only) */
     size_t cap_vec;
@@ -1576,6 +1577,9 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
     }
     h->nlev = nlev;
     if (coarsest_factor(h)) goto out;
+    /* the coarse near-null spaces only feed the next level's tentative prolongator in this build:
+       a refresh keeps the prolongators, so they go (288 bytes an aggregate) */
+    for (int l = 1; l < TC_AMG_MAX_LEVELS; l++) { free(h->lev[l].B); h->lev[l].B = NULL; }
     h->pair_version = c->pair_version;
     h->nv = c->nv;
     h->agg_levels = nlev - 1;

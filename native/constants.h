@@ -134,10 +134,10 @@
 #define TC_AMG_THETA 0.02
 #define TC_AMG_COARSEST 120         /* unknowns at or below which a level is the coarsest */
 #define TC_AMG_DENSE_MAX 1500       /* the coarsest level is factored when at most this big */
-#define TC_AMG_COARSE_SWEEPS 4      /* else: this many damped Jacobi steps there */
+#define TC_AMG_COARSE_SWEEPS 4      /* else: this many symmetric Gauss-Seidel sweep pairs there */
 #define TC_AMG_MIN_COARSENING 0.8   /* stop when a level keeps more than this fraction of rows */
-#define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the Jacobi damping */
-#define TC_AMG_REAGGREGATE 100      /* numeric refreshes before the aggregates are built again */
+#define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the prolongator's smoothing step */
+#define TC_AMG_REAGGREGATE 100      /* builds (new prolongators) before the aggregates are made again */
 /* Sub-steps between numeric refreshes of the coarse operators (solver.c): every TC_AMG_REFRESH
  * sub-steps, or every one when the last solve took at least TC_AMG_REFRESH_ITERATIONS iterations
  * (a refresh costs ~10 cycles on the kept prolongators: it pays sooner the more cycles a solve
