@@ -199,7 +199,9 @@ struct tc_cloth {
     int amg_last_iterations;  /* iterations of the last solve on it (how soon the next refresh pays) */
     double amg_fresh_rate;    /* convergence of the first solve after its prolongators were made:
                                  ln(|r0|^2 / |r|^2) per iteration (<= 0: none yet) */
-    bool amg_stale;           /* a later solve converged much slower: new prolongators next sub-step */
+    bool amg_stale;           /* a later solve converged much slower: a refresh next sub-step, then
+                                 new prolongators if one was refreshed for it already */
+    bool amg_stale_refreshed; /* refreshed for staleness since its prolongators were made */
     bool amg_chosen;          /* this sub-step's solves use it (solver.c's choose_amg) */
 
     /* fem.c's per-triangle slot table (derived from the rows, never part of a snapshot: rebuilt

@@ -113,16 +113,21 @@ static void amg_prepare(tc_cloth *c)
     const int every = env_count("TEARCLOTH_AMG_REFRESH", TC_AMG_REFRESH);
     const int resmooth = env_count("TEARCLOTH_AMG_RESMOOTH", TC_AMG_RESMOOTH);
     if (tc_amg_levels(c->amg) == 0 || !tc_amg_valid(c->amg, c) || tc_amg_needs_aggregation(c->amg, c) || every == 0 ||
-        c->amg_stale || tc_amg_refreshes(c->amg) >= resmooth) {
+        (c->amg_stale && c->amg_stale_refreshed) || tc_amg_refreshes(c->amg) >= resmooth) {
         /* new prolongators (and aggregates when due): after a tear, new pins or handles, a cycle
-           that lost its strength, or every TC_AMG_RESMOOTH refreshes (the near-null space follows
-           the cloth's rotations) */
+           that stayed weak after a refresh, or every TC_AMG_RESMOOTH refreshes (the near-null
+           space follows the cloth's rotations) */
         if (tc_amg_build(c->amg, c, every == 0)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
         c->amg_stale = false;
+        c->amg_stale_refreshed = false;
         c->amg_fresh_rate = 0.0;
-    } else if (c->amg_age + 1 >= (c->amg_last_iterations >= TC_AMG_REFRESH_ITERATIONS ? 1 : every)) {
+    } else if (c->amg_stale || c->amg_age + 1 >= (c->amg_last_iterations >= TC_AMG_REFRESH_ITERATIONS ? 1 : every)) {
+        /* a weak cycle is first refreshed (a third of a build: at 100K triangles a build after
+           every slow solve of the first, accelerating sub-steps doubled their cost) */
         if (tc_amg_refresh(c->amg, c)) c->stats.amg_fallbacks++;
+        if (c->amg_stale) c->amg_stale_refreshed = true;
+        c->amg_stale = false;
         c->amg_age = 0;
     } else {
         c->amg_age++;
@@ -356,8 +361,9 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
         if (it >= 0) {
             /* a kept hierarchy whose cycle lost much of its strength (its residual falls by less than
                1/TC_AMG_STALE_FACTOR of the rate per iteration of the first solve on its
-               prolongators: the cloth turned or stretched much since) gets new prolongators at the
-               next sub-step. The rate, not the iteration count: that one follows the warm start
+               prolongators: the cloth turned or stretched much since) is refreshed at the next
+               sub-step, and gets new prolongators if that did not help (amg_prepare). The rate,
+               not the iteration count: that one follows the warm start
                and the load (a falling, accelerating sheet needed 2x more every other sub-step on
                an unchanged hierarchy, and made a build every sub-step) */
             c->amg_last_iterations = it;
@@ -365,6 +371,7 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
                 const double rate = log(rr0 / rr) / it;
                 if (!(c->amg_fresh_rate > 0)) c->amg_fresh_rate = rate;
                 else if (rate * TC_AMG_STALE_FACTOR < c->amg_fresh_rate) c->amg_stale = true;
+                else c->amg_stale_refreshed = false;  /* a refresh for staleness helped */
             }
             *rr_out = rr;
             return it;
