@@ -327,9 +327,13 @@ SETTINGS: tuple[Setting, ...] = (
     _e("solver", "preconditioner", "auto", "Preconditioner",
        "How the conjugate-gradient solve is preconditioned: the same answer within the tolerance, at "
        "different cost",
-       _CORE + " (tc_solver_default): auto takes multigrid from TC_AMG_AUTO_VERTICES vertices (native/"
-       "constants.h), the crossover measured by the bench's scaling part (BENCHMARKS.md)",
-       [("auto", "Auto", "Block Jacobi on small cloths, multigrid on large ones (by vertex count)"),
+       _CORE + " (tc_solver_default): auto takes multigrid each sub-step when the stiffness ratio "
+       "(dt^2 k / m per vertex, median) times (vertices / TC_AMG_AUTO_VERTICES)^TC_AMG_AUTO_SIZE_EXPONENT "
+       "reaches TC_AMG_AUTO_STIFFNESS on a cloth of at least TC_AMG_AUTO_MIN_VERTICES vertices, and keeps "
+       "it down to 1/TC_AMG_AUTO_HYSTERESIS of that (native/constants.h: fitted to a measured table of "
+       "both solvers' time)",
+       [("auto", "Auto", "Block Jacobi on soft or coarse sheets and short steps, multigrid on stiff or "
+                         "fine ones and long steps (by the work each is predicted to need)"),
         ("jacobi", "Block Jacobi", "The inverse 3x3 diagonal blocks: cheap iterations, more of them as "
                                    "the mesh grows"),
         ("amg", "Multigrid", "Smoothed-aggregation multigrid with the rigid-body modes: about ten "

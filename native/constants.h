@@ -135,20 +135,83 @@
 #define TC_AMG_THETA 0.02
 #define TC_AMG_COARSEST 120         /* unknowns at or below which a level is the coarsest */
 #define TC_AMG_DENSE_MAX 1500       /* the coarsest level is factored when at most this big */
-#define TC_AMG_COARSE_SWEEPS 4      /* else: this many damped Jacobi steps there */
+#define TC_AMG_COARSE_SWEEPS 4      /* else: this many symmetric Gauss-Seidel sweep pairs there */
 #define TC_AMG_MIN_COARSENING 0.8   /* stop when a level keeps more than this fraction of rows */
-#define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the Jacobi damping */
-#define TC_AMG_REAGGREGATE 100      /* numeric refreshes before the aggregates are built again */
-/* Sub-steps between numeric refreshes (solver.c). Mean CPU per 1 ms step of a pinned 5,151-vertex
- * sheet: every sub-step 36-38 ms (5.5 iterations; aggregates too: 39.5 ms), every 4th 17.4 ms (6.0),
- * every 8th 12.6 ms (6.7), every 16th 15.7 ms (8.9); block Jacobi 19.2 ms (152 iterations). */
-#define TC_AMG_REFRESH 8
-/* ... or sooner, when a solve needs more than this factor (+2) times the iterations of the first
- * solve after the refresh: a held sheet pulled at 1 m/s went from 13 to 50 iterations one sub-step
- * after a refresh at rest (the tension it then carries changes the matrix most). */
-#define TC_AMG_STALE_FACTOR 1.5
-/* preconditioner "auto": multigrid from this many vertices. Same sheets, refresh 8: 1,681 vertices
- * 3.7 ms vs Jacobi 3.1 ms (68 iterations), 2,911 vertices 7.7 vs 10.4 ms (110 iterations). */
-#define TC_AMG_AUTO_VERTICES 2500
+#define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the prolongator's smoothing step */
+#define TC_AMG_REAGGREGATE 100      /* builds (new prolongators) before the aggregates are made again */
+/* Sub-steps between numeric refreshes of the coarse operators (solver.c): every TC_AMG_REFRESH
+ * sub-steps, or every one when the last solve took at least TC_AMG_REFRESH_ITERATIONS iterations
+ * (a refresh costs ~10 cycles on the kept prolongators: it pays sooner the more cycles a solve
+ * runs). Interleaved, 10K-triangle square, CPU per step: at dt 1 ms (8.5-9.5 iterations) every
+ * sub-step cost 9 % more than every 8th and every 4th the same as every 8th; at dt 4.17 ms (21
+ * iterations fresh, 27 at every 4th or 8th) every sub-step was 8-10 % cheaper than every 4th or 8th. */
+#define TC_AMG_REFRESH 4
+#define TC_AMG_REFRESH_ITERATIONS 16
+/* numeric refreshes on one set of prolongators before they are made again (RESMOOTH) */
+#define TC_AMG_RESMOOTH 8
+/* blocks of a coarse operator summed in double at a time by a refresh (its transient buffer: 288
+ * bytes a block, 4.7 MB; the operator itself is kept in float) */
+#define TC_AMG_GALERKIN_BLOCKS 16384
+/* ... or sooner: when a solve's residual falls by less than 1/this of the rate per iteration of the
+ * first solve on the current prolongators (solver.c), the coarse operators are refreshed at the
+ * next sub-step, and if the next solve is still that slow, the prolongators are made again. The
+ * rate moves by up to 2x between healthy solves of one hierarchy (the residual's make-up:
+ * 1.16-2.35 per iteration on the 10K square at dt 1 ms), so 1.5 rebuilt it every few sub-steps. */
+#define TC_AMG_STALE_FACTOR 2.5
+/* preconditioner "auto" (solver.c's choose_amg): the multigrid cycle when
+ *     stiffness ratio x (vertices / TC_AMG_AUTO_VERTICES)^TC_AMG_AUTO_SIZE_EXPONENT >= TC_AMG_AUTO_STIFFNESS
+ * on at least TC_AMG_AUTO_MIN_VERTICES vertices, the stiffness ratio being the median over free
+ * vertices of (dt^2 + dt beta) k_ii / ((1 + dt alpha) m_i). Fitted to this table: CPU per step,
+ * block Jacobi and the cycle interleaved in one process (mean of 5-30 steps after 2; both solves
+ * converged except the one marked *), the bench's square cloth held by two corners and pulled at
+ * 2 cm/s, and table1's T-shirt hung from its shoulders, one sub-step per step:
+ *   cloth (vertices)  material  dt ms  ratio      Jacobi ms (it)    cycle ms (it)   cycle/Jacobi
+ *   square (749)      cotton    1         666       1.93 (58)        2.00 (5)       1.03
+ *                               2        2632       2.41 (85)        2.50 (7)       1.04
+ *                               4.17    11308       3.66 (148)       4.14 (16)      1.13
+ *                               8       41057       7.98 (311)       7.28 (24)      0.91
+ *                     banknote  1       18285       2.72 (95)        3.12 (9)       1.15
+ *                               2       72208       3.57 (145)       4.33 (15)      1.21
+ *                               4.17   310281       5.43 (181)       5.94 (21)      1.09
+ *                               8     1126596       7.49 (286)       9.16 (35)      1.22
+ *   T-shirt (1703)    cotton    1         630       6.30 (86)        8.63 (12)      1.37
+ *                               2        2487       9.32 (146)      13.18 (16)      1.41
+ *                               4.17    10685      12.18 (218)      15.36 (22)      1.26
+ *                               8       38798      22.24 (320)      24.63 (31)      1.11
+ *                     banknote  1       17279      17.70 (284)      20.19 (29)      1.14
+ *                               2       68233      24.16 (304)      23.52 (27)      0.97
+ *                               4.17   ~290000     39.44 (380)      26.11 (33)      0.66
+ *                               8     ~1070000     51.67 (682)      31.49 (45)      0.61
+ *   square (5149)     cotton    1        4834      33.30 (152)      21.04 (9)       0.63
+ *                               2       19089      52.85 (232)      35.14 (14)      0.66
+ *                               4.17    82028      88.41 (374)      63.38 (20)      0.72
+ *                               8      297834     110.52 (480)      72.12 (27)      0.65
+ *                     banknote  1      132663      65.22 (282)      37.13 (14)      0.57
+ *                               2      523882     111.69 (488)      56.28 (19)      0.50
+ *                               4.17  2251132     180.77 (627)      79.98 (34)      0.44
+ *                               8     8173623     423.33 (1905)    107.36 (45)      0.25
+ *   square (15161)    cotton    1       14351     258.02 (303)      88.14 (10)      0.34
+ *                               2       56673     323.06 (372)     120.05 (13)      0.37
+ *                               4.17   243528     591.31 (491)     235.75 (17)      0.40
+ *                               8      884223     672.13 (776)     360.92 (19)      0.54
+ *                     banknote  1      393974     437.81 (360)     111.23 (10)      0.25
+ *                               2     1555794     918.60 (821)     194.44 (16)      0.21
+ *                               4.17  6685280    1719.48 (2544)    222.03 (26)      0.13
+ *                               8   ~24000000    8039.58 (8601*)   260.48 (30)      0.03
+ * (ratios from the same meshes at the same dt; ~ where a stepped state was not at hand: the
+ * cotton ratio x 27.5, the banknote's E / rho over cotton's). The size enters beyond the ratio:
+ * at one ratio the 5149-vertex square gains 1.6x from the cycle where the T-shirt loses 1.3x, so
+ * the bar falls steeply with the vertices; the 749-vertex square never gains more than 9 %. With
+ * the rule below every point picks the faster one but the 749-vertex square at ratio 41,057
+ * (block Jacobi, 1.10x the cycle's time); the T-shirt's banknote at dt 2 ms (multigrid, 3 % faster)
+ * is the closest call. */
+#define TC_AMG_AUTO_STIFFNESS 50000.0
+#define TC_AMG_AUTO_VERTICES 1700.0
+#define TC_AMG_AUTO_SIZE_EXPONENT 2.5
+/* ... below this many vertices block Jacobi always (the cycle's coarse levels cost as much as the
+ * fine one) */
+#define TC_AMG_AUTO_MIN_VERTICES 1000
+/* the cycle, once picked, is kept until the measure falls below the bar over this */
+#define TC_AMG_AUTO_HYSTERESIS 1.25
 
 #endif

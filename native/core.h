@@ -206,8 +206,13 @@ struct tc_cloth {
      * until a solve uses it */
     tc_amg *amg;
     int amg_age;              /* sub-steps since its numeric refresh */
-    int amg_fresh_iterations; /* iterations of the first solve after it (-1: none yet) */
-    bool amg_stale;           /* a later solve needed many more: refresh at the next sub-step */
+    int amg_last_iterations;  /* iterations of the last solve on it (how soon the next refresh pays) */
+    double amg_fresh_rate;    /* convergence of the first solve after its prolongators were made:
+                                 ln(|r0|^2 / |r|^2) per iteration (<= 0: none yet) */
+    bool amg_stale;           /* a later solve converged much slower: a refresh next sub-step, then
+                                 new prolongators if one was refreshed for it already */
+    bool amg_stale_refreshed; /* refreshed for staleness since its prolongators were made */
+    bool amg_chosen;          /* this sub-step's solves use it (solver.c's choose_amg) */
 
     /* fem.c's per-triangle slot table (derived from the rows, never part of a snapshot: rebuilt
      * when tslot_version, the rows_version it was built for, or the counts no longer match) */
@@ -355,15 +360,27 @@ void tc_amg_free(tc_amg *h);
  * aggregates unless `aggregate_again` or the mesh changed. 0, or -1 when out of memory. */
 int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again);
 bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c);
-void tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r */
+double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r; r . z */
+/* the Galerkin operators of the current matrix on the kept prolongators (0; -1: not valid for this
+ * mesh, or out of memory: the hierarchy is dropped), and how many since the prolongators were made */
+int tc_amg_refresh(tc_amg *h, const tc_cloth *c);
+int tc_amg_refreshes(const tc_amg *h);
+void tc_amg_set_run_blocks(tc_amg *h, int32_t blocks);  /* tests: the refresh's double buffer (0: default) */
+void tc_amg_forget(tc_amg *h);  /* aggregate again at the next build, no choice history (a snapshot was taken) */
+void tc_amg_drop(tc_amg *h);    /* the hierarchy's memory back; the object and its choice history kept */
+int tc_amg_choice(const tc_amg *h);             /* "auto"'s last pick: 1 multigrid, 0 Jacobi, -1 none */
+void tc_amg_set_choice(tc_amg *h, bool amg);
 int tc_amg_levels(const tc_amg *h);
 bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
 size_t tc_amg_bytes(const tc_amg *h);
-double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 against P^T S A P */
+double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 against P^T A P */
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);
 void tc_precondition_constraints_changed(tc_cloth *c);  /* after a re-built contact basis (step.c) */
+/* a snapshot is being taken: the next sub-step builds the hierarchy from scratch, as a run resumed
+ * from it does (snapshot.c), so the two step alike to the bit */
+void tc_precondition_snapshot(const tc_cloth *c);
 /* 1 when converged, 0 when stopped at the cap; iterations in *iterations (see solver.c) */
 int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations);
 

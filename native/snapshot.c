@@ -84,6 +84,10 @@ static tc_vec *vec_at(const tc_cloth *c, size_t k) { return (tc_vec *)((char *)c
 
 int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
 {
+    /* the multigrid hierarchy is derived state, not carried: a run resumed from this blob builds
+       it afresh at its next sub-step, so this one does too (else the two solve with preconditioners
+       of different ages and part at the tolerance's level) */
+    tc_precondition_snapshot(c);
     wbuf w = {0};
     unsigned char header[HEADER_BYTES] = {0};
     put(&w, header, sizeof header);  /* filled in at the end */

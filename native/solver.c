@@ -14,35 +14,95 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* Whether this cloth's solves use the multigrid cycle. AUTO: from TC_AMG_AUTO_VERTICES vertices
- * (constants.h: the measured crossover, below which block Jacobi's cheaper iterations win). */
-static bool use_amg(const tc_cloth *c)
+/* Whether this cloth's solves use the multigrid cycle: chosen once per sub-step, in
+ * tc_precondition_build (choose_amg), and read by the solves and the contact rounds after it. */
+static bool use_amg(const tc_cloth *c) { return c->amg_chosen; }
+
+/* k-th smallest of v[0..n) (quickselect; v is reordered) */
+static double select_kth(double *v, int32_t n, int32_t k)
+{
+    int32_t lo = 0, hi = n - 1;
+    while (lo < hi) {
+        const double pivot = v[lo + (hi - lo) / 2];
+        int32_t i = lo, j = hi;
+        while (i <= j) {
+            while (v[i] < pivot) i++;
+            while (v[j] > pivot) j--;
+            if (i <= j) { const double t = v[i]; v[i] = v[j]; v[j] = t; i++; j--; }
+        }
+        if (k <= j) hi = j;
+        else if (k >= i) lo = i;
+        else return v[k];
+    }
+    return v[k];
+}
+
+/* The stiffness ratio of the sub-step's matrix: the median over the free vertices of
+ * tr(A_ii) / (3 (1 + dt alpha) m_i) - 1, i.e. (dt^2 + dt beta) k_ii / m_i, the stiffness a vertex
+ * feels in one sub-step against its inertia (it grows with dt^2 and, at a fixed sheet, with the
+ * square of the mesh's refinement). Block-Jacobi CG needs about 2-3.5 sqrt(ratio) iterations
+ * (constants.h); the multigrid cycle about ten whatever the ratio. Scratch: the solver's sz. */
+static double stiffness_ratio(tc_cloth *c)
+{
+    const double *D = tc_vec_ptr(&c->diag), *m = tc_vec_ptr(&c->mass);
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    double *q = tc_vec_ptr(&c->sz);
+    int32_t n = 0;
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (fl[i] == VC_PINNED || fl[i] == VC_HANDLE || !(m[i] > 0)) continue;
+        const double *d = D + 12 * (size_t)i;
+        q[n++] = (d[0] + d[5] + d[10]) / (3.0 * c->mass_scale * m[i]) - 1.0;
+    }
+    if (!n) return 0.0;
+    const double r = select_kth(q, n, n / 2);
+    return isfinite(r) ? r : 0.0;
+}
+
+/* AUTO: the multigrid cycle when block Jacobi is predicted to cost more: its iterations grow with
+ * sqrt(stiffness ratio), and its cost per iteration against the cycle's falls behind as the cloth
+ * grows (the coarse levels' share of a cycle shrinks, the matrix leaves the cache), so the measure is
+ * the stiffness ratio times (vertices / TC_AMG_AUTO_VERTICES)^TC_AMG_AUTO_SIZE_EXPONENT against
+ * TC_AMG_AUTO_STIFFNESS (constants.h: the measured table it was fitted to), on cloths of at least
+ * TC_AMG_AUTO_MIN_VERTICES vertices. Hysteresis: the cycle, once picked, is kept down to
+ * 1/TC_AMG_AUTO_HYSTERESIS of the bar, so a cloth near it does not rebuild a hierarchy every few
+ * sub-steps as its tension moves the ratio. The history lives in the hierarchy's object, which a
+ * snapshot clears (tc_amg_forget), as a resumed run starts without one. */
+static bool choose_amg(tc_cloth *c)
 {
     if (c->solver.preconditioner == TC_PRECOND_JACOBI) return false;
     if (c->solver.preconditioner == TC_PRECOND_AMG) return true;
-    return c->nv >= TC_AMG_AUTO_VERTICES;
+    if (c->nv < TC_AMG_AUTO_MIN_VERTICES) return false;
+    const double measure = stiffness_ratio(c) * pow((double)c->nv / TC_AMG_AUTO_VERTICES, TC_AMG_AUTO_SIZE_EXPONENT);
+    if (!c->amg) c->amg = tc_amg_new();  /* small until built: it holds the history */
+    const double bar = tc_amg_choice(c->amg) == 1 ? TC_AMG_AUTO_STIFFNESS / TC_AMG_AUTO_HYSTERESIS : TC_AMG_AUTO_STIFFNESS;
+    const bool amg = measure >= bar;
+    tc_amg_set_choice(c->amg, amg);
+    return amg;
 }
 
-/* Sub-steps between numeric refreshes of the hierarchy (TC_AMG_REFRESH; the TEARCLOTH_AMG_REFRESH
- * environment variable overrides it, for the bench's comparison of the reuse policies; 0 there
- * means aggregates too are rebuilt every sub-step). */
-static int amg_refresh(void)
+/* Sub-steps between numeric refreshes of the hierarchy (TC_AMG_REFRESH) and refreshes between new
+ * prolongators (TC_AMG_RESMOOTH); the TEARCLOTH_AMG_REFRESH and TEARCLOTH_AMG_RESMOOTH environment
+ * variables override them, for the bench's comparison of the reuse policies (read at each sub-step,
+ * so two cloths of one process can be compared; 0 for REFRESH means a whole build, aggregates too,
+ * every sub-step). */
+static int env_count(const char *name, int fallback)
 {
-    static int value = -2;
-    if (value == -2) {
-        const char *e = getenv("TEARCLOTH_AMG_REFRESH");
-        int v = e ? atoi(e) : TC_AMG_REFRESH;
-        value = v >= 0 && v <= 100000 ? v : TC_AMG_REFRESH;
-    }
-    return value;
+    const char *e = getenv(name);
+    const int v = e ? atoi(e) : fallback;
+    return v >= 0 && v <= 100000 ? v : fallback;
 }
 
 static void amg_prepare(tc_cloth *c)
 {
     if (!use_amg(c)) {
-        /* switched to block Jacobi: the hierarchy's memory goes back (a switch back rebuilds it) */
-        tc_amg_free(c->amg);
-        c->amg = NULL;
+        /* block Jacobi: the hierarchy's memory goes back (a switch back rebuilds it); "auto" keeps
+           the empty object for its history */
+        if (c->solver.preconditioner == TC_PRECOND_AUTO) {
+            tc_amg_drop(c->amg);
+        } else {
+            tc_amg_free(c->amg);
+            c->amg = NULL;
+        }
         c->stats.amg_levels = 0;
         c->stats.amg_bytes = 0;
         return;
@@ -50,13 +110,25 @@ static void amg_prepare(tc_cloth *c)
     const double t0 = tc_now();
     if (!c->amg) c->amg = tc_amg_new();
     if (!c->amg) { c->stats.amg_fallbacks++; return; }
-    const int every = amg_refresh();
-    if (tc_amg_levels(c->amg) == 0 || tc_amg_needs_aggregation(c->amg, c) || c->amg_age + 1 >= (every ? every : 1) ||
-        c->amg_stale) {
+    const int every = env_count("TEARCLOTH_AMG_REFRESH", TC_AMG_REFRESH);
+    const int resmooth = env_count("TEARCLOTH_AMG_RESMOOTH", TC_AMG_RESMOOTH);
+    if (tc_amg_levels(c->amg) == 0 || !tc_amg_valid(c->amg, c) || tc_amg_needs_aggregation(c->amg, c) || every == 0 ||
+        (c->amg_stale && c->amg_stale_refreshed) || tc_amg_refreshes(c->amg) >= resmooth) {
+        /* new prolongators (and aggregates when due): after a tear, new pins or handles, a cycle
+           that stayed weak after a refresh, or every TC_AMG_RESMOOTH refreshes (the near-null
+           space follows the cloth's rotations) */
         if (tc_amg_build(c->amg, c, every == 0)) c->stats.amg_fallbacks++;
         c->amg_age = 0;
         c->amg_stale = false;
-        c->amg_fresh_iterations = -1;
+        c->amg_stale_refreshed = false;
+        c->amg_fresh_rate = 0.0;
+    } else if (c->amg_stale || c->amg_age + 1 >= (c->amg_last_iterations >= TC_AMG_REFRESH_ITERATIONS ? 1 : every)) {
+        /* a weak cycle is first refreshed (a third of a build: at 100K triangles a build after
+           every slow solve of the first, accelerating sub-steps doubled their cost) */
+        if (tc_amg_refresh(c->amg, c)) c->stats.amg_fallbacks++;
+        if (c->amg_stale) c->amg_stale_refreshed = true;
+        c->amg_stale = false;
+        c->amg_age = 0;
     } else {
         c->amg_age++;
     }
@@ -90,19 +162,23 @@ void tc_precondition_build(tc_cloth *c)
         o[3] = c01 * id; o[4] = (a[0] * a[8] - a[2] * a[6]) * id; o[5] = (a[2] * a[3] - a[0] * a[5]) * id;
         o[6] = c02 * id; o[7] = (a[1] * a[6] - a[0] * a[7]) * id; o[8] = (a[0] * a[4] - a[1] * a[3]) * id;
     }
+    c->amg_chosen = choose_amg(c);
     amg_prepare(c);
 }
 
-/* The constraints changed within a sub-step (contacts released or sliding, step.c): a multigrid
- * hierarchy built on the old filter S can lose definiteness on the new one (a held vertex, S = 0,
- * that now slides), so its numbers are refreshed for the re-solve; block Jacobi needs nothing. */
+/* The constraints changed within a sub-step (contacts released or sliding, step.c). Neither
+ * preconditioner needs anything: block Jacobi filters with the current S, and the multigrid cycle's
+ * fine Gauss-Seidel sweeps solve the filtered system exactly while its coarse operators, made with
+ * contact vertices free, stay a valid (symmetric positive) coarse correction whatever the contacts
+ * (amg.c). Kept as the step's one hook for a preconditioner that would. */
 void tc_precondition_constraints_changed(tc_cloth *c)
 {
-    if (!use_amg(c) || !tc_amg_valid(c->amg, c)) return;
-    const double t0 = tc_now();
-    if (tc_amg_build(c->amg, c, false)) c->stats.amg_fallbacks++;
-    c->amg_fresh_iterations = -1;
-    c->stats.amg_setup_seconds += tc_now() - t0;
+    (void)c;
+}
+
+void tc_precondition_snapshot(const tc_cloth *c)
+{
+    tc_amg_forget(c->amg);
 }
 
 static void precondition(const tc_cloth *c, const double *r, double *z)
@@ -238,8 +314,7 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
     const size_t n3 = 3 * (size_t)c->nv;
     double *r = tc_vec_ptr(&c->sr), *z = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp), *q = tc_vec_ptr(&c->sq);
     double rr = *rr_inout;
-    tc_amg_apply(c, c->amg, r, z);
-    double rz = dotn(r, z, n3);
+    double rz = tc_amg_apply(c, c->amg, r, z);
     memcpy(p, z, n3 * sizeof(double));
     int it = 0;
     while (it < c->solver.cg_max_iterations && rr > stop2) {
@@ -258,8 +333,7 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
         rr = r0 + r1;
         it++;
         if (rr <= stop2) break;
-        tc_amg_apply(c, c->amg, r, z);
-        const double rz2 = dotn(r, z, n3);
+        const double rz2 = tc_amg_apply(c, c->amg, r, z);
         const double beta = rz2 / rz;
         for (size_t k = 0; k < n3; k++) p[k] = z[k] + beta * p[k];
         rz = rz2;
@@ -282,12 +356,23 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     int it = 0;
     double rr = dotn(r, r, n3);
     if (use_amg(c) && tc_amg_valid(c->amg, c)) {
+        const double rr0 = rr;
         it = pcg_amg(c, v, stop2, &rr);
         if (it >= 0) {
-            /* a kept hierarchy whose cycle lost much of its strength (the tension or the contacts
-               changed a lot since) is refreshed at the next sub-step */
-            if (c->amg_fresh_iterations < 0) c->amg_fresh_iterations = it;
-            else if (it > TC_AMG_STALE_FACTOR * c->amg_fresh_iterations + 2) c->amg_stale = true;
+            /* a kept hierarchy whose cycle lost much of its strength (its residual falls by less than
+               1/TC_AMG_STALE_FACTOR of the rate per iteration of the first solve on its
+               prolongators: the cloth turned or stretched much since) is refreshed at the next
+               sub-step, and gets new prolongators if that did not help (amg_prepare). The rate,
+               not the iteration count: that one follows the warm start
+               and the load (a falling, accelerating sheet needed 2x more every other sub-step on
+               an unchanged hierarchy, and made a build every sub-step) */
+            c->amg_last_iterations = it;
+            if (it > 0 && rr > 0 && rr0 > rr) {
+                const double rate = log(rr0 / rr) / it;
+                if (!(c->amg_fresh_rate > 0)) c->amg_fresh_rate = rate;
+                else if (rate * TC_AMG_STALE_FACTOR < c->amg_fresh_rate) c->amg_stale = true;
+                else c->amg_stale_refreshed = false;  /* a refresh for staleness helped */
+            }
             *rr_out = rr;
             return it;
         }

@@ -168,12 +168,14 @@ def targets_markdown(r: dict) -> list:
     return ["## Targets", "", "| figure | this run | target | |", "|---|---|---|---|", *rows, "",
             "Where the time goes when a target is missed: the FEM solve. One step is an element pass "
             "(co-rotation, stress, forces), an assembly of 3x3 blocks into rows, and a conjugate-gradient "
-            "solve. Below 2,500 vertices (the T-shirt) it is preconditioned by the inverse diagonal blocks: "
+            "solve. On soft, coarse or small sheets at short steps (stiffness ratio dt^2 k / m, weighted "
+            "by the size, below TC_AMG_AUTO_STIFFNESS) it is preconditioned by the inverse diagonal blocks: "
             "a cotton sheet is stiff (E h = 2e4 N/m) against its areal mass, so that takes tens of "
             "iterations at 1 ms steps (17 for the square cloth, 51 for the T-shirt), each a matrix product "
             "about 2.5x its memory roofline. Above it the smoothed-aggregation multigrid of amg.c keeps the "
-            "iterations at 12-18 from 10K to 100K triangles, but each of its iterations costs about ten "
-            "Jacobi ones and its hierarchy (a copy of the fine matrix and A P while it is built) doubles the "
-            "memory per triangle; on the T-shirt it is slower than Jacobi. After 50 cuts the per-iteration "
+            "iterations near ten from 10K to 100K triangles (1.4-4x faster than Jacobi at 10K, 2-30x at 30K), "
+            "but each of its iterations costs about eight Jacobi ones plus a refresh of its coarse "
+            "operators every few sub-steps; on the T-shirt in cotton it is slower than Jacobi, and auto "
+            "keeps Jacobi there. After 50 cuts the per-iteration "
             "cost moves little; the step grows because a torn cloth moves more and the solver iterates "
             "more.", ""]
