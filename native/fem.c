@@ -511,17 +511,29 @@ TC_INLINE void stiffness_lanes(const fem_batch *in, const fem_params *pp, double
         const double sp11 = all ? sd : part ? q11 : 0.0;
         double C[6] = {0};
         if (general) ortho_rest_moduli(pp->Q, Xl[0][l], Xl[1][l], C);
-        int e = 0;
+        /* the edge blocks (0,1) (0,2) (1,2); the diagonal ones follow below */
+        static const int ea[3] = {0, 0, 1}, eb[3] = {1, 2, 2}, ee[3] = {1, 2, 4};
         TC_UNROLL
-        for (int a = 0; a < 3; a++)
+        for (int q = 0; q < 3; q++) {
+            double Bl[9];
+            element_block(gg, r, P, R, C, w, wm, wl, sp00, sp01, sp11, ea[q], eb[q], general, Bl);
             TC_UNROLL
-            for (int b = a; b < 3; b++, e++) {
-                double Bl[9];
-                element_block(gg, r, P, R, C, w, wm, wl, sp00, sp01, sp11, a, b, general, Bl);
-                TC_UNROLL
-                for (int k = 0; k < 9; k++) B[e][k][l] = Bl[k];
-            }
+            for (int k = 0; k < 9; k++) B[ee[q]][k][l] = Bl[k];
+        }
     }
+    /* A block row of an element's stiffness sums to zero (sum_b g_b = 0: every term of
+       element_block is linear in g_b, the general element's B_b too), so a diagonal block is minus
+       the others of its row (A_ba = A_ab^T): A_00 = -(A_01 + A_02), A_11 = -(A_01^T + A_12),
+       A_22 = -(A_02^T + A_12^T). 27 additions for element_block's 27 entries of ~5 operations. */
+    TC_UNROLL
+    for (int i = 0; i < 3; i++)
+        TC_UNROLL
+        for (int k = 0; k < 3; k++)
+            for (int l = 0; l < TC_LANES; l++) {
+                B[0][3 * i + k][l] = -(B[1][3 * i + k][l] + B[2][3 * i + k][l]);
+                B[3][3 * i + k][l] = -(B[1][3 * k + i][l] + B[4][3 * i + k][l]);
+                B[5][3 * i + k][l] = -(B[2][3 * k + i][l] + B[4][3 * k + i][l]);
+            }
 }
 
 /* Lane l's blocks into the rows: diagonal blocks added (columns padded to 4), edge blocks stored
@@ -752,8 +764,10 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
             const bool regular = det > TC_COLLAPSE_DET * (a + d) * (a + d);
             collapsed[l] = regular ? 0.0 : 1.0;
             const double s = sqrt(regular ? det : 1.0), t = sqrt(a + d + 2.0 * s);
-            const double S00 = (a + s) / t, S01 = b / t, S11 = (d + s) / t;
-            const double i00 = S11 / s, i01 = -S01 / s, i11 = S00 / s;
+            /* S^-1 = [[d + s, -b], [-b, a + s]] / (s t) (S = [[a + s, b], [b, d + s]] / t, det S = s):
+               one division for corotate()'s six (a vector division is ~8 cycles a lane group) */
+            const double k = 1.0 / (s * t);
+            const double i00 = (d + s) * k, i01 = -b * k, i11 = (a + s) * k;
             double R[6];
             TC_UNROLL
             for (int k = 0; k < 3; k++) {
