@@ -1144,7 +1144,17 @@ int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y)
         tc_set_err(c, "product: no system matrix for the current mesh yet (step first)");
         return TC_ERR_INPUT;
     }
-    for (size_t k = 0; k < 3 * (size_t)n; k++)
+    /* finite: an exponent field not all ones, i.e. adding 1 to it does not carry into bit 63. Tested
+       on the bits with no exit or comparison inside, the loop vectorises even with SSE2 (the
+       isfinite() loop with an early exit cost ~10 % of a T-shirt's product); the culprit is looked
+       for only when there is one */
+    uint64_t carry = 0;
+    for (size_t k = 0; k < 3 * (size_t)n; k++) {
+        uint64_t u;
+        memcpy(&u, p + k, sizeof u);
+        carry |= (u & 0x7ff0000000000000u) + 0x0010000000000000u;
+    }
+    for (size_t k = 0; (carry >> 63) && k < 3 * (size_t)n; k++)
         if (!isfinite(p[k])) { tc_set_err(c, "product: component %zu of the vector is not finite (%g)", k, p[k]); return TC_ERR_INPUT; }
     tc_matvec(c, p, y);
     return TC_OK;

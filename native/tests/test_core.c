@@ -4,6 +4,7 @@
 #include "tearcloth.h"
 #include "core.h"       /* TC_SPLIT_DEPTH; the multigrid test looks inside the cloth (amg.c) */
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -516,6 +517,24 @@ static void test_solver(void)
     }
     free(yref);
     tc_simd_select(level);
+    /* a vector with one value that is not finite is refused, and the message names that component
+       (the check tests the bits of all of them in one pass, then looks for the culprit) */
+    {
+        const double bad[4] = {NAN, INFINITY, -INFINITY, -NAN};
+        const int32_t at[4] = {0, 1, 3 * nv / 2, 3 * nv - 1};
+        for (int k = 0; k < 4; k++) {
+            const double keep = p[at[k]];
+            p[at[k]] = bad[k];
+            char want[32];
+            snprintf(want, sizeof want, "component %d ", (int)at[k]);
+            CHECK(tc_cloth_product(c, p, nv, y) == TC_ERR_INPUT && strstr(tc_cloth_error(c), want),
+                  "a %g at %d refused by name: %s", bad[k], (int)at[k], tc_cloth_error(c));
+            p[at[k]] = keep;
+        }
+        p[5] = DBL_MAX; p[6] = -DBL_MIN; p[7] = 5e-324;  /* finite extremes pass */
+        CHECK(tc_cloth_product(c, p, nv, y) == TC_OK, "finite extremes refused: %s", tc_cloth_error(c));
+        p[5] = sin(0.37 * 5); p[6] = sin(0.37 * 6); p[7] = sin(0.37 * 7);
+    }
     tc_solver_settings s = tc_cloth_solver(c);
     s.cg_max_iterations = 2;
     tc_cloth_set_solver(c, &s);
