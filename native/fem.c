@@ -592,31 +592,27 @@ TC_TARGET_AVX2 static inline void transpose4(__m256d r0, __m256d r1, __m256d r2,
     _mm256_storeu_pd(o3, _mm256_permute2f128_pd(t1, t3, 0x31));
 }
 
-/* scatter_lane for every lane of a batch, the same sums in the same order, four doubles at a time:
- * the scalar scatter's 81 read-modify-writes a triangle, many on a diagonal block the triangle
- * before had just written (a chain through store-to-load forwarding), were ~40 % of the fused
- * element pass and assembly. The batch's blocks are first turned from lanes (B[e][k][lane]) into
- * each triangle's slot order by 4x4 transposes: a diagonal block's three padded columns, an edge
- * block as its row va slot (column by column) and its row vb slot (row by row), 8 + 8 doubles and
- * the shared last value. */
+/* scatter_lane for every lane of a batch, four doubles at a time: the scalar scatter's 81
+ * read-modify-writes a triangle, many on a diagonal block the triangle before had just written (a
+ * chain through store-to-load forwarding), were ~40 % of the fused element pass and assembly. The
+ * batch's blocks are turned from lanes (B[e][k][lane]) into each triangle's slot order by 4x4
+ * transposes: a diagonal block's three padded columns, added at once for the four lanes (straight
+ * from the registers: the sums into a vertex's diagonal block may come in another order than the
+ * scalar scatter's, a rounding difference); an edge block as its row va slot (column by column)
+ * and its row vb slot (row by row), 8 + 8 doubles and the shared last value, written lane by lane
+ * in the scalar order (an edge's first triangle stores, the other adds: a triangle of the same
+ * batch may share the edge). */
 TC_TARGET_AVX2 static void scatter_batch_avx2(double *restrict D, double *restrict RB, const int32_t *tri,
                                               const int32_t *ts, const double *pb, double kbend,
                                               const double B[6][9][TC_LANES], int nl)
 {
     static const int diag_e[3] = {0, 3, 5}, edge_e[3] = {1, 2, 4};  /* (a,a); (0,1) (0,2) (1,2) */
-    enum { DIAG = 0, EDGE = 36, PER_LANE = 36 + 3 * 16 };
+    enum { PER_LANE = 3 * 16 };
     _Alignas(32) double o[TC_LANES][PER_LANE];
     const __m256d zero = _mm256_setzero_pd();
 #define TC_B(e, k) _mm256_loadu_pd(B[e][k])
-    for (int a = 0; a < 3; a++) {
-        const int e = diag_e[a];
-        for (int k = 0; k < 3; k++) {  /* column k, padded: (B[k], B[3 + k], B[6 + k], 0) */
-            const int at = DIAG + 12 * a + 4 * k;
-            transpose4(TC_B(e, k), TC_B(e, 3 + k), TC_B(e, 6 + k), zero, o[0] + at, o[1] + at, o[2] + at, o[3] + at);
-        }
-    }
     for (int q = 0; q < 3; q++) {
-        const int e = edge_e[q], at = EDGE + 16 * q;
+        const int e = edge_e[q], at = 16 * q;
         /* row va's slot holds B column by column: B0 B3 B6 B1 | B4 B7 B2 B5 | B8 */
         transpose4(TC_B(e, 0), TC_B(e, 3), TC_B(e, 6), TC_B(e, 1), o[0] + at, o[1] + at, o[2] + at, o[3] + at);
         transpose4(TC_B(e, 4), TC_B(e, 7), TC_B(e, 2), TC_B(e, 5), o[0] + at + 4, o[1] + at + 4, o[2] + at + 4,
@@ -627,18 +623,27 @@ TC_TARGET_AVX2 static void scatter_batch_avx2(double *restrict D, double *restri
         transpose4(TC_B(e, 4), TC_B(e, 5), TC_B(e, 6), TC_B(e, 7), o[0] + at + 12, o[1] + at + 12, o[2] + at + 12,
                    o[3] + at + 12);
     }
+    for (int a = 0; a < 3; a++) {
+        const int e = diag_e[a];
+        double *d[TC_LANES];
+        for (int l = 0; l < TC_LANES; l++) d[l] = D + 12 * (size_t)tri[3 * (l < nl ? l : 0) + a];
+        for (int k = 0; k < 3; k++) {  /* column k, padded: (B[k], B[3 + k], B[6 + k], 0) */
+            const __m256d r0 = TC_B(e, k), r1 = TC_B(e, 3 + k), r2 = TC_B(e, 6 + k);
+            const __m256d t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);
+            const __m256d t2 = _mm256_unpacklo_pd(r2, zero), t3 = _mm256_unpackhi_pd(r2, zero);
+            const __m256d col[TC_LANES] = {_mm256_permute2f128_pd(t0, t2, 0x20), _mm256_permute2f128_pd(t1, t3, 0x20),
+                                           _mm256_permute2f128_pd(t0, t2, 0x31), _mm256_permute2f128_pd(t1, t3, 0x31)};
+            for (int l = 0; l < nl; l++)
+                _mm256_storeu_pd(d[l] + 4 * k, _mm256_add_pd(_mm256_loadu_pd(d[l] + 4 * k), col[l]));
+        }
+    }
 #undef TC_B
     for (int l = 0; l < nl; l++) {
         const double *ol = o[l];
-        for (int a = 0; a < 3; a++) {
-            double *d = D + 12 * (size_t)tri[3 * l + a];
-            for (int k = 0; k < 3; k++)
-                _mm256_storeu_pd(d + 4 * k, _mm256_add_pd(_mm256_loadu_pd(d + 4 * k), _mm256_load_pd(ol + DIAG + 12 * a + 4 * k)));
-        }
         for (int q = 0; q < 3; q++) {
             const int32_t *s = ts + TSLOT * l + 3 * q;
             double *sa = RB + s[0], *sb = RB + s[1];
-            const double *oq = ol + EDGE + 16 * q, b8 = B[edge_e[q]][8][l];
+            const double *oq = ol + 16 * q, b8 = B[edge_e[q]][8][l];
             const __m256d a0 = _mm256_load_pd(oq), a1 = _mm256_load_pd(oq + 4);
             const __m256d b0 = _mm256_load_pd(oq + 8), b1 = _mm256_load_pd(oq + 12);
             if (s[2] & 1) {
