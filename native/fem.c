@@ -355,7 +355,9 @@ TC_INLINE void assemble_reference(tc_cloth *c, double dt, const bool general)
  * order, into slots looked up in a table built once per row pattern (tslots_update). The element
  * pass and the assembly share the batch: when both are due on the same positions (a sub-step
  * whose element state was stale) one pass over the triangles does both (tc_element_assemble).
- * They differ from the reference only in rounding (FMA): tests/test_fem_batches.py and
+ * They differ from the reference only in rounding (FMA; the corotation's S^-1 by one division; a
+ * diagonal block as minus the sum of its row's edge blocks; the AVX2 scatter's order of the sums
+ * into a diagonal block): tests/test_fem_batches.py and
  * native/tests/test_core.c hold them to 1e-12 relative. TEARCLOTH_FEM=reference selects the
  * reference loops (for comparisons; tc_fem_reference). */
 
@@ -460,7 +462,8 @@ static void fem_params_get(const tc_cloth *c, double dt, fem_params *p)
 }
 
 /* The six blocks A_{va,vb} (a <= b, in the order (0,0) (0,1) (0,2) (1,1) (1,2) (2,2)) of each lane,
- * row-major: the reference's B, same formulas (see assemble_reference for the why of each term). */
+ * row-major: the reference's B, same formulas for the edge blocks (see assemble_reference for the
+ * why of each term), the diagonal ones from them (below). */
 TC_INLINE void stiffness_lanes(const fem_batch *in, const fem_params *pp, double B[6][9][TC_LANES], const bool general)
 {
     const double lambda = pp->lambda, mu = pp->mu, ks = pp->ks, h = pp->h;
