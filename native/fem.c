@@ -1168,6 +1168,35 @@ int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y)
     return TC_OK;
 }
 
+/* y -= A q for a q that is zero but at a few vertices (a solve's prescribed velocities: pins,
+ * handles, contacts). Column j of A is row j transposed (A_kj = A_jk^T: the assembly writes both
+ * slots of a pair from the same values; a flap is a multiple of I), so each vertex with q_j != 0
+ * subtracts its diagonal block's A_jj q_j from y_j and A_jk^T q_j from each neighbour y_k: work in
+ * proportion to those vertices' rows, not the whole product (one of the three products a solve
+ * did besides its iterations). The sums come in another order than the full product's. */
+TC_HOT void tc_matvec_sub_sparse(const tc_cloth *c, const double *restrict q, double *restrict y)
+{
+    const double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
+    const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
+    for (int32_t j = 0; j < c->nv; j++) {
+        const double *qj = q + 3 * (size_t)j;
+        if (qj[0] == 0.0 && qj[1] == 0.0 && qj[2] == 0.0) continue;
+        const double *d = D + 12 * (size_t)j;  /* columns padded to 4 */
+        double *yj = y + 3 * (size_t)j;
+        for (int r = 0; r < 3; r++) yj[r] -= d[r] * qj[0] + d[4 + r] * qj[1] + d[8 + r] * qj[2];
+        for (int32_t s = rp[j]; s < rp[j + 1]; s++) {
+            const double *b = RB + 9 * (size_t)s;  /* A_jk column by column: A_kj's rows */
+            double *yk = y + 3 * (size_t)rc[s];
+            for (int r = 0; r < 3; r++) yk[r] -= b[3 * r] * qj[0] + b[3 * r + 1] * qj[1] + b[3 * r + 2] * qj[2];
+        }
+        for (int32_t s = fp[j]; s < fp[j + 1]; s++) {
+            const double f = FV[s];
+            double *yk = y + 3 * (size_t)fc[s];
+            for (int r = 0; r < 3; r++) yk[r] -= f * qj[r];
+        }
+    }
+}
+
 double tc_matvec(const tc_cloth *c, const double *restrict p, double *restrict y)
 {
     const rows_view m = {tc_vec_ptr(&c->diag), tc_vec_ptr(&c->rblk), tc_vec_ptr(&c->fval), tc_vec_ptr(&c->rptr),

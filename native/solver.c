@@ -434,9 +434,9 @@ int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, doubl
     for (int32_t i = 0; i < c->nv && !constrained; i++) constrained = fl[i] != VC_FREE;
     if (constrained) {
         memset(q, 0, n3 * sizeof(double));
-        tc_constraint_project(c, q, fixu);  /* the prescribed part alone */
-        tc_matvec(c, q, r);
-        for (size_t k = 0; k < n3; k++) r[k] = rhs[k] - r[k];
+        tc_constraint_project(c, q, fixu);  /* the prescribed part alone: zero at the free vertices */
+        memcpy(r, rhs, n3 * sizeof(double));
+        tc_matvec_sub_sparse(c, q, r);
     } else {
         memcpy(r, rhs, n3 * sizeof(double));
     }
