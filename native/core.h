@@ -306,6 +306,8 @@ int tc_element_assemble(tc_cloth *c, const double *x, double dt, double *worst);
 extern int tc_fem_reference;
 /* y = A p; returns p . y (the CG's curvature, fused into the product). */
 double tc_matvec(const tc_cloth *c, const double *p, double *y);
+/* y -= A q, at a cost in proportion to the rows of the vertices where q is not zero */
+void tc_matvec_sub_sparse(const tc_cloth *c, const double *q, double *y);
 /* A triangle's world stress S = R sigma R^T (3x3 row-major) and the world direction of its largest
  * principal stress, from its rotation R (3x2, rot) and 2-D stress sigma (xx, yy, xy; sig). Derived
  * where read (tearing, the arrays of tc_cloth_array) instead of stored by the element pass: 12

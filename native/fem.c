@@ -13,6 +13,18 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* x86-64: the AVX2 kernels below (the assembly's scatter, the product), picked at run time */
+#if defined(__x86_64__) || defined(_M_X64)
+#define TC_X86_64 1
+#include <immintrin.h>
+#if defined(__GNUC__) || defined(__clang__)
+#include <cpuid.h>
+#define TC_TARGET_AVX2 __attribute__((target("avx2,fma")))
+#else
+#define TC_TARGET_AVX2 /* MSVC compiles AVX2 intrinsics without a flag */
+#endif
+#endif
+
 static inline void lame(const tc_material *m, double *lambda, double *mu)
 {
     /* plane-stress Lame constants */
@@ -343,7 +355,9 @@ TC_INLINE void assemble_reference(tc_cloth *c, double dt, const bool general)
  * order, into slots looked up in a table built once per row pattern (tslots_update). The element
  * pass and the assembly share the batch: when both are due on the same positions (a sub-step
  * whose element state was stale) one pass over the triangles does both (tc_element_assemble).
- * They differ from the reference only in rounding (FMA): tests/test_fem_batches.py and
+ * They differ from the reference only in rounding (FMA; the corotation's S^-1 by one division; a
+ * diagonal block as minus the sum of its row's edge blocks; the AVX2 scatter's order of the sums
+ * into a diagonal block): tests/test_fem_batches.py and
  * native/tests/test_core.c hold them to 1e-12 relative. TEARCLOTH_FEM=reference selects the
  * reference loops (for comparisons; tc_fem_reference). */
 
@@ -448,7 +462,8 @@ static void fem_params_get(const tc_cloth *c, double dt, fem_params *p)
 }
 
 /* The six blocks A_{va,vb} (a <= b, in the order (0,0) (0,1) (0,2) (1,1) (1,2) (2,2)) of each lane,
- * row-major: the reference's B, same formulas (see assemble_reference for the why of each term). */
+ * row-major: the reference's B, same formulas for the edge blocks (see assemble_reference for the
+ * why of each term), the diagonal ones from them (below). */
 TC_INLINE void stiffness_lanes(const fem_batch *in, const fem_params *pp, double B[6][9][TC_LANES], const bool general)
 {
     const double lambda = pp->lambda, mu = pp->mu, ks = pp->ks, h = pp->h;
@@ -499,17 +514,29 @@ TC_INLINE void stiffness_lanes(const fem_batch *in, const fem_params *pp, double
         const double sp11 = all ? sd : part ? q11 : 0.0;
         double C[6] = {0};
         if (general) ortho_rest_moduli(pp->Q, Xl[0][l], Xl[1][l], C);
-        int e = 0;
+        /* the edge blocks (0,1) (0,2) (1,2); the diagonal ones follow below */
+        static const int ea[3] = {0, 0, 1}, eb[3] = {1, 2, 2}, ee[3] = {1, 2, 4};
         TC_UNROLL
-        for (int a = 0; a < 3; a++)
+        for (int q = 0; q < 3; q++) {
+            double Bl[9];
+            element_block(gg, r, P, R, C, w, wm, wl, sp00, sp01, sp11, ea[q], eb[q], general, Bl);
             TC_UNROLL
-            for (int b = a; b < 3; b++, e++) {
-                double Bl[9];
-                element_block(gg, r, P, R, C, w, wm, wl, sp00, sp01, sp11, a, b, general, Bl);
-                TC_UNROLL
-                for (int k = 0; k < 9; k++) B[e][k][l] = Bl[k];
-            }
+            for (int k = 0; k < 9; k++) B[ee[q]][k][l] = Bl[k];
+        }
     }
+    /* A block row of an element's stiffness sums to zero (sum_b g_b = 0: every term of
+       element_block is linear in g_b, the general element's B_b too), so a diagonal block is minus
+       the others of its row (A_ba = A_ab^T): A_00 = -(A_01 + A_02), A_11 = -(A_01^T + A_12),
+       A_22 = -(A_02^T + A_12^T). 27 additions for element_block's 27 entries of ~5 operations. */
+    TC_UNROLL
+    for (int i = 0; i < 3; i++)
+        TC_UNROLL
+        for (int k = 0; k < 3; k++)
+            for (int l = 0; l < TC_LANES; l++) {
+                B[0][3 * i + k][l] = -(B[1][3 * i + k][l] + B[2][3 * i + k][l]);
+                B[3][3 * i + k][l] = -(B[1][3 * k + i][l] + B[4][3 * i + k][l]);
+                B[5][3 * i + k][l] = -(B[2][3 * k + i][l] + B[4][3 * k + i][l]);
+            }
 }
 
 /* Lane l's blocks into the rows: diagonal blocks added (columns padded to 4), edge blocks stored
@@ -555,6 +582,97 @@ TC_INLINE void scatter_lane(double *restrict D, double *restrict RB, const int32
     }
 }
 
+#ifdef TC_X86_64
+/* o[l] = (r0[l], r1[l], r2[l], r3[l]): four lanes of four quantities into four per-lane vectors */
+TC_TARGET_AVX2 static inline void transpose4(__m256d r0, __m256d r1, __m256d r2, __m256d r3, double *o0, double *o1,
+                                             double *o2, double *o3)
+{
+    const __m256d t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);
+    const __m256d t2 = _mm256_unpacklo_pd(r2, r3), t3 = _mm256_unpackhi_pd(r2, r3);
+    _mm256_storeu_pd(o0, _mm256_permute2f128_pd(t0, t2, 0x20));
+    _mm256_storeu_pd(o1, _mm256_permute2f128_pd(t1, t3, 0x20));
+    _mm256_storeu_pd(o2, _mm256_permute2f128_pd(t0, t2, 0x31));
+    _mm256_storeu_pd(o3, _mm256_permute2f128_pd(t1, t3, 0x31));
+}
+
+/* scatter_lane for every lane of a batch, four doubles at a time: the scalar scatter's 81
+ * read-modify-writes a triangle, many on a diagonal block the triangle before had just written (a
+ * chain through store-to-load forwarding), were ~40 % of the fused element pass and assembly. The
+ * batch's blocks are turned from lanes (B[e][k][lane]) into each triangle's slot order by 4x4
+ * transposes: a diagonal block's three padded columns, added at once for the four lanes (straight
+ * from the registers: the sums into a vertex's diagonal block may come in another order than the
+ * scalar scatter's, a rounding difference); an edge block as its row va slot (column by column)
+ * and its row vb slot (row by row), 8 + 8 doubles and the shared last value, written lane by lane
+ * in the scalar order (an edge's first triangle stores, the other adds: a triangle of the same
+ * batch may share the edge). */
+TC_TARGET_AVX2 static void scatter_batch_avx2(double *restrict D, double *restrict RB, const int32_t *tri,
+                                              const int32_t *ts, const double *pb, double kbend,
+                                              const double B[6][9][TC_LANES], int nl)
+{
+    static const int diag_e[3] = {0, 3, 5}, edge_e[3] = {1, 2, 4};  /* (a,a); (0,1) (0,2) (1,2) */
+    enum { PER_LANE = 3 * 16 };
+    _Alignas(32) double o[TC_LANES][PER_LANE];
+    const __m256d zero = _mm256_setzero_pd();
+#define TC_B(e, k) _mm256_loadu_pd(B[e][k])
+    for (int q = 0; q < 3; q++) {
+        const int e = edge_e[q], at = 16 * q;
+        /* row va's slot holds B column by column: B0 B3 B6 B1 | B4 B7 B2 B5 | B8 */
+        transpose4(TC_B(e, 0), TC_B(e, 3), TC_B(e, 6), TC_B(e, 1), o[0] + at, o[1] + at, o[2] + at, o[3] + at);
+        transpose4(TC_B(e, 4), TC_B(e, 7), TC_B(e, 2), TC_B(e, 5), o[0] + at + 4, o[1] + at + 4, o[2] + at + 4,
+                   o[3] + at + 4);
+        /* row vb's slot holds B^T column by column, i.e. B row by row: B0 .. B3 | B4 .. B7 | B8 */
+        transpose4(TC_B(e, 0), TC_B(e, 1), TC_B(e, 2), TC_B(e, 3), o[0] + at + 8, o[1] + at + 8, o[2] + at + 8,
+                   o[3] + at + 8);
+        transpose4(TC_B(e, 4), TC_B(e, 5), TC_B(e, 6), TC_B(e, 7), o[0] + at + 12, o[1] + at + 12, o[2] + at + 12,
+                   o[3] + at + 12);
+    }
+    for (int a = 0; a < 3; a++) {
+        const int e = diag_e[a];
+        double *d[TC_LANES];
+        for (int l = 0; l < TC_LANES; l++) d[l] = D + 12 * (size_t)tri[3 * (l < nl ? l : 0) + a];
+        for (int k = 0; k < 3; k++) {  /* column k, padded: (B[k], B[3 + k], B[6 + k], 0) */
+            const __m256d r0 = TC_B(e, k), r1 = TC_B(e, 3 + k), r2 = TC_B(e, 6 + k);
+            const __m256d t0 = _mm256_unpacklo_pd(r0, r1), t1 = _mm256_unpackhi_pd(r0, r1);
+            const __m256d t2 = _mm256_unpacklo_pd(r2, zero), t3 = _mm256_unpackhi_pd(r2, zero);
+            const __m256d col[TC_LANES] = {_mm256_permute2f128_pd(t0, t2, 0x20), _mm256_permute2f128_pd(t1, t3, 0x20),
+                                           _mm256_permute2f128_pd(t0, t2, 0x31), _mm256_permute2f128_pd(t1, t3, 0x31)};
+            for (int l = 0; l < nl; l++)
+                _mm256_storeu_pd(d[l] + 4 * k, _mm256_add_pd(_mm256_loadu_pd(d[l] + 4 * k), col[l]));
+        }
+    }
+#undef TC_B
+    for (int l = 0; l < nl; l++) {
+        const double *ol = o[l];
+        for (int q = 0; q < 3; q++) {
+            const int32_t *s = ts + TSLOT * l + 3 * q;
+            double *sa = RB + s[0], *sb = RB + s[1];
+            const double *oq = ol + 16 * q, b8 = B[edge_e[q]][8][l];
+            const __m256d a0 = _mm256_load_pd(oq), a1 = _mm256_load_pd(oq + 4);
+            const __m256d b0 = _mm256_load_pd(oq + 8), b1 = _mm256_load_pd(oq + 12);
+            if (s[2] & 1) {
+                /* the edge's first triangle stores, with the pair's bending part on the diagonal
+                   (flat 0, 4, 8 of a 3x3 block either way) */
+                const double bend = kbend * pb[s[2] >> 1];
+                const __m256d dg = _mm256_set_pd(0.0, 0.0, 0.0, bend);
+                _mm256_storeu_pd(sa, _mm256_add_pd(dg, a0));
+                _mm256_storeu_pd(sa + 4, _mm256_add_pd(dg, a1));
+                sa[8] = bend + b8;
+                _mm256_storeu_pd(sb, _mm256_add_pd(dg, b0));
+                _mm256_storeu_pd(sb + 4, _mm256_add_pd(dg, b1));
+                sb[8] = bend + b8;
+            } else {
+                _mm256_storeu_pd(sa, _mm256_add_pd(_mm256_loadu_pd(sa), a0));
+                _mm256_storeu_pd(sa + 4, _mm256_add_pd(_mm256_loadu_pd(sa + 4), a1));
+                sa[8] += b8;
+                _mm256_storeu_pd(sb, _mm256_add_pd(_mm256_loadu_pd(sb), b0));
+                _mm256_storeu_pd(sb + 4, _mm256_add_pd(_mm256_loadu_pd(sb + 4), b1));
+                sb[8] += b8;
+            }
+        }
+    }
+}
+#endif
+
 /* Before the triangles: diagonal blocks cleared to mass and bending, flaps and the edge pairs no
  * triangle writes (none in a consistent mesh) set to their bending part. */
 static void assemble_begin(tc_cloth *c, const fem_params *pp)
@@ -587,11 +705,17 @@ TC_INLINE void assemble_batch(tc_cloth *c, const fem_params *pp, int32_t t0, int
 {
     fem_tail tail;
     const fem_batch in = batch_at(c, t0, nl, general, &tail);
-    double B[6][9][TC_LANES];
+    _Alignas(32) double B[6][9][TC_LANES];
     stiffness_lanes(&in, pp, B, general);
     const double kbend = pp->ks * pp->kb, *pb = tc_vec_ptr(&c->pbend);
     const int32_t *T = tc_vec_ptr(&c->tri);
     double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk);
+#ifdef TC_X86_64
+    if (tc_simd_level() == TC_SIMD_AVX2) {
+        scatter_batch_avx2(D, RB, T + 3 * (size_t)t0, c->tslot + TSLOT * (size_t)t0, pb, kbend, B, nl);
+        return;
+    }
+#endif
     for (int l = 0; l < nl; l++) {
         const size_t t = (size_t)(t0 + l);
         scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
@@ -648,8 +772,10 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
             const bool regular = det > TC_COLLAPSE_DET * (a + d) * (a + d);
             collapsed[l] = regular ? 0.0 : 1.0;
             const double s = sqrt(regular ? det : 1.0), t = sqrt(a + d + 2.0 * s);
-            const double S00 = (a + s) / t, S01 = b / t, S11 = (d + s) / t;
-            const double i00 = S11 / s, i01 = -S01 / s, i11 = S00 / s;
+            /* S^-1 = [[d + s, -b], [-b, a + s]] / (s t) (S = [[a + s, b], [b, d + s]] / t, det S = s):
+               one division for corotate()'s six (a vector division is ~8 cycles a lane group) */
+            const double k = 1.0 / (s * t);
+            const double i00 = (d + s) * k, i01 = -b * k, i11 = (a + s) * k;
             double R[6];
             TC_UNROLL
             for (int k = 0; k < 3; k++) {
@@ -821,12 +947,7 @@ static double matvec_scalar(const rows_view *m, const double *restrict p, double
     return dot;
 }
 
-#if defined(__x86_64__) || defined(_M_X64)
-#define TC_X86_64 1
-#include <immintrin.h>
-#if defined(__GNUC__) || defined(__clang__)
-#include <cpuid.h>
-#endif
+#ifdef TC_X86_64
 
 static double matvec_sse2(const rows_view *m, const double *restrict p, double *restrict y)
 {
@@ -863,11 +984,9 @@ static double matvec_sse2(const rows_view *m, const double *restrict p, double *
     return dot;
 }
 
-#if defined(__GNUC__) || defined(__clang__)
-#define TC_TARGET_AVX2 __attribute__((target("avx2,fma")))
-#else
-#define TC_TARGET_AVX2 /* MSVC compiles AVX2 intrinsics without a flag */
-#endif
+/* Doubles of the block stream the AVX2 product prefetches ahead of the pair it reads (~7 blocks:
+ * 64 and 128 measured alike, 32 gained nothing). */
+#define TC_PREFETCH_AHEAD 64
 
 /* The three components of vertex j as a 4-lane load; the last vertex's would read past the array,
  * so it alone is a masked load (a branch that is almost never taken: predicted). */
@@ -876,32 +995,39 @@ TC_TARGET_AVX2 static inline __m256d vertex_load(const double *p, int32_t j, int
     return j < last ? _mm256_loadu_pd(p + 3 * (size_t)j) : _mm256_maskload_pd(p + 3 * (size_t)j, m3);
 }
 
-/* The AVX2 product was bound by the latency of its FMA chains, not by the bytes it streams: with
- * two accumulators, the busier one chained ~15 dependent FMAs a row (the diagonal, half the edge
- * blocks' columns and every flap), ~60 cycles, about the 22 ns a row measured for the T-shirt
- * (37 us for 1,703 rows; its bytes need ~9 us from L2). So every block column of a pair of edge
- * blocks, and every flap of a group of three, feeds an accumulator of its own (six chains of
- * ~4-5 FMAs a row; measured 0.7x the time of the two-accumulator kernel), summed at the row's end,
- * and the curvature p.Ap is taken in vector lanes (no reload of the stored row). */
+/* The AVX2 product. Every block column of a pair of edge blocks, and every flap of a pair, feeds an
+ * accumulator of its own (six chains of ~3 FMAs a row: with two accumulators the busier one
+ * chained ~15 dependent FMAs a row, ~60 cycles, and bound the kernel), summed at the row's end,
+ * and the curvature p.Ap is taken in vector lanes (no reload of the stored row). What bounds it
+ * now is the issue of its instructions (~6 per block column and flap: the broadcast of the x
+ * component, the FMA with the block's column, the index and its address) and, on a core whose
+ * sibling thread is busy, the L2 it then shares: so the row's blocks and flaps are walked by
+ * pointer (the index-based loop kept spilling its bounds), and the block stream is prefetched
+ * TC_PREFETCH_AHEAD doubles ahead (measured 0.88x the time of the kernel before, T-shirt, quiet
+ * core; equal when the sibling thread evicts the matrix from L2 and the product streams from L3). */
 TC_TARGET_AVX2 static double matvec_avx2(const rows_view *m, const double *restrict p, double *restrict y)
 {
-    const double *restrict D = m->D, *restrict RB = m->RB, *restrict FV = m->FV;
-    const int32_t *restrict rp = m->rp, *restrict rc = m->rc, *restrict fp = m->fp, *restrict fc = m->fc;
+    const double *restrict D = m->D;
+    const int32_t *restrict rp = m->rp, *restrict fp = m->fp;
     const __m256i m3 = _mm256_set_epi64x(0, -1, -1, -1);  /* the three lanes of a vertex */
     __m256d dot0 = _mm256_setzero_pd(), dot1 = _mm256_setzero_pd();
     const __m256d keep = _mm256_castsi256_pd(m3);
-    const int32_t last = m->nv - 1;
-    int32_t s = rp[0], f = fp[0];
-    for (int32_t i = 0; i < m->nv; i++) {
+    const int32_t nv = m->nv, last = nv - 1;
+    const double *restrict b = m->RB + 9 * (size_t)rp[0], *restrict fv = m->FV + fp[0];
+    const int32_t *restrict c = m->rc + rp[0], *restrict fc = m->fc + fp[0];
+    for (int32_t i = 0; i < nv; i++) {
         const double *d = D + 12 * (size_t)i, *x = p + 3 * (size_t)i;
         const __m256d x0 = _mm256_broadcast_sd(x), x1 = _mm256_broadcast_sd(x + 1), x2 = _mm256_broadcast_sd(x + 2);
         __m256d a0 = _mm256_mul_pd(_mm256_loadu_pd(d), x0);
         __m256d a1 = _mm256_mul_pd(_mm256_loadu_pd(d + 4), x1);
         __m256d a2 = _mm256_mul_pd(_mm256_loadu_pd(d + 8), x2);
         __m256d a3 = _mm256_setzero_pd(), a4 = _mm256_setzero_pd(), a5 = _mm256_setzero_pd();
-        const int32_t e = rp[i + 1];
-        for (; s + 1 < e; s += 2) {
-            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s], *xk = p + 3 * (size_t)rc[s + 1];
+        const int32_t *ce = m->rc + rp[i + 1];
+        for (; c + 1 < ce; c += 2, b += 18) {
+            const double *xj = p + 3 * (size_t)c[0], *xk = p + 3 * (size_t)c[1];
+            /* two blocks are 2.25 cache lines: two prefetches keep up */
+            _mm_prefetch((const char *)(b + TC_PREFETCH_AHEAD), _MM_HINT_T0);
+            _mm_prefetch((const char *)(b + TC_PREFETCH_AHEAD + 8), _MM_HINT_T0);
             a0 = _mm256_fmadd_pd(_mm256_loadu_pd(b), _mm256_broadcast_sd(xj), a0);
             a1 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 3), _mm256_broadcast_sd(xj + 1), a1);
             a2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 6), _mm256_broadcast_sd(xj + 2), a2);
@@ -909,20 +1035,24 @@ TC_TARGET_AVX2 static double matvec_avx2(const rows_view *m, const double *restr
             a4 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 12), _mm256_broadcast_sd(xk + 1), a4);
             a5 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 15), _mm256_broadcast_sd(xk + 2), a5);
         }
-        if (s < e) {
-            const double *b = RB + 9 * (size_t)s, *xj = p + 3 * (size_t)rc[s];
+        if (c < ce) {
+            const double *xj = p + 3 * (size_t)c[0];
             a0 = _mm256_fmadd_pd(_mm256_loadu_pd(b), _mm256_broadcast_sd(xj), a0);
             a1 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 3), _mm256_broadcast_sd(xj + 1), a1);
             a2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 6), _mm256_broadcast_sd(xj + 2), a2);
-            s++;
+            c++;
+            b += 9;
         }
-        const int32_t fe = fp[i + 1];
-        for (; f + 2 < fe; f += 3) {
-            a3 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f), vertex_load(p, fc[f], last, m3), a3);
-            a4 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f + 1), vertex_load(p, fc[f + 1], last, m3), a4);
-            a5 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f + 2), vertex_load(p, fc[f + 2], last, m3), a5);
+        const int32_t *fe = m->fc + fp[i + 1];
+        for (; fc + 1 < fe; fc += 2, fv += 2) {
+            a3 = _mm256_fmadd_pd(_mm256_broadcast_sd(fv), vertex_load(p, fc[0], last, m3), a3);
+            a4 = _mm256_fmadd_pd(_mm256_broadcast_sd(fv + 1), vertex_load(p, fc[1], last, m3), a4);
         }
-        for (; f < fe; f++) a0 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f), vertex_load(p, fc[f], last, m3), a0);
+        if (fc < fe) {
+            a5 = _mm256_fmadd_pd(_mm256_broadcast_sd(fv), vertex_load(p, fc[0], last, m3), a5);
+            fc++;
+            fv++;
+        }
         /* lane 3 holds products of the next column's (or vertex's) first values: never stored, and
            cleared before the curvature's sum */
         const __m256d acc = _mm256_and_pd(
@@ -1022,10 +1152,49 @@ int tc_cloth_product(tc_cloth *c, const double *p, int32_t n, double *y)
         tc_set_err(c, "product: no system matrix for the current mesh yet (step first)");
         return TC_ERR_INPUT;
     }
-    for (size_t k = 0; k < 3 * (size_t)n; k++)
+    /* finite: an exponent field not all ones, i.e. adding 1 to it does not carry into bit 63. Tested
+       on the bits with no exit or comparison inside, the loop vectorises even with SSE2 (the
+       isfinite() loop with an early exit cost ~10 % of a T-shirt's product); the culprit is looked
+       for only when there is one */
+    uint64_t carry = 0;
+    for (size_t k = 0; k < 3 * (size_t)n; k++) {
+        uint64_t u;
+        memcpy(&u, p + k, sizeof u);
+        carry |= (u & 0x7ff0000000000000u) + 0x0010000000000000u;
+    }
+    for (size_t k = 0; (carry >> 63) && k < 3 * (size_t)n; k++)
         if (!isfinite(p[k])) { tc_set_err(c, "product: component %zu of the vector is not finite (%g)", k, p[k]); return TC_ERR_INPUT; }
     tc_matvec(c, p, y);
     return TC_OK;
+}
+
+/* y -= A q for a q that is zero but at a few vertices (a solve's prescribed velocities: pins,
+ * handles, contacts). Column j of A is row j transposed (A_kj = A_jk^T: the assembly writes both
+ * slots of a pair from the same values; a flap is a multiple of I), so each vertex with q_j != 0
+ * subtracts its diagonal block's A_jj q_j from y_j and A_jk^T q_j from each neighbour y_k: work in
+ * proportion to those vertices' rows, not the whole product (one of the three products a solve
+ * did besides its iterations). The sums come in another order than the full product's. */
+TC_HOT void tc_matvec_sub_sparse(const tc_cloth *c, const double *restrict q, double *restrict y)
+{
+    const double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
+    const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
+    for (int32_t j = 0; j < c->nv; j++) {
+        const double *qj = q + 3 * (size_t)j;
+        if (qj[0] == 0.0 && qj[1] == 0.0 && qj[2] == 0.0) continue;
+        const double *d = D + 12 * (size_t)j;  /* columns padded to 4 */
+        double *yj = y + 3 * (size_t)j;
+        for (int r = 0; r < 3; r++) yj[r] -= d[r] * qj[0] + d[4 + r] * qj[1] + d[8 + r] * qj[2];
+        for (int32_t s = rp[j]; s < rp[j + 1]; s++) {
+            const double *b = RB + 9 * (size_t)s;  /* A_jk column by column: A_kj's rows */
+            double *yk = y + 3 * (size_t)rc[s];
+            for (int r = 0; r < 3; r++) yk[r] -= b[3 * r] * qj[0] + b[3 * r + 1] * qj[1] + b[3 * r + 2] * qj[2];
+        }
+        for (int32_t s = fp[j]; s < fp[j + 1]; s++) {
+            const double f = FV[s];
+            double *yk = y + 3 * (size_t)fc[s];
+            for (int r = 0; r < 3; r++) yk[r] -= f * qj[r];
+        }
+    }
 }
 
 double tc_matvec(const tc_cloth *c, const double *restrict p, double *restrict y)

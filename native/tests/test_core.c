@@ -4,6 +4,7 @@
 #include "tearcloth.h"
 #include "core.h"       /* TC_SPLIT_DEPTH; the multigrid test looks inside the cloth (amg.c) */
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -516,6 +517,43 @@ static void test_solver(void)
     }
     free(yref);
     tc_simd_select(level);
+    /* a vector with one value that is not finite is refused, and the message names that component
+       (the check tests the bits of all of them in one pass, then looks for the culprit) */
+    {
+        const double bad[4] = {NAN, INFINITY, -INFINITY, -NAN};
+        const int32_t at[4] = {0, 1, 3 * nv / 2, 3 * nv - 1};
+        for (int k = 0; k < 4; k++) {
+            const double keep = p[at[k]];
+            p[at[k]] = bad[k];
+            char want[32];
+            snprintf(want, sizeof want, "component %d ", (int)at[k]);
+            CHECK(tc_cloth_product(c, p, nv, y) == TC_ERR_INPUT && strstr(tc_cloth_error(c), want),
+                  "a %g at %d refused by name: %s", bad[k], (int)at[k], tc_cloth_error(c));
+            p[at[k]] = keep;
+        }
+        p[5] = DBL_MAX; p[6] = -DBL_MIN; p[7] = 5e-324;  /* finite extremes pass */
+        CHECK(tc_cloth_product(c, p, nv, y) == TC_OK, "finite extremes refused: %s", tc_cloth_error(c));
+        p[5] = sin(0.37 * 5); p[6] = sin(0.37 * 6); p[7] = sin(0.37 * 7);
+    }
+    /* y -= A q from the rows of the vertices where q is not zero (the solve's prescribed part) is
+       the full product's, after a tear rebuilt the rows: a few vertices, a boundary one, the last */
+    {
+        double *qs = calloc(3 * (size_t)nv, sizeof *qs), *ys = malloc(3 * (size_t)nv * sizeof *ys);
+        const int32_t at[5] = {0, 7, nv / 3, nv / 2 + 1, nv - 1};
+        for (int k = 0; k < 5; k++)
+            for (int r = 0; r < 3; r++) qs[3 * at[k] + r] = cos(1.3 * k + r);
+        qs[3 * at[1] + 1] = 0.0;  /* a vertex with a zero component still counts */
+        tc_matvec(c, qs, y);
+        for (int32_t k = 0; k < 3 * nv; k++) ys[k] = sin(0.5 * k);
+        tc_matvec_sub_sparse(c, qs, ys);
+        double worst = 0.0, scale = 0.0;
+        for (int32_t k = 0; k < 3 * nv; k++) {
+            worst = fmax(worst, fabs(ys[k] - (sin(0.5 * k) - y[k])));
+            scale = fmax(scale, fabs(y[k]));
+        }
+        CHECK(scale > 0 && worst <= 1e-12 * scale, "sparse y -= A q off the full product by %.3g of %.3g", worst, scale);
+        free(qs); free(ys);
+    }
     tc_solver_settings s = tc_cloth_solver(c);
     s.cg_max_iterations = 2;
     tc_cloth_set_solver(c, &s);
