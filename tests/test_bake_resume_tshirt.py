@@ -53,10 +53,12 @@ def run_until(out: Path, frame: int, sig: int) -> subprocess.CompletedProcess:
     return signal_at(command(out), out, f"tshirt/TShirt_frames/frame_{frame:06d}.usdc", sig, timeout=600)
 
 
-def resume(out: Path, after: int) -> dict:
+def resume(out: Path, after) -> dict:
+    """Run the bake again; it must resume after one of the frames ``after`` (an int or a tuple)."""
+    allowed = (after,) if isinstance(after, int) else tuple(after)
     again = subprocess.run(command(out), capture_output=True, text=True, timeout=600)
     assert again.returncode == 0, again.stderr[-3000:]
-    assert f"resuming the partial bake after frame {after}" in again.stderr, again.stderr[-3000:]
+    assert any(f"resuming the partial bake after frame {a}" in again.stderr for a in allowed), again.stderr[-3000:]
     info = cache.cache_info(root(out))
     assert info["complete"] and info["frames"] == list(range(1, LAST + 1))
     return frames_of(root(out))
@@ -96,10 +98,11 @@ def test_tshirt_killed_cancelled_and_resumed_equals_the_uninterrupted_bake(tmp_p
     assert crashed.returncode == -signal.SIGKILL
     after = cache.cache_info(root(killed))["frames"][-1]
     # the kill lands once frame 82's file exists; the root lists a frame only after its file is
-    # complete, so a kill between the two leaves 81 as the last complete frame (seen once on a
-    # loaded machine): the resume then continues after 81, which is what must equal the reference
+    # complete, so a kill between the two leaves 81 as the last listed frame (seen on a loaded
+    # machine). The resume repairs such a root: it takes frame 82's file when that file is whole
+    # (seen twice under load), else it continues after 81; either must equal the reference.
     assert KILL_AT - 1 <= after < LAST
-    assert_same(resume(killed, after), reference, "SIGKILL at frame %d" % after)
+    assert_same(resume(killed, (after, after + 1)), reference, "SIGKILL at frame %d" % after)
 
     # the operator's path (the modal bake's worker thread, ticked here without a window) on the
     # torn state: Bake with resume, Esc once a frame more is baked, Bake with resume again
