@@ -454,6 +454,13 @@ class ClusterBVH:
     def rebuild(self, triangles):
         """Nothing to do after unpickling: the trees are plain arrays."""
 
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if self.__dict__.get("built") and "corner" not in state:
+            # saved before the trees kept their corners: refitted (and so written) at the next cast
+            self.corner = np.zeros((self.prim.size, 9))
+            self.refit_step = np.full(self.refit_step.size, -1, np.int64)
+
     def build(self, positions, triangles):
         k = self.ptr.size - 1
         rows = self.tri.size
@@ -464,6 +471,7 @@ class ClusterBVH:
         used = _collide.bvh_build(positions=positions, triangles=triangles, scene_ptr=self.ptr,
                                   scene_triangles=self.tri, node_ptr=self.node_ptr, node=node, box=box, prim=self.prim)
         self.node, self.box = node[:used].copy(), box[:used].copy()
+        self.corner = np.zeros((rows, 9))  # each prim's corners, written by its refit (bvh.c)
         self.refit_step = np.full(k, -1, np.int64)
         self.built = True
         self.builds += 1

@@ -149,7 +149,7 @@ int tcc_bvh_build(const tcc_mesh *m, const tcc_idx *scene_ptr, const tcc_idx *sc
         node_ptr[k] = b.nnode;
         for (tcc_idx r = 0; r < nrows; r++) prim[r] = scene_tri[perm[r]];
         *nnodes = b.nnode;
-        tcc_bvh t = {node_ptr, k, node, box, b.nnode, prim, nrows};
+        tcc_bvh t = {node_ptr, k, node, box, b.nnode, prim, nrows, NULL};
         for (tcc_idx c = 0; c < k && rc == TCC_OK; c++) rc = tcc_bvh_refit(m, &t, c, err);
     }
     free(cent);
@@ -216,6 +216,7 @@ int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
                     for (int a = 0; a < 3; a++) {
                         if (p[k][a] < bx[a]) bx[a] = p[k][a];
                         if (p[k][a] > bx[3 + a]) bx[3 + a] = p[k][a];
+                        if (b->corner) b->corner[9 * r + 3 * k + a] = p[k][a];
                     }
             }
         } else {
@@ -356,4 +357,137 @@ int tcc_self_cast(const tcc_ray_setup *s, const tcc_mesh *target, tcc_bvh *b, tc
     *nhits = hits;
     *nrays = rays;
     return TCC_OK;
+}
+
+/* ------------------------------------------------------------------ both rays of a vertex at once
+ *
+ * Full detection casts from each cloth vertex along +n and -n: one line, two windows. One traversal
+ * serves both (the nodes near the vertex, where most of a short ray's work is, are visited once
+ * instead of twice), reading each prim's corners from the copy the refit made (no index lookups).
+ * A node is entered when the line's span in its box meets what is still open of the two windows:
+ * (best of slot 1, best of slot 0); the child nearer to the vertex first. */
+
+int tcc_bvh_check(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
+{
+    tcc_idx s, e;
+    int rc = cluster_nodes(b, c, &s, &e, err);
+    if (rc) return rc;
+    for (tcc_idx i = s; i < e; i++) {
+        int leaf;
+        tcc_idx x, y;
+        if ((rc = node_links(b, i, e, &leaf, &x, &y, err))) return rc;
+        if (!leaf) continue;
+        for (tcc_idx r = x; r < y; r++) {
+            const double *p[3];
+            if ((rc = corners(m, b->prim[r], p, err))) return rc;
+        }
+    }
+    return TCC_OK;
+}
+
+/* distance from s = 0 to the span [t0, t1] */
+static inline double span_gap(double t0, double t1) { return t0 > 0 ? t0 : (t1 < 0 ? -t1 : 0.0); }
+
+void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x[3], const double d[3], int active,
+                  double backoff, double *s0, double *s1, const tcc_ring *ring, tcc_idx v, tcc_idx tri[2])
+{
+    tcc_idx s = b->node_ptr[c], e = b->node_ptr[c + 1];
+    if (e == s || !(active & 3)) return;
+    int filter = ring && ring->table;
+    double inv[3];
+    for (int a = 0; a < 3; a++) inv[a] = fabs(d[a]) < 1e-300 ? INFINITY : 1.0 / d[a];
+    double b0 = *s0, b1 = *s1; /* the open windows: slot 0 [-backoff, b0], slot 1 [b1, backoff] */
+#define LO ((active & 2) ? b1 : -backoff)
+#define HI ((active & 1) ? b0 : backoff)
+    /* the stack holds each node with its line span, so a pop re-checks it against the windows as they
+     * are now with two compares */
+    struct span_node {
+        tcc_idx i;
+        double t0, t1;
+    } stack[BVH_STACK];
+    int top = 0;
+    double t0, t1;
+    if (tcc_line_box(x, inv, LO, HI, b->box + 6 * s, &t0, &t1)) stack[top++] = (struct span_node){s, t0, t1};
+    while (top > 0) {
+        top--;
+        tcc_idx i = stack[top].i;
+        if (stack[top].t0 > HI || stack[top].t1 < LO) continue; /* the windows shrank since the push */
+        tcc_idx p = b->node[2 * i], q = b->node[2 * i + 1];
+        if (p < 0) {
+            for (tcc_idx r = -1 - p; r < -1 - p + q; r++) {
+                tcc_idx f = b->prim[r];
+                const tcc_idx *tv = m->tri + 3 * f;
+                /* the ray's own vertex first: every ray passes through its ~6 incident triangles */
+                if (filter && (tv[0] == v || tv[1] == v || tv[2] == v)) continue;
+                const double *P = b->corner + 9 * r;
+                double t, u, w;
+                if (!tcc_line_triangle_inline(x, d, P, P + 3, P + 6, &t, &u, &w)) continue;
+                if (!(u >= -BVH_EPS && w >= -BVH_EPS && u + w <= 1.0 + BVH_EPS)) continue;
+                /* a tie keeps the first found */
+                int c0 = (active & 1) && t >= -backoff && (t < b0 || (t == b0 && tri[0] < 0));
+                int c1 = (active & 2) && t <= backoff && (t > b1 || (t == b1 && tri[1] < 0));
+                if (!c0 && !c1) continue;
+                if (filter && tcc_ring_excludes(ring, v, tv)) continue;
+                if (c0) {
+                    b0 = t;
+                    tri[0] = f;
+                }
+                if (c1) {
+                    b1 = t;
+                    tri[1] = f;
+                }
+            }
+            continue;
+        }
+        double pa = 0, pb = 0, qa = 0, qb = 0;
+        int hp = tcc_line_box(x, inv, LO, HI, b->box + 6 * p, &pa, &pb);
+        int hq = tcc_line_box(x, inv, LO, HI, b->box + 6 * q, &qa, &qb);
+        if (top + 2 > BVH_STACK) break; /* deeper than any built tree: a corrupt one, searched no further */
+        /* the nearer child (to the vertex) is popped first */
+        if (hp && hq && span_gap(pa, pb) > span_gap(qa, qb)) {
+            stack[top++] = (struct span_node){p, pa, pb};
+            stack[top++] = (struct span_node){q, qa, qb};
+        } else {
+            if (hq) stack[top++] = (struct span_node){q, qa, qb};
+            if (hp) stack[top++] = (struct span_node){p, pa, pb};
+        }
+    }
+#undef LO
+#undef HI
+    *s0 = b0;
+    *s1 = b1;
+}
+
+/* Whether the line x + s d meets a triangle of cluster c's tree other than skip for s in [lo, hi)
+ * (barycentrics exactly within the triangle): the inside confirmation's test (contacts.c
+ * tcc_confirm_inside's arithmetic, the same corners), answered from the tree. */
+int tcc_bvh_blocked(const tcc_bvh *b, tcc_idx c, const double x[3], const double d[3], double lo, double hi,
+                    tcc_idx skip)
+{
+    tcc_idx s = b->node_ptr[c], e = b->node_ptr[c + 1];
+    if (e == s || !(lo <= hi)) return 0;
+    double inv[3];
+    for (int a = 0; a < 3; a++) inv[a] = fabs(d[a]) < 1e-300 ? INFINITY : 1.0 / d[a];
+    tcc_idx stack[BVH_STACK];
+    int top = 0;
+    double t0, t1;
+    if (tcc_line_box(x, inv, lo, hi, b->box + 6 * s, &t0, &t1)) stack[top++] = s;
+    while (top > 0) {
+        tcc_idx i = stack[--top];
+        tcc_idx p = b->node[2 * i], q = b->node[2 * i + 1];
+        if (p < 0) {
+            for (tcc_idx r = -1 - p; r < -1 - p + q; r++) {
+                if (b->prim[r] == skip) continue;
+                const double *P = b->corner + 9 * r;
+                double t, u, w;
+                if (!tcc_line_triangle_inline(x, d, P, P + 3, P + 6, &t, &u, &w)) continue;
+                if (u >= 0 && w >= 0 && u + w <= 1 && t >= lo && t < hi) return 1;
+            }
+            continue;
+        }
+        if (top + 2 > BVH_STACK) break; /* deeper than any built tree: a corrupt one */
+        if (tcc_line_box(x, inv, lo, hi, b->box + 6 * p, &t0, &t1)) stack[top++] = p;
+        if (tcc_line_box(x, inv, lo, hi, b->box + 6 * q, &t0, &t1)) stack[top++] = q;
+    }
+    return 0;
 }

@@ -208,11 +208,17 @@ int pyarg_parse(pyarg_set *s, const char *fname, const pyarg_spec *spec, int n, 
     if (kw) {
         Py_ssize_t pos = 0;
         PyObject *key, *val;
+        int hint = 0; /* keywords usually come in table order: the search starts after the last match */
         while (PyDict_Next(kw, &pos, &key, &val)) {
             const char *k = PyUnicode_AsUTF8AndSize(key, NULL);
             if (!k) return -1;
-            int j = 0;
-            while (j < n && strcmp(spec[j].name, k) != 0) j++;
+            int j = hint, tried = 0;
+            while (tried < n && strcmp(spec[j].name, k) != 0) {
+                j = j + 1 < n ? j + 1 : 0;
+                tried++;
+            }
+            if (tried == n) j = n;
+            else hint = j + 1 < n ? j + 1 : 0;
             if (j == n) {
                 PyErr_Format(PyExc_TypeError, "%s() got an unexpected keyword argument '%s'", fname, k);
                 return -1;

@@ -2,7 +2,7 @@
  * AddressSanitizer and UndefinedBehaviorSanitizer by native/tests/run_sanitizers.sh. A cloth grid
  * deforms step by step over a closed box body that moves; every step runs the per-step kernels a
  * detection runs (normals, cluster motion, boxes, pairs, the relative measure, rays,
- * refinement of candidate hits, walks), the grid is then "torn" (a row of vertices duplicated,
+ * refinement of candidate hits, walks, the swept stage), the grid is then "torn" (a row of vertices duplicated,
  * triangles re-indexed) and run again, and bad indices must come back as errors. Each check prints and counts; the exit code is the number of
  * failures. */
 #include "collide.h"
@@ -273,127 +273,6 @@ static void test_ccd(const mesh *m)
             CHECK(side[q] == 1, "side %d of a vertex coming from the normal's side", side[q]);
             CHECK(fabs(w[3 * q] - 1.0 / 3) < 1e-9 && fabs(w[3 * q + 1] - 1.0 / 3) < 1e-9, "weights %g %g", w[3 * q], w[3 * q + 1]);
         }
-    /* the carried distance bound (tcc_ccd_cull): unknown bounds hand every pair out and are made
-       exact at x1; then with no motion only the pairs within their gap come out again (the driven
-       vertex sits at the far triangle's centre - 1 cm below it); bad input is an error */
-    {
-        tcc_idx *quad = malloc(sizeof(tcc_idx) * 4 * (size_t)k), *out = malloc(sizeof(tcc_idx) * (size_t)k);
-        double *gapq = malloc(sizeof(double) * (size_t)k), *slack = malloc(sizeof(double) * (size_t)k);
-        double *disp = calloc(nx, sizeof(double));
-        for (tcc_idx q = 0; q < k; q++) {
-            quad[4 * q] = pv[q];
-            for (int j = 0; j < 3; j++) quad[4 * q + 1 + j] = m->tri[3 * pt[q] + j];
-            gapq[q] = 0.002;
-            slack[q] = -INFINITY;
-        }
-        for (int i = 0; i < 3; i++) disp[i] = x1[i] - x0[i];
-        tcc_idx nout = -1;
-        rc = tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, out, &nout, &err);
-        CHECK(rc == TCC_OK && nout == k, "unknown bounds: rc %d, %lld of %lld handed out", rc, (long long)nout, (long long)k);
-        int finite = 1;
-        for (tcc_idx q = 0; q < k; q++) finite &= isfinite(slack[q]);
-        CHECK(finite, "every bound made exact");
-        memset(disp, 0, sizeof(double) * nx);
-        rc = tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, out, &nout, &err);
-        tcc_idx close = 0;
-        for (tcc_idx q = 0; q < k; q++) close += slack[q] <= 0;
-        CHECK(rc == TCC_OK && nout == close && nout < k, "still: rc %d, %lld handed out, %lld within their gap of %lld",
-              rc, (long long)nout, (long long)close, (long long)k);
-        tcc_error c1 = {0}, c2 = {0}, c3 = {0};
-        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 3, disp, gapq, slack, 0, out, &nout, &c1) == TCC_ERR_VALUE, "split 3 is a value error");
-        disp[4] = NAN;
-        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, out, &nout, &c2) == TCC_ERR_VALUE, "a NaN displacement is a value error");
-        disp[4] = 0.0;
-        quad[4 * (k - 1) + 2] = m->nv;
-        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 2, disp, gapq, slack, 0, out, &nout, &c3) == TCC_ERR_INDEX, "a vertex out of range is an index error");
-        quad[4 * (k - 1) + 2] = m->tri[3 * pt[k - 1] + 1];
-        /* by blocks (tcc_ccd_cull_blocks) of 3 pairs, each with its pairs' corners: unknown bounds hand
-           every pair out; still, the same pairs as pairwise; a block moved rigidly is skipped unread
-           (its debt grows by 0, a corrupt quad in it goes unnoticed) while a block whose vertices move
-           apart is read; bad blocks are errors */
-        tcc_idx nb = (k + 2) / 3, *bptr = malloc(sizeof(tcc_idx) * (size_t)(nb + 1));
-        tcc_idx *bvptr = malloc(sizeof(tcc_idx) * (size_t)(nb + 1)), *bv = malloc(sizeof(tcc_idx) * 4 * (size_t)k);
-        double *bmin = malloc(sizeof(double) * (size_t)nb), *bdebt = calloc((size_t)nb, sizeof(double));
-        tcc_idx nbv = 0;
-        for (tcc_idx b = 0; b < nb; b++) {
-            bptr[b] = 3 * b;
-            bvptr[b] = nbv;
-            for (tcc_idx q = 3 * b; q < 3 * b + 3 && q < k; q++)
-                for (int j = 0; j < 4; j++) bv[nbv++] = quad[4 * q + j];  /* repeats are allowed */
-            bmin[b] = -INFINITY;
-        }
-        bptr[nb] = k;
-        bvptr[nb] = nbv;
-        for (tcc_idx q = 0; q < k; q++) slack[q] = -INFINITY;
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout == k, "blocks, unknown bounds: rc %d, %lld of %lld handed out", rc, (long long)nout, (long long)k);
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout == close, "blocks, still: rc %d, %lld handed out, %lld within their gap", rc,
-              (long long)nout, (long long)close);
-        tcc_idx open_blocks = 0;
-        for (tcc_idx b = 0; b < nb; b++) open_blocks += !(bmin[b] > 0);
-        CHECK(open_blocks < nb, "%lld of %lld blocks hold a pair within its gap: nothing to skip", (long long)open_blocks, (long long)nb);
-        for (tcc_idx v = 0; v < m->nv; v++) disp[3 * v] = 1e-3;  /* a rigid shift: no relative motion */
-        tcc_idx far_b = 0;
-        while (far_b < nb - 1 && !(bmin[far_b] > 1e-3)) far_b++;
-        CHECK(bmin[far_b] > 1e-3, "no block 1 mm clear of its gaps");
-        tcc_idx saved = quad[4 * bptr[far_b]];
-        quad[4 * bptr[far_b]] = m->nv;  /* read, this would be an index error */
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout == close && bdebt[far_b] == 0.0, "blocks, rigid shift: rc %d, %lld handed out, debt %g",
-              rc, (long long)nout, bdebt[far_b]);
-        quad[4 * bptr[far_b]] = saved;
-        double before = bmin[far_b];
-        for (tcc_idx v = 0; v < m->nv; v++) disp[3 * v] = 1e-4 * (double)(v % 2);  /* neighbours 0.1 mm apart */
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout >= close && bmin[far_b] == before && bdebt[far_b] == 0.0,
-              "blocks, predicted (nothing carried): rc %d, %lld handed out", rc, (long long)nout);
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        int parity[2] = {0, 0};
-        for (tcc_idx i = bvptr[far_b]; i < bvptr[far_b + 1]; i++) parity[bv[i] % 2] = 1;
-        double want = (parity[0] && parity[1]) ? 1e-4 : 0.0;
-        CHECK(rc == TCC_OK && nout >= close && fabs(bdebt[far_b] - want) < 1e-12,
-              "blocks, relative motion charged as debt: rc %d, debt %g, want %g", rc, bdebt[far_b], want);
-        /* a second (predicted) motion in the same pass: the same as a second call without update */
-        {
-            double *slack2 = malloc(sizeof(double) * (size_t)k), *bmin2 = malloc(sizeof(double) * (size_t)nb);
-            double *bdebt2 = malloc(sizeof(double) * (size_t)nb), *pred = malloc(sizeof(double) * nx);
-            tcc_idx *outa = malloc(sizeof(tcc_idx) * (size_t)k), *outb = malloc(sizeof(tcc_idx) * (size_t)k);
-            tcc_idx *outc = malloc(sizeof(tcc_idx) * (size_t)k), na = 0, nb2 = 0, nc = 0;
-            memcpy(slack2, slack, sizeof(double) * (size_t)k);
-            memcpy(bmin2, bmin, sizeof(double) * (size_t)nb);
-            memcpy(bdebt2, bdebt, sizeof(double) * (size_t)nb);
-            for (size_t i = 0; i < nx; i++) pred[i] = 2e-2 * sin(0.7 * (double)i);  /* 2 cm: some blocks open */
-            rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt,
-                                     out, &nout, pred, outa, &na, &err);
-            int rc2 = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack2, 1, bptr, nb, bvptr, bv, nbv, bmin2,
-                                          bdebt2, outb, &nb2, NULL, NULL, NULL, &err);
-            rc2 |= tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, pred, gapq, slack2, 0, bptr, nb, bvptr, bv, nbv, bmin2,
-                                       bdebt2, outc, &nc, NULL, NULL, NULL, &err);
-            int same = rc == TCC_OK && rc2 == TCC_OK && nout == nb2 && na == nc && na > 0;
-            for (tcc_idx i = 0; same && i < nout; i++) same = out[i] == outb[i];
-            for (tcc_idx i = 0; same && i < na; i++) same = outa[i] == outc[i];
-            for (tcc_idx q = 0; same && q < k; q++) same = slack[q] == slack2[q];
-            CHECK(same, "blocks, predicted in the same pass: %lld / %lld and %lld / %lld handed out", (long long)nout,
-                  (long long)nb2, (long long)na, (long long)nc);
-            free(slack2); free(bmin2); free(bdebt2); free(pred); free(outa); free(outb); free(outc);
-        }
-        tcc_error c4 = {0}, c5 = {0};
-        bptr[nb] = k - 1;
-        CHECK(tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                  &nout, NULL, NULL, NULL, &c4) == TCC_ERR_VALUE, "blocks not covering the pairs are a value error");
-        bptr[nb] = k;
-        bv[nbv - 1] = -1;
-        CHECK(tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                  &nout, NULL, NULL, NULL, &c5) == TCC_ERR_INDEX, "a block vertex out of range is an index error");
-        free(bptr); free(bvptr); free(bv); free(bmin); free(bdebt);
-        free(quad); free(out); free(gapq); free(slack); free(disp);
-    }
     /* edge (0, 1), across an edge of the far triangle, driven along the normal through it */
     tcc_idx ea[2] = {0, 1}, eb[2] = {m->tri[3 * far], m->tri[3 * far + 2]};
     const double *pa = m->x + 3 * eb[0], *pb = m->x + 3 * eb[1];
@@ -451,6 +330,270 @@ static void test_ccd(const mesh *m)
     free(x0); free(x1); free(pv); free(pt); free(toi); free(w); free(side);
 }
 
+/* The swept stage's step (swept.c) on the grid's pairs near each other (vertex-triangle: a vertex and
+ * a triangle two rows over; edge-edge: parallel edges a row apart), in blocks of 8 pairs: over steps
+ * that turn the grid, jitter it, shift it and now and then throw one vertex through a triangle, every
+ * pair the exact swept test hits over the real motion (gap 0 and its gap) and over the prediction is
+ * among those the cull handed out; a vertex driven through a triangle is remembered and gives four
+ * contact rows, merged by vertex; quiet steps settle most blocks without reading them; bad input is
+ * an error. */
+typedef struct {
+    tcc_idx *quad, k, nb, nbv, nbg, *bptr, *bvptr, *bv, *bgptr, *bg, *mem, *memo, *outq, *cand, *pcand;
+    double *gap, *slack, *bstate, *bref, *memn, *memno, *outn, *outd, *outw;
+} swept_kind_arrays;
+
+static int cmp_idx(const void *a, const void *b)
+{
+    tcc_idx x = *(const tcc_idx *)a, y = *(const tcc_idx *)b;
+    return x < y ? -1 : x > y;
+}
+
+/* pairs of kind split over the grid m, blocks of 8, groups of 16 vertex ids */
+static void swept_arrays(const mesh *m, int split, swept_kind_arrays *A)
+{
+    tcc_idx cap = 2 * m->nt + 2 * m->nv;
+    A->quad = malloc(sizeof(tcc_idx) * 4 * cap);
+    A->k = 0;
+    if (split == 1) {
+        for (tcc_idx f = 0; f < m->nt; f++) {
+            const tcc_idx *t = m->tri + 3 * f;
+            tcc_idx v = t[0] + 2 < m->nv ? t[0] + 2 : t[0] - 2; /* two rows over in the column */
+            if (v == t[0] || v == t[1] || v == t[2]) continue;
+            tcc_idx *q = A->quad + 4 * A->k++;
+            q[0] = v; q[1] = t[0]; q[2] = t[1]; q[3] = t[2];
+        }
+    } else {
+        for (tcc_idx f = 0; f < m->nt; f++) {
+            const tcc_idx *t = m->tri + 3 * f;
+            tcc_idx a = t[0], b = t[1], c = t[1] + 1 < m->nv ? t[1] + 1 : t[1], d = t[2] + 1 < m->nv ? t[2] + 1 : t[2];
+            if (a == c || a == d || b == c || b == d || c == d) continue;
+            tcc_idx *q = A->quad + 4 * A->k++;
+            q[0] = a; q[1] = b; q[2] = c; q[3] = d;
+        }
+    }
+    A->nb = (A->k + 7) / 8;
+    A->bptr = malloc(sizeof(tcc_idx) * (A->nb + 1));
+    A->bvptr = malloc(sizeof(tcc_idx) * (A->nb + 1));
+    A->bgptr = malloc(sizeof(tcc_idx) * (A->nb + 1));
+    A->bv = malloc(sizeof(tcc_idx) * 32 * A->nb);
+    A->bg = malloc(sizeof(tcc_idx) * 32 * A->nb);
+    A->nbv = A->nbg = 0;
+    for (tcc_idx b = 0; b < A->nb; b++) {
+        A->bptr[b] = 8 * b;
+        A->bvptr[b] = A->nbv;
+        A->bgptr[b] = A->nbg;
+        tcc_idx e = 8 * b + 8 < A->k ? 8 * b + 8 : A->k, start = A->nbv;
+        for (tcc_idx q = 8 * b; q < e; q++)
+            for (int j = 0; j < 4; j++) A->bv[A->nbv++] = A->quad[4 * q + j];
+        qsort(A->bv + start, (size_t)(A->nbv - start), sizeof(tcc_idx), cmp_idx);
+        tcc_idx u = start;
+        for (tcc_idx i = start; i < A->nbv; i++)
+            if (i == start || A->bv[i] != A->bv[u - 1]) A->bv[u++] = A->bv[i];
+        A->nbv = u;
+        for (tcc_idx i = start; i < u; i++) {
+            tcc_idx g = A->bv[i] / 16;
+            if (A->nbg == A->bgptr[b] || A->bg[A->nbg - 1] != g) A->bg[A->nbg++] = g;
+        }
+    }
+    A->bptr[A->nb] = A->k;
+    A->bvptr[A->nb] = A->nbv;
+    A->bgptr[A->nb] = A->nbg;
+    A->gap = malloc(sizeof(double) * A->k);
+    A->slack = malloc(sizeof(double) * A->k);
+    for (tcc_idx q = 0; q < A->k; q++) {
+        A->gap[q] = 0.001;
+        A->slack[q] = -INFINITY;
+    }
+    A->bstate = malloc(sizeof(double) * 2 * A->nb);
+    for (tcc_idx b = 0; b < A->nb; b++) {
+        A->bstate[2 * b] = -INFINITY;
+        A->bstate[2 * b + 1] = 0.0;
+    }
+    A->bref = malloc(sizeof(double) * 3 * A->nbv);
+    A->mem = malloc(sizeof(tcc_idx) * A->k);
+    A->memo = malloc(sizeof(tcc_idx) * A->k);
+    A->outq = malloc(sizeof(tcc_idx) * A->k);
+    A->cand = malloc(sizeof(tcc_idx) * A->k);
+    A->pcand = malloc(sizeof(tcc_idx) * A->k);
+    A->memn = malloc(sizeof(double) * 3 * A->k);
+    A->memno = malloc(sizeof(double) * 3 * A->k);
+    A->outn = malloc(sizeof(double) * 3 * A->k);
+    A->outd = malloc(sizeof(double) * A->k);
+    A->outw = malloc(sizeof(double) * 3 * A->k);
+}
+
+static void swept_free(swept_kind_arrays *A)
+{
+    free(A->quad); free(A->bptr); free(A->bvptr); free(A->bgptr); free(A->bv); free(A->bg); free(A->gap);
+    free(A->slack); free(A->bstate); free(A->bref); free(A->mem); free(A->memo); free(A->outq); free(A->cand);
+    free(A->pcand); free(A->memn); free(A->memno); free(A->outn); free(A->outd); free(A->outw);
+}
+
+static void swept_bind(swept_kind_arrays *A, int split, tcc_idx nmem, tcc_swept_kind *K)
+{
+    memset(K, 0, sizeof *K);
+    K->split = split;
+    K->quad = A->quad; K->k = A->k; K->gap = A->gap; K->slack = A->slack;
+    K->bptr = A->bptr; K->bvptr = A->bvptr; K->bverts = A->bv; K->bgptr = A->bgptr; K->bgroups = A->bg;
+    K->nb = A->nb; K->nbv = A->nbv; K->nbg = A->nbg; K->bstate = A->bstate; K->bref = A->bref;
+    K->mem = A->mem; K->mem_n = A->memn; K->nmem = nmem; K->mem_out = A->memo; K->mem_n_out = A->memno;
+    K->out_q = A->outq; K->out_normal = A->outn; K->out_depth = A->outd; K->out_w = A->outw;
+}
+
+static int handed(const tcc_idx *l, tcc_idx n, tcc_idx q)
+{
+    for (tcc_idx i = 0; i < n; i++)
+        if (l[i] == q) return 1;
+    return 0;
+}
+
+static void test_swept_step(const mesh *m)
+{
+    tcc_idx n = m->nv, ng = (n + 15) / 16;
+    double *x0 = malloc(sizeof(double) * 3 * n), *xp = malloc(sizeof(double) * 3 * n);
+    double *x = malloc(sizeof(double) * 3 * n), *v = malloc(sizeof(double) * 3 * n), *x1 = malloc(sizeof(double) * 3 * n);
+    memcpy(x0, m->x, sizeof(double) * 3 * n);
+    memcpy(xp, m->x, sizeof(double) * 3 * n);
+    tcc_idx *gptr = malloc(sizeof(tcc_idx) * (ng + 1)), *gv = malloc(sizeof(tcc_idx) * n);
+    for (tcc_idx g = 0; g <= ng; g++) gptr[g] = 16 * g < n ? 16 * g : n;
+    for (tcc_idx i = 0; i < n; i++) gv[i] = i;
+    swept_kind_arrays A[2];
+    swept_arrays(m, 1, &A[0]);
+    swept_arrays(m, 2, &A[1]);
+    CHECK(A[0].k > 100 && A[1].k > 100, "swept pairs: %lld vertex-triangle, %lld edge-edge", (long long)A[0].k,
+          (long long)A[1].k);
+    tcc_idx nmem[2] = {0, 0}, missed = 0, hits = 0, quiet_blocks = 0, quiet_settled = 0, remembered_rows = 0;
+    uint8_t has_ref = 0;
+    double dt = 1e-3, ang = 0.0;
+    unsigned seed = 12345;
+    tcc_error err = {0};
+    for (int step = 0; step < 60; step++) {
+        int violent = step >= 20 && step < 35;
+        ang += 0.002;
+        double c = cos(ang), sn = sin(ang);
+        for (tcc_idx i = 0; i < n; i++) {
+            const double *p = x0 + 3 * i;
+            double j[3];
+            for (int a = 0; a < 3; a++) {
+                seed = seed * 1103515245u + 12345u;
+                j[a] = ((double)(seed >> 8) / 16777216.0 - 0.5) * (violent ? 4e-3 : 2e-5);
+            }
+            x[3 * i] = c * p[0] - sn * p[1] + 0.001 * step + j[0];
+            x[3 * i + 1] = sn * p[0] + c * p[1] + j[1];
+            x[3 * i + 2] = p[2] + j[2];
+            for (int a = 0; a < 3; a++) v[3 * i + a] = (x[3 * i + a] - xp[3 * i + a]) / dt;
+        }
+        if (step == 39 || step == 40) { /* one vertex thrown through its pair's triangle (3 mm each side) */
+            const tcc_idx *q = A[0].quad + 4 * (A[0].k / 2);
+            double cen[3] = {0, 0, 0};
+            for (int j = 1; j < 4; j++)
+                for (int a = 0; a < 3; a++) cen[a] += x[3 * q[j] + a] / 3.0;
+            for (int a = 0; a < 3; a++) x[3 * q[0] + a] = cen[a] + (a == 2 ? (step == 39 ? 0.003 : -0.003) : 0.0);
+        }
+        tcc_swept s;
+        memset(&s, 0, sizeof s);
+        s.x = x; s.x_prev = step ? xp : NULL; s.v = v; s.n = n; s.dt = dt; s.thickness = 0.004;
+        s.group_ptr = gptr; s.group_vertices = gv; s.ngroups = ng; s.ngv = n; s.has_ref = &has_ref;
+        for (int k = 0; k < 2; k++) {
+            swept_bind(&A[k], k + 1, nmem[k], &s.kind[k]);
+            s.cand_out[k] = A[k].cand;
+            s.pcand_out[k] = A[k].pcand;
+        }
+        int rc = tcc_swept_step(&s, &err);
+        CHECK(rc == TCC_OK, "swept step %d: %s", step, err.what);
+        if (rc) break;
+        for (tcc_idx i = 0; i < 3 * n; i++) x1[i] = x[i] + dt * v[i];
+        /* every pair the exact tests hit was handed out */
+        for (int k = 0; k < 2; k++) {
+            for (tcc_idx q = 0; q < A[k].k; q++) {
+                const tcc_idx *id = A[k].quad + 4 * q;
+                const double *P0[4], *P1[4], *P2[4];
+                for (int j = 0; j < 4; j++) {
+                    P0[j] = xp + 3 * id[j];
+                    P1[j] = x + 3 * id[j];
+                    P2[j] = x1 + 3 * id[j];
+                }
+                double toi, w[3];
+                int8_t side;
+                int real = step > 0 && (k ? tcc_ee_sweep(P0, P1, A[k].gap[q], &toi, w, &side)
+                                          : tcc_vt_sweep(P0, P1, A[k].gap[q], &toi, w, &side));
+                int pred = k ? tcc_ee_sweep(P1, P2, A[k].gap[q], &toi, w, &side)
+                             : tcc_vt_sweep(P1, P2, A[k].gap[q], &toi, w, &side);
+                hits += real + pred;
+                missed += (real && !handed(A[k].cand, s.ncand[k], q)) || (pred && !handed(A[k].pcand, s.npcand[k], q));
+            }
+            if (step >= 5 && step < 20) {
+                quiet_blocks += A[k].nb;
+                quiet_settled += s.kind[k].settled[0] + s.kind[k].settled[1];
+            }
+            /* the memory carries to the next step */
+            nmem[k] = s.kind[k].nmem_out;
+            memcpy(A[k].mem, A[k].memo, sizeof(tcc_idx) * (size_t)nmem[k]);
+            memcpy(A[k].memn, A[k].memno, sizeof(double) * 3 * (size_t)nmem[k]);
+        }
+        if (step == 40) {
+            CHECK(s.kind[0].crossed >= 1 && s.kind[0].nlive >= 1, "the thrown vertex is remembered: %lld crossed, %lld live",
+                  (long long)s.kind[0].crossed, (long long)s.kind[0].nlive);
+            /* its rows, merged after one collider contact of vertex 0 */
+            tcc_idx rows = 4 * (s.kind[0].nlive + s.kind[0].npred + s.kind[1].nlive + s.kind[1].npred), count = 0, bad = 0;
+            int32_t ev = 0, *ov = malloc(sizeof(int32_t) * (rows + 1));
+            double en[3] = {0, 0, 1}, ed = 0.001, evel[3] = {0, 0, 0}, ef = 0.3;
+            double *on = malloc(sizeof(double) * 3 * (rows + 1)), *od = malloc(sizeof(double) * (rows + 1));
+            double *ovel = malloc(sizeof(double) * 3 * (rows + 1)), *of = malloc(sizeof(double) * (rows + 1));
+            rc = tcc_swept_rows(s.kind, v, n, &ev, en, &ed, evel, &ef, 1, 0.5, ov, on, od, ovel, of, rows + 1, &count,
+                                &bad, &err);
+            int sorted = 1;
+            for (tcc_idx i = 1; i < count; i++) sorted &= ov[i] >= ov[i - 1];
+            CHECK(rc == TCC_OK && count == 1 + rows - bad && sorted && ov[0] == 0 && od[0] == 0.001,
+                  "swept rows: rc %d, %lld of %lld rows, sorted %d", rc, (long long)count, (long long)rows, sorted);
+            remembered_rows = rows;
+            tcc_idx small = 0;
+            CHECK(tcc_swept_rows(s.kind, v, n, &ev, en, &ed, evel, &ef, 1, 0.5, ov, on, od, ovel, of, 0, &small, &bad,
+                                 &err) == TCC_OK && small == count, "rows without room: only counted");
+            free(ov); free(on); free(od); free(ovel); free(of);
+        }
+        memcpy(xp, x, sizeof(double) * 3 * n);
+    }
+    CHECK(missed == 0 && hits > 0, "swept cull: %lld pairs hit but not handed out (of %lld hits)", (long long)missed,
+          (long long)hits);
+    CHECK(remembered_rows >= 4, "the remembered pair gives rows");
+    CHECK(quiet_settled > quiet_blocks / 2, "quiet steps: %lld of %lld blocks settled unread", (long long)quiet_settled,
+          (long long)quiet_blocks);
+    /* bad input: errors, never reads out of bounds */
+    {
+        tcc_swept s;
+        memset(&s, 0, sizeof s);
+        s.x = x; s.x_prev = xp; s.v = v; s.n = n; s.dt = dt; s.thickness = 0.004;
+        s.group_ptr = gptr; s.group_vertices = gv; s.ngroups = ng; s.ngv = n; s.has_ref = &has_ref;
+        for (int k = 0; k < 2; k++) swept_bind(&A[k], k + 1, 0, &s.kind[k]);
+        tcc_error e1 = {0}, e2 = {0}, e3 = {0}, e4 = {0}, e5 = {0};
+        gv[3] = n;
+        CHECK(tcc_swept_step(&s, &e1) == TCC_ERR_INDEX, "a group vertex out of range is an index error");
+        gv[3] = 3;
+        A[0].mem[0] = A[0].k;
+        s.kind[0].nmem = 1;
+        CHECK(tcc_swept_step(&s, &e2) == TCC_ERR_INDEX, "a remembered pair out of range is an index error");
+        s.kind[0].nmem = 0;
+        x[5] = NAN;
+        CHECK(tcc_swept_step(&s, &e3) == TCC_ERR_VALUE, "a NaN position is a value error");
+        x[5] = 0.0;
+        tcc_idx keep = A[1].bptr[A[1].nb];
+        A[1].bptr[A[1].nb] = keep - 1;
+        CHECK(tcc_swept_step(&s, &e4) == TCC_ERR_VALUE, "blocks not covering the pairs are a value error");
+        A[1].bptr[A[1].nb] = keep;
+        /* a pair whose corner is not among its block's vertices, read (every bound unknown) */
+        for (tcc_idx b = 0; b < A[0].nb; b++) A[0].bstate[2 * b] = -INFINITY;
+        tcc_idx saved = A[0].quad[1];
+        A[0].quad[1] = A[0].quad[4 * (A[0].k - 1) + 1] == saved ? A[0].quad[4 * (A[0].k - 1) + 2] : A[0].quad[4 * (A[0].k - 1) + 1];
+        int rc5 = tcc_swept_step(&s, &e5);
+        CHECK(rc5 == TCC_ERR_VALUE || rc5 == TCC_ERR_INDEX, "a pair outside its block's vertices is an error (rc %d)", rc5);
+        A[0].quad[1] = saved;
+    }
+    swept_free(&A[0]);
+    swept_free(&A[1]);
+    free(x0); free(xp); free(x); free(v); free(x1); free(gptr); free(gv);
+}
+
 /* The cloth's BVHs (bvh.c): the grid wrapped around a cylinder that breathes and wobbles, so its
  * vertices' inward rays cross to the far side; every step the trees are refitted (never rebuilt)
  * and each ray's first hit in every cluster must equal a brute-force test of the cluster's
@@ -504,7 +647,7 @@ static void test_bvh(mesh *m)
     int rc = tcc_bvh_build(&tm, tptr, stri, nt, K, node_ptr, node, box, 2 * nt, prim, &nnodes, &err);
     CHECK(rc == TCC_OK && nnodes > K && nnodes <= 2 * nt, "bvh build: rc %d (%s), %lld nodes", rc, err.what,
           (long long)nnodes);
-    tcc_bvh b = {node_ptr, K, node, box, nnodes, prim, nt};
+    tcc_bvh b = {node_ptr, K, node, box, nnodes, prim, nt, NULL};
     tcc_idx stamp[K];
     for (int c = 0; c < K; c++) stamp[c] = -1;
     tcc_idx *rv = malloc(sizeof(tcc_idx) * 2 * nv * K), *rs = malloc(sizeof(tcc_idx) * 2 * nv * K);
@@ -608,9 +751,11 @@ int main(void)
     mesh m = grid();
     test_measure_and_detection_steps(&m);
     test_ccd(&m);
+    test_swept_step(&m);
     test_bvh(&m);
     tear(&m);
     test_measure_and_detection_steps(&m);
+    test_swept_step(&m);
     test_bvh(&m);
     free(m.x);
     free(m.tri);
