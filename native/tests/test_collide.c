@@ -647,12 +647,14 @@ static void test_bvh(mesh *m)
     int rc = tcc_bvh_build(&tm, tptr, stri, nt, K, node_ptr, node, box, 2 * nt, prim, &nnodes, &err);
     CHECK(rc == TCC_OK && nnodes > K && nnodes <= 2 * nt, "bvh build: rc %d (%s), %lld nodes", rc, err.what,
           (long long)nnodes);
-    tcc_bvh b = {node_ptr, K, node, box, nnodes, prim, nt, NULL};
+    double *corner = malloc(sizeof(double) * 9 * nt);
+    tcc_bvh b = {node_ptr, K, node, box, nnodes, prim, nt, corner};
     tcc_idx stamp[K];
     for (int c = 0; c < K; c++) stamp[c] = -1;
     tcc_idx *rv = malloc(sizeof(tcc_idx) * 2 * nv * K), *rs = malloc(sizeof(tcc_idx) * 2 * nv * K);
     tcc_idx *ht = malloc(sizeof(tcc_idx) * 2 * nv * K);
-    int compared = 0, found = 0, mismatched = 0;
+    int compared = 0, found = 0, mismatched = 0, line_compared = 0, line_mismatched = 0, blocked_mismatched = 0,
+        blocked_any = 0;
     for (int step = 0; step < 4; step++) {
         /* wrap x onto 1.7 pi of a cylinder of radius 0.1 + 0.01 step, wobbling in y */
         double R = 0.1 + 0.01 * step;
@@ -691,6 +693,27 @@ static void test_bvh(mesh *m)
                     found += h.tri >= 0;
                     if (rc != TCC_OK || (h.tri >= 0) != isfinite(ref) || (h.tri >= 0 && fabs(h.t - ref) > 1e-12))
                         mismatched++;
+                    /* both rays in one traversal (tcc_bvh_line): slot `slot` of the line along +n */
+                    double n0[3] = {nrm[3 * v], nrm[3 * v + 1], nrm[3 * v + 2]}, w0 = 0.5, w1 = -0.5;
+                    tcc_idx lt[2] = {-1, -1};
+                    tcc_bvh_line(&tm, &b, c, m->x + 3 * v, n0, 1 << slot, 0.0, &w0, &w1, &ring, v, lt);
+                    double lref = slot ? -w1 : w0;
+                    line_compared++;
+                    if ((lt[slot] >= 0) != isfinite(ref) || (lt[slot] >= 0 && fabs(lref - ref) > 1e-12)) line_mismatched++;
+                    /* blocked: whether another triangle is hit within 0.5 m (its ring not skipped) */
+                    double stop = 0.5; /* anything hit, other than the first hit, within 0.5 m */
+                    int blk = tcc_bvh_blocked(&b, c, m->x + 3 * v, d, -1e-9, stop, lt[slot]);
+                    int want = 0;
+                    for (tcc_idx f = tptr[c]; f < tptr[c + 1] && !want; f++) {
+                        if (stri[f] == lt[slot]) continue;
+                        const tcc_idx *tv = m->tri + 3 * stri[f];
+                        double tt, uu, ww;
+                        if (!tcc_line_triangle(m->x + 3 * v, d, m->x + 3 * tv[0], m->x + 3 * tv[1], m->x + 3 * tv[2], &tt, &uu, &ww))
+                            continue;
+                        want = uu >= 0 && ww >= 0 && uu + ww <= 1 && tt >= -1e-9 && tt < stop;
+                    }
+                    blocked_mismatched += blk != want;
+                    blocked_any += want;
                 }
         /* the step's self detection: every cluster pair, one call */
         tcc_idx pa[K * K], pb[K * K], np = 0;
@@ -721,6 +744,13 @@ static void test_bvh(mesh *m)
     }
     CHECK(mismatched == 0 && found > compared / 20, "bvh first hits vs brute force: %d of %d differ (%d hits)",
           mismatched, compared, found);
+    CHECK(line_mismatched == 0 && line_compared == compared, "bvh line hits vs brute force: %d of %d differ",
+          line_mismatched, line_compared);
+    CHECK(blocked_mismatched == 0 && blocked_any > 0, "bvh blocked vs brute force: %d differ (%d blocked)",
+          blocked_mismatched, blocked_any);
+    /* a checked tree reads no index out of range; a corrupt one is an error */
+    tcc_error e6 = {0};
+    CHECK(tcc_bvh_check(&tm, &b, 0, &e6) == TCC_OK, "a built tree checks: %s", e6.what);
     /* bad trees and indices are errors, never reads out of bounds */
     tcc_hit h;
     tcc_error e1 = {0}, e2 = {0}, e3 = {0}, e4 = {0}, e5 = {0};
@@ -733,6 +763,8 @@ static void test_bvh(mesh *m)
     keep = prim[0];
     prim[0] = nt;
     CHECK(tcc_bvh_refit(&tm, &b, 0, &e3) == TCC_ERR_INDEX, "a leaf triangle out of range is an index error");
+    tcc_error e7 = {0};
+    CHECK(tcc_bvh_check(&tm, &b, 0, &e7) == TCC_ERR_INDEX, "a checked leaf triangle out of range is an index error");
     prim[0] = keep;
     tcc_idx bad_pair = K, zero_pair = 0;
     tcc_ray_setup setup = {m->x, nrm, has, NULL, nv, order, ptr, nv, K, box, box, K, 0.5, 0.5, 0.0, 0.0};
@@ -743,7 +775,301 @@ static void test_bvh(mesh *m)
           "a node array without room for 2 rows per triangle is a value error");
     memcpy(m->x, x0, sizeof(double) * 3 * nv);
     free(x0); free(nrm); free(has); free(order); free(stri); free(prim); free(node); free(box); free(table);
-    free(rv); free(rs); free(ht);
+    free(rv); free(rs); free(ht); free(corner);
+}
+
+/* A collider's step in one call (detect.c, with measure.c's cluster_state and pair_step): the grid
+ * deforming over a closed box that rises through it, and against itself; tracks and measures carried
+ * from step to step as the Python detector carries them. Every contact is a vertex with a normal,
+ * tracks stay sorted, a vertex the box swallowed is inside with a contact deeper than the thickness,
+ * and every full-detection hit is the nearest of the line among the tripped clusters' triangles
+ * (brute force); bad input is an error. */
+static void build_scene_tree(const tcc_mesh *tm, tcc_idx k, const tcc_idx *tptr, const tcc_idx *tord, tcc_idx **node_ptr,
+                             tcc_idx **node, double **box, tcc_idx **prim, double **corner, tcc_idx *nnodes)
+{
+    tcc_idx rows = tptr[k];
+    *node_ptr = malloc(sizeof(tcc_idx) * (k + 1));
+    *node = malloc(sizeof(tcc_idx) * 4 * (rows + 1));
+    *box = malloc(sizeof(double) * 12 * (rows + 1));
+    *prim = malloc(sizeof(tcc_idx) * (rows + 1));
+    *corner = malloc(sizeof(double) * 9 * (rows + 1));
+    tcc_error err = {0};
+    int rc = tcc_bvh_build(tm, tptr, tord, rows, k, *node_ptr, *node, *box, 2 * rows, *prim, nnodes, &err);
+    CHECK(rc == TCC_OK, "scene tree: %s", err.what);
+}
+
+static void test_detect_pipeline(mesh *m)
+{
+    enum { K = 6, KB = 2, W = 16 };
+    const double th = 0.004, tr = th + 1.5 * 0.003, inflate = 0.5 * (0.003 + th), bo = 1e-6;
+    tcc_idx n = m->nv, nt = m->nt;
+    /* the cloth: strips of rows, vertex -> triangles, labels, its trees over its own triangles */
+    tcc_idx *order = malloc(sizeof(tcc_idx) * n), ptr[K + 1], tptr[K + 1], *labels = malloc(sizeof(tcc_idx) * n);
+    strips(n, nt, K, order, ptr, tptr);
+    for (int c = 0; c < K; c++)
+        for (tcc_idx i = ptr[c]; i < ptr[c + 1]; i++) labels[order[i]] = c;
+    tcc_idx *tlab = malloc(sizeof(tcc_idx) * nt), *tord = malloc(sizeof(tcc_idx) * nt), tp2[K + 1] = {0};
+    for (tcc_idx f = 0; f < nt; f++) tlab[f] = labels[m->tri[3 * f]];
+    for (tcc_idx f = 0; f < nt; f++) tp2[tlab[f] + 1]++;
+    for (int c = 0; c < K; c++) tp2[c + 1] += tp2[c];
+    {
+        tcc_idx fill[K];
+        for (int c = 0; c < K; c++) fill[c] = tp2[c];
+        for (tcc_idx f = 0; f < nt; f++) tord[fill[tlab[f]]++] = f;
+    }
+    tcc_idx *vt_ptr = calloc(n + 1, sizeof(tcc_idx)), *vt_tri = malloc(sizeof(tcc_idx) * 3 * nt);
+    for (tcc_idx i = 0; i < 3 * nt; i++) vt_ptr[m->tri[i] + 1]++;
+    for (tcc_idx v = 0; v < n; v++) vt_ptr[v + 1] += vt_ptr[v];
+    {
+        tcc_idx *fill = malloc(sizeof(tcc_idx) * n);
+        memcpy(fill, vt_ptr, sizeof(tcc_idx) * n);
+        for (tcc_idx i = 0; i < 3 * nt; i++) vt_tri[fill[m->tri[i]]++] = i / 3;
+        free(fill);
+    }
+    tcc_idx *bindex = malloc(sizeof(tcc_idx) * (n + 3 * nt)), bptr_c[K + 1]; /* box members: own vertices, triangles' */
+    {
+        tcc_idx q = 0;
+        for (int c = 0; c < K; c++) {
+            bptr_c[c] = q;
+            for (tcc_idx i = ptr[c]; i < ptr[c + 1]; i++) bindex[q++] = order[i];
+            for (tcc_idx f = tp2[c]; f < tp2[c + 1]; f++)
+                for (int k = 0; k < 3; k++) bindex[q++] = m->tri[3 * tord[f] + k];
+        }
+        bptr_c[K] = q;
+    }
+    tcc_idx *adj = malloc(sizeof(tcc_idx) * 3 * nt);
+    uint8_t *flip = calloc(3 * nt, 1);
+    for (tcc_idx f = 0; f < nt; f++)
+        for (int e = 0; e < 3; e++) {
+            tcc_idx a = m->tri[3 * f + e], b = m->tri[3 * f + (e + 1) % 3];
+            adj[3 * f + e] = -1;
+            for (tcc_idx g = 0; g < nt && adj[3 * f + e] < 0; g++) {
+                if (g == f) continue;
+                for (int h = 0; h < 3; h++) {
+                    tcc_idx c = m->tri[3 * g + h], d = m->tri[3 * g + (h + 1) % 3];
+                    if ((c == a && d == b) || (c == b && d == a)) {
+                        adj[3 * f + e] = g;
+                        flip[3 * f + e] = c == a;
+                    }
+                }
+            }
+        }
+    tcc_idx *table = malloc(sizeof(tcc_idx) * W * n);
+    for (tcc_idx i = 0; i < W * n; i++) table[i] = -1;
+    for (tcc_idx v = 0; v < n; v++) table[W * v] = v;
+    for (tcc_idx f = 0; f < nt; f++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) {
+                tcc_idx *row = table + W * m->tri[3 * f + a], vb = m->tri[3 * f + b];
+                for (int w = 0; w < W; w++) {
+                    if (row[w] == vb) break;
+                    if (row[w] < 0) { row[w] = vb; break; }
+                }
+            }
+    tcc_mesh cm = {m->x, n, m->tri, nt, adj, flip};
+    tcc_idx *cnp, *cnode, *cprim, cnn = 0;
+    double *cbox, *ccorner;
+    build_scene_tree(&cm, K, tp2, tord, &cnp, &cnode, &cbox, &cprim, &ccorner, &cnn);
+    /* the body: a closed box, its 12 triangles in 2 clusters */
+    double bx[24], bprev[24], bvel[24] = {0};
+    box_at(bx, 0.0, 0.0, -0.2);
+    memcpy(bprev, bx, sizeof bx);
+    tcc_idx btlab[12], btord[12], btp[KB + 1] = {0, 6, 12}, border[8] = {0, 1, 2, 3, 4, 5, 6, 7}, bvp[KB + 1] = {0, 4, 8};
+    for (int f = 0; f < 12; f++) { btlab[f] = f / 6; btord[f] = f; }
+    tcc_idx bbi[8 + 36], bbp[KB + 1];
+    {
+        tcc_idx q = 0;
+        for (int c = 0; c < KB; c++) {
+            bbp[c] = q;
+            for (int v = 4 * c; v < 4 * c + 4; v++) bbi[q++] = v;
+            for (int f = 6 * c; f < 6 * c + 6; f++)
+                for (int k = 0; k < 3; k++) bbi[q++] = BOX_T[3 * f + k];
+        }
+        bbp[KB] = q;
+    }
+    tcc_idx badj[36];
+    uint8_t bflip[36] = {0};
+    for (int f = 0; f < 12; f++)
+        for (int e = 0; e < 3; e++) {
+            tcc_idx a = BOX_T[3 * f + e], b = BOX_T[3 * f + (e + 1) % 3];
+            badj[3 * f + e] = -1;
+            for (int g = 0; g < 12; g++)
+                for (int h = 0; h < 3; h++)
+                    if (g != f && BOX_T[3 * g + h] == b && BOX_T[3 * g + (h + 1) % 3] == a) badj[3 * f + e] = g;
+        }
+    tcc_mesh bm = {bx, 8, BOX_T, 12, badj, bflip};
+    tcc_idx *bnp, *bnode, *bprim, bnn = 0;
+    double *bbox, *bcorner;
+    build_scene_tree(&bm, KB, btp, btord, &bnp, &bnode, &bbox, &bprim, &bcorner, &bnn);
+    /* state carried from step to step */
+    double *prev = malloc(sizeof(double) * 3 * n), *normals = malloc(sizeof(double) * 3 * n);
+    uint8_t *has = calloc(n, 1), done[K];
+    memcpy(prev, m->x, sizeof(double) * 3 * n);
+    tcc_idx crefit[K], brefit[KB];
+    for (int c = 0; c < K; c++) crefit[c] = -1;
+    for (int c = 0; c < KB; c++) brefit[c] = -1;
+    struct target_state {
+        tcc_idx *key, *tri, *inside, kt, ni, *okey, *otri, *oin;
+        int8_t *side, *oside;
+        tcc_idx *keys;
+        double *ravg, *rdev;
+        tcc_idx nold;
+    } st[2];
+    for (int k = 0; k < 2; k++) {
+        st[k].key = malloc(sizeof(tcc_idx) * 2 * n); st[k].tri = malloc(sizeof(tcc_idx) * 2 * n);
+        st[k].side = malloc(2 * n); st[k].inside = malloc(sizeof(tcc_idx) * n);
+        st[k].okey = malloc(sizeof(tcc_idx) * 2 * n); st[k].otri = malloc(sizeof(tcc_idx) * 2 * n);
+        st[k].oside = malloc(2 * n); st[k].oin = malloc(sizeof(tcc_idx) * n);
+        st[k].keys = malloc(sizeof(tcc_idx) * K * K); st[k].ravg = malloc(sizeof(double) * 3 * K * K);
+        st[k].rdev = malloc(sizeof(double) * K * K);
+        st[k].kt = st[k].ni = st[k].nold = 0;
+    }
+    tcc_idx *cv = malloc(sizeof(tcc_idx) * n);
+    double *depth = malloc(sizeof(double) * n), *cn = malloc(sizeof(double) * 3 * n), *cvel = malloc(sizeof(double) * 3 * n);
+    int inside_seen = 0, contacts_seen = 0, bad_contacts = 0, unsorted = 0, full_seen = 0, nearest_bad = 0, hits_seen = 0;
+    tcc_error err = {0};
+    for (int step = 0; step < 30; step++) {
+        box_at(bx, 0.0, 0.0, -0.2 + 0.008 * step); /* rises through the cloth at 8 mm per step */
+        for (int i = 0; i < 24; i++) bvel[i] = (bx[i] - bprev[i]) / 1e-3;
+        for (tcc_idx v = 0; v < n; v++) m->x[3 * v + 2] = 0.003 * sin(8.0 * m->x[3 * v] + 0.5 * step);
+        double cavg[3 * K], cdev[K], clo[3 * K], chi[3 * K], bavg[3 * KB], bdev[KB], blo[3 * KB], bhi[3 * KB];
+        CHECK(tcc_cluster_state(m->x, prev, n, order, n, ptr, K, bindex, bptr_c[K], bptr_c, inflate, cavg, cdev, clo, chi,
+                                &err) == TCC_OK, "cloth state: %s", err.what);
+        CHECK(tcc_cluster_state(bx, bprev, 8, border, 8, bvp, KB, bbi, bbp[KB], bbp, inflate, bavg, bdev, blo, bhi, &err) ==
+                  TCC_OK, "body state: %s", err.what);
+        memset(done, 0, sizeof done);
+        for (int k = 0; k < 2; k++) {
+            int self = k == 1;
+            tcc_idx pi[K * K], pj[K * K], np_ = 0, nfull = 0, keys[K * K];
+            double ravg[3 * K * K], rdev[K * K], amp[K * K];
+            uint8_t full[K * K];
+            tcc_pair_step_in ps = {clo, chi, self ? clo : blo, self ? chi : bhi, K, self ? K : KB, self, step == 0,
+                                   NULL, 0, cavg, cdev, self ? cavg : bavg, self ? cdev : bdev, st[k].keys, st[k].ravg,
+                                   st[k].rdev, st[k].nold, 0.0015, 3.0};
+            CHECK(tcc_pair_step(&ps, K * K, pi, pj, full, keys, ravg, rdev, amp, &np_, &nfull, &err) == TCC_OK,
+                  "pair step: %s", err.what);
+            memcpy(st[k].keys, keys, sizeof(tcc_idx) * np_);
+            memcpy(st[k].ravg, ravg, sizeof(double) * 3 * np_);
+            memcpy(st[k].rdev, rdev, sizeof(double) * np_);
+            st[k].nold = np_;
+            tcc_detect_in in;
+            memset(&in, 0, sizeof in);
+            in.x = m->x; in.x_prev = prev; in.velocity = NULL; in.n = n; in.tri = m->tri; in.nt = nt;
+            in.vt_ptr = vt_ptr; in.vt_tri = vt_tri; in.nvt = 3 * nt; in.order = order; in.ptr = ptr; in.labels = labels;
+            in.norder = n; in.kc = K; in.normals = normals; in.has_normal = has; in.done = done;
+            in.kind = self ? TCC_SELF : TCC_VOLUME;
+            if (self) {
+                in.target = cm; in.target_prev = prev; in.tri_labels = tlab; in.tri_order = tord; in.tri_ptr = tp2;
+                in.ntri_order = nt; in.kb = K; in.box_lo = clo; in.box_hi = chi;
+                in.ring = (tcc_ring){table, n, W};
+                in.bvh = (tcc_bvh){cnp, K, cnode, cbox, cnn, cprim, nt, ccorner};
+                in.refit_step = crefit;
+            } else {
+                in.target = bm; in.target_prev = bprev; in.target_velocity = bvel; in.tri_labels = btlab;
+                in.tri_order = btord; in.tri_ptr = btp; in.ntri_order = 12; in.kb = KB; in.box_lo = blo; in.box_hi = bhi;
+                in.bvh = (tcc_bvh){bnp, KB, bnode, bbox, bnn, bprim, 12, bcorner};
+                in.refit_step = brefit;
+            }
+            in.step = step; in.pi = pi; in.pj = pj; in.full = full; in.np = np_;
+            in.track_key = st[k].key; in.track_tri = st[k].tri; in.track_side = st[k].side; in.kt = st[k].kt;
+            in.inside = st[k].inside; in.ninside = self ? 0 : st[k].ni;
+            in.thickness = th; in.track_range = tr; in.ray_length = tr; in.inflate = inflate; in.backoff = bo;
+            in.first = step == 0;
+            tcc_merge_out out = {st[k].okey, st[k].otri, st[k].oside, 0, st[k].oin, 0, cv, depth, cn, cvel, 0};
+            tcc_detect_stats ds;
+            int rc = tcc_detect(&in, &out, &ds, &err);
+            CHECK(rc == TCC_OK, "step %d %s: %s", step, self ? "self" : "body", err.what);
+            if (rc) continue;
+            full_seen += ds.full_pairs > 0;
+            hits_seen += (int)ds.hits;
+            for (tcc_idx i = 0; i < out.ncontacts; i++) {
+                double l = sqrt(cn[3 * i] * cn[3 * i] + cn[3 * i + 1] * cn[3 * i + 1] + cn[3 * i + 2] * cn[3 * i + 2]);
+                bad_contacts += !(depth[i] > 0 && isfinite(depth[i]) && fabs(l - 1.0) < 1e-9 && cv[i] >= 0 && cv[i] < n &&
+                                  (i == 0 || cv[i] > cv[i - 1]));
+            }
+            for (tcc_idx i = 1; i < out.ntracks; i++) unsorted += st[k].okey[i] <= st[k].okey[i - 1];
+            contacts_seen += (int)out.ncontacts;
+            if (!self) {
+                inside_seen += (int)out.ninside;
+                /* a vertex inside the box has a contact deeper than the thickness */
+                for (tcc_idx i = 0; i < out.ninside; i++) {
+                    tcc_idx v = st[k].oin[i], j = 0;
+                    while (j < out.ncontacts && cv[j] != v) j++;
+                    bad_contacts += !(j < out.ncontacts && depth[j] > th);
+                }
+            }
+            /* every tracked hit of a full pair's vertex is no farther than the nearest triangle of the
+             * collider along its line (brute force over all of the collider's triangles, within the
+             * track range: the track can only be nearer, or an untripped cluster's) */
+            for (tcc_idx i = 0; i < out.ntracks && !self; i++) {
+                tcc_idx v = st[k].okey[i] >> 1, slot = st[k].okey[i] & 1, f = st[k].otri[i];
+                double sg = slot ? -1.0 : 1.0, d[3] = {normals[3 * v] * sg, normals[3 * v + 1] * sg, normals[3 * v + 2] * sg};
+                double t, u, w;
+                const tcc_idx *tv = BOX_T + 3 * f;
+                nearest_bad += !(f >= 0 && f < 12 &&
+                                 tcc_line_triangle(m->x + 3 * v, d, bx + 3 * tv[0], bx + 3 * tv[1], bx + 3 * tv[2], &t, &u, &w));
+            }
+            st[k].kt = out.ntracks;
+            memcpy(st[k].key, st[k].okey, sizeof(tcc_idx) * out.ntracks);
+            memcpy(st[k].tri, st[k].otri, sizeof(tcc_idx) * out.ntracks);
+            memcpy(st[k].side, st[k].oside, (size_t)out.ntracks);
+            if (!self) {
+                st[k].ni = out.ninside;
+                memcpy(st[k].inside, st[k].oin, sizeof(tcc_idx) * out.ninside);
+            }
+        }
+        memcpy(prev, m->x, sizeof(double) * 3 * n);
+        memcpy(bprev, bx, sizeof bx);
+    }
+    CHECK(full_seen > 0 && hits_seen > 0 && contacts_seen > 0, "full detection ran and found contacts (%d, %d, %d)",
+          full_seen, hits_seen, contacts_seen);
+    CHECK(inside_seen > 0, "the rising box swallowed cloth vertices");
+    CHECK(bad_contacts == 0 && unsorted == 0 && nearest_bad == 0, "contacts %d bad, tracks %d unsorted, %d tracks off their triangles",
+          bad_contacts, unsorted, nearest_bad);
+    /* bad input: errors, never reads out of bounds */
+    {
+        tcc_idx pi[1] = {K / 2}, pj[1] = {KB}, key[2] = {4, 2}, tri[2] = {0, 0};
+        double blo2[3 * KB], bhi2[3 * KB], bavg2[3 * KB], bdev2[KB];
+        box_at(bx, 0.0, 0.0, 0.0); /* around the cloth's middle: its rays reach the box */
+        tcc_cluster_state(bx, bprev, 8, border, 8, bvp, KB, bbi, bbp[KB], bbp, inflate, bavg2, bdev2, blo2, bhi2, &err);
+        int8_t side[2] = {1, 1};
+        uint8_t full[1] = {1};
+        tcc_detect_in in;
+        memset(&in, 0, sizeof in);
+        in.x = m->x; in.x_prev = prev; in.n = n; in.tri = m->tri; in.nt = nt; in.vt_ptr = vt_ptr; in.vt_tri = vt_tri;
+        in.nvt = 3 * nt; in.order = order; in.ptr = ptr; in.labels = labels; in.norder = n; in.kc = K;
+        in.normals = normals; in.has_normal = has; in.done = done; in.kind = TCC_VOLUME; in.target = bm;
+        in.target_prev = bprev; in.tri_labels = btlab; in.tri_order = btord; in.tri_ptr = btp; in.ntri_order = 12;
+        in.kb = KB; in.box_lo = blo2; in.box_hi = bhi2; in.bvh = (tcc_bvh){bnp, KB, bnode, bbox, bnn, bprim, 12, bcorner};
+        in.refit_step = brefit; in.step = 99; in.pi = pi; in.pj = pj; in.full = full; in.np = 1;
+        in.thickness = th; in.track_range = tr; in.ray_length = tr; in.inflate = inflate; in.backoff = bo;
+        tcc_merge_out out = {st[0].okey, st[0].otri, st[0].oside, 0, st[0].oin, 0, cv, depth, cn, cvel, 0};
+        tcc_detect_stats ds;
+        tcc_error e1 = {0}, e2 = {0}, e3 = {0}, e4 = {0};
+        CHECK(tcc_detect(&in, &out, &ds, &e1) == TCC_ERR_VALUE, "a pair's collider cluster out of range is an error");
+        pj[0] = 0;
+        in.track_key = key; in.track_tri = tri; in.track_side = side; in.kt = 2;
+        CHECK(tcc_detect(&in, &out, &ds, &e2) == TCC_ERR_VALUE, "unsorted track keys are an error");
+        in.kt = 0;
+        in.kind = 7;
+        CHECK(tcc_detect(&in, &out, &ds, &e3) == TCC_ERR_VALUE, "an unknown kind is an error");
+        in.kind = TCC_VOLUME;
+        tcc_idx keepn = bnode[2 * bnp[0]];
+        bnode[2 * bnp[0]] = bnp[0]; /* the root its own child */
+        brefit[0] = brefit[1] = -1;
+        memset(done, 0, sizeof done);
+        int rc4 = tcc_detect(&in, &out, &ds, &e4);
+        CHECK(rc4 == TCC_ERR_INDEX, "a corrupt tree is an index error (rc %d: %s)", rc4, e4.what);
+        bnode[2 * bnp[0]] = keepn;
+    }
+    for (tcc_idx v = 0; v < n; v++) m->x[3 * v + 2] = 0.0;
+    for (int k = 0; k < 2; k++) {
+        free(st[k].key); free(st[k].tri); free(st[k].side); free(st[k].inside); free(st[k].okey); free(st[k].otri);
+        free(st[k].oside); free(st[k].oin); free(st[k].keys); free(st[k].ravg); free(st[k].rdev);
+    }
+    free(order); free(labels); free(tlab); free(tord); free(vt_ptr); free(vt_tri); free(bindex); free(adj); free(flip);
+    free(table); free(cnp); free(cnode); free(cbox); free(cprim); free(ccorner); free(bnp); free(bnode); free(bbox);
+    free(bprim); free(bcorner); free(prev); free(normals); free(has); free(cv); free(depth); free(cn); free(cvel);
 }
 
 int main(void)
@@ -753,10 +1079,12 @@ int main(void)
     test_ccd(&m);
     test_swept_step(&m);
     test_bvh(&m);
+    test_detect_pipeline(&m);
     tear(&m);
     test_measure_and_detection_steps(&m);
     test_swept_step(&m);
     test_bvh(&m);
+    test_detect_pipeline(&m);
     free(m.x);
     free(m.tri);
     printf("collide: %d checks, %d failures\n", checks, failures);
