@@ -676,7 +676,7 @@ class CollisionDetector:
 
     def _workspace(self, n, k):
         """The step's scratch, kept between steps (not pickled): the cloth's normals (computed per
-        cluster as the step needs them: done), and one collider's outputs (tracks, contacts, stats)."""
+        vertex as the step needs them: done), and one collider's outputs (tracks, contacts, stats)."""
         ws = getattr(self, "_ws", None)
         if ws is None or ws["normals"].shape[0] != n:
             ws = {"normals": np.zeros((n, 3)), "has_normal": np.zeros(n, bool), "out_key": np.empty(2 * n, np.int64),
@@ -685,7 +685,7 @@ class CollisionDetector:
                   "depth": np.empty(n), "normal": np.empty((n, 3)), "contact_velocity": np.empty((n, 3)),
                   "stats": np.zeros(8, np.int64), "times": np.zeros(4)}
             self._ws = ws
-        ws["done"] = np.zeros(k, bool)
+        ws["done"] = np.zeros(n, bool)
         return ws
 
     def _detect_target(self, plan, pos, ws, step):
@@ -700,25 +700,20 @@ class CollisionDetector:
         trees = target.scenes
         if not trees.built:
             trees.build(target.vertices, target.triangles)
-        cl = target.clustering
-        _collide.detect(
-            positions=pos, previous=self._cloth_prev, velocity=cloth.velocities, triangles=cloth.triangles,
-            vt_ptr=cloth.vt_ptr, vt_tri=cloth.vt_tri, order=cloth.clustering.order, ptr=cloth.clustering.ptr,
-            labels=cloth.clustering.labels, normals=ws["normals"], has_normal=ws["has_normal"], done=ws["done"],
-            kind=kernels.KIND["self" if is_self else target.kind], target_vertices=target.vertices,
-            target_triangles=target.triangles, adjacency=target.adj, flip=target.flip,
-            target_previous=self._cloth_prev if is_self else target.measured,
-            target_velocity=cloth.velocities if is_self else target.velocities, tri_labels=cl.tri_labels,
-            tri_order=cl.tri_order, tri_ptr=cl.tri_starts, box_lo=plan.lo, box_hi=plan.hi,
-            ring=cloth.ring if is_self else None, node_ptr=trees.node_ptr, node=trees.node, box=trees.box,
-            prim=trees.prim, corner=trees.corner, refit_step=trees.refit_step, step=int(step), pair_i=plan.i, pair_j=plan.j,
-            full=plan.full, track_key=tracks.key, track_tri=tracks.tri, track_side=tracks.side, inside=tracks.inside,
-            thickness=self.thickness, track_range=self.track_range, ray_length=self.track_range,
-            inflate=self.inflate, backoff=RAY_BACKOFF, first=bool(self._first), out_key=ws["out_key"],
-            out_tri=ws["out_tri"], out_side=ws["out_side"], out_inside=ws["out_inside"],
-            contact_vertex=ws["contact_vertex"], depth=ws["depth"], normal=ws["normal"],
-            contact_velocity=ws["contact_velocity"], stats=ws["stats"], times=ws["times"],
-        )
+        args = self._target_args(plan, ws)
+        args["positions"], args["previous"], args["velocity"] = pos, self._cloth_prev, cloth.velocities
+        args["done"] = ws["done"]
+        if is_self:  # the cloth is its own target: this step's arrays
+            args["target_vertices"], args["target_previous"], args["target_velocity"] = \
+                pos, self._cloth_prev, cloth.velocities
+        else:
+            args["target_vertices"], args["target_previous"] = target.vertices, target.measured
+            args["target_velocity"] = target.velocities
+        args["box_lo"], args["box_hi"], args["step"] = plan.lo, plan.hi, int(step)
+        args["pair_i"], args["pair_j"], args["full"] = plan.i, plan.j, plan.full
+        args["track_key"], args["track_tri"], args["track_side"] = tracks.key, tracks.tri, tracks.side
+        args["inside"], args["first"] = tracks.inside, bool(self._first)
+        _collide.detect(**args)
         nt, ni, nc = (int(v) for v in ws["stats"][:3])
         tracks.key, tracks.tri, tracks.side = ws["out_key"][:nt].copy(), ws["out_tri"][:nt].copy(), \
             ws["out_side"][:nt].copy()
@@ -726,6 +721,42 @@ class CollisionDetector:
             tracks.inside = ws["out_inside"][:ni].copy()
         return (ws["contact_vertex"][:nc].copy(), ws["depth"][:nc].copy(), ws["normal"][:nc].copy(),
                 ws["contact_velocity"][:nc].copy(), target.friction)
+
+    def _target_args(self, plan, ws):
+        """The keyword arguments of a collider's C call (detect.c) in its table's order, kept between
+        steps while the topology, the trees and the scratch stay the same objects: the caller sets
+        what changes every step."""
+        name, target, cloth = plan.name, plan.target, self.cloth
+        trees, is_self = target.scenes, plan.name == "__self__"
+        ccl, tcl = cloth.clustering, target.clustering
+        key = tuple(id(a) for a in (cloth.triangles, cloth.vt_ptr, cloth.vt_tri, ccl.order, ccl.ptr, ccl.labels,
+                                    cloth.ring, target.triangles, target.adj, target.flip, tcl.tri_labels,
+                                    tcl.tri_order, tcl.tri_starts, trees.node_ptr, trees.node, trees.box, trees.prim,
+                                    trees.corner, trees.refit_step, ws["normals"]))
+        cache = ws.setdefault("args", {})
+        hit = cache.get(name)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        cl = target.clustering
+        args = dict(
+            positions=None, previous=None, velocity=None, triangles=cloth.triangles, vt_ptr=cloth.vt_ptr,
+            vt_tri=cloth.vt_tri, order=cloth.clustering.order, ptr=cloth.clustering.ptr,
+            labels=cloth.clustering.labels, normals=ws["normals"], has_normal=ws["has_normal"], done=None,
+            kind=kernels.KIND["self" if is_self else target.kind], target_vertices=target.vertices,
+            target_triangles=target.triangles, adjacency=target.adj, flip=target.flip,
+            target_previous=self._cloth_prev if is_self else target.measured,
+            target_velocity=cloth.velocities if is_self else target.velocities, tri_labels=cl.tri_labels,
+            tri_order=cl.tri_order, tri_ptr=cl.tri_starts, box_lo=None, box_hi=None,
+            ring=cloth.ring if is_self else None, node_ptr=trees.node_ptr, node=trees.node, box=trees.box,
+            prim=trees.prim, corner=trees.corner, refit_step=trees.refit_step, step=0, pair_i=None, pair_j=None,
+            full=None, track_key=None, track_tri=None, track_side=None, inside=None, thickness=self.thickness,
+            track_range=self.track_range, ray_length=self.track_range, inflate=self.inflate, backoff=RAY_BACKOFF,
+            first=False, out_key=ws["out_key"], out_tri=ws["out_tri"], out_side=ws["out_side"],
+            out_inside=ws["out_inside"], contact_vertex=ws["contact_vertex"], depth=ws["depth"],
+            normal=ws["normal"], contact_velocity=ws["contact_velocity"], stats=ws["stats"], times=ws["times"],
+        )
+        cache[name] = (key, args)
+        return args
 
     # ------------------------------------------------------------------ 5. swept (swept.py)
     def _swept_topology(self, pos):
@@ -761,13 +792,17 @@ class CollisionDetector:
     def _assemble_rows(rows, n):
         """(deepest contact per vertex over all colliders, every collider's contact per vertex
         sorted by vertex) from each collider's contacts (C)."""
+        some = [r for r in rows if r[0].size]
+        if not some:
+            return Contacts(), Contacts()
+        if len(some) == 1:  # one collider touches: its contacts are both lists
+            v, depth, normal, velocity, fr = some[0]
+            c = Contacts(v.astype(np.int32), normal, depth, velocity, np.full(v.size, fr))
+            return c, c
         sizes = [r[0].size for r in rows]
         total = sum(sizes)
-        if total == 0:
-            return Contacts(), Contacts()
         seg = np.zeros(len(rows) + 1, np.int64)
         np.cumsum(sizes, out=seg[1:])
-        some = [r for r in rows if r[0].size]
         v = np.concatenate([r[0] for r in some])
         depth = np.concatenate([r[1] for r in some])
         normal = np.concatenate([r[2] for r in some])

@@ -194,6 +194,10 @@ static int node_links(const tcc_bvh *b, tcc_idx i, tcc_idx e, int *leaf, tcc_idx
     return TCC_OK;
 }
 
+/* fmin / fmax (a NaN operand yields the other), inline: libm's are calls */
+static inline double min_num(double a, double b) { return (b < a || a != a) ? b : a; }
+static inline double max_num(double a, double b) { return (b > a || a != a) ? b : a; }
+
 int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
 {
     tcc_idx s, e;
@@ -205,25 +209,28 @@ int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
         if ((rc = node_links(b, i, e, &leaf, &x, &y, err))) return rc;
         double *bx = b->box + 6 * i;
         if (leaf) {
-            for (int a = 0; a < 3; a++) {
-                bx[a] = INFINITY;
-                bx[3 + a] = -INFINITY;
-            }
+            double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
             for (tcc_idx r = x; r < y; r++) {
                 const double *p[3];
                 if ((rc = corners(m, b->prim[r], p, err))) return rc;
+                double *cr = b->corner ? b->corner + 9 * r : NULL;
                 for (int k = 0; k < 3; k++)
                     for (int a = 0; a < 3; a++) {
-                        if (p[k][a] < bx[a]) bx[a] = p[k][a];
-                        if (p[k][a] > bx[3 + a]) bx[3 + a] = p[k][a];
-                        if (b->corner) b->corner[9 * r + 3 * k + a] = p[k][a];
+                        double v = p[k][a];
+                        if (v < lo[a]) lo[a] = v;
+                        if (v > hi[a]) hi[a] = v;
+                        if (cr) cr[3 * k + a] = v;
                     }
+            }
+            for (int a = 0; a < 3; a++) {
+                bx[a] = lo[a];
+                bx[3 + a] = hi[a];
             }
         } else {
             const double *l = b->box + 6 * x, *r = b->box + 6 * y;
             for (int a = 0; a < 3; a++) {
-                bx[a] = fmin(l[a], r[a]);
-                bx[3 + a] = fmax(l[3 + a], r[3 + a]);
+                bx[a] = min_num(l[a], r[a]);
+                bx[3 + a] = max_num(l[3 + a], r[3 + a]);
             }
         }
     }
@@ -385,6 +392,50 @@ int tcc_bvh_check(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
     return TCC_OK;
 }
 
+/* A line prepared for many box tests: per axis the bound it meets first (by the sign of d), and
+ * the axes along which it does not move (tested by containment). */
+typedef struct {
+    double o[3], inv[3];
+    int near[3], far[3], flat;
+} prepared_line;
+
+static inline void prepare_line(const double o[3], const double d[3], prepared_line *L)
+{
+    L->flat = 0;
+    for (int a = 0; a < 3; a++) {
+        L->o[a] = o[a];
+        if (fabs(d[a]) < 1e-300) {
+            L->inv[a] = INFINITY;
+            L->flat |= 1 << a;
+            L->near[a] = a;
+            L->far[a] = 3 + a;
+            continue;
+        }
+        L->inv[a] = 1.0 / d[a];
+        L->near[a] = d[a] > 0 ? a : 3 + a;
+        L->far[a] = d[a] > 0 ? 3 + a : a;
+    }
+}
+
+/* tcc_line_box for a prepared line: the same span (the same expressions), fewer branches. */
+static inline int prepared_box(const prepared_line *L, double lo, double hi, const double *bx, double *t0, double *t1)
+{
+    if (L->flat) {
+        for (int a = 0; a < 3; a++)
+            if ((L->flat >> a & 1) && !(L->o[a] >= bx[a] && L->o[a] <= bx[3 + a])) return 0;
+    }
+    for (int a = 0; a < 3; a++) {
+        if (L->flat >> a & 1) continue;
+        double ta = (bx[L->near[a]] - L->o[a]) * L->inv[a], tb = (bx[L->far[a]] - L->o[a]) * L->inv[a];
+        if (ta > lo) lo = ta;
+        if (tb < hi) hi = tb;
+    }
+    if (!(lo <= hi)) return 0;
+    *t0 = lo;
+    *t1 = hi;
+    return 1;
+}
+
 /* distance from s = 0 to the span [t0, t1] */
 static inline double span_gap(double t0, double t1) { return t0 > 0 ? t0 : (t1 < 0 ? -t1 : 0.0); }
 
@@ -394,8 +445,8 @@ void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x
     tcc_idx s = b->node_ptr[c], e = b->node_ptr[c + 1];
     if (e == s || !(active & 3)) return;
     int filter = ring && ring->table;
-    double inv[3];
-    for (int a = 0; a < 3; a++) inv[a] = fabs(d[a]) < 1e-300 ? INFINITY : 1.0 / d[a];
+    prepared_line L;
+    prepare_line(x, d, &L);
     double b0 = *s0, b1 = *s1; /* the open windows: slot 0 [-backoff, b0], slot 1 [b1, backoff] */
 #define LO ((active & 2) ? b1 : -backoff)
 #define HI ((active & 1) ? b0 : backoff)
@@ -407,7 +458,7 @@ void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x
     } stack[BVH_STACK];
     int top = 0;
     double t0, t1;
-    if (tcc_line_box(x, inv, LO, HI, b->box + 6 * s, &t0, &t1)) stack[top++] = (struct span_node){s, t0, t1};
+    if (prepared_box(&L, LO, HI, b->box + 6 * s, &t0, &t1)) stack[top++] = (struct span_node){s, t0, t1};
     while (top > 0) {
         top--;
         tcc_idx i = stack[top].i;
@@ -417,8 +468,9 @@ void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x
             for (tcc_idx r = -1 - p; r < -1 - p + q; r++) {
                 tcc_idx f = b->prim[r];
                 const tcc_idx *tv = m->tri + 3 * f;
-                /* the ray's own vertex first: every ray passes through its ~6 incident triangles */
-                if (filter && (tv[0] == v || tv[1] == v || tv[2] == v)) continue;
+                /* the ray's own two-ring first: every ray passes through its ~6 incident triangles, and
+                 * the leaves it visits hold mostly its neighbours' */
+                if (filter && (tv[0] == v || tv[1] == v || tv[2] == v || tcc_ring_excludes(ring, v, tv))) continue;
                 const double *P = b->corner + 9 * r;
                 double t, u, w;
                 if (!tcc_line_triangle_inline(x, d, P, P + 3, P + 6, &t, &u, &w)) continue;
@@ -427,7 +479,6 @@ void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x
                 int c0 = (active & 1) && t >= -backoff && (t < b0 || (t == b0 && tri[0] < 0));
                 int c1 = (active & 2) && t <= backoff && (t > b1 || (t == b1 && tri[1] < 0));
                 if (!c0 && !c1) continue;
-                if (filter && tcc_ring_excludes(ring, v, tv)) continue;
                 if (c0) {
                     b0 = t;
                     tri[0] = f;
@@ -440,8 +491,8 @@ void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x
             continue;
         }
         double pa = 0, pb = 0, qa = 0, qb = 0;
-        int hp = tcc_line_box(x, inv, LO, HI, b->box + 6 * p, &pa, &pb);
-        int hq = tcc_line_box(x, inv, LO, HI, b->box + 6 * q, &qa, &qb);
+        int hp = prepared_box(&L, LO, HI, b->box + 6 * p, &pa, &pb);
+        int hq = prepared_box(&L, LO, HI, b->box + 6 * q, &qa, &qb);
         if (top + 2 > BVH_STACK) break; /* deeper than any built tree: a corrupt one, searched no further */
         /* the nearer child (to the vertex) is popped first */
         if (hp && hq && span_gap(pa, pb) > span_gap(qa, qb)) {
@@ -466,12 +517,12 @@ int tcc_bvh_blocked(const tcc_bvh *b, tcc_idx c, const double x[3], const double
 {
     tcc_idx s = b->node_ptr[c], e = b->node_ptr[c + 1];
     if (e == s || !(lo <= hi)) return 0;
-    double inv[3];
-    for (int a = 0; a < 3; a++) inv[a] = fabs(d[a]) < 1e-300 ? INFINITY : 1.0 / d[a];
+    prepared_line L;
+    prepare_line(x, d, &L);
     tcc_idx stack[BVH_STACK];
     int top = 0;
     double t0, t1;
-    if (tcc_line_box(x, inv, lo, hi, b->box + 6 * s, &t0, &t1)) stack[top++] = s;
+    if (prepared_box(&L, lo, hi, b->box + 6 * s, &t0, &t1)) stack[top++] = s;
     while (top > 0) {
         tcc_idx i = stack[--top];
         tcc_idx p = b->node[2 * i], q = b->node[2 * i + 1];
@@ -486,8 +537,8 @@ int tcc_bvh_blocked(const tcc_bvh *b, tcc_idx c, const double x[3], const double
             continue;
         }
         if (top + 2 > BVH_STACK) break; /* deeper than any built tree: a corrupt one */
-        if (tcc_line_box(x, inv, lo, hi, b->box + 6 * p, &t0, &t1)) stack[top++] = p;
-        if (tcc_line_box(x, inv, lo, hi, b->box + 6 * q, &t0, &t1)) stack[top++] = q;
+        if (prepared_box(&L, lo, hi, b->box + 6 * p, &t0, &t1)) stack[top++] = p;
+        if (prepared_box(&L, lo, hi, b->box + 6 * q, &t0, &t1)) stack[top++] = q;
     }
     return 0;
 }

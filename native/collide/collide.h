@@ -580,8 +580,8 @@ typedef struct {
     tcc_idx nvt;
     const tcc_idx *order, *ptr, *labels;    /* the cloth's clusters: members, bounds (kc + 1), label per vertex */
     tcc_idx norder, kc;
-    double *normals;                        /* (n, 3) in/out: the step's normals, per cluster as needed */
-    uint8_t *has_normal, *done;             /* (n), (kc) in/out */
+    double *normals;                        /* (n, 3) in/out: the step's normals, per vertex as needed */
+    uint8_t *has_normal, *done;             /* (n) each, in/out: done marks the normals computed this step */
     /* the collider (the cloth itself for self-collision: kind TCC_SELF) */
     int kind;
     tcc_mesh target;                        /* with adjacency: the walks */

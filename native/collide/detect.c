@@ -68,15 +68,43 @@ static void hits_free(hit_list *l)
     free(l->tri);
 }
 
-/* The cloth's normals of cluster c, if this step has not computed them yet. */
-static int need_normals(const tcc_detect_in *in, tcc_idx c, tcc_error *err)
+/* The cloth's normal of vertex v, if this step has not computed it yet: summed from its incident
+ * triangles in vt_tri's order, as tcc_cluster_normals does (bit for bit the same). A step needs the
+ * normals of the vertices it walks or casts rays from, often a few hundred of thousands. */
+static int need_normal(const tcc_detect_in *in, tcc_idx v, tcc_error *err)
 {
-    if (c < 0 || c >= in->kc)
-        return tcc_fail(err, TCC_ERR_INDEX, "cloth cluster %lld is not in [0, %lld)", (long long)c, (long long)in->kc);
-    if (in->done[c]) return TCC_OK;
-    tcc_mesh cm = {in->x, in->n, in->tri, in->nt, NULL, NULL};
-    return tcc_cluster_normals(&cm, in->vt_ptr, in->vt_tri, in->nvt, in->order, in->norder, in->ptr, in->kc, &c, 1,
-                               in->normals, in->has_normal, in->done, err);
+    if (in->done[v]) return TCC_OK;
+    tcc_idx a0 = in->vt_ptr[v], a1 = in->vt_ptr[v + 1];
+    if (a0 < 0 || a1 < a0 || a1 > in->nvt)
+        return tcc_fail(err, TCC_ERR_INDEX, "vertex %lld's triangles span [%lld, %lld), outside the %lld listed",
+                        (long long)v, (long long)a0, (long long)a1, (long long)in->nvt);
+    double acc[3] = {0.0, 0.0, 0.0};
+    for (tcc_idx j = a0; j < a1; j++) {
+        tcc_idx f = in->vt_tri[j];
+        if (f < 0 || f >= in->nt)
+            return tcc_fail(err, TCC_ERR_INDEX, "triangle %lld is not in [0, %lld)", (long long)f, (long long)in->nt);
+        const tcc_idx *t = in->tri + 3 * f;
+        for (int a = 0; a < 3; a++)
+            if (t[a] < 0 || t[a] >= in->n)
+                return tcc_fail(err, TCC_ERR_INDEX, "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)",
+                                (long long)f, a, (long long)t[a], (long long)in->n);
+        double e1[3], e2[3], cr[3];
+        sub3(in->x + 3 * t[1], in->x + 3 * t[0], e1);
+        sub3(in->x + 3 * t[2], in->x + 3 * t[0], e2);
+        cross3(e1, e2, cr);
+        acc[0] += cr[0];
+        acc[1] += cr[1];
+        acc[2] += cr[2];
+    }
+    double len = sqrt(dot3(acc, acc));
+    double sc = len > 0 ? len : 1.0;
+    double *nv = in->normals + 3 * v;
+    nv[0] = acc[0] / sc;
+    nv[1] = acc[1] / sc;
+    nv[2] = acc[2] / sc;
+    in->has_normal[v] = dot3(nv, nv) > 0.5;
+    in->done[v] = 1;
+    return TCC_OK;
 }
 
 /* Index of key in the ascending keys (i << 32 | j) of the close pairs, or -1. */
@@ -129,8 +157,9 @@ static int tree_ready(tcc_detect_in *in, tcc_idx c, uint8_t *ready, tcc_error *e
 static int cast_cluster(tcc_detect_in *in, const tcc_ring *ring, tcc_idx a, const tcc_idx *b, tcc_idx nb, double len,
                         const uint8_t *trusted, uint8_t *ready, hit_list *hits, tcc_idx *rays, tcc_error *err)
 {
-    int rc = need_normals(in, a, err);
-    if (rc) return rc;
+    int rc = TCC_OK;
+    if (a < 0 || a >= in->kc)
+        return tcc_fail(err, TCC_ERR_INDEX, "cloth cluster %lld is not in [0, %lld)", (long long)a, (long long)in->kc);
     for (tcc_idx q = 0; q < nb; q++)
         if (b[q] < 0 || b[q] >= in->kb)
             return tcc_fail(err, TCC_ERR_INDEX, "collider cluster %lld is not in [0, %lld)", (long long)b[q],
@@ -144,6 +173,7 @@ static int cast_cluster(tcc_detect_in *in, const tcc_ring *ring, tcc_idx a, cons
     if (!near) return tcc_fail(err, TCC_ERR_NOMEM, "no memory for %lld clusters", (long long)nb);
     for (tcc_idx i = in->ptr[a]; i < in->ptr[a + 1] && rc == TCC_OK; i++) {
         tcc_idx v = in->order[i];
+        if ((rc = need_normal(in, v, err))) break;
         if (!in->has_normal[v]) continue;
         const double *x = in->x + 3 * v, *d = in->normals + 3 * v;
         if (!(isfinite(x[0]) && isfinite(x[1]) && isfinite(x[2]))) continue;
@@ -332,7 +362,7 @@ int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, t
     /* 2. incremental: every tracked ray walked to its current hit */
     for (tcc_idx i = 0; i < in->kt; i++) {
         tcc_idx v = in->track_key[i] >> 1;
-        if ((rc = need_normals(in, in->labels[v], err))) goto done;
+        if ((rc = need_normal(in, v, err))) goto done;
     }
     if (in->kt) {
         tcc_idx *tv = malloc(sizeof(tcc_idx) * 2 * kt);

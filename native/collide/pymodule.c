@@ -1534,7 +1534,7 @@ static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
     CHECK_ROWS(DT_LABELS, n);
     CHECK_ROWS(DT_NRM, n);
     CHECK_ROWS(DT_HAS, n);
-    CHECK_ROWS(DT_DONE, kc);
+    CHECK_ROWS(DT_DONE, n);
     CHECK_ROWS(DT_ADJ, ntt);
     CHECK_ROWS(DT_FLIP, ntt);
     CHECK_ROWS(DT_TPREV, nv);

@@ -903,7 +903,7 @@ static void test_detect_pipeline(mesh *m)
     build_scene_tree(&bm, KB, btp, btord, &bnp, &bnode, &bbox, &bprim, &bcorner, &bnn);
     /* state carried from step to step */
     double *prev = malloc(sizeof(double) * 3 * n), *normals = malloc(sizeof(double) * 3 * n);
-    uint8_t *has = calloc(n, 1), done[K];
+    uint8_t *has = calloc(n, 1), *done = calloc(n, 1);
     memcpy(prev, m->x, sizeof(double) * 3 * n);
     tcc_idx crefit[K], brefit[KB];
     for (int c = 0; c < K; c++) crefit[c] = -1;
@@ -937,7 +937,7 @@ static void test_detect_pipeline(mesh *m)
                                 &err) == TCC_OK, "cloth state: %s", err.what);
         CHECK(tcc_cluster_state(bx, bprev, 8, border, 8, bvp, KB, bbi, bbp[KB], bbp, inflate, bavg, bdev, blo, bhi, &err) ==
                   TCC_OK, "body state: %s", err.what);
-        memset(done, 0, sizeof done);
+        memset(done, 0, (size_t)n);
         for (int k = 0; k < 2; k++) {
             int self = k == 1;
             tcc_idx pi[K * K], pj[K * K], np_ = 0, nfull = 0, keys[K * K];
@@ -1057,7 +1057,7 @@ static void test_detect_pipeline(mesh *m)
         tcc_idx keepn = bnode[2 * bnp[0]];
         bnode[2 * bnp[0]] = bnp[0]; /* the root its own child */
         brefit[0] = brefit[1] = -1;
-        memset(done, 0, sizeof done);
+        memset(done, 0, (size_t)n);
         int rc4 = tcc_detect(&in, &out, &ds, &e4);
         CHECK(rc4 == TCC_ERR_INDEX, "a corrupt tree is an index error (rc %d: %s)", rc4, e4.what);
         bnode[2 * bnp[0]] = keepn;
@@ -1069,7 +1069,7 @@ static void test_detect_pipeline(mesh *m)
     }
     free(order); free(labels); free(tlab); free(tord); free(vt_ptr); free(vt_tri); free(bindex); free(adj); free(flip);
     free(table); free(cnp); free(cnode); free(cbox); free(cprim); free(ccorner); free(bnp); free(bnode); free(bbox);
-    free(bprim); free(bcorner); free(prev); free(normals); free(has); free(cv); free(depth); free(cn); free(cvel);
+    free(bprim); free(bcorner); free(prev); free(normals); free(has); free(done); free(cv); free(depth); free(cn); free(cvel);
 }
 
 int main(void)
