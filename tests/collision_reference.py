@@ -23,8 +23,8 @@ from tearcloth.collision.measure import AbsoluteMeasure
 from tearcloth.collision.narrow import (RAY_BACKOFF, ClusterBVH, ClusterScenes, Contacts, build_scene, cast,
                                         face_normals, initial_side, vertex_normals)
 
-__all__ = ["refine", "merge_classify", "assemble", "brute_force_detect", "ReferenceDetector", "VOLUME", "SURFACE",
-           "SELF"]
+__all__ = ["refine", "merge_classify", "assemble", "brute_force_detect", "ReferenceDetector", "skipped_pairs",
+           "VOLUME", "SURFACE", "SELF"]
 
 VOLUME, SURFACE, SELF = 0, 1, 2
 _SLOT_SIGN = np.array([1.0, -1.0])
@@ -709,3 +709,33 @@ class ReferenceDetector(CollisionDetector):
             tracks.inside = oin[:ni]
         return cv[:nc], depth[:nc], normal[:nc], velocity[:nc], target.friction
 
+
+def skipped_pairs(triangles, ring, n):
+    """numpy specification of swept.skipped_pairs (the previous release's code): (edges, vt, ee)."""
+    t = np.asarray(triangles, np.int64)
+    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
+    edges = np.unique(np.sort(e, axis=1), axis=0)
+    u = ring[t].reshape(t.shape[0], -1)
+    ti = np.repeat(np.arange(t.shape[0]), u.shape[1])
+    u = u.reshape(-1)
+    ok = (u >= 0) & (u != t[ti, 0]) & (u != t[ti, 1]) & (u != t[ti, 2])
+    vt = np.unique(np.stack([u[ok], ti[ok]], 1), axis=0)
+    ends = edges.reshape(-1)
+    eid = np.repeat(np.arange(edges.shape[0]), 2)
+    order = np.argsort(ends, kind="stable")
+    counts = np.bincount(ends, minlength=n)
+    inc = np.full((n, max(int(counts.max(initial=0)), 1)), -1, np.int64)
+    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    inc[ends[order], np.arange(order.size) - start[ends[order]]] = eid[order]
+    nb = ring[edges]  # (m, 2, K)
+    f = inc[np.where(nb >= 0, nb, 0)]
+    f[nb < 0] = -1
+    f = f.reshape(edges.shape[0], -1)
+    fi = np.repeat(np.arange(edges.shape[0]), f.shape[1])
+    f = f.reshape(-1)
+    ok = (f >= 0) & (fi < f)
+    a, b = fi[ok], f[ok]
+    ea, eb = edges[a], edges[b]
+    ok = (ea[:, 0] != eb[:, 0]) & (ea[:, 0] != eb[:, 1]) & (ea[:, 1] != eb[:, 0]) & (ea[:, 1] != eb[:, 1])
+    ee = np.unique(np.stack([a[ok], b[ok]], 1), axis=0)
+    return edges, vt.reshape(-1, 2), ee.reshape(-1, 2)

@@ -220,3 +220,30 @@ def test_swept_step_rejects_bad_input():
         sw.step(x, x, None, 0.0)
     ptr[-1] += 1
     sw.step(x, x, None, 0.0)
+
+
+def test_swept_pairs_equal_their_numpy_specification_before_and_after_tears():
+    """swept.skipped_pairs (C: swept.c tcc_swept_pairs) gives the previous release's numpy lists, in
+    the same order, on the T-shirt and on a sheet torn along a row (twins share the two-ring)."""
+    from collision_reference import skipped_pairs as reference
+    from tearcloth import examples
+    from tearcloth.collision.detector import twin_ring
+    from tearcloth.collision.narrow import ring_table
+    from tearcloth.collision.swept import skipped_pairs
+    from test_collision_clusters import grid, tear_grid
+
+    shirt = examples.tshirt()
+    cases = [(np.asarray(shirt.triangles, np.int64), ring_table(shirt.triangles, len(shirt.vertices)),
+              len(shirt.vertices))]
+    p, t = grid(30, 30)
+    p2, t2, events = tear_grid(p, t, None, 12)
+    n2 = p2.shape[0]
+    rid = np.arange(n2, dtype=np.int64)
+    new_v, parents = np.asarray(events["new_vertices"], np.int64), np.asarray(events["parents"], np.int64)
+    rid[new_v] = parents[:, 0]
+    cases.append((np.asarray(t2, np.int64), twin_ring(ring_table(t2, n2), rid), n2))
+    for tri, ring, n in cases:
+        got, want = skipped_pairs(tri, ring, n), reference(tri, ring, n)
+        for g, w in zip(got, want):
+            np.testing.assert_array_equal(g, w)
+        assert got[1].shape[0] > 1000 and got[2].shape[0] > 1000

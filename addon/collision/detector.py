@@ -1,25 +1,36 @@
 """CollisionDetector: the per-step orchestration of clustered, ray-traced collision detection.
 
 This file owns the state that lives between steps (previous positions, clusters, per-pair
-measures, per-ray tracks) and the order of one step; every loop over vertices, rays or pairs runs
-in C (``kernels.py`` -> ``tearcloth._collide``), so a step is a few dozen calls whatever the mesh:
+measures, per-ray tracks, the colliders' trees) and the order of one step; the step itself runs
+in C, a handful of calls whatever the mesh (native/collide/: measure.c, detect.c, swept.c), with
+numpy arrays in and out and no Python per pair, ray or triangle:
 
-1. measure  – per-cluster displacement since the previous ``detect``; inflated cluster AABBs;
-              close pairs (cloth-cloth for self-collision, cloth-body); the displacement measure
-              marks pairs for full detection (``measure.py``).
-2. incremental – every ray tracked from the previous step is walked to its current hit on the
+1. measure  – per-cluster displacement since the previous ``detect`` and inflated cluster AABBs
+              (one call per object), then per collider its close pairs (cloth-cloth for
+              self-collision, cloth-body), the pairs forced to full detection after a tear, and
+              the paper's relative measure marking pairs for full detection (one call,
+              ``measure.py``; the absolute measure and the motion-bound trip rule add to that
+              verdict in numpy).
+2-4. per collider, one call (detect.c):
+   incremental – every ray tracked from the previous step is walked to its current hit on the
               current geometry (``incremental.py``). A lost walk sends its pair to full
               detection in this same step (not the next one: the step's contact set would
               otherwise miss that vertex once).
-3. full     – for the marked pairs, grouped by collider cluster: the rays of every cloth cluster
-              paired with that collider cluster, culled against its box, go in one Embree call
-              into its cached scene (``narrow.py``), and are refined exactly on the current
-              geometry. The cloth against itself: every pair's rays in one C call into the
-              clusters' refitted BVHs, the two-ring skipped inside (``narrow.ClusterBVH``).
-4. contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
-              contact per vertex is returned (``all_contacts``: one per vertex per collider).
+   full     – for the marked pairs, each cloth vertex's two rays (+n, -n) in one traversal of
+              each collider cluster's tree its line reaches (nearest cluster first; bvh.c, every
+              collider - the cloth and the bodies - in native trees refitted the first time a
+              step casts into them, ``narrow.ClusterBVH``), the two-ring skipped inside for the
+              cloth itself; the hits refined exactly on the current geometry.
+   contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
+              contact per vertex of the collider returned; over the colliders, the deepest per
+              vertex (``detect``'s result) and every one (``all_contacts``).
 5. swept    – self-collision of the pairs the rays skip (the two-ring), by swept vertex-triangle
-              and edge-edge tests over the step (``swept.py``); its contacts join ``all_contacts``.
+              and edge-edge tests over the step (``swept.py``, two calls); its contacts join
+              ``all_contacts``.
+
+The previous release ran steps 2-4 in Python over per-stage kernels, bodies in Embree scenes in
+each cluster's rigid frame; tests/collision_reference.py keeps that step (``ReferenceDetector``)
+as the specification the C step equals contact for contact.
 
 Tracks: per collider, per cloth vertex, two ray slots (+n, -n) hold the triangle last hit, the
 remembered side (thin surfaces) and, for closed bodies, whether the vertex was inside. A full
@@ -29,15 +40,14 @@ between two full detections of a pair the relative motion stays under the thresh
 vertex that was not tracked cannot reach the contact distance (the 1.5 covers the measure
 being a mean + standard deviation, not a maximum).
 
-Ray length: for the same reason a full detection's rays need only reach ``track_range`` (plus
-the scene tolerance), and that is all they do for thin surfaces and the cloth itself. A closed
+Ray length: for the same reason a full detection's rays need only reach ``track_range``, and
+that is all they do for thin surfaces and the cloth itself. A closed
 body's rays reach across it: a body face that sweeps sideways over a vertex (parallel to its
 normal rays) puts it inside with its exits along the normal far away, and only a long ray finds
-them. What keeps that affordable: rays are culled against the collider cluster's box (a few dozen
-per pair survive), and a far back face proves "inside" only when no nearer hit of the same ray
-disproves it and, failing that, when an exact test (C, on the current geometry) finds nothing in
-front of it - the former Embree-based confirmation queried, and so refitted or rebuilt, far
-clusters' scenes in most steps.
+them. What keeps that affordable: rays are culled against the collider cluster's box, a ray's
+nearest hit so far cuts off the clusters beyond it, and a far back face proves "inside" only when
+no nearer hit of the same ray disproves it and, failing that, when an exact test on the current
+geometry (the trees of the clusters the segment crosses) finds nothing in front of it.
 
 Bodies must be closed (watertight, consistently oriented): then "inside" is well defined. An
 open body triggers a ``warnings.warn`` and is handled as a two-sided thin surface with inversion

@@ -45,48 +45,21 @@ GAP_FRACTION = 0.25
 MIN_REST = 1e-6
 
 
-def unique_edges(triangles):
-    t = np.asarray(triangles, np.int64)
-    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
-
-
-def _incident_edges(edges, n):
-    """(n, K) table of the edges at each vertex, padded with -1."""
-    ends = edges.reshape(-1)
-    eid = np.repeat(np.arange(edges.shape[0]), 2)
-    order = np.argsort(ends, kind="stable")
-    counts = np.bincount(ends, minlength=n)
-    table = np.full((n, max(int(counts.max(initial=0)), 1)), -1, np.int64)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    table[ends[order], np.arange(order.size) - start[ends[order]]] = eid[order]
-    return table
-
-
 def skipped_pairs(triangles, ring, n):
     """The pairs the rays skip: (vertex, triangle) with a corner of the triangle in the vertex's
     ring (not a corner itself), and (edge, edge) sharing no vertex with an end of one in the ring of
-    an end of the other. Returns (edges (m, 2), vt (k, 2), ee (j, 2) edge ids, first < second)."""
-    t = np.asarray(triangles, np.int64)
-    edges = unique_edges(t)
-    u = ring[t].reshape(t.shape[0], -1)
-    ti = np.repeat(np.arange(t.shape[0]), u.shape[1])
-    u = u.reshape(-1)
-    ok = (u >= 0) & (u != t[ti, 0]) & (u != t[ti, 1]) & (u != t[ti, 2])
-    vt = np.unique(np.stack([u[ok], ti[ok]], 1), axis=0)
-    inc = _incident_edges(edges, n)
-    nb = ring[edges]  # (m, 2, K)
-    f = inc[np.where(nb >= 0, nb, 0)]
-    f[nb < 0] = -1
-    f = f.reshape(edges.shape[0], -1)
-    fi = np.repeat(np.arange(edges.shape[0]), f.shape[1])
-    f = f.reshape(-1)
-    ok = (f >= 0) & (fi < f)
-    a, b = fi[ok], f[ok]
-    ea, eb = edges[a], edges[b]
-    ok = (ea[:, 0] != eb[:, 0]) & (ea[:, 0] != eb[:, 1]) & (ea[:, 1] != eb[:, 0]) & (ea[:, 1] != eb[:, 1])
-    ee = np.unique(np.stack([a[ok], b[ok]], 1), axis=0)
-    return edges, vt.reshape(-1, 2), ee.reshape(-1, 2)
+    an end of the other. Returns (edges (m, 2), vt (k, 2), ee (j, 2) edge ids, first < second), each
+    ascending (C: swept.c tcc_swept_pairs)."""
+    t = _c(triangles, np.int64).reshape(-1, 3)
+    ring = _c(ring, np.int64)
+    caps = [3 * t.shape[0], 3 * t.shape[0] * ring.shape[1], 8 * t.shape[0] * ring.shape[1]]
+    while True:
+        edges, vt, ee = np.empty((caps[0], 2), np.int64), np.empty((caps[1], 2), np.int64), \
+            np.empty((caps[2], 2), np.int64)
+        counts = _collide.swept_pairs(t, ring, int(n), edges, vt, ee)
+        if all(c <= cap for c, cap in zip(counts, caps)):
+            return edges[:counts[0]], vt[:counts[1]], ee[:counts[2]]
+        caps = [max(c, cap) for c, cap in zip(counts, caps)]
 
 
 # vertices per group of the cull's cheap bounds (swept.c): nearby vertices (runs of the Morton order of
@@ -99,19 +72,15 @@ GROUP_SIZE = 16
 BLOCK_PAIRS = 64
 
 
-def _pair_blocks(quad, size=BLOCK_PAIRS):
-    """(block_ptr, block_vptr, block_vertices) of runs of ``size`` pairs of ``quad`` (k, 4): the
-    distinct vertices of each run, ascending."""
+def _pair_blocks(quad, group, size=BLOCK_PAIRS):
+    """(block_ptr, block_vptr, block_vertices, block_gptr, block_groups) of runs of ``size`` pairs of
+    ``quad`` (k, 4): the distinct vertices of each run and their distinct groups, ascending (C)."""
     k = quad.shape[0]
     nb = -(-k // size)
-    ptr = np.minimum(np.arange(nb + 1, dtype=np.int64) * size, k)
-    n = int(quad.max(initial=-1)) + 1
-    keys = np.unique((np.arange(k, dtype=np.int64) // size)[:, None] * n + quad).reshape(-1) if k else \
-        np.zeros(0, np.int64)
-    vptr = np.zeros(nb + 1, np.int64)
-    if k:
-        np.cumsum(np.bincount(keys // n, minlength=nb), out=vptr[1:])
-    return ptr, vptr, _c(keys % n if k else keys, np.int64)
+    out = (np.empty(nb + 1, np.int64), np.empty(nb + 1, np.int64), np.empty(4 * k, np.int64),
+           np.empty(nb + 1, np.int64), np.empty(4 * k, np.int64))
+    nv, ng = _collide.swept_blocks(_c(quad, np.int64), size, _c(group, np.int64), *out)
+    return out[0], out[1], out[2][:nv].copy(), out[3], out[4][:ng].copy()
 
 
 def _groups(x, size):
@@ -182,7 +151,6 @@ class SweptSelf:
         element, so a run is one patch of cloth) with the vertices their corners use and the groups
         those are in, each block's bound unknown and its reference pose set at the next step; and
         the groups (GROUP_SIZE vertices in the Morton order of ``rest``)."""
-        n = self.n
         lab = _groups(rest, GROUP_SIZE)
         ng = int(lab.max(initial=-1)) + 1
         self.group_ptr = np.zeros(ng + 1, np.int64)
@@ -191,16 +159,10 @@ class SweptSelf:
         self.has_reference = np.zeros(1, bool)
         self.blocks = {}
         for kind, quad in (("vt", self.vt_quad), ("ee", self.ee_quad)):
-            ptr, vptr, verts = _pair_blocks(quad)
-            nb = ptr.size - 1
-            bid = np.repeat(np.arange(nb, dtype=np.int64), np.diff(vptr))
-            g = max(ng, 1)
-            keys = np.unique(bid * g + lab[verts]) if verts.size else np.zeros(0, np.int64)
-            gptr = np.zeros(nb + 1, np.int64)
-            np.cumsum(np.bincount(keys // g, minlength=nb), out=gptr[1:])
-            state = np.zeros((nb, 2))
+            ptr, vptr, verts, gptr, groups = _pair_blocks(quad, lab)
+            state = np.zeros((ptr.size - 1, 2))
             state[:, 0] = -np.inf
-            self.blocks[kind] = (ptr, vptr, verts, state, np.zeros((verts.size, 3)), gptr, _c(keys % g, np.int64))
+            self.blocks[kind] = (ptr, vptr, verts, state, np.zeros((verts.size, 3)), gptr, groups)
 
     # the step's scratch (outputs of the C step) is not part of the state
     _SCRATCH = ("_buf", "live")

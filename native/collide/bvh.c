@@ -1,18 +1,18 @@
-/* bvh.c - a bounding volume hierarchy per cluster of the cloth, refitted instead of rebuilt, and
- * the full self-collision detection of a step in one call.
+/* bvh.c - a bounding volume hierarchy per cluster of a collider (the cloth itself, each body),
+ * refitted instead of rebuilt, and the traversals full detection needs.
  *
- * Why a native BVH for the cloth's own clusters (and Embree for the bodies): a cloth cluster
- * deforms every step, so its Embree scene (narrow.ClusterScenes, reused only up to a rigid motion)
- * was rebuilt in most steps of the artist's bake - 12.5 of 18 clusters per sub-step, 5.3 ms of
- * bookkeeping, per-triangle copies through Python and Embree builds - and embreex can neither
- * refit a scene nor filter hits, so the own two-ring was skipped by casting again (up to 8 times)
- * from Python. Here the tree of each cluster is built once per topology (median split, the
- * topology does not change between tears) and refitted bottom-up from the current positions when
- * a step first needs it: a refit is one pass over the cluster's ~300 triangles, and its boxes are
- * exact, so there is no staleness tolerance to add to the rays and no rigid frame to move them
- * into. The two-ring filter runs inside the traversal. A body's cluster moves almost rigidly (a
- * skinned limb), so its Embree scene in the rigid frame is rarely rebuilt and Embree's SIMD
- * traversal of its long inside rays is the faster one: bodies keep Embree.
+ * Why native trees: a cloth cluster deforms every step, so its Embree scene (the previous release's
+ * narrow.ClusterScenes, reused only up to a rigid motion) was rebuilt in most steps of the artist's
+ * bake - 12.5 of 18 clusters per sub-step, 5.3 ms of bookkeeping, per-triangle copies through Python
+ * and Embree builds - and embreex can neither refit a scene nor filter hits, nor be called from C.
+ * Here the tree of each cluster is built once per topology (median split, the topology does not
+ * change between tears) and refitted bottom-up from the current positions when a step first needs
+ * it: a refit is one pass over the cluster's ~300 triangles, and its boxes are exact, so there is
+ * no staleness tolerance to add to the rays and no rigid frame to move them into. The bodies use
+ * the same trees: a walking body's cluster deforms a little every step too, a refit costs what the
+ * former rigid fit did, and with every collider in C a step's full detection is one call per
+ * collider (detect.c) - the contacts are the same as with Embree's candidates refined, bit for bit.
+ * The two-ring filter runs inside the traversal.
  *
  * Layout (arrays owned by the caller, narrow.ClusterBVH): cluster c's nodes are rows
  * node_ptr[c] .. node_ptr[c+1] of node (N, 2) and box (N, 6: lo xyz, hi xyz), its root first; an
@@ -23,7 +23,8 @@
  * A hit is the nearest triangle the ray o + t d meets for t in [0, tmax] (barycentrics within
  * -BVH_EPS, so a ray through a shared edge is not lost between the two triangles), skipping
  * triangles of the ray vertex's two-ring when a ring is given: what Embree followed by the
- * re-casts of tcc_accept_hits found, in double precision.
+ * re-casts of tcc_accept_hits found, in double precision. A refit also copies each prim's corners
+ * (corner, when kept): the traversals then read a leaf's triangles from one place.
  */
 #include "collide.h"
 #include "vecmath.h"

@@ -1,8 +1,10 @@
 /* collide.h - the kernels of clustered, ray-traced collision detection (tearcloth._collide).
  *
- * The Python package `tearcloth.collision` owns the state and the order of a step (clusters,
- * measures, Embree scenes, tracks); these kernels own every loop over vertices, rays, triangles or
- * cluster pairs in that step, so that a step costs a few dozen calls whatever the mesh size.
+ * The Python package `tearcloth.collision` owns the state between steps (clusters, measures, trees,
+ * tracks) and calls a step's stages; these kernels own every loop over vertices, rays, triangles or
+ * cluster pairs, and the step's orchestration itself (measure.c's cluster_state and pair_step,
+ * detect.c's per-collider step, swept.c's swept stage), so that a step costs a handful of calls
+ * whatever the mesh size.
  *
  * Design rules (the same as the native FEM core):
  * - No state: every array is owned by the caller (numpy, through the buffer protocol) and every
@@ -566,6 +568,21 @@ int tcc_swept_rows(const tcc_swept_kind kind[2], const double *v, tcc_idx n, con
                    const double *edepth, const double *evel, const double *efric, tcc_idx ne, double friction,
                    int32_t *ov, double *onormal, double *odepth, double *ovel, double *ofric, tcc_idx cap,
                    tcc_idx *count, tcc_idx *no_normal, tcc_error *err);
+
+/* The swept stage's pairs of a topology (swept.c): the edges (min, max) ascending (*ne), the
+ * vertex-triangle pairs (u, t) with u in the ring of a corner of t and not a corner (*nvt), and the
+ * edge-edge pairs (a, b) of edge ids, a < b, no shared vertex, an end of b in the ring of an end of
+ * a (*nee), each list ascending and once per pair (np.unique's order). A list is written only when
+ * it fits its capacity (edges ecap, vt vcap, ee ecap2; ee needs the edges): call again with room. */
+int tcc_swept_pairs(const tcc_idx *tri, tcc_idx nt, tcc_idx n, const tcc_ring *ring, tcc_idx *edges, tcc_idx ecap,
+                    tcc_idx *vt, tcc_idx vcap, tcc_idx *ee, tcc_idx ecap2, tcc_idx *ne, tcc_idx *nvt, tcc_idx *nee,
+                    tcc_error *err);
+
+/* The cull's blocks: runs of `size` consecutive pairs of quad (k, 4), each with its vertices
+ * ascending (bverts, room for 4k) and their groups ascending (bgroups, room for 4k); bptr, bvptr,
+ * bgptr have nb + 1 = ceil(k / size) + 1 entries. */
+int tcc_swept_blocks(const tcc_idx *quad, tcc_idx k, tcc_idx size, const tcc_idx *group, tcc_idx n, tcc_idx *bptr,
+                     tcc_idx *bvptr, tcc_idx *bverts, tcc_idx *bgptr, tcc_idx *bgroups, tcc_error *err);
 
 /* ---------------------------------------------------------------- detect.c */
 

@@ -1856,6 +1856,89 @@ fail:
     return NULL;
 }
 
+static const pyarg_spec SWEPT_PAIRS[] = {
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    RING_ROW,
+    VAL("n", PA_SSIZE),
+    ARR("edges", PA_I64, OUT, 2, 2, 0),
+    ARR("vt", PA_I64, OUT, 2, 2, 0),
+    ARR("ee", PA_I64, OUT, 2, 2, 0),
+};
+enum { SP_T, SP_RING, SP_NV, SP_E, SP_VT, SP_EE, SP_N };
+
+static PyObject *py_swept_pairs(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("swept_pairs", SWEPT_PAIRS, SP_N);
+    Py_ssize_t n = s.v[SP_NV].n;
+    tcc_ring ring = ring_from(&s, SP_RING);
+    if (n < 0 || !ring.table) {
+        PyErr_SetString(PyExc_ValueError, "swept_pairs: n must be >= 0 and the ring table given");
+        goto fail;
+    }
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    tcc_idx ne = 0, nvt = 0, nee = 0;
+    int rc;
+    RUN(tcc_swept_pairs(D(SP_T), ROWS(SP_T), n, &ring, D(SP_E), ROWS(SP_E), D(SP_VT), ROWS(SP_VT), D(SP_EE), ROWS(SP_EE),
+                        &ne, &nvt, &nee, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return Py_BuildValue("LLL", (long long)ne, (long long)nvt, (long long)nee);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec SWEPT_BLOCKS[] = {
+    ARR("quads", PA_I64, 0, 2, 4, 0),
+    VAL("size", PA_SSIZE),
+    ARR("group", PA_I64, 0, 1, 0, 0),
+    ARR("block_ptr", PA_I64, OUT, 1, 0, 0),
+    ARR("block_vptr", PA_I64, OUT, 1, 0, 0),
+    ARR("block_vertices", PA_I64, OUT, 1, 0, 0),
+    ARR("block_gptr", PA_I64, OUT, 1, 0, 0),
+    ARR("block_groups", PA_I64, OUT, 1, 0, 0),
+};
+enum { SB_Q, SB_SIZE, SB_G, SB_PTR, SB_VPTR, SB_V, SB_GPTR, SB_GR, SB_N };
+
+static PyObject *py_swept_blocks(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("swept_blocks", SWEPT_BLOCKS, SB_N);
+    Py_ssize_t k = ROWS(SB_Q), size = s.v[SB_SIZE].n;
+    if (size < 1) {
+        PyErr_SetString(PyExc_ValueError, "swept_blocks: size must be >= 1");
+        goto fail;
+    }
+    Py_ssize_t nb = (k + size - 1) / size;
+    CHECK_ROWS(SB_PTR, nb + 1);
+    CHECK_ROWS(SB_VPTR, nb + 1);
+    CHECK_ROWS(SB_GPTR, nb + 1);
+    CHECK_ROWS(SB_V, 4 * k);
+    CHECK_ROWS(SB_GR, 4 * k);
+    const tcc_idx *g = D(SB_G);
+    Py_ssize_t n = ROWS(SB_G);
+    for (Py_ssize_t v = 0; v < n; v++)
+        if (g[v] < 0) {
+            PyErr_Format(PyExc_ValueError, "swept_blocks: group[%zd] is negative", v);
+            goto fail;
+        }
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_swept_blocks(D(SB_Q), k, size, g, n, D(SB_PTR), D(SB_VPTR), D(SB_V), D(SB_GPTR), D(SB_GR), &err));
+    tcc_idx nv = 0, ng = 0;
+    if (rc == TCC_OK) {
+        nv = ((tcc_idx *)D(SB_VPTR))[nb];
+        ng = ((tcc_idx *)D(SB_GPTR))[nb];
+    }
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return Py_BuildValue("LL", (long long)nv, (long long)ng);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
 #define KERNEL(name, doc) {#name, (PyCFunction)(void (*)(void))py_##name, METH_VARARGS | METH_KEYWORDS, doc}
 
 static PyMethodDef methods[] = {
@@ -1966,6 +2049,13 @@ static PyMethodDef methods[] = {
            "stats, times=None): one collider's step (detect.c): walks, full detection of the marked pairs in the "
            "collider's trees, refinement, merge; stats (8,): tracks, inside, contacts, tracked, lost, full pairs, "
            "rays, hits; times (4,): seconds of the walks, casts, refinement, merge."),
+    KERNEL(swept_pairs,
+           "swept_pairs(triangles, ring, n, edges, vt, ee) -> (edges, vt pairs, ee pairs): the swept stage's pairs of a "
+           "topology (swept.c tcc_swept_pairs), each list ascending; a list is written only when it fits: call again "
+           "with room for the counts."),
+    KERNEL(swept_blocks,
+           "swept_blocks(quads, size, group, block_ptr, block_vptr, block_vertices, block_gptr, block_groups) -> "
+           "(vertices, groups): the cull's blocks of `size` consecutive pairs, their vertices and groups ascending."),
     KERNEL(swept_step,
            "swept_step(positions, previous, velocity, dt, thickness, group_ptr, group_vertices, has_reference, "
            "vt_* and ee_* (quads, gap, slack, block_ptr, block_vptr, block_vertices, block_state, block_reference, "

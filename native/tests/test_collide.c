@@ -594,6 +594,99 @@ static void test_swept_step(const mesh *m)
     free(x0); free(xp); free(x); free(v); free(x1); free(gptr); free(gv);
 }
 
+/* The swept stage's pairs and blocks of a topology (swept.c tcc_swept_pairs, tcc_swept_blocks) on the
+ * grid, before and after the tear: every list ascending and once per pair, each vertex-triangle
+ * pair's vertex in the ring of a corner and not a corner, edge pairs sharing no vertex, every block
+ * holding its pairs' corners (ascending) and their groups; too little room only counts; bad indices
+ * are errors. */
+static void test_swept_build(const mesh *m)
+{
+    enum { W = 16 };
+    tcc_idx n = m->nv, nt = m->nt;
+    tcc_idx *table = malloc(sizeof(tcc_idx) * W * n);
+    for (tcc_idx i = 0; i < W * n; i++) table[i] = -1;
+    for (tcc_idx v = 0; v < n; v++) table[W * v] = v;
+    for (tcc_idx f = 0; f < nt; f++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) {
+                tcc_idx *row = table + W * m->tri[3 * f + a], vb = m->tri[3 * f + b];
+                for (int w = 0; w < W; w++) {
+                    if (row[w] == vb) break;
+                    if (row[w] < 0) { row[w] = vb; break; }
+                }
+            }
+    tcc_ring ring = {table, n, W};
+    tcc_idx ne = 0, nvt = 0, nee = 0;
+    tcc_error err = {0};
+    int rc = tcc_swept_pairs(m->tri, nt, n, &ring, NULL, 0, NULL, 0, NULL, 0, &ne, &nvt, &nee, &err);
+    CHECK(rc == TCC_OK && ne > 0 && nvt == 0 && nee == 0, "no room: the edges counted (%lld), nothing else", (long long)ne);
+    tcc_idx *edges = malloc(sizeof(tcc_idx) * 2 * ne);
+    rc = tcc_swept_pairs(m->tri, nt, n, &ring, edges, ne, NULL, 0, NULL, 0, &ne, &nvt, &nee, &err);
+    CHECK(rc == TCC_OK && nvt > 0 && nee > 0, "counts: %lld vt, %lld ee", (long long)nvt, (long long)nee);
+    tcc_idx *vt = malloc(sizeof(tcc_idx) * 2 * nvt), *ee = malloc(sizeof(tcc_idx) * 2 * nee);
+    rc = tcc_swept_pairs(m->tri, nt, n, &ring, edges, ne, vt, nvt, ee, nee, &ne, &nvt, &nee, &err);
+    CHECK(rc == TCC_OK, "swept pairs: %s", err.what);
+    int bad = 0;
+    for (tcc_idx i = 0; i < ne; i++)
+        bad += !(edges[2 * i] < edges[2 * i + 1] &&
+                 (i == 0 || edges[2 * i] > edges[2 * i - 2] || (edges[2 * i] == edges[2 * i - 2] && edges[2 * i + 1] > edges[2 * i - 1])));
+    CHECK(bad == 0, "edges ascending, once each: %d bad", bad);
+    bad = 0;
+    for (tcc_idx i = 0; i < nvt; i++) {
+        tcc_idx u = vt[2 * i], t = vt[2 * i + 1];
+        const tcc_idx *c = m->tri + 3 * t;
+        int in_ring = 0;
+        for (int k = 0; k < 3; k++)
+            for (int w = 0; w < W; w++) in_ring |= table[W * c[k] + w] == u;
+        bad += !(in_ring && u != c[0] && u != c[1] && u != c[2] &&
+                 (i == 0 || u > vt[2 * i - 2] || (u == vt[2 * i - 2] && t > vt[2 * i - 1])));
+    }
+    CHECK(bad == 0, "vertex-triangle pairs: %d bad of %lld", bad, (long long)nvt);
+    bad = 0;
+    for (tcc_idx i = 0; i < nee; i++) {
+        tcc_idx a = ee[2 * i], b = ee[2 * i + 1];
+        const tcc_idx *ea = edges + 2 * a, *eb = edges + 2 * b;
+        bad += !(a < b && ea[0] != eb[0] && ea[0] != eb[1] && ea[1] != eb[0] && ea[1] != eb[1] &&
+                 (i == 0 || a > ee[2 * i - 2] || (a == ee[2 * i - 2] && b > ee[2 * i - 1])));
+    }
+    CHECK(bad == 0, "edge-edge pairs: %d bad of %lld", bad, (long long)nee);
+    /* blocks of 7 edge pairs over groups of 10 vertex ids */
+    tcc_idx k = nee, *quad = malloc(sizeof(tcc_idx) * 4 * k), *group = malloc(sizeof(tcc_idx) * n);
+    for (tcc_idx i = 0; i < k; i++) {
+        quad[4 * i] = edges[2 * ee[2 * i]];
+        quad[4 * i + 1] = edges[2 * ee[2 * i] + 1];
+        quad[4 * i + 2] = edges[2 * ee[2 * i + 1]];
+        quad[4 * i + 3] = edges[2 * ee[2 * i + 1] + 1];
+    }
+    for (tcc_idx v = 0; v < n; v++) group[v] = v / 10;
+    tcc_idx nb = (k + 6) / 7, *bptr = malloc(sizeof(tcc_idx) * (nb + 1)), *bvptr = malloc(sizeof(tcc_idx) * (nb + 1));
+    tcc_idx *bgptr = malloc(sizeof(tcc_idx) * (nb + 1)), *bv = malloc(sizeof(tcc_idx) * 4 * k), *bg = malloc(sizeof(tcc_idx) * 4 * k);
+    rc = tcc_swept_blocks(quad, k, 7, group, n, bptr, bvptr, bv, bgptr, bg, &err);
+    CHECK(rc == TCC_OK && bptr[nb] == k, "swept blocks: %s", err.what);
+    bad = 0;
+    for (tcc_idx b = 0; b < nb && rc == TCC_OK; b++) {
+        for (tcc_idx i = bvptr[b] + 1; i < bvptr[b + 1]; i++) bad += bv[i] <= bv[i - 1];
+        for (tcc_idx i = bgptr[b] + 1; i < bgptr[b + 1]; i++) bad += bg[i] <= bg[i - 1];
+        for (tcc_idx q = bptr[b]; q < bptr[b + 1]; q++)
+            for (int j = 0; j < 4; j++) {
+                int found = 0, gfound = 0;
+                for (tcc_idx i = bvptr[b]; i < bvptr[b + 1]; i++) found |= bv[i] == quad[4 * q + j];
+                for (tcc_idx i = bgptr[b]; i < bgptr[b + 1]; i++) gfound |= bg[i] == group[quad[4 * q + j]];
+                bad += !found || !gfound;
+            }
+    }
+    CHECK(bad == 0, "blocks hold their pairs' corners and groups, ascending: %d bad", bad);
+    tcc_error e1 = {0}, e2 = {0};
+    quad[5] = n;
+    CHECK(tcc_swept_blocks(quad, k, 7, group, n, bptr, bvptr, bv, bgptr, bg, &e1) == TCC_ERR_INDEX,
+          "a pair's vertex out of range is an index error");
+    table[3] = n;
+    CHECK(tcc_swept_pairs(m->tri, nt, n, &ring, edges, ne, vt, nvt, ee, nee, &ne, &nvt, &nee, &e2) == TCC_ERR_INDEX,
+          "a ring entry out of range is an index error");
+    free(table); free(edges); free(vt); free(ee); free(quad); free(group); free(bptr); free(bvptr); free(bgptr);
+    free(bv); free(bg);
+}
+
 /* The cloth's BVHs (bvh.c): the grid wrapped around a cylinder that breathes and wobbles, so its
  * vertices' inward rays cross to the far side; every step the trees are refitted (never rebuilt)
  * and each ray's first hit in every cluster must equal a brute-force test of the cluster's
@@ -1078,11 +1171,13 @@ int main(void)
     test_measure_and_detection_steps(&m);
     test_ccd(&m);
     test_swept_step(&m);
+    test_swept_build(&m);
     test_bvh(&m);
     test_detect_pipeline(&m);
     tear(&m);
     test_measure_and_detection_steps(&m);
     test_swept_step(&m);
+    test_swept_build(&m);
     test_bvh(&m);
     test_detect_pipeline(&m);
     free(m.x);
