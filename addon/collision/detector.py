@@ -544,7 +544,7 @@ class CollisionDetector:
             cloth.velocities = vel
         self._step += 1
         step = self._step
-        ws = self._workspace(pos.shape[0], cloth.clustering.n_clusters)
+        ws = self._workspace(pos.shape[0])
 
         # 1. measure ---------------------------------------------------------------
         bound_rule = self.measure == "relative" and self.trip_rule == "bound"
@@ -684,7 +684,7 @@ class CollisionDetector:
                 amp[:count]
         return i[:count], j[:count], full[:count]
 
-    def _workspace(self, n, k):
+    def _workspace(self, n):
         """The step's scratch, kept between steps (not pickled): the cloth's normals (computed per
         vertex as the step needs them: done), and one collider's outputs (tracks, contacts, stats)."""
         ws = getattr(self, "_ws", None)
@@ -741,7 +741,7 @@ class CollisionDetector:
         ccl, tcl = cloth.clustering, target.clustering
         key = tuple(id(a) for a in (cloth.triangles, cloth.vt_ptr, cloth.vt_tri, ccl.order, ccl.ptr, ccl.labels,
                                     cloth.ring, target.triangles, target.adj, target.flip, tcl.tri_labels,
-                                    tcl.tri_order, tcl.tri_starts, trees.node_ptr, trees.node, trees.box, trees.prim,
+                                    trees.node_ptr, trees.node, trees.box, trees.prim,
                                     trees.corner, trees.refit_step, ws["normals"]))
         cache = ws.setdefault("args", {})
         hit = cache.get(name)
@@ -756,7 +756,7 @@ class CollisionDetector:
             target_triangles=target.triangles, adjacency=target.adj, flip=target.flip,
             target_previous=self._cloth_prev if is_self else target.measured,
             target_velocity=cloth.velocities if is_self else target.velocities, tri_labels=cl.tri_labels,
-            tri_order=cl.tri_order, tri_ptr=cl.tri_starts, box_lo=None, box_hi=None,
+            box_lo=None, box_hi=None,
             ring=cloth.ring if is_self else None, node_ptr=trees.node_ptr, node=trees.node, box=trees.box,
             prim=trees.prim, corner=trees.corner, refit_step=trees.refit_step, step=0, pair_i=None, pair_j=None,
             full=None, track_key=None, track_tri=None, track_side=None, inside=None, thickness=self.thickness,

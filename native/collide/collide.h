@@ -604,8 +604,7 @@ typedef struct {
     tcc_mesh target;                        /* with adjacency: the walks */
     const double *target_prev, *target_velocity; /* its positions at the previous step; velocities or NULL */
     const tcc_idx *tri_labels;              /* (nt) cluster of each triangle */
-    const tcc_idx *tri_order, *tri_ptr;     /* triangles per cluster (kb + 1 bounds): the inside confirmation */
-    tcc_idx ntri_order, kb;
+    tcc_idx kb;                             /* collider clusters */
     const double *box_lo, *box_hi;          /* (kb, 3) the collider clusters' inflated boxes */
     tcc_ring ring;                          /* self-collision: the two-ring exclusion (table NULL: none) */
     tcc_bvh bvh;                            /* the collider clusters' trees */

@@ -15,8 +15,8 @@
  * per ray the nearest, as tcc_merge_classify documents. Bodies use the same native trees as the
  * cloth (bvh.c's module docs say why).
  *
- * The cloth's normals are computed per cluster when the step first needs them (tracked rays and
- * cast rays need the normals of their vertices' clusters): `done` marks those computed.
+ * The cloth's normals are computed per vertex when the step first needs them (the vertices of
+ * tracked rays and of the cast clusters): `done` marks those computed, shared by the step's calls.
  */
 #include "collide.h"
 #include "vecmath.h"
@@ -316,6 +316,18 @@ int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, t
         return tcc_fail(err, TCC_ERR_VALUE, "kind must be 0 (volume), 1 (surface) or 2 (self), got %d", in->kind);
     if (in->norder != n || in->ptr[0] != 0 || in->ptr[in->kc] != n)
         return tcc_fail(err, TCC_ERR_VALUE, "the cloth's clusters must hold its %lld vertices once", (long long)n);
+    for (tcc_idx c = 0; c < in->kc; c++)
+        if (in->ptr[c + 1] < in->ptr[c])
+            return tcc_fail(err, TCC_ERR_VALUE, "the cloth's cluster bounds must not decrease (cluster %lld)", (long long)c);
+    for (tcc_idx i = 0; i < n; i++)
+        if (in->order[i] < 0 || in->order[i] >= n || in->labels[i] < 0 || in->labels[i] >= in->kc)
+            return tcc_fail(err, TCC_ERR_INDEX, "order / labels entry %lld is out of range", (long long)i);
+    for (tcc_idx f = 0; f < in->target.nt; f++)
+        if (in->tri_labels[f] < 0 || in->tri_labels[f] >= in->kb)
+            return tcc_fail(err, TCC_ERR_INDEX, "tri_labels[%lld] = %lld is not a collider cluster", (long long)f,
+                            (long long)in->tri_labels[f]);
+    if (in->nvt != in->vt_ptr[n] || in->vt_ptr[0] != 0)
+        return tcc_fail(err, TCC_ERR_VALUE, "vt_ptr must run from 0 to the %lld listed triangles", (long long)in->nvt);
     if (in->bvh.k != in->kb || in->bvh.node_ptr[0] < 0 || in->bvh.node_ptr[in->kb] > in->bvh.nnodes)
         return tcc_fail(err, TCC_ERR_VALUE, "the tree holds %lld clusters, the collider %lld", (long long)in->bvh.k,
                         (long long)in->kb);

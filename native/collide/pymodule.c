@@ -1477,8 +1477,6 @@ static const pyarg_spec DETECT[] = {
     ARR("target_previous", PA_F64, 0, 2, 3, 0),
     ARR("target_velocity", PA_F64, OPT, 2, 3, 0),
     ARR("tri_labels", PA_I64, 0, 1, 0, 0),
-    ARR("tri_order", PA_I64, 0, 1, 0, 0),
-    ARR("tri_ptr", PA_I64, 0, 1, 0, 0),
     ARR("box_lo", PA_F64, 0, 2, 3, 0),
     ARR("box_hi", PA_F64, 0, 2, 3, 0),
     RING_ROW,
@@ -1514,7 +1512,7 @@ static const pyarg_spec DETECT[] = {
     ARR("times", PA_F64, OUT | OPT, 1, 0, 0),
 };
 enum { DT_X, DT_PREV, DT_VEL, DT_TRI, DT_VTP, DT_VTT, DT_ORDER, DT_PTR, DT_LABELS, DT_NRM, DT_HAS, DT_DONE, DT_KIND,
-       DT_TX, DT_TT, DT_ADJ, DT_FLIP, DT_TPREV, DT_TVEL, DT_TLAB, DT_TORD, DT_TPTR, DT_LO, DT_HI, DT_RING, DT_NPTR,
+       DT_TX, DT_TT, DT_ADJ, DT_FLIP, DT_TPREV, DT_TVEL, DT_TLAB, DT_LO, DT_HI, DT_RING, DT_NPTR,
        DT_NODE, DT_BOX, DT_PRIM, DT_CORNER, DT_REFIT, DT_STEP, DT_PI, DT_PJ, DT_FULL, DT_KEY, DT_KTRI, DT_KSIDE, DT_INSIDE, DT_TH,
        DT_TR, DT_LEN, DT_INFL, DT_BACK, DT_FIRST, DT_OKEY, DT_OTRI, DT_OSIDE, DT_OIN, DT_CV, DT_DEPTH, DT_CN, DT_CVEL,
        DT_STATS, DT_TIMES, DT_N };
@@ -1523,9 +1521,9 @@ static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
 {
     PARSE("detect", DETECT, DT_N);
     Py_ssize_t n = ROWS(DT_X), nt = ROWS(DT_TRI), nv = ROWS(DT_TX), ntt = ROWS(DT_TT), kc = ROWS(DT_PTR) - 1;
-    Py_ssize_t kb = ROWS(DT_TPTR) - 1, np = ROWS(DT_PI), kt = ROWS(DT_KEY);
-    if (!bounds_ok(ROWS(DT_PTR), "ptr", "cluster") || !bounds_ok(ROWS(DT_TPTR), "tri_ptr", "cluster") ||
-        !bounds_ok(ROWS(DT_NPTR), "node_ptr", "cluster") || !bounds_ok(ROWS(DT_VTP), "vt_ptr", "vertex"))
+    Py_ssize_t kb = ROWS(DT_NPTR) - 1, np = ROWS(DT_PI), kt = ROWS(DT_KEY);
+    if (!bounds_ok(ROWS(DT_PTR), "ptr", "cluster") || !bounds_ok(ROWS(DT_NPTR), "node_ptr", "cluster") ||
+        !bounds_ok(ROWS(DT_VTP), "vt_ptr", "vertex"))
         goto fail;
     CHECK_ROWS(DT_PREV, n);
     CHECK_ROWS(DT_VEL, n);
@@ -1542,7 +1540,6 @@ static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
     CHECK_ROWS(DT_TLAB, ntt);
     CHECK_ROWS(DT_LO, kb);
     CHECK_ROWS(DT_HI, kb);
-    CHECK_ROWS(DT_NPTR, kb + 1);
     CHECK_ROWS(DT_BOX, ROWS(DT_NODE));
     CHECK_ROWS(DT_REFIT, kb);
     CHECK_ROWS(DT_CORNER, ROWS(DT_PRIM));
@@ -1571,28 +1568,7 @@ static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
         goto fail;
     }
     if (pyarg_no_overlap(&s)) goto fail;
-    /* indices the C reads directly (the kernels check theirs) */
-    const tcc_idx *lab = D(DT_LABELS), *tlab = D(DT_TLAB), *tptr = D(DT_TPTR), *ord = D(DT_ORDER), *ptr = D(DT_PTR);
-    for (Py_ssize_t i = 0; i < n; i++)
-        if (lab[i] < 0 || lab[i] >= kc || ord[i] < 0 || ord[i] >= n) {
-            PyErr_Format(PyExc_IndexError, "detect: labels / order entry %zd is out of range", i);
-            goto fail;
-        }
-    for (Py_ssize_t c = 0; c < kc; c++)
-        if (ptr[c] < 0 || ptr[c + 1] < ptr[c] || ptr[c + 1] > n) {
-            PyErr_Format(PyExc_ValueError, "detect: ptr must ascend within [0, %zd]", n);
-            goto fail;
-        }
-    for (Py_ssize_t f = 0; f < ntt; f++)
-        if (tlab[f] < 0 || tlab[f] >= kb) {
-            PyErr_Format(PyExc_IndexError, "detect: tri_labels[%zd] = %lld is not a collider cluster", f,
-                         (long long)tlab[f]);
-            goto fail;
-        }
-    if (tptr[0] != 0 || tptr[kb] != ROWS(DT_TORD)) {
-        PyErr_SetString(PyExc_ValueError, "detect: tri_ptr must run from 0 to the triangles listed in tri_order");
-        goto fail;
-    }
+    const tcc_idx *lab = D(DT_LABELS), *tlab = D(DT_TLAB), *ord = D(DT_ORDER), *ptr = D(DT_PTR);
     tcc_detect_in in;
     memset(&in, 0, sizeof in);
     in.x = D(DT_X); in.x_prev = D(DT_PREV); in.velocity = D(DT_VEL); in.n = n;
@@ -1602,7 +1578,7 @@ static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
     in.kind = kind;
     in.target = (tcc_mesh){D(DT_TX), nv, D(DT_TT), ntt, D(DT_ADJ), D(DT_FLIP)};
     in.target_prev = D(DT_TPREV); in.target_velocity = D(DT_TVEL);
-    in.tri_labels = tlab; in.tri_order = D(DT_TORD); in.tri_ptr = tptr; in.ntri_order = ROWS(DT_TORD); in.kb = kb;
+    in.tri_labels = tlab; in.kb = kb;
     in.box_lo = D(DT_LO); in.box_hi = D(DT_HI);
     in.ring = ring_from(&s, DT_RING);
     if (in.ring.table && in.ring.rows < n) {
@@ -2042,7 +2018,7 @@ static PyMethodDef methods[] = {
     KERNEL(detect,
            "detect(positions, previous, velocity, triangles, vt_ptr, vt_tri, order, ptr, labels, normals, has_normal, "
            "done, kind, target_vertices, target_triangles, adjacency, flip, target_previous, target_velocity, "
-           "tri_labels, tri_order, tri_ptr, box_lo, box_hi, ring, node_ptr, node, box, prim, corner, refit_step, step, "
+           "tri_labels, box_lo, box_hi, ring, node_ptr, node, box, prim, corner, refit_step, step, "
            "pair_i, "
            "pair_j, full, track_key, track_tri, track_side, inside, thickness, track_range, ray_length, inflate, "
            "backoff, first, out_key, out_tri, out_side, out_inside, contact_vertex, depth, normal, contact_velocity, "

@@ -1052,14 +1052,14 @@ static void test_detect_pipeline(mesh *m)
             in.norder = n; in.kc = K; in.normals = normals; in.has_normal = has; in.done = done;
             in.kind = self ? TCC_SELF : TCC_VOLUME;
             if (self) {
-                in.target = cm; in.target_prev = prev; in.tri_labels = tlab; in.tri_order = tord; in.tri_ptr = tp2;
-                in.ntri_order = nt; in.kb = K; in.box_lo = clo; in.box_hi = chi;
+                in.target = cm; in.target_prev = prev; in.tri_labels = tlab; in.kb = K; in.box_lo = clo;
+                in.box_hi = chi;
                 in.ring = (tcc_ring){table, n, W};
                 in.bvh = (tcc_bvh){cnp, K, cnode, cbox, cnn, cprim, nt, ccorner};
                 in.refit_step = crefit;
             } else {
                 in.target = bm; in.target_prev = bprev; in.target_velocity = bvel; in.tri_labels = btlab;
-                in.tri_order = btord; in.tri_ptr = btp; in.ntri_order = 12; in.kb = KB; in.box_lo = blo; in.box_hi = bhi;
+                in.kb = KB; in.box_lo = blo; in.box_hi = bhi;
                 in.bvh = (tcc_bvh){bnp, KB, bnode, bbox, bnn, bprim, 12, bcorner};
                 in.refit_step = brefit;
             }
@@ -1132,8 +1132,7 @@ static void test_detect_pipeline(mesh *m)
         in.x = m->x; in.x_prev = prev; in.n = n; in.tri = m->tri; in.nt = nt; in.vt_ptr = vt_ptr; in.vt_tri = vt_tri;
         in.nvt = 3 * nt; in.order = order; in.ptr = ptr; in.labels = labels; in.norder = n; in.kc = K;
         in.normals = normals; in.has_normal = has; in.done = done; in.kind = TCC_VOLUME; in.target = bm;
-        in.target_prev = bprev; in.tri_labels = btlab; in.tri_order = btord; in.tri_ptr = btp; in.ntri_order = 12;
-        in.kb = KB; in.box_lo = blo2; in.box_hi = bhi2; in.bvh = (tcc_bvh){bnp, KB, bnode, bbox, bnn, bprim, 12, bcorner};
+        in.target_prev = bprev; in.tri_labels = btlab; in.kb = KB; in.box_lo = blo2; in.box_hi = bhi2; in.bvh = (tcc_bvh){bnp, KB, bnode, bbox, bnn, bprim, 12, bcorner};
         in.refit_step = brefit; in.step = 99; in.pi = pi; in.pj = pj; in.full = full; in.np = 1;
         in.thickness = th; in.track_range = tr; in.ray_length = tr; in.inflate = inflate; in.backoff = bo;
         tcc_merge_out out = {st[0].okey, st[0].otri, st[0].oside, 0, st[0].oin, 0, cv, depth, cn, cvel, 0};
@@ -1147,6 +1146,13 @@ static void test_detect_pipeline(mesh *m)
         in.kind = 7;
         CHECK(tcc_detect(&in, &out, &ds, &e3) == TCC_ERR_VALUE, "an unknown kind is an error");
         in.kind = TCC_VOLUME;
+        tcc_error e5 = {0}, e6 = {0};
+        labels[0] = K;
+        CHECK(tcc_detect(&in, &out, &ds, &e5) == TCC_ERR_INDEX, "a cloth label out of range is an index error");
+        labels[0] = 0;
+        btlab[3] = KB;
+        CHECK(tcc_detect(&in, &out, &ds, &e6) == TCC_ERR_INDEX, "a collider triangle's cluster out of range is an index error");
+        btlab[3] = 0;
         tcc_idx keepn = bnode[2 * bnp[0]];
         bnode[2 * bnp[0]] = bnp[0]; /* the root its own child */
         brefit[0] = brefit[1] = -1;
