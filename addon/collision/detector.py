@@ -1,25 +1,36 @@
 """CollisionDetector: the per-step orchestration of clustered, ray-traced collision detection.
 
 This file owns the state that lives between steps (previous positions, clusters, per-pair
-measures, per-ray tracks) and the order of one step; every loop over vertices, rays or pairs runs
-in C (``kernels.py`` -> ``tearcloth._collide``), so a step is a few dozen calls whatever the mesh:
+measures, per-ray tracks, the colliders' trees) and the order of one step; the step itself runs
+in C, a handful of calls whatever the mesh (native/collide/: measure.c, detect.c, swept.c), with
+numpy arrays in and out and no Python per pair, ray or triangle:
 
-1. measure  – per-cluster displacement since the previous ``detect``; inflated cluster AABBs;
-              close pairs (cloth-cloth for self-collision, cloth-body); the displacement measure
-              marks pairs for full detection (``measure.py``).
-2. incremental – every ray tracked from the previous step is walked to its current hit on the
+1. measure  – per-cluster displacement since the previous ``detect`` and inflated cluster AABBs
+              (one call per object), then per collider its close pairs (cloth-cloth for
+              self-collision, cloth-body), the pairs forced to full detection after a tear, and
+              the paper's relative measure marking pairs for full detection (one call,
+              ``measure.py``; the absolute measure and the motion-bound trip rule add to that
+              verdict in numpy).
+2-4. per collider, one call (detect.c):
+   incremental – every ray tracked from the previous step is walked to its current hit on the
               current geometry (``incremental.py``). A lost walk sends its pair to full
               detection in this same step (not the next one: the step's contact set would
               otherwise miss that vertex once).
-3. full     – for the marked pairs, grouped by collider cluster: the rays of every cloth cluster
-              paired with that collider cluster, culled against its box, go in one Embree call
-              into its cached scene (``narrow.py``), and are refined exactly on the current
-              geometry. The cloth against itself: every pair's rays in one C call into the
-              clusters' refitted BVHs, the two-ring skipped inside (``narrow.ClusterBVH``).
-4. contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
-              contact per vertex is returned (``all_contacts``: one per vertex per collider).
+   full     – for the marked pairs, each cloth vertex's two rays (+n, -n) in one traversal of
+              each collider cluster's tree its line reaches (nearest cluster first; bvh.c, every
+              collider - the cloth and the bodies - in native trees refitted the first time a
+              step casts into them, ``narrow.ClusterBVH``), the two-ring skipped inside for the
+              cloth itself; the hits refined exactly on the current geometry.
+   contacts – tracks are merged (nearest hit per vertex and ray), classified, and the deepest
+              contact per vertex of the collider returned; over the colliders, the deepest per
+              vertex (``detect``'s result) and every one (``all_contacts``).
 5. swept    – self-collision of the pairs the rays skip (the two-ring), by swept vertex-triangle
-              and edge-edge tests over the step (``swept.py``); its contacts join ``all_contacts``.
+              and edge-edge tests over the step (``swept.py``, two calls); its contacts join
+              ``all_contacts``.
+
+The previous release ran steps 2-4 in Python over per-stage kernels, bodies in Embree scenes in
+each cluster's rigid frame; tests/collision_reference.py keeps that step (``ReferenceDetector``)
+as the specification the C step equals contact for contact.
 
 Tracks: per collider, per cloth vertex, two ray slots (+n, -n) hold the triangle last hit, the
 remembered side (thin surfaces) and, for closed bodies, whether the vertex was inside. A full
@@ -29,15 +40,14 @@ between two full detections of a pair the relative motion stays under the thresh
 vertex that was not tracked cannot reach the contact distance (the 1.5 covers the measure
 being a mean + standard deviation, not a maximum).
 
-Ray length: for the same reason a full detection's rays need only reach ``track_range`` (plus
-the scene tolerance), and that is all they do for thin surfaces and the cloth itself. A closed
+Ray length: for the same reason a full detection's rays need only reach ``track_range``, and
+that is all they do for thin surfaces and the cloth itself. A closed
 body's rays reach across it: a body face that sweeps sideways over a vertex (parallel to its
 normal rays) puts it inside with its exits along the normal far away, and only a long ray finds
-them. What keeps that affordable: rays are culled against the collider cluster's box (a few dozen
-per pair survive), and a far back face proves "inside" only when no nearer hit of the same ray
-disproves it and, failing that, when an exact test (C, on the current geometry) finds nothing in
-front of it - the former Embree-based confirmation queried, and so refitted or rebuilt, far
-clusters' scenes in most steps.
+them. What keeps that affordable: rays are culled against the collider cluster's box, a ray's
+nearest hit so far cuts off the clusters beyond it, and a far back face proves "inside" only when
+no nearer hit of the same ray disproves it and, failing that, when an exact test on the current
+geometry (the trees of the clusters the segment crosses) finds nothing in front of it.
 
 Bodies must be closed (watertight, consistently oriented): then "inside" is well defined. An
 open body triggers a ``warnings.warn`` and is handled as a two-sided thin surface with inversion
@@ -181,14 +191,15 @@ def twin_ring(ring, rest_id):
 class _Collider:
     """One collision target: a body (closed volume or open surface) or the cloth itself."""
 
-    def __init__(self, name, kind, vertices, triangles, cluster_size, tolerance, friction, scenes=None):
+    def __init__(self, name, kind, vertices, triangles, cluster_size, friction):
         self.name = name
         self.kind = kind  # 'volume' | 'surface' | 'self'
         self.friction = float(friction)
         self.vertices = np.ascontiguousarray(vertices, np.float64)
         self.measured = self.vertices.copy()  # positions at the last detect(): displacement origin
         self.velocities = np.zeros_like(self.vertices)
-        self.scenes = ClusterScenes(tolerance) if scenes is None else scenes
+        # the collider's clusters as native trees, refitted each step they are cast into (bvh.c)
+        self.scenes = ClusterBVH()
         self.set_topology(triangles, cluster_size)
 
     def set_topology(self, triangles, cluster_size, clustering=None):
@@ -216,25 +227,6 @@ class _Collider:
     def normals(self, positions):
         """Area-weighted unit vertex normals (C) of this mesh at ``positions``."""
         return kernels.vertex_normals(positions, self.triangles)[0]
-
-
-class _Normals:
-    """The cloth's vertex normals of one step, computed (C) per cluster when first needed: a step
-    reads the normals of the vertices it walks or casts rays from, often a few clusters or none.
-    ``normals`` / ``has_normal`` rows of clusters not asked for are not valid."""
-
-    __slots__ = ("cloth", "pos", "normals", "has_normal", "done")
-
-    def __init__(self, cloth, pos):
-        self.cloth, self.pos = cloth, pos
-        self.normals = np.empty_like(pos)
-        self.has_normal = np.zeros(pos.shape[0], bool)
-        self.done = np.zeros(cloth.clustering.n_clusters, bool)
-
-    def need(self, clusters):
-        cl = self.cloth.clustering
-        _collide.cluster_normals(self.pos, self.cloth.triangles, self.cloth.vt_ptr, self.cloth.vt_tri, cl.order,
-                                 cl.ptr, clusters, self.normals, self.has_normal, self.done)
 
 
 class _Plan:
@@ -308,12 +300,6 @@ class CollisionDetector:
         # a standard deviation, not a maximum.
         reach = 2.0 if measure == "absolute" else 1.0
         self.track_range = self.thickness + 1.5 * reach * self.displacement_threshold
-        # Scenes are reused while a cluster deforms (non-rigidly) by less than this; the walker
-        # corrects the rest, so it only has to be small against the track range and the triangle
-        # size, and the scenes' margins (narrow.ClusterScenes) cover a border moved by it. At a
-        # quarter of the thickness a walking mannequin rebuilt a scene every step; at half, every
-        # other step.
-        self.scene_tolerance = 1.0 * min(self.thickness, self.displacement_threshold)
         self.bodies = {}
         self.cloth = None
         self._self = None
@@ -325,13 +311,9 @@ class CollisionDetector:
         self._first = True
         self._new_targets = set()
         self._abs_cloth_forget = None
-        self._rays = kernels.RayBuffer()  # float32 ray arrays for Embree, reused across steps
         # Batching of full detections (measure.py): the pairs that would pass the threshold within
         # this many steps join a step that runs full detection anyway.
         self.lookahead = 3.0
-        # Self-collision's acceleration structures: 'bvh' (native, refitted; narrow.ClusterBVH) or
-        # 'embree' (the rigid-frame Embree scenes the bodies use), read by set_cloth.
-        self.self_scenes = "bvh"
         # The trip rule (measure.py): a full detection tracks every hit within track_range, so an
         # untracked vertex has this much clearance to spend before it could touch; its motion
         # bound counts the distance to a point up to reach away (measure.c: |L| |x - y|), twice the
@@ -342,8 +324,11 @@ class CollisionDetector:
 
     # ------------------------------------------------------------------ saved state
     # A resumed bake continues from the detector as it was (tracks, measures, clusters, previous
-    # positions, step counter, scenes): pickled whole by ``tearcloth.resume``; the Embree scenes
-    # are remade from their build corners (``ClusterScenes.rebuild``), never from the resume pose.
+    # positions, step counter, trees): pickled whole by ``tearcloth.resume``. The trees are plain
+    # arrays, pickled as they are (their shape depends on the pose they were built in).
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k != "_ws"}  # the step's scratch
+
     def __setstate__(self, state):
         state.setdefault("trip_rule", "paper")  # saved before trip rules existed: the paper's measures
         self.__dict__.update(state)
@@ -353,10 +338,14 @@ class CollisionDetector:
         # saved before the trip rule's bound: its budget and reach as __init__ sets them
         self.__dict__.setdefault("trip_budget", self.displacement_threshold)
         self.__dict__.setdefault("trip_reach", 2.0 * self.track_range)
-        self.__dict__.setdefault("self_scenes", "bvh")  # saved before the cloth's BVHs: they are used from the next set_cloth
+        for k in ("self_scenes", "scene_tolerance", "_rays"):  # the Embree scenes' settings and buffers
+            self.__dict__.pop(k, None)
+        # saved when bodies (or the cloth, with self_scenes 'embree') had Embree scenes in a rigid frame:
+        # native trees instead, built at the next step from the pose then (the hits are exact either way)
         for collider in (self.cloth, *self.bodies.values()):
-            if collider is not None:
-                collider.scenes.rebuild(collider.triangles)
+            if collider is not None and not isinstance(collider.scenes, ClusterBVH):
+                collider.scenes = ClusterBVH()
+                collider.scenes.set_topology(collider.triangles, collider.clustering, collider.adj)
 
     # ------------------------------------------------------------------ scene setup
     def add_body(self, vertices, triangles, name, friction=None):
@@ -375,10 +364,7 @@ class CollisionDetector:
             kind = "surface"
         elif signed_volume(v, t) < 0:
             t = t[:, [0, 2, 1]].copy()  # normals must point out of the body
-        body = _Collider(
-            name, kind, v, t, self.cluster_size, self.scene_tolerance,
-            self.friction if friction is None else friction,
-        )
+        body = _Collider(name, kind, v, t, self.cluster_size, self.friction if friction is None else friction)
         self.bodies[name] = body
         self._reset_target(name)
         return body
@@ -403,10 +389,7 @@ class CollisionDetector:
     def set_cloth(self, positions, triangles):
         """(Re)define the cloth: clusters it and forgets every history (a global redo)."""
         v, t = _check_mesh(positions, triangles, "cloth")
-        # the cloth's own clusters deform every step: refitted native BVHs, not Embree scenes
-        # (narrow.ClusterBVH); 'embree' keeps the former scenes, for comparison
-        scenes = ClusterBVH() if self.self_scenes == "bvh" else None
-        self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.scene_tolerance, self.friction, scenes)
+        self.cloth = _Collider("cloth", "self", v, t, self.cluster_size, self.friction)
         self._cloth_prev = v.copy()
         self._rest = v.copy()  # the swept stage's per-pair gaps come from this (rest) geometry
         self._swept = None
@@ -561,17 +544,15 @@ class CollisionDetector:
             cloth.velocities = vel
         self._step += 1
         step = self._step
-        lazy = _Normals(cloth, pos)
-        normals, has_normal = lazy.normals, lazy.has_normal
+        ws = self._workspace(pos.shape[0])
 
         # 1. measure ---------------------------------------------------------------
         bound_rule = self.measure == "relative" and self.trip_rule == "bound"
+        paper_rule = self.measure == "relative" and not bound_rule
+        avg_c, dev_c, lo_c, hi_c = self._cluster_state(cloth, pos, self._cloth_prev, ws, "cloth")
         if bound_rule:
             fit_c = kernels.cluster_fit(cloth.clustering, pos, self._cloth_prev, self.trip_reach)
             side_c = (cloth.clustering, pos, self._cloth_prev, fit_c)
-        else:
-            avg_c, dev_c = kernels.cluster_motion(cloth.clustering, pos, self._cloth_prev)
-        lo_c, hi_c = kernels.cluster_boxes(cloth.clustering, pos, self.inflate)
         due_c = None
         if self.measure == "absolute":
             due_c = self._abs.setdefault(
@@ -583,100 +564,53 @@ class CollisionDetector:
         plans = []
         n_close = 0
         for name, target in self._targets():
-            if name == "__self__":
-                lo_b, hi_b = lo_c, hi_c
-                i, j = kernels.box_pairs(lo_c, hi_c, lo_c, hi_c, self_pairs=True)
-                if bound_rule:
-                    side_b = side_c
-                else:
-                    avg_b, dev_b = avg_c, dev_c
+            is_self = name == "__self__"
+            if is_self:
+                avg_b, dev_b, lo_b, hi_b = avg_c, dev_c, lo_c, hi_c
             else:
-                if bound_rule:
-                    fit_b = kernels.cluster_fit(target.clustering, target.vertices, target.measured, self.trip_reach)
-                    side_b = (target.clustering, target.vertices, target.measured, fit_b)
-                else:
-                    avg_b, dev_b = kernels.cluster_motion(target.clustering, target.vertices, target.measured)
-                lo_b, hi_b = kernels.cluster_boxes(target.clustering, target.vertices, self.inflate)
-                i, j = kernels.box_pairs(lo_c, hi_c, lo_b, hi_b)
-            force = None
+                avg_b, dev_b, lo_b, hi_b = self._cluster_state(target, target.vertices, target.measured, ws, name)
             forced = self._forced.get(name)
             first = self._first or name in self._new_targets
-            if first:
-                force = np.ones(i.size, bool)
-            elif forced is not None and len(forced):
-                force = np.isin(i, forced)
-                if name == "__self__":
-                    force |= np.isin(j, forced)
             self._forced[name] = None
             self._new_targets.discard(name)
+            # the close pairs, those forced to full detection, and the paper's relative measure (C)
+            rel = self._rel[name] if paper_rule else None
+            i, j, full = self._pair_step(lo_c, hi_c, lo_b, hi_b, is_self, first, forced, rel,
+                                         (avg_c, dev_c, avg_b, dev_b) if paper_rule else None)
             if bound_rule:
+                side_b = side_c if is_self else (target.clustering, target.vertices, target.measured,
+                                                 kernels.cluster_fit(target.clustering, target.vertices,
+                                                                     target.measured, self.trip_reach))
                 bound = kernels.pair_motion(i, j, side_c, side_b, self.trip_reach)
-                full = self._rel[name].step(i, j, bound, lo_c, hi_c, lo_b, hi_b, force)
-            elif self.measure == "relative":
-                full = self._rel[name].step(i, j, avg_c, dev_c, avg_b, dev_b, force)
+                full = self._rel[name].step(i, j, bound, lo_c, hi_c, lo_b, hi_b, full if (first or (
+                    forced is not None and len(forced))) else None)
             elif self.measure == "absolute":
-                due_b = due_c if name == "__self__" else self._abs[name].accumulate(avg_b, dev_b)
-                full = due_c[i] | due_b[j]
-                if force is not None:
-                    full |= force
-            else:
+                due_b = due_c if is_self else self._abs[name].accumulate(avg_b, dev_b)
+                full = full | due_c[i] | due_b[j]
+            elif self.measure == "full":
                 full = np.ones(i.size, bool)
-            plan = _Plan(name, target, i, j, full)
+            plan = _Plan(name, target, i, j, np.ascontiguousarray(full, bool))
             plan.lo, plan.hi, plan.first = lo_b, hi_b, first
             plans.append(plan)
             n_close += i.size
         t_measure = time.perf_counter()
 
-        # 2. incremental: walk every tracked ray ------------------------------------
-        n_lost = 0
-        n_tracked = 0
+        # 2-4. per collider, one C call: walks, full detection, refinement, merge --------
+        rows = []
+        n_tracked = n_lost = n_full = n_rays = 0
+        times = np.zeros(4)  # walk, cast, refine, merge (s, from the C calls)
+        self_times = np.zeros(4)
         for plan in plans:
-            tracks = self._tracks[plan.name]
-            target = plan.target
-            n_tracked += tracks.key.size
-            if tracks.key.size == 0:
-                plan.walked = kernels.NO_HITS
-                continue
-            v, slot, start = tracks.key >> 1, tracks.key & 1, tracks.tri
-            lazy.need(np.ascontiguousarray(cloth.clustering.labels[v]))
-            res = kernels.walk(pos, normals, v, slot, start, target, cloth.ring if plan.name == "__self__" else None)
-            lost = (res.tri < 0) & has_normal[v]
-            n_lost += int(lost.sum())
-            if lost.any() and plan.i.size:
-                # The pair (cloth cluster, collider cluster last hit) gets full detection now.
-                la = cloth.clustering.labels[v[lost]]
-                lb = target.clustering.tri_labels[start[lost]]
-                if plan.name == "__self__":
-                    la, lb = np.minimum(la, lb), np.maximum(la, lb)
-                key_lost = np.unique((la << 32) | lb)
-                plan.full = plan.full | np.isin((plan.i << 32) | plan.j, key_lost)
-            plan.walked = res
-        t_incr = time.perf_counter()
-
-        # 3. full detection of the marked pairs --------------------------------------
-        n_full = 0
-        t_self = c_self = 0.0
-        n_rays = 0
-        for plan in plans:
-            nf = int(np.count_nonzero(plan.full))
-            n_full += nf
-            if nf == 0:
-                continue
-            fi, fj = plan.i[plan.full], plan.j[plan.full]
+            rows.append(self._detect_target(plan, pos, ws, step))
+            st = ws["stats"]
+            n_tracked += int(st[3])
+            n_lost += int(st[4])
+            n_full += int(st[5])
+            n_rays += int(st[6])
+            times += ws["times"]
             if plan.name == "__self__":
-                # Rays of a into b's triangles and of b into a's (once for a == b).
-                other = fi != fj
-                fi, fj = np.concatenate([fi, fj[other]]), np.concatenate([fj, fi[other]])
-            lazy.need(fi)
-            t_plan, c_plan = time.perf_counter(), time.process_time()
-            plan.found, rays = self._full_detection(plan, fi, fj, pos, normals, has_normal, step)
-            if plan.name == "__self__":
-                t_self, c_self = time.perf_counter() - t_plan, time.process_time() - c_plan
-            n_rays += rays
-        t_full = time.perf_counter()
-
-        # 4. merge, classify, contacts -------------------------------------------------
-        rows = [self._merge_and_classify(plan, pos, normals) for plan in plans]
+                self_times = ws["times"].copy()
+        t_detect = time.perf_counter()
         contacts, every = self._assemble_rows(rows, pos.shape[0])
         # Every collider's contact per vertex, for the solver: a vertex touching a body and another
         # layer of cloth at once must respect both (the solver combines their normals).
@@ -689,6 +623,8 @@ class CollisionDetector:
             body.measured = body.vertices  # update_body replaces, never mutates, the array
         self._first = False
         builds = sum(t.scenes.builds for _, t in self._targets())
+        # the C calls' own phases; what is left of their wall time (argument passing) goes to "contacts"
+        detect_s = t_detect - t_measure
         self.stats = {
             "close_pairs": n_close,
             "full_pairs": n_full,
@@ -700,18 +636,137 @@ class CollisionDetector:
             "scene_builds_total": builds,
             "ms": {
                 "measure": 1e3 * (t_measure - t_start),
-                "incremental": 1e3 * (t_incr - t_measure),
-                "full": 1e3 * (t_full - t_incr),
-                "contacts": 1e3 * (t_end - t_full),
+                "incremental": 1e3 * times[0],
+                "full": 1e3 * (times[1] + times[2]),
+                "contacts": 1e3 * (detect_s - times[:3].sum() + t_end - t_detect),
                 "total": 1e3 * (t_swept - t_start),
-                "full_self": 1e3 * t_self,  # of "full": the cloth against itself
-                "full_self_cpu": 1e3 * c_self,  # the same, process CPU (Embree builds use a second thread)
+                "full_self": 1e3 * (self_times[1] + self_times[2]),  # of "full": the cloth against itself
                 "swept": 1e3 * (t_swept - t_end),
             },
             "swept_pairs": 0 if self._swept is None else self._swept.n_pairs,
             **{f"swept_{k}": v for k, v in (self._swept.counts if self._swept is not None else {}).items()},
         }
         return contacts
+
+    def _cluster_state(self, collider, positions, previous, ws, key):
+        """dis_avg, dis_dev and the inflated boxes of a collider's clusters (C: one call), in arrays
+        kept between steps."""
+        cl = collider.clustering
+        k = cl.n_clusters
+        buf = ws.setdefault(("state", key), None)
+        if buf is None or buf[0].shape[0] != k:
+            buf = ws[("state", key)] = (np.empty((k, 3)), np.empty(k), np.empty((k, 3)), np.empty((k, 3)))
+        _collide.cluster_state(positions, previous, cl.order, cl.ptr, cl.box_index, cl.box_ptr, self.inflate, *buf)
+        return buf
+
+    def _pair_step(self, lo_a, hi_a, lo_b, hi_b, self_pairs, first, forced, rel, motion):
+        """(i, j, full) of a collider's close pairs (C: measure.c tcc_pair_step), the relative measure
+        ``rel`` (a RelativeMeasure) updated when ``motion`` (avg_c, dev_c, avg_b, dev_b) is given;
+        without it, full holds the forced pairs only."""
+        cap = max(int(getattr(self, "_pair_cap", 64)), 64)
+        forced = None if forced is None or not len(forced) else np.ascontiguousarray(forced, np.int64)
+        old = (rel.keys, rel.rel_avg, rel.rel_dev) if rel is not None else \
+            (kernels.EMPTY_I64, np.zeros((0, 3)), kernels.EMPTY_F64)
+        m = motion if motion is not None else (None, None, None, None)
+        while True:
+            i, j, keys = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+            full = np.empty(cap, bool)
+            rel_avg, rel_dev, amp = np.empty((cap, 3)), np.empty(cap), np.empty(cap)
+            count, _ = _collide.pair_step(lo_a, hi_a, lo_b, hi_b, self_pairs, first, forced, *m, *old,
+                                          rel.threshold if rel is not None else 0.0,
+                                          rel.lookahead if rel is not None else 0.0, i, j, full, keys, rel_avg,
+                                          rel_dev, amp)
+            if count <= cap:
+                break
+            cap = self._pair_cap = 2 * count
+        if rel is not None:
+            rel.keys, rel.rel_avg, rel.rel_dev, rel.amplitude = keys[:count], rel_avg[:count], rel_dev[:count], \
+                amp[:count]
+        return i[:count], j[:count], full[:count]
+
+    def _workspace(self, n):
+        """The step's scratch, kept between steps (not pickled): the cloth's normals (computed per
+        vertex as the step needs them: done), and one collider's outputs (tracks, contacts, stats)."""
+        ws = getattr(self, "_ws", None)
+        if ws is None or ws["normals"].shape[0] != n:
+            ws = {"normals": np.zeros((n, 3)), "has_normal": np.zeros(n, bool), "out_key": np.empty(2 * n, np.int64),
+                  "out_tri": np.empty(2 * n, np.int64), "out_side": np.empty(2 * n, np.int8),
+                  "out_inside": np.empty(n, np.int64), "contact_vertex": np.empty(n, np.int64),
+                  "depth": np.empty(n), "normal": np.empty((n, 3)), "contact_velocity": np.empty((n, 3)),
+                  "stats": np.zeros(8, np.int64), "times": np.zeros(4)}
+            self._ws = ws
+        ws["done"] = np.zeros(n, bool)
+        return ws
+
+    def _detect_target(self, plan, pos, ws, step):
+        """One collider's step (C: detect.c): its tracked rays walked (a lost walk sends its pair to
+        full detection now), the marked pairs' rays cast into its trees, refined, merged with the
+        tracks and classified. Stores the new tracks; returns this collider's deepest contact per
+        vertex, sorted by vertex: (vertex, depth, normal, velocity, friction)."""
+        name, target = plan.name, plan.target
+        cloth = self.cloth
+        is_self = name == "__self__"
+        tracks = self._tracks[name]
+        trees = target.scenes
+        if not trees.built:
+            trees.build(target.vertices, target.triangles)
+        args = self._target_args(plan, ws)
+        args["positions"], args["previous"], args["velocity"] = pos, self._cloth_prev, cloth.velocities
+        args["done"] = ws["done"]
+        if is_self:  # the cloth is its own target: this step's arrays
+            args["target_vertices"], args["target_previous"], args["target_velocity"] = \
+                pos, self._cloth_prev, cloth.velocities
+        else:
+            args["target_vertices"], args["target_previous"] = target.vertices, target.measured
+            args["target_velocity"] = target.velocities
+        args["box_lo"], args["box_hi"], args["step"] = plan.lo, plan.hi, int(step)
+        args["pair_i"], args["pair_j"], args["full"] = plan.i, plan.j, plan.full
+        args["track_key"], args["track_tri"], args["track_side"] = tracks.key, tracks.tri, tracks.side
+        args["inside"], args["first"] = tracks.inside, bool(self._first)
+        _collide.detect(**args)
+        nt, ni, nc = (int(v) for v in ws["stats"][:3])
+        tracks.key, tracks.tri, tracks.side = ws["out_key"][:nt].copy(), ws["out_tri"][:nt].copy(), \
+            ws["out_side"][:nt].copy()
+        if target.kind == "volume" and not is_self:
+            tracks.inside = ws["out_inside"][:ni].copy()
+        return (ws["contact_vertex"][:nc].copy(), ws["depth"][:nc].copy(), ws["normal"][:nc].copy(),
+                ws["contact_velocity"][:nc].copy(), target.friction)
+
+    def _target_args(self, plan, ws):
+        """The keyword arguments of a collider's C call (detect.c) in its table's order, kept between
+        steps while the topology, the trees and the scratch stay the same objects: the caller sets
+        what changes every step."""
+        name, target, cloth = plan.name, plan.target, self.cloth
+        trees, is_self = target.scenes, plan.name == "__self__"
+        ccl, tcl = cloth.clustering, target.clustering
+        key = tuple(id(a) for a in (cloth.triangles, cloth.vt_ptr, cloth.vt_tri, ccl.order, ccl.ptr, ccl.labels,
+                                    cloth.ring, target.triangles, target.adj, target.flip, tcl.tri_labels,
+                                    trees.node_ptr, trees.node, trees.box, trees.prim,
+                                    trees.corner, trees.refit_step, ws["normals"]))
+        cache = ws.setdefault("args", {})
+        hit = cache.get(name)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        cl = target.clustering
+        args = dict(
+            positions=None, previous=None, velocity=None, triangles=cloth.triangles, vt_ptr=cloth.vt_ptr,
+            vt_tri=cloth.vt_tri, order=cloth.clustering.order, ptr=cloth.clustering.ptr,
+            labels=cloth.clustering.labels, normals=ws["normals"], has_normal=ws["has_normal"], done=None,
+            kind=kernels.KIND["self" if is_self else target.kind], target_vertices=target.vertices,
+            target_triangles=target.triangles, adjacency=target.adj, flip=target.flip,
+            target_previous=self._cloth_prev if is_self else target.measured,
+            target_velocity=cloth.velocities if is_self else target.velocities, tri_labels=cl.tri_labels,
+            box_lo=None, box_hi=None,
+            ring=cloth.ring if is_self else None, node_ptr=trees.node_ptr, node=trees.node, box=trees.box,
+            prim=trees.prim, corner=trees.corner, refit_step=trees.refit_step, step=0, pair_i=None, pair_j=None,
+            full=None, track_key=None, track_tri=None, track_side=None, inside=None, thickness=self.thickness,
+            track_range=self.track_range, ray_length=self.track_range, inflate=self.inflate, backoff=RAY_BACKOFF,
+            first=False, out_key=ws["out_key"], out_tri=ws["out_tri"], out_side=ws["out_side"],
+            out_inside=ws["out_inside"], contact_vertex=ws["contact_vertex"], depth=ws["depth"],
+            normal=ws["normal"], contact_velocity=ws["contact_velocity"], stats=ws["stats"], times=ws["times"],
+        )
+        cache[name] = (key, args)
+        return args
 
     # ------------------------------------------------------------------ 5. swept (swept.py)
     def _swept_topology(self, pos):
@@ -730,8 +785,8 @@ class CollisionDetector:
         self._rest = rest[:n]
 
     def _swept_stage(self, every, pos, dt):
-        """Stage 5: the swept contacts of the cloth's two-ring, appended to ``every`` (per vertex,
-        sorted by vertex)."""
+        """Stage 5: the swept contacts of the cloth's two-ring, merged into ``every`` (per vertex,
+        sorted by vertex; a vertex's collider contacts first): swept.py, two C calls."""
         if not (self.swept and self.self_collision):
             return every
         cloth = self.cloth
@@ -739,195 +794,25 @@ class CollisionDetector:
             self._swept_topology(pos)
             self._swept = SweptSelf(pos, cloth.triangles, cloth.ring, self._rest, self.thickness)
         prev = None if self._first else self._cloth_prev
-        rows = self._swept.contacts(prev, pos, cloth.velocities, 0.0 if dt is None else float(dt))
-        if rows is None:
+        if self._swept.step(prev, pos, cloth.velocities, 0.0 if dt is None else float(dt)) == 0:
             return every
-        v, depth, normal, vel = rows
-        v = np.concatenate([every.vertex.astype(np.int64), v])
-        order = np.argsort(v, kind="stable")
-        fr = np.full(rows[0].size, cloth.friction)
-        return Contacts(v[order].astype(np.int32), np.concatenate([every.normal, normal])[order],
-                        np.concatenate([every.depth, depth])[order], np.concatenate([every.velocity, vel])[order],
-                        np.concatenate([every.friction, fr])[order])
-
-    def _full_detection(self, plan, fi, fj, pos, normals, has_normal, step):
-        """Candidates (Embree for a body, the cloth's BVHs for itself) for cloth clusters fi against
-        collider clusters fj, refined exactly. Returns ((vertex, slot, Hits, status) of the hits found, or None; rays cast)."""
-        name, target = plan.name, plan.target
-        cloth = self.cloth
-        if fi.size == 0:
-            return None, 0
-        is_self = name == "__self__"
-        kind = "self" if is_self else target.kind
-        ring = cloth.ring if is_self else None
-        # A closed body's rays reach across it (the module docs: Ray length); inside_prev trusts a
-        # far exit for a vertex that was inside at the previous step.
-        short = long_ = self.track_range
-        inside_prev = None
-        if target.kind == "volume":
-            tracks = self._tracks[name]
-            if tracks.inside.size:
-                inside_prev = tracks.inside_mask()
-            # the longest way through the body: its box diagonal (from the cluster boxes at hand)
-            extent = float(np.linalg.norm(plan.hi.max(axis=0) - plan.lo.min(axis=0)))
-            if not np.isfinite(extent):
-                extent = self.cluster_extent(target)
-            short = long_ = self.track_range + 2.0 * self.inflate + extent
-        scenes = target.scenes
-        if isinstance(scenes, ClusterBVH):
-            # the cloth against itself: every pair's rays, refits and two-ring filter in one C call
-            rv, rslot, hit, count = scenes.cast_self(pos, normals, has_normal, cloth.clustering, plan.lo, plan.hi,
-                                                     target.triangles, ring, fi, fj, step, short, RAY_BACKOFF)
-            return self._refine(plan, kind, ring, inside_prev, rv, rslot, hit, pos, normals), count
-        # One group per collider cluster, each cluster's scene fitted (or rebuilt) once.
-        order = np.argsort(fj, kind="stable")
-        fi, fj = fi[order], fj[order]
-        ub = np.unique(fj)
-        buf = self._rays
-        args = (pos, normals, has_normal, None, cloth.clustering, plan.lo, plan.hi)
-        dist_args = (short, long_, RAY_BACKOFF, scenes.tolerance)
-        # Which collider clusters get any ray at all (the culling runs twice; it is cheap): only
-        # their scenes are fitted, or built.
-        seg = buf.count(*args, fi, fj, ub, scenes, *dist_args)
-        need = ub[seg[1:] > seg[:-1]]
-        if need.size == 0:
-            return None, 0
-        usable = scenes.fit(need, target.vertices, target.triangles, step)
-        if not usable.all():
-            keep = np.isin(fj, need[usable])
-            fi, fj = fi[keep], fj[keep]
-            ub = np.unique(fj)
-        count, seg = buf.prepare(*args, fi, fj, ub, scenes, *dist_args)
-        if count == 0:
-            return None, 0
-        hit = np.empty(count, np.int64)
-        retry = np.empty(count, np.int64)
-        o, d, dist = buf.o, buf.d, buf.dist
-        oc, dc, distc = o[:count], d[:count], dist[:count]
-        rv = buf.vertex[:count]
-        seg = seg.tolist()
-        ptr = scenes.ptr
-        for g, b in enumerate(ub.tolist()):
-            s, e = seg[g], seg[g + 1]
-            if s == e:
-                continue
-            scene, stri = scenes.scene[b], scenes.tri[ptr[b]:ptr[b + 1]]
-            rays = np.arange(s, e, dtype=np.int64)
-            if not is_self:
-                prim = scene.run(o[s:e], d[s:e], dists=dist[s:e])
-                _collide.accept_hits(rays, prim, None, stri, rv, target.triangles, None, oc, dc, distc, hit, retry)
-                continue
-            # Self: skip the vertex's own two-ring by casting again from just past it (embreex has
-            # no hit filter). embreex writes tfar into the dists it is given: hand it a copy.
-            res = scene.run(o[s:e], d[s:e], dists=dist[s:e].copy(), output=1)
-            for _ in range(8):
-                again = _collide.accept_hits(rays, res["primID"], res["tfar"], stri, rv, target.triangles, ring, oc,
-                                             dc, distc, hit, retry)
-                if again == 0:
-                    break
-                rays = retry[:again].copy()
-                res = scene.run(o[rays], d[rays], dists=dist[rays], output=1)
-        return self._refine(plan, kind, ring, inside_prev, rv, buf.slot[:count], hit, pos, normals), count
-
-    def _refine(self, plan, kind, ring, inside_prev, rv, rslot, hit, pos, normals):
-        """Candidate hits (ray vertex, slot, triangle or -1) made exact on the current geometry
-        (Embree's scenes may be up to their tolerance stale): (vertex, slot, Hits, status) or None."""
-        name, target = plan.name, plan.target
-        count = rv.size
-        if count == 0:
-            return None
-        ints = np.empty((3, count), np.int64)
-        reals = np.empty((3, count))
-        flags = np.empty((2, count), bool)
-        k = _collide.refine(pos, normals, rv, rslot, hit, target.vertices, target.triangles, target.adj,
-                            target.flip, ring, kernels.KIND[kind], self.track_range, inside_prev, ints[0], ints[1],
-                            ints[2], reals[0], reals[1], reals[2], flags[0], flags[1])
-        if k == 0:
-            return None
-        fv, fs = ints[0, :k], ints[1, :k]
-        res = kernels.Hits.view(ints[2, :k], reals[0, :k], reals[1, :k], reals[2, :k], flags[0, :k])
-        status = flags[1, :k].view(np.uint8)
-        if target.kind == "volume":
-            # far back faces: not the exit if a nearer hit of the same ray exists (C), else tested
-            tracks, walked = self._tracks[name], plan.walked
-            if _collide.drop_dominated(fv, fs, res.t, status.view(bool), tracks.key, walked.tri, walked.t):
-                c2 = np.flatnonzero(status == 2)
-                status[c2] = self._confirm_inside(plan, fv, fs, res, c2, pos, normals)
-        return fv, fs, res, status
-
-    def _confirm_inside(self, plan, fv, fs, res, c2, pos, normals):
-        """1 for each far back-face hit c2 that is the ray's first hit on the body (the vertex is
-        inside), else 0: tested exactly (C) against the triangles of every collider cluster whose
-        box the segment crosses, on the current geometry - no scene to fit or rebuild. (Hits that
-        a nearer hit of the same ray already disproves are dropped before, by drop_dominated.)"""
-        target = plan.target
-        d = normals[fv[c2]] * np.where(fs[c2] == 0, 1.0, -1.0)[:, None]
-        ok = np.empty(c2.size, bool)
-        cl = target.clustering
-        _collide.confirm_inside(target.vertices, target.triangles, cl.tri_order, cl.tri_starts, plan.lo, plan.hi,
-                                pos[fv[c2]], d, res.t[c2], res.tri[c2], RAY_BACKOFF, 1e-6, ok)
-        return ok
-
-    @staticmethod
-    def cluster_extent(target):
-        """Diagonal (m) of the collider's bounding box: the longest a ray inside it can travel."""
-        lo = target.vertices.min(axis=0)
-        hi = target.vertices.max(axis=0)
-        return float(np.linalg.norm(hi - lo))
-
-    def _merge_and_classify(self, plan, pos, normals):
-        """Merge walked tracks with new hits (nearest per vertex and slot), classify (C), store the
-        tracks for the next step. Returns this collider's deepest contact per vertex, sorted by
-        vertex: (vertex, depth, normal, velocity, friction)."""
-        name, target = plan.name, plan.target
-        tracks = self._tracks[name]
-        if tracks.key.size == 0 and plan.found is None:
-            # nothing tracked, nothing found: no tracks, nobody inside, no contact
-            tracks.inside = kernels.EMPTY_I64
-            return kernels.EMPTY_I64, None, None, None, target.friction
-        is_self = name == "__self__"
-        r_w = plan.walked
-        if plan.found is not None:
-            v_f, s_f, r_f, st = plan.found
-        else:
-            v_f = s_f = kernels.EMPTY_I64
-            r_f, st = kernels.NO_HITS, None
-        cap = tracks.key.size + v_f.size
-        okey, otri, oin, cv = np.empty((4, cap), np.int64)
-        oside = np.empty(cap, np.int8)
-        depth = np.empty(cap)
-        normal, velocity = np.empty((2, cap, 3))
-        cloth_vel = self.cloth.velocities
-        nt, ni, nc = _collide.merge_classify(
-            positions=pos, normals=normals, previous=self._cloth_prev, velocity=cloth_vel,
-            target_vertices=target.vertices, target_triangles=target.triangles,
-            target_previous=self._cloth_prev if is_self else target.measured,
-            target_velocity=cloth_vel if is_self else target.velocities,
-            kind=kernels.KIND["self" if is_self else target.kind], first=self._first,
-            thickness=self.thickness, track_range=self.track_range,
-            track_key=tracks.key, track_tri=tracks.tri, track_side=tracks.side,
-            walked_tri=r_w.tri, walked_t=r_w.t, walked_u=r_w.u, walked_v=r_w.v, walked_flips=r_w.flips,
-            found_vertex=v_f, found_slot=s_f, found_tri=r_f.tri, found_t=r_f.t, found_u=r_f.u, found_v=r_f.v,
-            found_flips=r_f.flips, found_status=None if st is None else st.view(bool),
-            out_key=okey, out_tri=otri, out_side=oside, out_inside=oin,
-            contact_vertex=cv, depth=depth, normal=normal, contact_velocity=velocity,
-        )
-        tracks.key, tracks.tri, tracks.side = okey[:nt], otri[:nt], oside[:nt]
-        if target.kind == "volume" and not is_self:
-            tracks.inside = oin[:ni]
-        return cv[:nc], depth[:nc], normal[:nc], velocity[:nc], target.friction
+        return self._swept.rows(every, cloth.velocities, cloth.friction)
 
     @staticmethod
     def _assemble_rows(rows, n):
         """(deepest contact per vertex over all colliders, every collider's contact per vertex
         sorted by vertex) from each collider's contacts (C)."""
+        some = [r for r in rows if r[0].size]
+        if not some:
+            return Contacts(), Contacts()
+        if len(some) == 1:  # one collider touches: its contacts are both lists
+            v, depth, normal, velocity, fr = some[0]
+            c = Contacts(v.astype(np.int32), normal, depth, velocity, np.full(v.size, fr))
+            return c, c
         sizes = [r[0].size for r in rows]
         total = sum(sizes)
-        if total == 0:
-            return Contacts(), Contacts()
         seg = np.zeros(len(rows) + 1, np.int64)
         np.cumsum(sizes, out=seg[1:])
-        some = [r for r in rows if r[0].size]
         v = np.concatenate([r[0] for r in some])
         depth = np.concatenate([r[1] for r in some])
         normal = np.concatenate([r[2] for r in some])

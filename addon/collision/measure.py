@@ -62,7 +62,9 @@ clearance). What it buys: recall on fast vertices diving from beyond the thresho
 (tests/test_collision_recall.py: 100 % against the paper rule's 98.2 %).
 
 The functions here are numpy and are the specification of the C kernels the detector runs
-(``kernels.py``: cluster motion, boxes, pairs; ``RelativeMeasure.step`` calls C itself).
+(measure.c: cluster motion and boxes in one call, ``cluster_state``; the pairs, the forced pairs
+and ``RelativeMeasure``'s update in one, ``pair_step``, which the detector calls with a
+``RelativeMeasure``'s state; ``RelativeMeasure.step`` calls the measure's C itself).
 Cluster counts are ~30-1000, pairs a few hundred.
 Units: metres.
 """

@@ -22,35 +22,20 @@ triangle normal points to):
   when the vertex crossed the triangle during the last step, else from the current side.
   Self-collision never accepts a triangle of the vertex's own one-ring.
 
-Scenes: the embreex cost model (measured, shared/notes/collision.md and ``bench.py``): building a
-scene copies ~1.4 µs per triangle plus the BVH build on first query (a 200-triangle cluster scene
-costs 0.3-0.8 ms to build and query once), while casting 200 rays into it costs 17-60 µs and a
-call's overhead is ~5-10 µs. A whole 8K-triangle body rebuilt every step would be ~14 ms. So scenes
-are per *cluster* of the target, built lazily on the first full detection that needs them, and
-kept in the cluster's frame of reference: each query fits the rigid motion of the cluster's
-triangle corners since the build (Horn's method, in C) and casts the rays transformed into the
-build frame. A scene is rebuilt only when the cluster's non-rigid residual exceeds ``tolerance``.
-A skinned limb or a cloth tube moving with it keeps its scenes for the whole animation. Because
-the scene may be up to ``tolerance`` stale, its hit is only a candidate: the walker re-finds the
-exact triangle on the current vertices.
+Trees: every collider - the cloth itself and each body - is a set of native BVHs, one per
+cluster over its triangles and their edge neighbours, built once per topology and refitted each
+step the detector first casts into them (``ClusterBVH``, ``native/collide/bvh.c`` says why). Its
+hits are exact on the current geometry.
 
-The alternative, exact numpy tests of every candidate ray against every triangle of a cluster
-pair, costs 6.7 ms for 200 rays x 200 triangles (``bench.numpy_vs_embree``: Embree build + query
-0.31 ms, query into the cached scene 0.06 ms), so even a scene rebuilt for a single query beats
-it 20x; the rigid-frame cache makes rebuilds rare (stand-in bench: every scene built once in 80
-moving steps). The detector gathers all rays of a step for one collider cluster (from every cloth
-cluster paired with it) into one Embree call, prepared, culled and refined in C (``kernels``), so
-what is left per collider cluster queried is the fit and the call, ~15 µs plus the rays.
-
-The cloth itself is the exception (``ClusterBVH``): its clusters deform every step, so the
-rigid-frame cache rebuilt most of its scenes in most steps of a simulated garment (T-shirt on the
-walking mannequin at 10 sub-steps per frame: 12.5 of 18 clusters per step), and embreex has no hit
-filter for the two-ring. Its clusters are native BVHs over the same scene triangles, built once
-per topology and refitted each step (``native/collide/bvh.c``, whose module docs say why), and a
-step's whole self-collision cast is one C call. Measured interleaved on the frame10 moving
-scenario (``bench.self_scenes``, 117 steps, 190 tears): the self part of full detection 0.56x the
-CPU of the Embree scenes (medians 7.4 vs 13.1 ms per step), 1993 -> 74 builds (one forest build
-per tearing step), the same contacts.
+Embree (``ClusterScenes``, ``build_scene``, ``cast``): the previous release kept each body cluster
+as an embreex scene in the pose it was built in, fitted rigidly each query (Horn's method, C) and
+rebuilt past a non-rigid ``tolerance``, its candidates refined by the walker. Measured on the
+T-shirt simulated on the walking mannequin (bench ``collision.simulated``), the detector's step in
+C with native trees for the bodies gives the same contacts bit for bit at half the CPU or less,
+with no scene builds, rigid fits or Python per cluster; embreex offers neither a refit nor a C
+entry point that would let one call per step serve every cluster's scene. The Embree scenes stay
+here for the test oracles (brute force, the reference detector) and for unpickling a detector
+the previous release saved (it gets native trees when it resumes).
 
 Units: metres; velocities in m/s.
 """
@@ -413,21 +398,22 @@ class ClusterScenes:
 
 
 class ClusterBVH:
-    """The cloth's own clusters as native BVHs (``native/collide/bvh.c``), for self-collision.
+    """A collider's clusters as native BVHs (``native/collide/bvh.c``): the cloth's own and each
+    body's.
 
-    Why not Embree here: a cloth cluster deforms every step, so its Embree scene, reusable only up
-    to a rigid motion, was rebuilt in most steps (T-shirt at 10 sub-steps per frame: 12.5 of 18
-    clusters per step, 5.3 ms of bookkeeping, per-triangle copies through Python and Embree builds),
-    and embreex has neither a refit nor a hit filter. A tree per cluster over the same scene
+    Why not Embree: a cloth cluster deforms every step, so its Embree scene, reusable only up to a
+    rigid motion, was rebuilt in most steps (T-shirt at 10 sub-steps per frame: 12.5 of 18 clusters
+    per step, 5.3 ms of bookkeeping, per-triangle copies through Python and Embree builds), and
+    embreex has neither a refit nor a hit filter; for bodies, see the module docs. A tree per cluster over the same scene
     triangles as ``ClusterScenes`` (own + edge neighbours) is built once per topology, in C, for
     the whole cloth (``build``); a step refits, bottom-up from the current positions, only the
     trees its rays reach, and skips the two-ring inside the traversal. Its boxes are exact, so
-    ``tolerance`` is 0: no staleness margin on the rays, no rigid frame. Bodies keep Embree
-    (``ClusterScenes``): their clusters move almost rigidly, so their scenes are rarely rebuilt.
+    ``tolerance`` is 0: no staleness margin on the rays, no rigid frame.
 
     Layout (the C's, ``collide.h`` tcc_bvh): cluster c's nodes ``node[node_ptr[c]:node_ptr[c+1]]``
     (inner: two children; leaf: -1 - first, count into ``prim``), ``box`` (N, 6) lo, hi;
-    ``refit_step[c]`` the step its boxes are of. Plain arrays: they pickle as they are.
+    ``refit_step[c]`` the step its boxes are of; ``corner`` (rows, 9) each prim's corners as of its
+    last refit (the traversal reads them there). Plain arrays: they pickle as they are.
     """
 
     tolerance = 0.0
@@ -454,6 +440,13 @@ class ClusterBVH:
     def rebuild(self, triangles):
         """Nothing to do after unpickling: the trees are plain arrays."""
 
+    def __setstate__(self, state):
+        self.__dict__.update(state)
+        if self.__dict__.get("built") and "corner" not in state:
+            # saved before the trees kept their corners: refitted (and so written) at the next cast
+            self.corner = np.zeros((self.prim.size, 9))
+            self.refit_step = np.full(self.refit_step.size, -1, np.int64)
+
     def build(self, positions, triangles):
         k = self.ptr.size - 1
         rows = self.tri.size
@@ -464,6 +457,7 @@ class ClusterBVH:
         used = _collide.bvh_build(positions=positions, triangles=triangles, scene_ptr=self.ptr,
                                   scene_triangles=self.tri, node_ptr=self.node_ptr, node=node, box=box, prim=self.prim)
         self.node, self.box = node[:used].copy(), box[:used].copy()
+        self.corner = np.zeros((rows, 9))  # each prim's corners, written by its refit (bvh.c)
         self.refit_step = np.full(k, -1, np.int64)
         self.built = True
         self.builds += 1

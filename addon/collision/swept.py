@@ -20,12 +20,16 @@ ring the rays skip, by the swept kernels of native/collide/ccd.c:
   with the side it came from and pushed back (depth = how far it is on the wrong side + its gap)
   until it is on its side again or has separated.
 
-Culling: a pair is tested only when a lower bound of its distance - gap, carried from step to step
-and lowered by the relative motion of its corners, no longer proves it apart (ccd.c). The ~105,000
-two-ring pairs of the bench's shirt are culled by blocks of 64 consecutive pairs: a block whose
-vertices moved less relative to each other than its smallest bound allows is skipped unread (its
-motion owed as a debt), so a step in which nothing drew close reads ~30 vertices per block instead
-of 256 corners; both motions of a step (the real one, then the prediction) in one pass.
+Culling: a pair is tested only when a lower bound of its distance - gap, kept from the last time
+its block of 64 consecutive pairs was read, no longer exceeds how far the block's vertices may have
+moved apart since then (swept.c). The ~105,000 two-ring pairs of the bench's shirt are ~1,650
+blocks; a block keeps its vertices' positions when it was last read and a running bound of their
+spread since, grown each step by the cheapest bound that will do - the largest motion of any group
+of 16 nearby vertices (one addition), else the block's groups' boxes, else its own vertices (exact,
+which restores the margin) - so a quiet step reads almost nothing. One C call per step does the cull,
+the swept tests and the memory (swept.c tcc_swept_step); a second merges the rows into the
+colliders' contacts (tcc_swept_rows). The step's previous positions must be the positions of the
+previous call (the running bounds are built on that), which the detector guarantees.
 
 Counts (predicted, crossed, remembered) go to the detector's stats; nothing is dropped silently.
 """
@@ -41,49 +45,26 @@ GAP_FRACTION = 0.25
 MIN_REST = 1e-6
 
 
-def unique_edges(triangles):
-    t = np.asarray(triangles, np.int64)
-    e = np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]])
-    return np.unique(np.sort(e, axis=1), axis=0)
-
-
-def _incident_edges(edges, n):
-    """(n, K) table of the edges at each vertex, padded with -1."""
-    ends = edges.reshape(-1)
-    eid = np.repeat(np.arange(edges.shape[0]), 2)
-    order = np.argsort(ends, kind="stable")
-    counts = np.bincount(ends, minlength=n)
-    table = np.full((n, max(int(counts.max(initial=0)), 1)), -1, np.int64)
-    start = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    table[ends[order], np.arange(order.size) - start[ends[order]]] = eid[order]
-    return table
-
-
 def skipped_pairs(triangles, ring, n):
     """The pairs the rays skip: (vertex, triangle) with a corner of the triangle in the vertex's
     ring (not a corner itself), and (edge, edge) sharing no vertex with an end of one in the ring of
-    an end of the other. Returns (edges (m, 2), vt (k, 2), ee (j, 2) edge ids, first < second)."""
-    t = np.asarray(triangles, np.int64)
-    edges = unique_edges(t)
-    u = ring[t].reshape(t.shape[0], -1)
-    ti = np.repeat(np.arange(t.shape[0]), u.shape[1])
-    u = u.reshape(-1)
-    ok = (u >= 0) & (u != t[ti, 0]) & (u != t[ti, 1]) & (u != t[ti, 2])
-    vt = np.unique(np.stack([u[ok], ti[ok]], 1), axis=0)
-    inc = _incident_edges(edges, n)
-    nb = ring[edges]  # (m, 2, K)
-    f = inc[np.where(nb >= 0, nb, 0)]
-    f[nb < 0] = -1
-    f = f.reshape(edges.shape[0], -1)
-    fi = np.repeat(np.arange(edges.shape[0]), f.shape[1])
-    f = f.reshape(-1)
-    ok = (f >= 0) & (fi < f)
-    a, b = fi[ok], f[ok]
-    ea, eb = edges[a], edges[b]
-    ok = (ea[:, 0] != eb[:, 0]) & (ea[:, 0] != eb[:, 1]) & (ea[:, 1] != eb[:, 0]) & (ea[:, 1] != eb[:, 1])
-    ee = np.unique(np.stack([a[ok], b[ok]], 1), axis=0)
-    return edges, vt.reshape(-1, 2), ee.reshape(-1, 2)
+    an end of the other. Returns (edges (m, 2), vt (k, 2), ee (j, 2) edge ids, first < second), each
+    ascending (C: swept.c tcc_swept_pairs)."""
+    t = _c(triangles, np.int64).reshape(-1, 3)
+    ring = _c(ring, np.int64)
+    caps = [3 * t.shape[0], 3 * t.shape[0] * ring.shape[1], 8 * t.shape[0] * ring.shape[1]]
+    while True:
+        edges, vt, ee = np.empty((caps[0], 2), np.int64), np.empty((caps[1], 2), np.int64), \
+            np.empty((caps[2], 2), np.int64)
+        counts = _collide.swept_pairs(t, ring, int(n), edges, vt, ee)
+        if all(c <= cap for c, cap in zip(counts, caps)):
+            return edges[:counts[0]], vt[:counts[1]], ee[:counts[2]]
+        caps = [max(c, cap) for c, cap in zip(counts, caps)]
 
+
+# vertices per group of the cull's cheap bounds (swept.c): nearby vertices (runs of the Morton order of
+# the rest positions); a block of ~26 vertices meets a few groups
+GROUP_SIZE = 16
 
 # pairs per block of the cull (ccd.c tcc_ccd_cull_blocks): larger blocks read fewer vertices per pair
 # but their looser shared bound opens them more often; on the shirt of the collision bench a block of
@@ -91,31 +72,33 @@ def skipped_pairs(triangles, ring, n):
 BLOCK_PAIRS = 64
 
 
-def _pair_blocks(quad, size=BLOCK_PAIRS):
-    """(block_ptr, block_vptr, block_vertices, block_min, block_debt) of runs of ``size`` pairs of
-    ``quad`` (k, 4): the distinct vertices of each run, its bound unknown, nothing owed."""
+def _pair_blocks(quad, group, size=BLOCK_PAIRS):
+    """(block_ptr, block_vptr, block_vertices, block_gptr, block_groups) of runs of ``size`` pairs of
+    ``quad`` (k, 4): the distinct vertices of each run and their distinct groups, ascending (C)."""
     k = quad.shape[0]
     nb = -(-k // size)
-    ptr = np.minimum(np.arange(nb + 1, dtype=np.int64) * size, k)
-    n = int(quad.max(initial=-1)) + 1
-    keys = np.unique((np.arange(k, dtype=np.int64) // size)[:, None] * n + quad).reshape(-1) if k else \
-        np.zeros(0, np.int64)
-    vptr = np.zeros(nb + 1, np.int64)
-    if k:
-        np.cumsum(np.bincount(keys // n, minlength=nb), out=vptr[1:])
-    return ptr, vptr, _c(keys % n if k else keys, np.int64), np.full(nb, -np.inf), np.zeros(nb)
+    out = (np.empty(nb + 1, np.int64), np.empty(nb + 1, np.int64), np.empty(4 * k, np.int64),
+           np.empty(nb + 1, np.int64), np.empty(4 * k, np.int64))
+    nv, ng = _collide.swept_blocks(_c(quad, np.int64), size, _c(group, np.int64), *out)
+    return out[0], out[1], out[2][:nv].copy(), out[3], out[4][:ng].copy()
 
 
-def _apart(gapv, dist, fallback, gap):
-    """Unit direction from the second element's closest point to the first's: the way they are
-    apart. Why not the plane or line normal: for two nearly parallel edges (a crease's mirror
-    diagonals) the cross product is ill-conditioned and points anywhere, and a contact along it
-    pressed on the stiff membrane and blew the sheet up. Only where the pair nearly touches
-    (closer than a tenth of its gap) the oriented normal is used."""
-    far = dist > 0.1 * gap
-    out = fallback.copy()
-    out[far] = gapv[far] / dist[far, None]
-    return out
+def _groups(x, size):
+    """Group of each vertex: runs of ``size`` vertices in the Morton (z-order) of positions x, so
+    that a group is a few nearby vertices."""
+    x = np.asarray(x, np.float64).reshape(-1, 3)
+    n = x.shape[0]
+    if n == 0:
+        return np.zeros(0, np.int64)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    q = ((x - lo) / np.where(hi > lo, hi - lo, 1.0) * 1023).astype(np.int64).clip(0, 1023)
+    code = np.zeros(n, np.int64)
+    for bit in range(10):
+        for axis in range(3):
+            code |= ((q[:, axis] >> bit) & 1) << (3 * bit + axis)
+    lab = np.empty(n, np.int64)
+    lab[np.argsort(code, kind="stable")] = np.arange(n) // size
+    return lab
 
 
 def _c(a, dtype=None):
@@ -123,10 +106,13 @@ def _c(a, dtype=None):
 
 
 class SweptSelf:
-    """The swept self-collision state of one cloth topology (see the module docs)."""
+    """The swept self-collision state of one cloth topology (see the module docs).
+
+    """
 
     def __init__(self, positions, triangles, ring, rest, thickness):
         n = positions.shape[0]
+        self.n = int(n)
         self.triangles = _c(triangles, np.int64)
         self.edges, vt, ee = skipped_pairs(self.triangles, ring, n)
         self.thickness = float(thickness)
@@ -147,12 +133,12 @@ class SweptSelf:
         self.ee_a, self.ee_b = _c(ea[keep]), _c(eb[keep])
         self.ee_gap = GAP_FRACTION * np.minimum(self.thickness, dist[keep])
         # per pair: its 4 vertex ids (the first element's first) and a lower bound of its distance
-        # minus its gap (-inf: unknown), for the culling (ccd.c tcc_ccd_cull)
+        # minus its gap (-inf: unknown), for the cull (swept.c)
         self.vt_quad = _c(np.column_stack([self.vt_v, self.triangles[self.vt_t]]).reshape(-1, 4), np.int64)
         self.ee_quad = _c(np.column_stack([self.ee_a, self.ee_b]).reshape(-1, 4), np.int64)
         self.vt_slack = np.full(self.vt_v.size, -np.inf)
         self.ee_slack = np.full(self.ee_a.shape[0], -np.inf)
-        self._make_blocks()
+        self._make_blocks(rest)
         # remembered crossings: pair index, oriented normal (the side to push the first element to)
         self.mem_vt = np.zeros(0, np.int64)
         self.mem_vt_n = np.zeros((0, 3))
@@ -160,183 +146,160 @@ class SweptSelf:
         self.mem_ee_n = np.zeros((0, 3))
         self.counts = {"predicted": 0, "crossed": 0, "remembered": 0, "no_normal": 0, "tested": 0}
 
-    def _make_blocks(self):
-        """The cull's blocks (ccd.c tcc_ccd_cull_blocks): runs of BLOCK_PAIRS consecutive pairs (sorted
-        by their first element, so a run is one patch of cloth) with the vertices their corners use,
-        the smallest bound of each (-inf: unknown) and its motion not yet charged to its pairs."""
-        self.blocks = {kind: _pair_blocks(quad) for kind, quad in (("vt", self.vt_quad), ("ee", self.ee_quad))}
+    def _make_blocks(self, rest):
+        """The cull's blocks (swept.c): runs of BLOCK_PAIRS consecutive pairs (sorted by their first
+        element, so a run is one patch of cloth) with the vertices their corners use and the groups
+        those are in, each block's bound unknown and its reference pose set at the next step; and
+        the groups (GROUP_SIZE vertices in the Morton order of ``rest``)."""
+        lab = _groups(rest, GROUP_SIZE)
+        ng = int(lab.max(initial=-1)) + 1
+        self.group_ptr = np.zeros(ng + 1, np.int64)
+        np.cumsum(np.bincount(lab, minlength=ng), out=self.group_ptr[1:])
+        self.group_vertices = _c(np.argsort(lab, kind="stable"), np.int64)
+        self.has_reference = np.zeros(1, bool)
+        self.blocks = {}
+        for kind, quad in (("vt", self.vt_quad), ("ee", self.ee_quad)):
+            ptr, vptr, verts, gptr, groups = _pair_blocks(quad, lab)
+            state = np.zeros((ptr.size - 1, 2))
+            state[:, 0] = -np.inf
+            self.blocks[kind] = (ptr, vptr, verts, state, np.zeros((verts.size, 3)), gptr, groups)
+
+    # the step's scratch (outputs of the C step) is not part of the state
+    _SCRATCH = ("_buf", "live")
+
+    def __getstate__(self):
+        return {k: v for k, v in self.__dict__.items() if k not in self._SCRATCH}
 
     def __setstate__(self, state):
         self.__dict__.update(state)
-        if "blocks" not in state:  # saved before the cull had blocks: its pairwise bounds stay valid
-            self._make_blocks()
+        blocks = state.get("blocks")
+        if blocks is not None and len(next(iter(blocks.values()), ())) == 7:
+            return
+        # saved before the blocks had reference poses (their bounds carried a debt of motion up to the
+        # previous step): each pair's bound less its block's debt holds at the previous step, which
+        # becomes every block's reference pose at the next one; the groups from the current positions'
+        # order (no rest positions were kept)
+        self.n = int(max(self.vt_quad.max(initial=-1), self.ee_quad.max(initial=-1))) + 1
+        self._make_blocks(np.zeros((self.n, 3)))
+        for kind, old in (blocks or {}).items():
+            ptr, state = self.blocks[kind][0], self.blocks[kind][3]
+            if len(old) < 5 or old[3].size != state.shape[0]:
+                continue  # no usable bounds: every block is read at the next step
+            slack = self.vt_slack if kind == "vt" else self.ee_slack
+            slack -= np.repeat(old[4], np.diff(ptr))
+            state[:, 0] = old[3] - old[4]
 
     @property
     def n_pairs(self):
         return int(self.vt_v.size + self.ee_a.shape[0])
 
-    # ---------------------------------------------------------------- kernels
-    def _cull(self, kind, x, move, update, predicted=None):
-        """Indices of the pairs of `kind` that may come within their gap over ``move`` (C, ccd.c
-        tcc_ccd_cull_blocks); with ``predicted`` (a second motion from x, culled after the first without
-        update, in the same pass over the blocks) the pair (those, the predicted ones)."""
-        quad, gap, slack = (self.vt_quad, self.vt_gap, self.vt_slack) if kind == "vt" else \
-            (self.ee_quad, self.ee_gap, self.ee_slack)
-        out = np.empty(gap.size, np.int64)
-        out2 = None if predicted is None else np.empty(gap.size, np.int64)
-        ptr, vptr, verts, bmin, debt = self.blocks[kind]
-        k = _collide.ccd_cull(positions=x, quads=quad, split=1 if kind == "vt" else 2, displacement=move, gap=gap,
-                              slack=slack, update=update, out=out, block_ptr=ptr, block_vptr=vptr,
-                              block_vertices=verts, block_min=bmin, block_debt=debt, predicted=predicted,
-                              predicted_out=out2)
-        if predicted is None:
-            return out[:k]
-        return out[:k[0]], out2[:k[1]]
-
-    def _vt(self, x0, x1, gap, q):
-        """Swept vertex-triangle test of pairs q: (the pairs hit, their sides)."""
-        k = q.size
-        toi, w, side = np.empty(k), np.empty((k, 3)), np.empty(k, np.int8)
-        pg = None if np.isscalar(gap) else _c(gap[q])
-        g = float(gap) if np.isscalar(gap) else self.thickness  # pair_gap below it wins
-        _collide.ccd_vertex_triangle(start=x0, end=x1, triangles=self.triangles, vertex=_c(self.vt_v[q]),
-                                     triangle=_c(self.vt_t[q]), gap=g, toi=toi, weights=w, side=side, pair_gap=pg)
-        hit = np.isfinite(toi)
-        return q[hit], side[hit]
-
-    def _ee(self, x0, x1, gap, q):
-        k = q.size
-        toi, st, side = np.empty(k), np.empty((k, 2)), np.empty(k, np.int8)
-        pg = None if np.isscalar(gap) else _c(gap[q])
-        g = float(gap) if np.isscalar(gap) else self.thickness
-        _collide.ccd_edge_edge(start=x0, end=x1, edge_a=_c(self.ee_a[q]), edge_b=_c(self.ee_b[q]), gap=g, toi=toi,
-                               params=st, side=side, pair_gap=pg)
-        hit = np.isfinite(toi)
-        return q[hit], side[hit]
-
-    def _vt_state(self, x, q):
-        k = q.size
-        sd, dist, w, nrm = np.empty(k), np.empty(k), np.empty((k, 3)), np.empty((k, 3))
-        _collide.vertex_triangle_state(positions=x, triangles=self.triangles, vertex=_c(self.vt_v[q]),
-                                       triangle=_c(self.vt_t[q]), sd=sd, dist=dist, weights=w, normal=nrm)
-        return sd, dist, w, nrm
-
-    def _ee_state(self, x, q):
-        k = q.size
-        sd, dist, st, nrm = np.empty(k), np.empty(k), np.empty((k, 2)), np.empty((k, 3))
-        _collide.edge_edge_state(positions=x, edge_a=_c(self.ee_a[q]), edge_b=_c(self.ee_b[q]), sd=sd, dist=dist,
-                                 params=st, normal=nrm)
-        return sd, dist, st, nrm
+    def _buffers(self):
+        """The C step's arguments in its table's order (swept_step), with its outputs, kept between
+        steps: two memories per kind (a step reads one and writes the other)."""
+        buf = getattr(self, "_buf", None)
+        if buf is not None:
+            return buf
+        buf = {"args": dict(positions=None, previous=None, velocity=None, dt=0.0, thickness=self.thickness,
+                            group_ptr=self.group_ptr, group_vertices=self.group_vertices,
+                            has_reference=self.has_reference)}
+        for kind, k in (("vt", self.vt_v.size), ("ee", self.ee_a.shape[0])):
+            blk = self.blocks[kind]
+            quad, gap, slack = (self.vt_quad, self.vt_gap, self.vt_slack) if kind == "vt" else \
+                (self.ee_quad, self.ee_gap, self.ee_slack)
+            b = dict(mem=[np.empty(k, np.int64), np.empty(k, np.int64)], mem_n=[np.empty((k, 3)), np.empty((k, 3))],
+                     flip=0, pairs=np.empty(k, np.int64), normal=np.empty((k, 3)), depth=np.empty(k),
+                     weights=np.empty((k, 3)))
+            buf[kind] = b
+            buf["args"].update({f"{kind}_quads": quad, f"{kind}_gap": gap, f"{kind}_slack": slack,
+                                f"{kind}_block_ptr": blk[0], f"{kind}_block_vptr": blk[1],
+                                f"{kind}_block_vertices": blk[2], f"{kind}_block_state": blk[3],
+                                f"{kind}_block_reference": blk[4], f"{kind}_block_gptr": blk[5],
+                                f"{kind}_block_groups": blk[6], f"{kind}_memory": None, f"{kind}_memory_normal": None,
+                                f"{kind}_memory_out": None, f"{kind}_memory_normal_out": None,
+                                f"{kind}_pairs_out": b["pairs"], f"{kind}_normal_out": b["normal"],
+                                f"{kind}_depth_out": b["depth"], f"{kind}_weights_out": b["weights"]})
+        buf["counts"] = np.zeros(24, np.int64)
+        buf["args"]["counts"] = buf["counts"]
+        self._buf = buf
+        return buf
 
     # ---------------------------------------------------------------- one step
-    def contacts(self, x_prev, x, v, dt):
-        """Contact rows (vertex, depth, normal, velocity) for the step from x (m) with velocity v
-        (m/s) over dt (s); x_prev: the positions at the previous step (or None)."""
-        rows = []
-        # crossed over the previous step (gap 0: the elements met), added to the memory; the
-        # pairs' distance bounds are carried to x (exact ones for the pairs tested)
+    def step(self, x_prev, x, v, dt, handed_out=None):
+        """One step (swept.c tcc_swept_step) from x (m) with velocity v (m/s) over dt (s); x_prev:
+        the positions at the previous step (or None). Afterwards ``self.live`` holds per kind the
+        pairs giving contacts (pairs, normal, depth, weights, live count). Returns how many pairs
+        give contacts. ``handed_out``, a dict (tests): receives per kind the pairs the cull handed out
+        over the real and the predicted motion."""
+        buf = self._buffers()
         real = x_prev is not None and x_prev.shape == x.shape
-        move = _c(x - x_prev) if real else np.zeros_like(x)
-        # the prediction's candidates in the same pass (the crossed tests below read no bound)
         predict = v is not None and dt > 0
-        pmove = _c(dt * v) if predict else None
-        cand_vt, pred_vt = self._cull("vt", x, move, True, pmove) if predict else (self._cull("vt", x, move, True), None)
-        cand_ee, pred_ee = self._cull("ee", x, move, True, pmove) if predict else (self._cull("ee", x, move, True), None)
-        self.counts["tested"] = int(cand_vt.size + cand_ee.size)
-        if real:
-            q, side = self._vt(x_prev, x, 0.0, cand_vt)
-            if q.size:
-                _, _, _, nrm = self._vt_state(x_prev, q)
-                self._remember("vt", q, side[:, None] * nrm)
-            q, side = self._ee(x_prev, x, 0.0, cand_ee)
-            if q.size:
-                _, _, _, nrm = self._ee_state(x_prev, q)
-                self._remember("ee", q, side[:, None] * nrm)
-        self.counts["remembered"] = int(self.mem_vt.size + self.mem_ee.size)
-        # remembered: pushed back to their side until there again, or apart
-        if self.mem_vt.size:
-            sd, dist, w, nrm = self._vt_state(x, self.mem_vt)
-            flip = np.where(np.einsum("ij,ij->i", nrm, self.mem_vt_n) < 0, -1.0, 1.0)
-            nrm = nrm * flip[:, None]
-            s = sd * flip  # the vertex's height over the triangle's plane, on the remembered side
-            g = self.vt_gap[self.mem_vt]
-            live = (s < g) & (dist < self.thickness)
-            self.mem_vt, self.mem_vt_n = self.mem_vt[live], nrm[live]
-            rows.append(self._vt_rows(self.mem_vt, nrm[live], w[live], g[live] - s[live], v))
-        if self.mem_ee.size:
-            sd, dist, st, nrm = self._ee_state(x, self.mem_ee)
-            flip = np.where(np.einsum("ij,ij->i", nrm, self.mem_ee_n) < 0, -1.0, 1.0)
-            nrm = nrm * flip[:, None]
-            s = sd * flip  # (a - c) . n: first edge's height over the second along the remembered side
-            g = self.ee_gap[self.mem_ee]
-            live = (s < g) & (dist < self.thickness)
-            self.mem_ee, self.mem_ee_n = self.mem_ee[live], nrm[live]
-            rows.append(self._ee_rows(self.mem_ee, nrm[live], st[live], g[live] - s[live], v))
-        # predicted over this step: stop the approach of pairs that would come within their gap
-        if predict:
-            x1 = _c(x + pmove)
-            cand_vt, cand_ee = pred_vt, pred_ee
-            self.counts["tested"] += int(cand_vt.size + cand_ee.size)
-            q, side = self._vt(x, x1, self.vt_gap, np.setdiff1d(cand_vt, self.mem_vt))
-            self.counts["predicted"] = int(q.size)
-            if q.size:
-                _, dist, w, nrm = self._vt_state(x, q)
-                c = self.triangles[self.vt_t[q]]
-                gapv = x[self.vt_v[q]] - np.einsum("ij,ijk->ik", w, x[c])
-                rows.append(self._vt_rows(q, _apart(gapv, dist, side[:, None] * nrm, self.vt_gap[q]), w,
-                                          np.zeros(q.size), v))
-            q, side = self._ee(x, x1, self.ee_gap, np.setdiff1d(cand_ee, self.mem_ee))
-            self.counts["predicted"] += int(q.size)
-            if q.size:
-                _, dist, st, nrm = self._ee_state(x, q)
-                a, b = self.ee_a[q].T
-                c, d = self.ee_b[q].T
-                s_, t_ = st[:, :1], st[:, 1:]
-                gapv = (1 - s_) * x[a] + s_ * x[b] - (1 - t_) * x[c] - t_ * x[d]
-                rows.append(self._ee_rows(q, _apart(gapv, dist, side[:, None] * nrm, self.ee_gap[q]), st,
-                                          np.zeros(q.size), v))
-        rows = [r for r in rows if r[0].size]
-        if not rows:
+        args = buf["args"]
+        args["positions"] = x
+        args["previous"] = _c(x_prev, np.float64) if real else None
+        args["velocity"] = _c(v, np.float64) if predict else None
+        args["dt"] = float(dt) if predict else 0.0
+        for kind in ("vt", "ee"):
+            b = buf[kind]
+            out = 1 - b["flip"]  # the memory buffer not holding the current memory
+            mem, mem_n = (self.mem_vt, self.mem_vt_n) if kind == "vt" else (self.mem_ee, self.mem_ee_n)
+            args[f"{kind}_memory"], args[f"{kind}_memory_normal"] = _c(mem, np.int64), _c(mem_n, np.float64)
+            args[f"{kind}_memory_out"], args[f"{kind}_memory_normal_out"] = b["mem"][out], b["mem_n"][out]
+        extra = {}
+        if handed_out is not None:
+            for kind, k in (("vt", self.vt_gap.size), ("ee", self.ee_gap.size)):
+                handed_out[kind] = (np.empty(k, np.int64), np.empty(k, np.int64))
+                extra[f"{kind}_handed_out"], extra[f"{kind}_predicted_out"] = handed_out[kind]
+        _collide.swept_step(**args, **extra)
+        c = buf["counts"].tolist()
+        vt, ee = c[:12], c[12:]
+        self.live = {}
+        for kind, ck in (("vt", vt), ("ee", ee)):
+            b = buf[kind]
+            b["flip"] = out = 1 - b["flip"]
+            nm, nlive, m = ck[0], ck[1], ck[1] + ck[2]
+            if kind == "vt":
+                self.mem_vt, self.mem_vt_n = b["mem"][out][:nm], b["mem_n"][out][:nm]
+            else:
+                self.mem_ee, self.mem_ee_n = b["mem"][out][:nm], b["mem_n"][out][:nm]
+            self.live[kind] = (b["pairs"][:m], b["normal"][:m], b["depth"][:m], b["weights"][:m], nlive)
+            if handed_out is not None:
+                h, p = handed_out[kind]
+                handed_out[kind] = (h[:ck[6]], p[:ck[7]])
+        self.counts["tested"] = vt[3] + ee[3]
+        self.counts["crossed"] += vt[4] + ee[4]
+        self.counts["remembered"] = vt[5] + ee[5]
+        self.counts["predicted"] = vt[2] + ee[2]
+        self.counts["blocks"] = [a + b for a, b in zip(vt[8:], ee[8:])]  # settled by bounds 1, 2, 3; read
+        return vt[1] + vt[2] + ee[1] + ee[2]
+
+    def rows(self, every, v, friction):
+        """``every`` (the colliders' contacts, sorted by vertex) with the step's swept contact rows
+        merged in after each vertex's own (C: swept.c tcc_swept_rows)."""
+        from .narrow import Contacts
+
+        extra = 4 * sum(r[0].size for r in self.live.values())
+        cap = len(every) + extra
+        out = (np.empty(cap, np.int32), np.empty((cap, 3)), np.empty(cap), np.empty((cap, 3)), np.empty(cap))
+        args = {}
+        for kind, quad in (("vt", self.vt_quad), ("ee", self.ee_quad)):
+            pairs, normal, depth, weights, live = self.live[kind]
+            args.update({f"{kind}_quads": quad, f"{kind}_pairs": pairs, f"{kind}_normal": normal,
+                         f"{kind}_depth": depth, f"{kind}_weights": weights, f"{kind}_live": live})
+        count, bad = _collide.swept_rows(**args, velocity=None if v is None else _c(v, np.float64), n=self.n,
+                                         vertex=_c(every.vertex, np.int32), normal=_c(every.normal, np.float64),
+                                         depth=_c(every.depth, np.float64), contact_velocity=_c(every.velocity, np.float64),
+                                         friction=_c(every.friction, np.float64), cloth_friction=float(friction),
+                                         out_vertex=out[0], out_normal=out[1], out_depth=out[2], out_velocity=out[3],
+                                         out_friction=out[4])
+        self.counts["no_normal"] = int(bad)
+        return Contacts(*(a[:count] for a in out))
+
+    def contacts(self, x_prev, x, v, dt):
+        """One step's contact rows alone (vertex, depth, normal, velocity), or None when no pair
+        gives any."""
+        from .narrow import Contacts
+
+        if self.step(x_prev, x, v, dt) == 0:
             return None
-        vert, depth, nrm, vel = (np.concatenate([r[i] for r in rows]) for i in range(4))
-        # parallel edges or a collapsed triangle have no normal: no direction to hold them apart
-        ok = np.einsum("ij,ij->i", nrm, nrm) > 0.25
-        self.counts["no_normal"] = int(ok.size - ok.sum())
-        return vert[ok], depth[ok], nrm[ok], vel[ok]
-
-    def _remember(self, kind, q, nrm):
-        if kind == "vt":
-            self.counts["crossed"] += int(q.size)
-            new = ~np.isin(q, self.mem_vt)
-            self.mem_vt = np.concatenate([self.mem_vt, q[new]])
-            self.mem_vt_n = np.concatenate([self.mem_vt_n, nrm[new]])
-        else:
-            self.counts["crossed"] += int(q.size)
-            new = ~np.isin(q, self.mem_ee)
-            self.mem_ee = np.concatenate([self.mem_ee, q[new]])
-            self.mem_ee_n = np.concatenate([self.mem_ee_n, nrm[new]])
-
-    def _vt_rows(self, q, n, w, depth, v):
-        """The vertex pushed along n, the triangle's corners along -n; all keep the pair's mean
-        velocity along n (an inelastic meeting of the two sides)."""
-        p = self.vt_v[q]
-        c = self.triangles[self.vt_t[q]]
-        vel = np.zeros((q.size, 3))
-        if v is not None:
-            vel = 0.5 * (v[p] + np.einsum("ij,ijk->ik", w, v[c]))
-        depth = np.maximum(depth, 0.0)
-        vert = np.concatenate([p, c[:, 0], c[:, 1], c[:, 2]])
-        nn = np.concatenate([n, -n, -n, -n])
-        return vert, np.tile(depth, 4), nn, np.tile(vel, (4, 1))
-
-    def _ee_rows(self, q, n, st, depth, v):
-        a, b = self.ee_a[q].T
-        c, d = self.ee_b[q].T
-        vel = np.zeros((q.size, 3))
-        if v is not None:
-            s, t = st[:, :1], st[:, 1:]
-            vel = 0.5 * ((1 - s) * v[a] + s * v[b] + (1 - t) * v[c] + t * v[d])
-        depth = np.maximum(depth, 0.0)
-        vert = np.concatenate([a, b, c, d])
-        nn = np.concatenate([n, n, -n, -n])
-        return vert, np.tile(depth, 4), nn, np.tile(vel, (4, 1))
+        c = self.rows(Contacts(), v, 0.0)
+        return c.vertex.astype(np.int64), c.depth, c.normal, c.velocity

@@ -1,18 +1,18 @@
-/* bvh.c - a bounding volume hierarchy per cluster of the cloth, refitted instead of rebuilt, and
- * the full self-collision detection of a step in one call.
+/* bvh.c - a bounding volume hierarchy per cluster of a collider (the cloth itself, each body),
+ * refitted instead of rebuilt, and the traversals full detection needs.
  *
- * Why a native BVH for the cloth's own clusters (and Embree for the bodies): a cloth cluster
- * deforms every step, so its Embree scene (narrow.ClusterScenes, reused only up to a rigid motion)
- * was rebuilt in most steps of the artist's bake - 12.5 of 18 clusters per sub-step, 5.3 ms of
- * bookkeeping, per-triangle copies through Python and Embree builds - and embreex can neither
- * refit a scene nor filter hits, so the own two-ring was skipped by casting again (up to 8 times)
- * from Python. Here the tree of each cluster is built once per topology (median split, the
- * topology does not change between tears) and refitted bottom-up from the current positions when
- * a step first needs it: a refit is one pass over the cluster's ~300 triangles, and its boxes are
- * exact, so there is no staleness tolerance to add to the rays and no rigid frame to move them
- * into. The two-ring filter runs inside the traversal. A body's cluster moves almost rigidly (a
- * skinned limb), so its Embree scene in the rigid frame is rarely rebuilt and Embree's SIMD
- * traversal of its long inside rays is the faster one: bodies keep Embree.
+ * Why native trees: a cloth cluster deforms every step, so its Embree scene (the previous release's
+ * narrow.ClusterScenes, reused only up to a rigid motion) was rebuilt in most steps of the artist's
+ * bake - 12.5 of 18 clusters per sub-step, 5.3 ms of bookkeeping, per-triangle copies through Python
+ * and Embree builds - and embreex can neither refit a scene nor filter hits, nor be called from C.
+ * Here the tree of each cluster is built once per topology (median split, the topology does not
+ * change between tears) and refitted bottom-up from the current positions when a step first needs
+ * it: a refit is one pass over the cluster's ~300 triangles, and its boxes are exact, so there is
+ * no staleness tolerance to add to the rays and no rigid frame to move them into. The bodies use
+ * the same trees: a walking body's cluster deforms a little every step too, a refit costs what the
+ * former rigid fit did, and with every collider in C a step's full detection is one call per
+ * collider (detect.c) - the contacts are the same as with Embree's candidates refined, bit for bit.
+ * The two-ring filter runs inside the traversal.
  *
  * Layout (arrays owned by the caller, narrow.ClusterBVH): cluster c's nodes are rows
  * node_ptr[c] .. node_ptr[c+1] of node (N, 2) and box (N, 6: lo xyz, hi xyz), its root first; an
@@ -23,7 +23,8 @@
  * A hit is the nearest triangle the ray o + t d meets for t in [0, tmax] (barycentrics within
  * -BVH_EPS, so a ray through a shared edge is not lost between the two triangles), skipping
  * triangles of the ray vertex's two-ring when a ring is given: what Embree followed by the
- * re-casts of tcc_accept_hits found, in double precision.
+ * re-casts of tcc_accept_hits found, in double precision. A refit also copies each prim's corners
+ * (corner, when kept): the traversals then read a leaf's triangles from one place.
  */
 #include "collide.h"
 #include "vecmath.h"
@@ -149,7 +150,7 @@ int tcc_bvh_build(const tcc_mesh *m, const tcc_idx *scene_ptr, const tcc_idx *sc
         node_ptr[k] = b.nnode;
         for (tcc_idx r = 0; r < nrows; r++) prim[r] = scene_tri[perm[r]];
         *nnodes = b.nnode;
-        tcc_bvh t = {node_ptr, k, node, box, b.nnode, prim, nrows};
+        tcc_bvh t = {node_ptr, k, node, box, b.nnode, prim, nrows, NULL};
         for (tcc_idx c = 0; c < k && rc == TCC_OK; c++) rc = tcc_bvh_refit(m, &t, c, err);
     }
     free(cent);
@@ -194,6 +195,10 @@ static int node_links(const tcc_bvh *b, tcc_idx i, tcc_idx e, int *leaf, tcc_idx
     return TCC_OK;
 }
 
+/* fmin / fmax (a NaN operand yields the other), inline: libm's are calls */
+static inline double min_num(double a, double b) { return (b < a || a != a) ? b : a; }
+static inline double max_num(double a, double b) { return (b > a || a != a) ? b : a; }
+
 int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
 {
     tcc_idx s, e;
@@ -205,24 +210,28 @@ int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
         if ((rc = node_links(b, i, e, &leaf, &x, &y, err))) return rc;
         double *bx = b->box + 6 * i;
         if (leaf) {
-            for (int a = 0; a < 3; a++) {
-                bx[a] = INFINITY;
-                bx[3 + a] = -INFINITY;
-            }
+            double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
             for (tcc_idx r = x; r < y; r++) {
                 const double *p[3];
                 if ((rc = corners(m, b->prim[r], p, err))) return rc;
+                double *cr = b->corner ? b->corner + 9 * r : NULL;
                 for (int k = 0; k < 3; k++)
                     for (int a = 0; a < 3; a++) {
-                        if (p[k][a] < bx[a]) bx[a] = p[k][a];
-                        if (p[k][a] > bx[3 + a]) bx[3 + a] = p[k][a];
+                        double v = p[k][a];
+                        if (v < lo[a]) lo[a] = v;
+                        if (v > hi[a]) hi[a] = v;
+                        if (cr) cr[3 * k + a] = v;
                     }
+            }
+            for (int a = 0; a < 3; a++) {
+                bx[a] = lo[a];
+                bx[3 + a] = hi[a];
             }
         } else {
             const double *l = b->box + 6 * x, *r = b->box + 6 * y;
             for (int a = 0; a < 3; a++) {
-                bx[a] = fmin(l[a], r[a]);
-                bx[3 + a] = fmax(l[3 + a], r[3 + a]);
+                bx[a] = min_num(l[a], r[a]);
+                bx[3 + a] = max_num(l[3 + a], r[3 + a]);
             }
         }
     }
@@ -356,4 +365,181 @@ int tcc_self_cast(const tcc_ray_setup *s, const tcc_mesh *target, tcc_bvh *b, tc
     *nhits = hits;
     *nrays = rays;
     return TCC_OK;
+}
+
+/* ------------------------------------------------------------------ both rays of a vertex at once
+ *
+ * Full detection casts from each cloth vertex along +n and -n: one line, two windows. One traversal
+ * serves both (the nodes near the vertex, where most of a short ray's work is, are visited once
+ * instead of twice), reading each prim's corners from the copy the refit made (no index lookups).
+ * A node is entered when the line's span in its box meets what is still open of the two windows:
+ * (best of slot 1, best of slot 0); the child nearer to the vertex first. */
+
+int tcc_bvh_check(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err)
+{
+    tcc_idx s, e;
+    int rc = cluster_nodes(b, c, &s, &e, err);
+    if (rc) return rc;
+    for (tcc_idx i = s; i < e; i++) {
+        int leaf;
+        tcc_idx x, y;
+        if ((rc = node_links(b, i, e, &leaf, &x, &y, err))) return rc;
+        if (!leaf) continue;
+        for (tcc_idx r = x; r < y; r++) {
+            const double *p[3];
+            if ((rc = corners(m, b->prim[r], p, err))) return rc;
+        }
+    }
+    return TCC_OK;
+}
+
+/* A line prepared for many box tests: per axis the bound it meets first (by the sign of d), and
+ * the axes along which it does not move (tested by containment). */
+typedef struct {
+    double o[3], inv[3];
+    int near[3], far[3], flat;
+} prepared_line;
+
+static inline void prepare_line(const double o[3], const double d[3], prepared_line *L)
+{
+    L->flat = 0;
+    for (int a = 0; a < 3; a++) {
+        L->o[a] = o[a];
+        if (fabs(d[a]) < 1e-300) {
+            L->inv[a] = INFINITY;
+            L->flat |= 1 << a;
+            L->near[a] = a;
+            L->far[a] = 3 + a;
+            continue;
+        }
+        L->inv[a] = 1.0 / d[a];
+        L->near[a] = d[a] > 0 ? a : 3 + a;
+        L->far[a] = d[a] > 0 ? 3 + a : a;
+    }
+}
+
+/* tcc_line_box for a prepared line: the same span (the same expressions), fewer branches. */
+static inline int prepared_box(const prepared_line *L, double lo, double hi, const double *bx, double *t0, double *t1)
+{
+    if (L->flat) {
+        for (int a = 0; a < 3; a++)
+            if ((L->flat >> a & 1) && !(L->o[a] >= bx[a] && L->o[a] <= bx[3 + a])) return 0;
+    }
+    for (int a = 0; a < 3; a++) {
+        if (L->flat >> a & 1) continue;
+        double ta = (bx[L->near[a]] - L->o[a]) * L->inv[a], tb = (bx[L->far[a]] - L->o[a]) * L->inv[a];
+        if (ta > lo) lo = ta;
+        if (tb < hi) hi = tb;
+    }
+    if (!(lo <= hi)) return 0;
+    *t0 = lo;
+    *t1 = hi;
+    return 1;
+}
+
+/* distance from s = 0 to the span [t0, t1] */
+static inline double span_gap(double t0, double t1) { return t0 > 0 ? t0 : (t1 < 0 ? -t1 : 0.0); }
+
+void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x[3], const double d[3], int active,
+                  double backoff, double *s0, double *s1, const tcc_ring *ring, tcc_idx v, tcc_idx tri[2])
+{
+    tcc_idx s = b->node_ptr[c], e = b->node_ptr[c + 1];
+    if (e == s || !(active & 3)) return;
+    int filter = ring && ring->table;
+    prepared_line L;
+    prepare_line(x, d, &L);
+    double b0 = *s0, b1 = *s1; /* the open windows: slot 0 [-backoff, b0], slot 1 [b1, backoff] */
+#define LO ((active & 2) ? b1 : -backoff)
+#define HI ((active & 1) ? b0 : backoff)
+    /* the stack holds each node with its line span, so a pop re-checks it against the windows as they
+     * are now with two compares */
+    struct span_node {
+        tcc_idx i;
+        double t0, t1;
+    } stack[BVH_STACK];
+    int top = 0;
+    double t0, t1;
+    if (prepared_box(&L, LO, HI, b->box + 6 * s, &t0, &t1)) stack[top++] = (struct span_node){s, t0, t1};
+    while (top > 0) {
+        top--;
+        tcc_idx i = stack[top].i;
+        if (stack[top].t0 > HI || stack[top].t1 < LO) continue; /* the windows shrank since the push */
+        tcc_idx p = b->node[2 * i], q = b->node[2 * i + 1];
+        if (p < 0) {
+            for (tcc_idx r = -1 - p; r < -1 - p + q; r++) {
+                tcc_idx f = b->prim[r];
+                const tcc_idx *tv = m->tri + 3 * f;
+                /* the ray's own two-ring first: every ray passes through its ~6 incident triangles, and
+                 * the leaves it visits hold mostly its neighbours' */
+                if (filter && (tv[0] == v || tv[1] == v || tv[2] == v || tcc_ring_excludes(ring, v, tv))) continue;
+                const double *P = b->corner + 9 * r;
+                double t, u, w;
+                if (!tcc_line_triangle_inline(x, d, P, P + 3, P + 6, &t, &u, &w)) continue;
+                if (!(u >= -BVH_EPS && w >= -BVH_EPS && u + w <= 1.0 + BVH_EPS)) continue;
+                /* a tie keeps the first found */
+                int c0 = (active & 1) && t >= -backoff && (t < b0 || (t == b0 && tri[0] < 0));
+                int c1 = (active & 2) && t <= backoff && (t > b1 || (t == b1 && tri[1] < 0));
+                if (!c0 && !c1) continue;
+                if (c0) {
+                    b0 = t;
+                    tri[0] = f;
+                }
+                if (c1) {
+                    b1 = t;
+                    tri[1] = f;
+                }
+            }
+            continue;
+        }
+        double pa = 0, pb = 0, qa = 0, qb = 0;
+        int hp = prepared_box(&L, LO, HI, b->box + 6 * p, &pa, &pb);
+        int hq = prepared_box(&L, LO, HI, b->box + 6 * q, &qa, &qb);
+        if (top + 2 > BVH_STACK) break; /* deeper than any built tree: a corrupt one, searched no further */
+        /* the nearer child (to the vertex) is popped first */
+        if (hp && hq && span_gap(pa, pb) > span_gap(qa, qb)) {
+            stack[top++] = (struct span_node){p, pa, pb};
+            stack[top++] = (struct span_node){q, qa, qb};
+        } else {
+            if (hq) stack[top++] = (struct span_node){q, qa, qb};
+            if (hp) stack[top++] = (struct span_node){p, pa, pb};
+        }
+    }
+#undef LO
+#undef HI
+    *s0 = b0;
+    *s1 = b1;
+}
+
+/* Whether the line x + s d meets a triangle of cluster c's tree other than skip for s in [lo, hi)
+ * (barycentrics exactly within the triangle): the inside confirmation's test (contacts.c
+ * tcc_confirm_inside's arithmetic, the same corners), answered from the tree. */
+int tcc_bvh_blocked(const tcc_bvh *b, tcc_idx c, const double x[3], const double d[3], double lo, double hi,
+                    tcc_idx skip)
+{
+    tcc_idx s = b->node_ptr[c], e = b->node_ptr[c + 1];
+    if (e == s || !(lo <= hi)) return 0;
+    prepared_line L;
+    prepare_line(x, d, &L);
+    tcc_idx stack[BVH_STACK];
+    int top = 0;
+    double t0, t1;
+    if (prepared_box(&L, lo, hi, b->box + 6 * s, &t0, &t1)) stack[top++] = s;
+    while (top > 0) {
+        tcc_idx i = stack[--top];
+        tcc_idx p = b->node[2 * i], q = b->node[2 * i + 1];
+        if (p < 0) {
+            for (tcc_idx r = -1 - p; r < -1 - p + q; r++) {
+                if (b->prim[r] == skip) continue;
+                const double *P = b->corner + 9 * r;
+                double t, u, w;
+                if (!tcc_line_triangle_inline(x, d, P, P + 3, P + 6, &t, &u, &w)) continue;
+                if (u >= 0 && w >= 0 && u + w <= 1 && t >= lo && t < hi) return 1;
+            }
+            continue;
+        }
+        if (top + 2 > BVH_STACK) break; /* deeper than any built tree: a corrupt one */
+        if (prepared_box(&L, lo, hi, b->box + 6 * p, &t0, &t1)) stack[top++] = p;
+        if (prepared_box(&L, lo, hi, b->box + 6 * q, &t0, &t1)) stack[top++] = q;
+    }
+    return 0;
 }

@@ -174,6 +174,54 @@ static int swept_boxes_apart(const double *const A[4], const double *const B[4],
     return 0;
 }
 
+int tcc_vt_sweep(const double *const A[4], const double *const B[4], double gap, double *toi, double w[3],
+                 int8_t *side)
+{
+    *toi = INFINITY;
+    *side = 0;
+    w[0] = w[1] = w[2] = 0.0;
+    if (swept_boxes_apart(A, B, 1, gap)) return 0;
+    /* displacements, and the fastest the vertex can approach the triangle */
+    double D[4][3], reach2 = 0.0;
+    for (int j = 0; j < 4; j++) sub3(B[j], A[j], D[j]);
+    for (int j = 1; j < 4; j++) {
+        double r[3];
+        sub3(D[0], D[j], r);
+        double r2 = dot3(r, r);
+        if (r2 > reach2) reach2 = r2;
+    }
+    double wq[3];
+    double d0 = dist2_at(A, B, 0.0, wq);
+    double lim = gap + sqrt(reach2);
+    if (d0 > lim * lim) return 0;
+    /* f(s) = (p - a) . ((b - a) x (c - a)) as a cubic in s */
+    double d[3], e1[3], e2[3], dd[3], de1[3], de2[3];
+    sub3(A[0], A[1], d); sub3(A[2], A[1], e1); sub3(A[3], A[1], e2);
+    sub3(D[0], D[1], dd); sub3(D[2], D[1], de1); sub3(D[3], D[1], de2);
+    double c[4], Ac[3];
+    triple_cubic(d, dd, e1, de1, e2, de2, c, Ac);
+    /* candidate times in increasing order: 0, the cubic's roots and extrema in (0, 1), 1 */
+    double cand[8];
+    int nc = cubic_candidates(c, cand);
+    for (int i = 0; i < nc; i++) {
+        double s = cand[i];
+        if (i > 0 && s < cand[i - 1]) continue;
+        double d2 = (i == 0) ? d0 : dist2_at(A, B, s, wq);
+        /* at a root the vertex is on the plane to within the bisection's 2^-40 of the motion */
+        double tol = i == 0 ? gap : gap + 1e-9 * sqrt(reach2);
+        if (d2 > tol * tol) continue;
+        *toi = s;
+        w[0] = wq[0]; w[1] = wq[1]; w[2] = wq[2];
+        /* the side it came from: the sign of f at the start, else (on the plane at the start)
+           opposite to its motion across the plane */
+        double f0 = c[0], scale = sqrt(dot3(Ac, Ac)) * (gap > 0 ? gap : 1.0) * 1e-9;
+        if (fabs(f0) > scale) *side = f0 > 0 ? 1 : -1;
+        else *side = c[1] > 0 ? -1 : 1;
+        return 1;
+    }
+    return 0;
+}
+
 int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const tcc_idx *tri, tcc_idx nt,
                             const tcc_idx *pv, const tcc_idx *pt, tcc_idx k, double gap_all, const double *pair_gap,
                             double *toi, double *w, int8_t *side, tcc_idx *nhit, tcc_error *err)
@@ -184,52 +232,23 @@ int tcc_ccd_vertex_triangle(const double *x0, const double *x1, tcc_idx n, const
         const double *A[4], *B[4];
         if (pair_points(x0, n, tri, nt, pv[q], pt[q], q, A, err) || pair_points(x1, n, tri, nt, pv[q], pt[q], q, B, err))
             return err->code;
-        toi[q] = INFINITY;
-        side[q] = 0;
-        w[3 * q] = w[3 * q + 1] = w[3 * q + 2] = 0.0;
-        if (swept_boxes_apart(A, B, 1, gap)) continue;
-        /* displacements, and the fastest the vertex can approach the triangle */
-        double D[4][3], reach2 = 0.0;
-        for (int j = 0; j < 4; j++) sub3(B[j], A[j], D[j]);
-        for (int j = 1; j < 4; j++) {
-            double r[3];
-            sub3(D[0], D[j], r);
-            double r2 = dot3(r, r);
-            if (r2 > reach2) reach2 = r2;
-        }
-        double wq[3];
-        double d0 = dist2_at(A, B, 0.0, wq);
-        double lim = gap + sqrt(reach2);
-        if (d0 > lim * lim) continue;
-        /* f(s) = (p - a) . ((b - a) x (c - a)) as a cubic in s */
-        double d[3], e1[3], e2[3], dd[3], de1[3], de2[3];
-        sub3(A[0], A[1], d); sub3(A[2], A[1], e1); sub3(A[3], A[1], e2);
-        sub3(D[0], D[1], dd); sub3(D[2], D[1], de1); sub3(D[3], D[1], de2);
-        double c[4], Ac[3];
-        triple_cubic(d, dd, e1, de1, e2, de2, c, Ac);
-        /* candidate times in increasing order: 0, the cubic's roots and extrema in (0, 1), 1 */
-        double cand[8];
-        int nc = cubic_candidates(c, cand);
-        for (int i = 0; i < nc; i++) {
-            double s = cand[i];
-            if (i > 0 && s < cand[i - 1]) continue;
-            double d2 = (i == 0) ? d0 : dist2_at(A, B, s, wq);
-            /* at a root the vertex is on the plane to within the bisection's 2^-40 of the motion */
-            double tol = i == 0 ? gap : gap + 1e-9 * sqrt(reach2);
-            if (d2 > tol * tol) continue;
-            toi[q] = s;
-            w[3 * q] = wq[0]; w[3 * q + 1] = wq[1]; w[3 * q + 2] = wq[2];
-            /* the side it came from: the sign of f at the start, else (on the plane at the start)
-               opposite to its motion across the plane */
-            double f0 = c[0], scale = sqrt(dot3(Ac, Ac)) * (gap > 0 ? gap : 1.0) * 1e-9;
-            if (fabs(f0) > scale) side[q] = f0 > 0 ? 1 : -1;
-            else side[q] = c[1] > 0 ? -1 : 1;
-            hits++;
-            break;
-        }
+        hits += tcc_vt_sweep(A, B, gap, toi + q, w + 3 * q, side + q);
     }
     *nhit = hits;
     return TCC_OK;
+}
+
+void tcc_vt_state(const double *const P[4], double *sd, double *dist, double w[3], double normal[3])
+{
+    double e1[3], e2[3], nn[3], r[3];
+    sub3(P[2], P[1], e1); sub3(P[3], P[1], e2);
+    cross3(e1, e2, nn);
+    double l = sqrt(dot3(nn, nn));
+    if (l > 0) for (int i = 0; i < 3; i++) nn[i] /= l;
+    sub3(P[0], P[1], r);
+    *sd = dot3(r, nn);
+    *dist = sqrt(closest_on_triangle(P[0], P[1], P[2], P[3], w));
+    for (int i = 0; i < 3; i++) normal[i] = nn[i];
 }
 
 int tcc_vertex_triangle_state(const double *x, tcc_idx n, const tcc_idx *tri, tcc_idx nt, const tcc_idx *pv,
@@ -239,15 +258,7 @@ int tcc_vertex_triangle_state(const double *x, tcc_idx n, const tcc_idx *tri, tc
     for (tcc_idx q = 0; q < k; q++) {
         const double *P[4];
         if (pair_points(x, n, tri, nt, pv[q], pt[q], q, P, err)) return err->code;
-        double e1[3], e2[3], nn[3], r[3];
-        sub3(P[2], P[1], e1); sub3(P[3], P[1], e2);
-        cross3(e1, e2, nn);
-        double l = sqrt(dot3(nn, nn));
-        if (l > 0) for (int i = 0; i < 3; i++) nn[i] /= l;
-        sub3(P[0], P[1], r);
-        sd[q] = dot3(r, nn);
-        dist[q] = sqrt(closest_on_triangle(P[0], P[1], P[2], P[3], w + 3 * q));
-        for (int i = 0; i < 3; i++) normal[3 * q + i] = nn[i];
+        tcc_vt_state(P, sd + q, dist + q, w + 3 * q, normal + 3 * q);
     }
     return TCC_OK;
 }
@@ -294,6 +305,55 @@ static int edge_points(const double *x, tcc_idx n, const tcc_idx *ea, const tcc_
     return 0;
 }
 
+int tcc_ee_sweep(const double *const A[4], const double *const B[4], double gap, double *toi, double st[2],
+                 int8_t *side)
+{
+    *toi = INFINITY;
+    *side = 0;
+    st[0] = st[1] = 0.0;
+    if (swept_boxes_apart(A, B, 2, gap)) return 0;
+    double D[4][3], reach = 0.0;
+    for (int j = 0; j < 4; j++) sub3(B[j], A[j], D[j]);
+    for (int i = 0; i < 2; i++)
+        for (int j = 2; j < 4; j++) {
+            double r[3];
+            sub3(D[i], D[j], r);
+            double l = sqrt(dot3(r, r));
+            if (l > reach) reach = l;
+        }
+    double ss, tt;
+    double d0 = closest_segments(A[0], A[1], A[2], A[3], &ss, &tt);
+    double lim = gap + reach;
+    if (d0 > lim * lim) return 0;
+    /* f(s) = (c - a) . ((b - a) x (d - c)): zero when the two lines are coplanar */
+    double r0[3], u0[3], v0[3], dr[3], du[3], dv[3];
+    sub3(A[2], A[0], r0); sub3(A[1], A[0], u0); sub3(A[3], A[2], v0);
+    sub3(D[2], D[0], dr); sub3(D[1], D[0], du); sub3(D[3], D[2], dv);
+    double c[4], Ac[3];
+    triple_cubic(r0, dr, u0, du, v0, dv, c, Ac);
+    double cand[8];
+    int nc = cubic_candidates(c, cand);
+    for (int i = 0; i < nc; i++) {
+        double s = cand[i];
+        if (i > 0 && s < cand[i - 1]) continue;
+        double d2 = d0;
+        if (i > 0) {
+            double o[4][3];
+            at(A, B, s, o);
+            d2 = closest_segments(o[0], o[1], o[2], o[3], &ss, &tt);
+        }
+        double tol = i == 0 ? gap : gap + 1e-9 * reach;
+        if (d2 > tol * tol) continue;
+        *toi = s;
+        st[0] = ss; st[1] = tt;
+        double f0 = c[0], scale = sqrt(dot3(Ac, Ac)) * (gap > 0 ? gap : 1.0) * 1e-9;
+        if (fabs(f0) > scale) *side = f0 > 0 ? -1 : 1;  /* +1: ab on the side n = u x v points to */
+        else *side = c[1] > 0 ? 1 : -1;
+        return 1;
+    }
+    return 0;
+}
+
 int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_idx *ea, const tcc_idx *eb, tcc_idx k,
                       double gap_all, const double *pair_gap, double *toi, double *st, int8_t *side, tcc_idx *nhit,
                       tcc_error *err)
@@ -303,53 +363,25 @@ int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_i
         const double gap = (pair_gap && pair_gap[q] < gap_all) ? pair_gap[q] : gap_all;
         const double *A[4], *B[4];
         if (edge_points(x0, n, ea, eb, q, A, err) || edge_points(x1, n, ea, eb, q, B, err)) return err->code;
-        toi[q] = INFINITY;
-        side[q] = 0;
-        st[2 * q] = st[2 * q + 1] = 0.0;
-        if (swept_boxes_apart(A, B, 2, gap)) continue;
-        double D[4][3], reach = 0.0;
-        for (int j = 0; j < 4; j++) sub3(B[j], A[j], D[j]);
-        for (int i = 0; i < 2; i++)
-            for (int j = 2; j < 4; j++) {
-                double r[3];
-                sub3(D[i], D[j], r);
-                double l = sqrt(dot3(r, r));
-                if (l > reach) reach = l;
-            }
-        double ss, tt;
-        double d0 = closest_segments(A[0], A[1], A[2], A[3], &ss, &tt);
-        double lim = gap + reach;
-        if (d0 > lim * lim) continue;
-        /* f(s) = (c - a) . ((b - a) x (d - c)): zero when the two lines are coplanar */
-        double r0[3], u0[3], v0[3], dr[3], du[3], dv[3];
-        sub3(A[2], A[0], r0); sub3(A[1], A[0], u0); sub3(A[3], A[2], v0);
-        sub3(D[2], D[0], dr); sub3(D[1], D[0], du); sub3(D[3], D[2], dv);
-        double c[4], Ac[3];
-        triple_cubic(r0, dr, u0, du, v0, dv, c, Ac);
-        double cand[8];
-        int nc = cubic_candidates(c, cand);
-        for (int i = 0; i < nc; i++) {
-            double s = cand[i];
-            if (i > 0 && s < cand[i - 1]) continue;
-            double d2 = d0;
-            if (i > 0) {
-                double o[4][3];
-                at(A, B, s, o);
-                d2 = closest_segments(o[0], o[1], o[2], o[3], &ss, &tt);
-            }
-            double tol = i == 0 ? gap : gap + 1e-9 * reach;
-            if (d2 > tol * tol) continue;
-            toi[q] = s;
-            st[2 * q] = ss; st[2 * q + 1] = tt;
-            double f0 = c[0], scale = sqrt(dot3(Ac, Ac)) * (gap > 0 ? gap : 1.0) * 1e-9;
-            if (fabs(f0) > scale) side[q] = f0 > 0 ? -1 : 1;  /* +1: ab on the side n = u x v points to */
-            else side[q] = c[1] > 0 ? 1 : -1;
-            hits++;
-            break;
-        }
+        hits += tcc_ee_sweep(A, B, gap, toi + q, st + 2 * q, side + q);
     }
     *nhit = hits;
     return TCC_OK;
+}
+
+void tcc_ee_state(const double *const P[4], double *sd, double *dist, double st[2], double normal[3])
+{
+    double s, t, u[3], v[3], nn[3], g[3];
+    *dist = sqrt(closest_segments(P[0], P[1], P[2], P[3], &s, &t));
+    st[0] = s; st[1] = t;
+    sub3(P[1], P[0], u); sub3(P[3], P[2], v);
+    cross3(u, v, nn);
+    double l = sqrt(dot3(nn, nn));
+    if (l > 0) for (int i = 0; i < 3; i++) nn[i] /= l;
+    /* signed distance of edge ab's line from edge cd's along n (the lines' common normal) */
+    sub3(P[0], P[2], g);
+    *sd = dot3(g, nn);
+    for (int i = 0; i < 3; i++) normal[i] = nn[i];
 }
 
 int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc_idx *eb, tcc_idx k, double *sd,
@@ -358,175 +390,13 @@ int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc
     for (tcc_idx q = 0; q < k; q++) {
         const double *P[4];
         if (edge_points(x, n, ea, eb, q, P, err)) return err->code;
-        double s, t, u[3], v[3], nn[3], g[3];
-        dist[q] = sqrt(closest_segments(P[0], P[1], P[2], P[3], &s, &t));
-        st[2 * q] = s; st[2 * q + 1] = t;
-        sub3(P[1], P[0], u); sub3(P[3], P[2], v);
-        cross3(u, v, nn);
-        double l = sqrt(dot3(nn, nn));
-        if (l > 0) for (int i = 0; i < 3; i++) nn[i] /= l;
-        /* signed distance of edge ab's line from edge cd's along n (the lines' common normal) */
-        sub3(P[0], P[2], g);
-        sd[q] = dot3(g, nn);
-        for (int i = 0; i < 3; i++) normal[3 * q + i] = nn[i];
+        tcc_ee_state(P, sd + q, dist + q, st + 2 * q, normal + 3 * q);
     }
     return TCC_OK;
 }
 
-/* One pair range [q0, q1) of tcc_ccd_cull, its bounds lowered by debt first (a block's motion not
- * yet charged to its pairs, tcc_ccd_cull_blocks). With update, *min_out is the smallest bound
- * left in the range (NaN if a degenerate pair has none: its block is then read every step). */
-static int cull_range(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx q0, tcc_idx q1, int split,
-                      const double *disp, const double *gap, double *slack, int update, double debt, tcc_idx *out,
-                      tcc_idx *m_io, double *min_out, tcc_error *err)
+double tcc_pair_distance2(const double *const P[4], int split)
 {
-    tcc_idx m = *m_io;
-    double lo = INFINITY;
-    int unknown = 0;
-    for (tcc_idx q = q0; q < q1; q++) {
-        const tcc_idx *id = quad + 4 * q;
-        for (int j = 0; j < 4; j++)
-            if (id[j] < 0 || id[j] >= n)
-                return tcc_fail(err, TCC_ERR_INDEX, "pair %lld: vertex %lld is not in [0, %lld)", (long long)q, (long long)id[j], (long long)n);
-        const double *d0 = disp + 3 * id[0];
-        double ma2 = 0.0, mb2 = 0.0;  /* squared largest relative motions of the two elements */
-        for (int j = 1; j < 4; j++) {
-            double r[3];
-            sub3(disp + 3 * id[j], d0, r);
-            double l2 = dot3(r, r);
-            if (j < split) { if (l2 > ma2) ma2 = l2; } else if (l2 > mb2) mb2 = l2;
-        }
-        /* ma + mb <= sqrt(2 (ma^2 + mb^2)): the far pairs (nearly all) pass without a square root */
-        double sl = slack[q] - debt, b2 = 2.0 * (ma2 + mb2);
-        if (sl > 0 && sl * sl > b2) {
-            if (update) {
-                slack[q] = sl - sqrt(b2);
-                if (slack[q] < lo) lo = slack[q];  /* sl > 0 and finite: never NaN */
-            }
-            continue;
-        }
-        out[m++] = q;
-        if (!update) continue;
-        const double *P[4] = {x + 3 * id[0], x + 3 * id[1], x + 3 * id[2], x + 3 * id[3]};
-        double d2, w[3], ss, tt;
-        if (split == 1) d2 = closest_on_triangle(P[0], P[1], P[2], P[3], w);
-        else d2 = closest_segments(P[0], P[1], P[2], P[3], &ss, &tt);
-        slack[q] = sqrt(d2) - gap[q];
-        if (isnan(slack[q])) unknown = 1;
-        else if (slack[q] < lo) lo = slack[q];
-    }
-    *m_io = m;
-    *min_out = unknown ? NAN : lo;
-    return TCC_OK;
-}
-
-static int cull_check(int split, const double *disp, tcc_idx n, tcc_error *err)
-{
-    if (split != 1 && split != 2) return tcc_fail(err, TCC_ERR_VALUE, "split must be 1 (vertex-triangle) or 2 (edge-edge), got %d", split);
-    for (tcc_idx v = 0; v < 3 * n; v++)
-        if (!isfinite(disp[v])) return tcc_fail(err, TCC_ERR_VALUE, "displacement of vertex %lld is not finite", (long long)(v / 3));
-    return TCC_OK;
-}
-
-/* Which pairs can come within their gap over a motion of displacement disp[v] per vertex: a lower
- * bound slack[q] of (distance - gap[q]) is kept per pair, and a pair is handed to the exact swept
- * test (out) only when that bound minus the pair's largest relative motion is not positive. Why:
- * the two-ring pairs of a sheet number ~60 per vertex and all are neighbours, so boxes overlap and
- * only the distance rejects them; the distance of two elements changes by at most
- * max_i |d_i - r| + max_j |d_j - r| over the corners i of one and j of the other, for any common
- * r (every point of a triangle or segment is a convex combination of its corners) - r = the first
- * vertex's displacement, so a sheet that falls or swings as a whole spends no slack. One bound per
- * pair and step replaces the exact distance until the pair has drawn close. With update (the real
- * motion, x = its end) the bound is carried on, and recomputed exactly at x for the pairs handed
- * out; without (a predicted motion) it is only read. quad[q] = (vertex, a, b, c) with split 1
- * (vertex-triangle) or (a, b, c, d) with split 2 (edge-edge). */
-int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
-                 const double *gap, double *slack, int update, tcc_idx *out, tcc_idx *nout, tcc_error *err)
-{
-    int rc = cull_check(split, disp, n, err);
-    if (rc) return rc;
-    tcc_idx m = 0;
-    double lo;
-    rc = cull_range(x, n, quad, 0, k, split, disp, gap, slack, update, 0.0, out, &m, &lo, err);
-    if (rc) return rc;
-    *nout = m;
-    return TCC_OK;
-}
-
-/* Diagonal of the box of the displacements of vertices vert[0..count): no two points of elements
- * spanned by these vertices move apart by more. */
-static double block_spread(const double *disp, const tcc_idx *vert, tcc_idx count)
-{
-    if (count == 0) return 0.0;
-    double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (tcc_idx i = 0; i < count; i++) {
-        const double *d = disp + 3 * vert[i];
-        for (int c = 0; c < 3; c++) {
-            if (d[c] < lo[c]) lo[c] = d[c];
-            if (d[c] > hi[c]) hi[c] = d[c];
-        }
-    }
-    double e[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
-    return sqrt(dot3(e, e));
-}
-
-/* tcc_ccd_cull by blocks of pairs. Why: the two-ring of a 1,700-vertex shirt has ~105,000 pairs,
- * and reading four corners of each, four times a step, cost ~3 ms - most of a step in which
- * nothing came close. Every point of every element of block b moves by a convex combination of
- * the displacements of the block's vertices (block_vertices[block_vptr[b] .. block_vptr[b+1]),
- * a superset of its pairs' corners), so two such points move apart by at most the diagonal D of
- * those displacements' box: the same bound for every pair of the block, got from its ~30
- * vertices instead of its pairs' 4 * 64 corners. A block whose smallest bound block_min[b],
- * lowered by the motion not yet charged (block_debt[b]) and by D, stays positive hands nothing out:
- * with update its debt grows by D and its pairs are not read; otherwise its pairs are culled one by
- * one as tcc_ccd_cull does (their bounds lowered by the debt first), and with update the debt is
- * charged, the bounds carried or made exact, and block_min recomputed. The blocks are the pair
- * ranges [block_ptr[b], block_ptr[b+1]); every bound read is a lower bound of the pair's
- * distance - gap as in tcc_ccd_cull, so no pair that can come within its gap is kept back.
- * disp2 (or NULL): a second motion from x, culled without update into out2 (*nout2) - the same
- * as a second call, in the same pass over the blocks (the swept stage's prediction). */
-int tcc_ccd_cull_blocks(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
-                        const double *gap, double *slack, int update, const tcc_idx *block_ptr, tcc_idx nb,
-                        const tcc_idx *block_vptr, const tcc_idx *block_vertices, tcc_idx nbv, double *block_min,
-                        double *block_debt, tcc_idx *out, tcc_idx *nout, const double *disp2, tcc_idx *out2,
-                        tcc_idx *nout2, tcc_error *err)
-{
-    int rc = cull_check(split, disp, n, err);
-    if (rc) return rc;
-    if (disp2 && (rc = cull_check(split, disp2, n, err))) return rc;
-    if (block_ptr[0] != 0 || block_ptr[nb] != k || block_vptr[0] != 0 || block_vptr[nb] != nbv)
-        return tcc_fail(err, TCC_ERR_VALUE, "block_ptr must run from 0 to %lld pairs and block_vptr from 0 to %lld vertices",
-                        (long long)k, (long long)nbv);
-    for (tcc_idx b = 0; b < nb; b++)
-        if (block_ptr[b + 1] < block_ptr[b] || block_vptr[b + 1] < block_vptr[b])
-            return tcc_fail(err, TCC_ERR_VALUE, "block %lld: block_ptr and block_vptr must not decrease", (long long)b);
-    for (tcc_idx i = 0; i < nbv; i++)
-        if (block_vertices[i] < 0 || block_vertices[i] >= n)
-            return tcc_fail(err, TCC_ERR_INDEX, "block vertex %lld is not in [0, %lld)", (long long)block_vertices[i], (long long)n);
-    tcc_idx m = 0, m2 = 0;
-    for (tcc_idx b = 0; b < nb; b++) {
-        const tcc_idx *vert = block_vertices + block_vptr[b];
-        tcc_idx count = block_vptr[b + 1] - block_vptr[b];
-        double spread = block_spread(disp, vert, count), lo;
-        if (block_min[b] - block_debt[b] - spread > 0) {  /* NaN or -inf: read the pairs */
-            if (update) block_debt[b] += spread;
-        } else {
-            rc = cull_range(x, n, quad, block_ptr[b], block_ptr[b + 1], split, disp, gap, slack, update, block_debt[b],
-                            out, &m, &lo, err);
-            if (rc) return rc;
-            if (update) {
-                block_debt[b] = 0.0;
-                block_min[b] = lo;
-            }
-        }
-        /* the second motion reads this block as a call of its own after this one would: a block
-           depends on nothing but its own state */
-        if (!disp2 || block_min[b] - block_debt[b] - block_spread(disp2, vert, count) > 0) continue;
-        rc = cull_range(x, n, quad, block_ptr[b], block_ptr[b + 1], split, disp2, gap, slack, 0, block_debt[b], out2,
-                        &m2, &lo, err);
-        if (rc) return rc;
-    }
-    *nout = m;
-    if (disp2) *nout2 = m2;
-    return TCC_OK;
+    double w[3], s, t;
+    return split == 1 ? closest_on_triangle(P[0], P[1], P[2], P[3], w) : closest_segments(P[0], P[1], P[2], P[3], &s, &t);
 }

@@ -1,8 +1,10 @@
 /* collide.h - the kernels of clustered, ray-traced collision detection (tearcloth._collide).
  *
- * The Python package `tearcloth.collision` owns the state and the order of a step (clusters,
- * measures, Embree scenes, tracks); these kernels own every loop over vertices, rays, triangles or
- * cluster pairs in that step, so that a step costs a few dozen calls whatever the mesh size.
+ * The Python package `tearcloth.collision` owns the state between steps (clusters, measures, trees,
+ * tracks) and calls a step's stages; these kernels own every loop over vertices, rays, triangles or
+ * cluster pairs, and the step's orchestration itself (measure.c's cluster_state and pair_step,
+ * detect.c's per-collider step, swept.c's swept stage), so that a step costs a handful of calls
+ * whatever the mesh size.
  *
  * Design rules (the same as the native FEM core):
  * - No state: every array is owned by the caller (numpy, through the buffer protocol) and every
@@ -119,6 +121,33 @@ int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const d
                          const uint8_t *force, double threshold, double lookahead, tcc_idx *keys, double *rel_avg,
                          double *rel_dev, double *amplitude, uint8_t *full, tcc_idx *nfull, tcc_error *err);
 
+/* tcc_cluster_motion and tcc_cluster_boxes of one object in one call. */
+int tcc_cluster_state(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
+                      const tcc_idx *ptr, tcc_idx k, const tcc_idx *box_index, tcc_idx nindex, const tcc_idx *box_ptr,
+                      double inflate, double *avg, double *dev, double *lo, double *hi, tcc_error *err);
+
+/* A collider's close pairs of a step and the measure's verdict (one call): the overlapping boxes of
+ * a (the cloth's clusters) and b (tcc_box_pairs, row-major; self_pairs: j >= i), the pairs forced to
+ * full detection (first: all; else those with a cluster listed in forced, on a's side or, for self
+ * pairs, either side), and with avg_a set the relative measure's update (tcc_relative_measure, its
+ * state old_* -> keys, rel_avg, rel_dev); without it full = forced. *np > cap: nothing but the count
+ * was written, call again with room for *np. */
+typedef struct {
+    const double *lo_a, *hi_a, *lo_b, *hi_b;
+    tcc_idx ka, kb;
+    int self_pairs, first;
+    const tcc_idx *forced;
+    tcc_idx nforced;
+    const double *avg_a, *dev_a, *avg_b, *dev_b; /* NULL: pairs and forced only */
+    const tcc_idx *old_keys;
+    const double *old_avg, *old_dev;
+    tcc_idx nold;
+    double threshold, lookahead;
+} tcc_pair_step_in;
+
+int tcc_pair_step(const tcc_pair_step_in *in, tcc_idx cap, tcc_idx *pi, tcc_idx *pj, uint8_t *full, tcc_idx *keys,
+                  double *rel_avg, double *rel_dev, double *amplitude, tcc_idx *np, tcc_idx *nfull, tcc_error *err);
+
 /* The trip rule (measure.c, issue 15). Per cluster, the affine fit of the step's displacement
  * x - prev over the previous positions, TCC_FIT_LEN doubles per cluster: centre c[3], mean
  * displacement t[3], L[9] (row-major), e = the largest residual over the members, |L|_F (L = 0
@@ -166,6 +195,25 @@ typedef struct {
 /* Line o + t d against triangle (a, b, c) (Moller-Trumbore for lines). Returns 0 when parallel. */
 int tcc_line_triangle(const double o[3], const double d[3], const double a[3], const double b[3],
                       const double c[3], double *t, double *u, double *v);
+
+/* tcc_line_triangle's arithmetic, inline for the trees' inner loops (incremental.line_triangle,
+ * expression for expression). */
+static inline int tcc_line_triangle_inline(const double o[3], const double d[3], const double a[3], const double b[3],
+                                           const double c[3], double *t, double *u, double *v)
+{
+    double e1[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, e2[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+    double p[3] = {d[1] * e2[2] - d[2] * e2[1], d[2] * e2[0] - d[0] * e2[2], d[0] * e2[1] - d[1] * e2[0]};
+    double det = e1[0] * p[0] + e1[1] * p[1] + e1[2] * p[2];
+    double e11 = e1[0] * e1[0] + e1[1] * e1[1] + e1[2] * e1[2];
+    int ok = fabs(det) > 1e-14 * (e11 > 1e-30 ? e11 : 1e-30);
+    double inv = ok ? 1.0 / det : 0.0;
+    double s[3] = {o[0] - a[0], o[1] - a[1], o[2] - a[2]};
+    *u = (s[0] * p[0] + s[1] * p[1] + s[2] * p[2]) * inv;
+    double q[3] = {s[1] * e1[2] - s[2] * e1[1], s[2] * e1[0] - s[0] * e1[2], s[0] * e1[1] - s[1] * e1[0]};
+    *v = (d[0] * q[0] + d[1] * q[1] + d[2] * q[2]) * inv;
+    *t = (e2[0] * q[0] + e2[1] * q[1] + e2[2] * q[2]) * inv;
+    return ok;
+}
 
 /* One line o + t d walked from triangle start (-1: lost at once) for cloth vertex v (its ring row
  * is the exclusion). Returns TCC_OK with *h filled (h->tri = -1: lost) or an error code. */
@@ -241,6 +289,33 @@ static inline double tcc_box_entry(const double o[3], const double inv[3], doubl
     return t0;
 }
 
+/* The span [*t0, *t1] of the line o + s d (inv = 1 / d) inside box bx (lo xyz, hi xyz), clipped to
+ * [lo, hi]; 0 when empty (NaN boxes are missed). */
+static inline int tcc_line_box(const double o[3], const double inv[3], double lo, double hi, const double *bx,
+                               double *t0, double *t1)
+{
+    for (int a = 0; a < 3; a++) {
+        double l = bx[a], h = bx[3 + a];
+        if (!(l <= h)) return 0;
+        if (isinf(inv[a])) {
+            if (o[a] < l || o[a] > h) return 0;
+            continue;
+        }
+        double ta = (l - o[a]) * inv[a], tb = (h - o[a]) * inv[a];
+        if (ta > tb) {
+            double t = ta;
+            ta = tb;
+            tb = t;
+        }
+        if (ta > lo) lo = ta;
+        if (tb < hi) hi = tb;
+        if (lo > hi) return 0;
+    }
+    *t0 = lo;
+    *t1 = hi;
+    return 1;
+}
+
 /* Pair p (a cloth cluster, b collider cluster) checked; [*st, *en) the members of a in s->order. */
 int tcc_pair_span(const tcc_ray_setup *s, tcc_idx p, tcc_idx a, tcc_idx b, tcc_idx *st, tcc_idx *en, tcc_error *err);
 
@@ -265,6 +340,7 @@ typedef struct {
     tcc_idx nnodes;
     const tcc_idx *prim;     /* triangle ids */
     tcc_idx nprim;
+    double *corner;          /* (nprim, 9) or NULL: each prim's corners as of its last refit (the refit writes them) */
 } tcc_bvh;
 
 /* Builds every cluster's tree over its scene triangles scene_tri[scene_ptr[c] .. scene_ptr[c+1]]
@@ -281,6 +357,23 @@ int tcc_bvh_refit(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err);
  * vertex v when ring->table is set: h->tri (-1 if none), t, u, v. */
 int tcc_bvh_first_hit(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double o[3], const double d[3],
                       double tmax, const tcc_ring *ring, tcc_idx v, tcc_hit *h, tcc_error *err);
+
+/* Both rays of a cloth vertex in one traversal of cluster c's tree: the line x + s d, slot 0 (+d) the
+ * nearest hit with s in [-backoff, *s0] (out: the hit's s), slot 1 (-d) the nearest with s in [*s1,
+ * backoff]; active (bit 0, bit 1) the slots asked for. tri[k] in/out: a hit found, or -1 (a hit at
+ * exactly the window's end replaces only a -1: the first found wins a tie). The tree must have
+ * been refitted with corners, or checked, in this call (tcc_bvh_refit / tcc_bvh_check): its nodes and
+ * prims are read without checks. The two-ring of v is skipped when ring is set. */
+void tcc_bvh_line(const tcc_mesh *m, const tcc_bvh *b, tcc_idx c, const double x[3], const double d[3], int active,
+                  double backoff, double *s0, double *s1, const tcc_ring *ring, tcc_idx v, tcc_idx tri[2]);
+
+/* Whether the line x + s d meets a triangle of cluster c's tree other than skip for s in [lo, hi), its
+ * barycentrics exactly within [0, 1] (tcc_confirm_inside's test). The tree as for tcc_bvh_line. */
+int tcc_bvh_blocked(const tcc_bvh *b, tcc_idx c, const double x[3], const double d[3], double lo, double hi,
+                    tcc_idx skip);
+
+/* Cluster c's nodes and prims checked (the reads tcc_bvh_line skips), corners written when kept. */
+int tcc_bvh_check(const tcc_mesh *m, tcc_bvh *b, tcc_idx c, tcc_error *err);
 
 /* tcc_bvh_first_hit for r rays (o, d (r, 3), tmax, cluster, ray_v (may be NULL without a ring)). */
 int tcc_bvh_cast(const tcc_mesh *m, const tcc_bvh *b, const tcc_idx *cluster, const double *o, const double *d,
@@ -409,24 +502,140 @@ int tcc_ccd_edge_edge(const double *x0, const double *x1, tcc_idx n, const tcc_i
 int tcc_edge_edge_state(const double *x, tcc_idx n, const tcc_idx *ea, const tcc_idx *eb, tcc_idx k, double *sd,
                         double *dist, double *st, double *normal, tcc_error *err);
 
-/* The pairs (quad[q]: 4 vertex ids, the first `split` one element) that may come within gap[q]
- * over a motion of displacement disp (n, 3) (m) per vertex: out[0..*nout) their indices; slack (k) in/out, a
- * lower bound of distance - gap (start at -inf: exact on first use), carried on and recomputed
- * exactly at x for the pairs handed out when update is set (see ccd.c). */
-int tcc_ccd_cull(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
-                 const double *gap, double *slack, int update, tcc_idx *out, tcc_idx *nout, tcc_error *err);
+/* One pair, its four points given (vertex, triangle corners / edge ends): the swept tests over
+ * A -> B (1 = hit, *toi, the closest point's barycentrics w or edge parameters st, *side), the
+ * state at P (as the array kernels above) and the squared distance of the two elements (split 1:
+ * vertex-triangle, 2: edge-edge). The array kernels above are these over lists of pairs. */
+int tcc_vt_sweep(const double *const A[4], const double *const B[4], double gap, double *toi, double w[3],
+                 int8_t *side);
+int tcc_ee_sweep(const double *const A[4], const double *const B[4], double gap, double *toi, double st[2],
+                 int8_t *side);
+void tcc_vt_state(const double *const P[4], double *sd, double *dist, double w[3], double normal[3]);
+void tcc_ee_state(const double *const P[4], double *sd, double *dist, double st[2], double normal[3]);
+double tcc_pair_distance2(const double *const P[4], int split);
 
-/* tcc_ccd_cull by blocks of pairs (pair ranges block_ptr (nb + 1), each with the vertices
- * block_vertices[block_vptr[b] .. block_vptr[b + 1]) that its pairs' corners are among): a block
- * whose bound block_min (nb, in/out; -inf: unknown) minus its uncharged motion block_debt (nb,
- * in/out; start at 0) and this step's relative motion of its vertices stays positive is skipped
- * without reading its pairs (see ccd.c). Like tcc_ccd_cull, it hands out every pair that can come within its gap. disp2 (n, 3) or
- * NULL: a second motion culled after the first without update, into out2 (k) and *nout2. */
-int tcc_ccd_cull_blocks(const double *x, tcc_idx n, const tcc_idx *quad, tcc_idx k, int split, const double *disp,
-                        const double *gap, double *slack, int update, const tcc_idx *block_ptr, tcc_idx nb,
-                        const tcc_idx *block_vptr, const tcc_idx *block_vertices, tcc_idx nbv, double *block_min,
-                        double *block_debt, tcc_idx *out, tcc_idx *nout, const double *disp2, tcc_idx *out2,
-                        tcc_idx *nout2, tcc_error *err);
+/* ---------------------------------------------------------------- swept.c */
+
+/* One kind of swept pairs of the two-ring (vertex-triangle or edge-edge) and the state the swept
+ * stage carries for it between steps (swept.c's module docs). */
+typedef struct {
+    int split;              /* 1: vertex-triangle, quad = (vertex, corners); 2: edge-edge, quad = (a, b, c, d) */
+    const tcc_idx *quad;    /* (k, 4) */
+    tcc_idx k;
+    const double *gap;      /* (k) */
+    double *slack;          /* (k) in/out: a lower bound of distance - gap when the pair was last read */
+    const tcc_idx *bptr, *bvptr, *bverts, *bgptr, *bgroups; /* blocks: pairs, vertices (ascending), groups */
+    tcc_idx nb, nbv, nbg;
+    double *bstate;         /* (nb, 2) in/out: min, and a bound of the spread since the reference pose */
+    double *bref;           /* (nbv, 3) in/out: each block's vertices at its reference pose */
+    const tcc_idx *mem;     /* remembered crossings (nmem) and the side each is pushed to (nmem, 3) */
+    const double *mem_n;
+    tcc_idx nmem;
+    tcc_idx *mem_out;       /* (k) the memory after this step, mem_n_out (k, 3) */
+    double *mem_n_out;
+    tcc_idx nmem_out;
+    /* the pairs that give contacts this step (k at most): the nlive remembered ones still on the
+     * wrong side or close, then the npred predicted ones; normal (k, 3), depth (k), w (k, 3): the
+     * closest point's barycentrics (vertex-triangle) or edge parameters and 0 (edge-edge) */
+    tcc_idx *out_q;
+    double *out_normal, *out_depth, *out_w;
+    tcc_idx nlive, npred;
+    tcc_idx tested, crossed, remembered; /* counts of this step */
+    tcc_idx settled[4];     /* blocks settled by the cull's bounds 1, 2, 3 (swept.c), and blocks read */
+} tcc_swept_kind;
+
+typedef struct {
+    const double *x, *x_prev, *v; /* (n, 3); x_prev NULL: no previous step; v NULL: no prediction */
+    tcc_idx n;
+    double dt, thickness;
+    const tcc_idx *group_ptr, *group_vertices; /* small groups of nearby vertices, for the blocks' bounds */
+    tcc_idx ngroups, ngv;
+    uint8_t *has_ref;       /* in/out: the blocks' reference poses are set (else: set from x_prev, or x) */
+    tcc_swept_kind kind[2]; /* vertex-triangle, edge-edge */
+    tcc_idx *cand_out[2], *pcand_out[2]; /* optional (k each): the pairs the cull handed out, both windows */
+    tcc_idx ncand[2], npcand[2];
+} tcc_swept;
+
+/* One step of the swept stage: cull, swept tests, memory, and the pairs that give contacts. x_prev
+ * must be the x of the previous call (the blocks' running bounds grow by the motion between the two). */
+int tcc_swept_step(tcc_swept *s, tcc_error *err);
+
+/* Contact rows of the pairs tcc_swept_step listed (4 per pair: both elements' vertices pushed apart
+ * along the pair's normal, at the pair's mean velocity v (may be NULL: zero)), those without a normal
+ * dropped (*no_normal rows), merged stably by vertex after the colliders' contacts (ev ascending):
+ * *count rows; written only when they fit in cap. */
+int tcc_swept_rows(const tcc_swept_kind kind[2], const double *v, tcc_idx n, const int32_t *ev, const double *enormal,
+                   const double *edepth, const double *evel, const double *efric, tcc_idx ne, double friction,
+                   int32_t *ov, double *onormal, double *odepth, double *ovel, double *ofric, tcc_idx cap,
+                   tcc_idx *count, tcc_idx *no_normal, tcc_error *err);
+
+/* The swept stage's pairs of a topology (swept.c): the edges (min, max) ascending (*ne), the
+ * vertex-triangle pairs (u, t) with u in the ring of a corner of t and not a corner (*nvt), and the
+ * edge-edge pairs (a, b) of edge ids, a < b, no shared vertex, an end of b in the ring of an end of
+ * a (*nee), each list ascending and once per pair (np.unique's order). A list is written only when
+ * it fits its capacity (edges ecap, vt vcap, ee ecap2; ee needs the edges): call again with room. */
+int tcc_swept_pairs(const tcc_idx *tri, tcc_idx nt, tcc_idx n, const tcc_ring *ring, tcc_idx *edges, tcc_idx ecap,
+                    tcc_idx *vt, tcc_idx vcap, tcc_idx *ee, tcc_idx ecap2, tcc_idx *ne, tcc_idx *nvt, tcc_idx *nee,
+                    tcc_error *err);
+
+/* The cull's blocks: runs of `size` consecutive pairs of quad (k, 4), each with its vertices
+ * ascending (bverts, room for 4k) and their groups ascending (bgroups, room for 4k); bptr, bvptr,
+ * bgptr have nb + 1 = ceil(k / size) + 1 entries. */
+int tcc_swept_blocks(const tcc_idx *quad, tcc_idx k, tcc_idx size, const tcc_idx *group, tcc_idx n, tcc_idx *bptr,
+                     tcc_idx *bvptr, tcc_idx *bverts, tcc_idx *bgptr, tcc_idx *bgroups, tcc_error *err);
+
+/* ---------------------------------------------------------------- detect.c */
+
+/* One collider's step (detect.c): the cloth, the collider, its close pairs and tracks. */
+typedef struct {
+    /* the cloth: positions, positions at the previous step, velocities (may be NULL) */
+    const double *x, *x_prev, *velocity;
+    tcc_idx n;
+    const tcc_idx *tri;                     /* (nt, 3) */
+    tcc_idx nt;
+    const tcc_idx *vt_ptr, *vt_tri;         /* vertex -> incident triangles (CSR, ascending), for normals */
+    tcc_idx nvt;
+    const tcc_idx *order, *ptr, *labels;    /* the cloth's clusters: members, bounds (kc + 1), label per vertex */
+    tcc_idx norder, kc;
+    double *normals;                        /* (n, 3) in/out: the step's normals, per vertex as needed */
+    uint8_t *has_normal, *done;             /* (n) each, in/out: done marks the normals computed this step */
+    /* the collider (the cloth itself for self-collision: kind TCC_SELF) */
+    int kind;
+    tcc_mesh target;                        /* with adjacency: the walks */
+    const double *target_prev, *target_velocity; /* its positions at the previous step; velocities or NULL */
+    const tcc_idx *tri_labels;              /* (nt) cluster of each triangle */
+    tcc_idx kb;                             /* collider clusters */
+    const double *box_lo, *box_hi;          /* (kb, 3) the collider clusters' inflated boxes */
+    tcc_ring ring;                          /* self-collision: the two-ring exclusion (table NULL: none) */
+    tcc_bvh bvh;                            /* the collider clusters' trees */
+    tcc_idx *refit_step;                    /* (kb) in/out: the step each tree was refitted at */
+    tcc_idx step;
+    /* close pairs (cloth cluster, collider cluster) in row-major order, and which get full detection
+     * (in/out: a lost walk marks its pair) */
+    const tcc_idx *pi, *pj;
+    uint8_t *full;
+    tcc_idx np;
+    /* tracks (ascending key 2 * vertex + slot, triangle, remembered side), vertices inside (ascending) */
+    const tcc_idx *track_key, *track_tri;
+    const int8_t *track_side;
+    tcc_idx kt;
+    const tcc_idx *inside;
+    tcc_idx ninside;
+    double thickness, track_range;
+    double ray_length;  /* full detection's rays (m; a closed body's: track_range + 2 inflate + its extent) */
+    double inflate, backoff;
+    int first;          /* the first detection of this collider: new hits take their current side */
+} tcc_detect_in;
+
+typedef struct {
+    tcc_idx tracked, lost, full_pairs, rays, hits;
+    double seconds[4]; /* wall time of the walks, the casts, the refinement, the merge */
+} tcc_detect_stats;
+
+/* The step of one collider: walks (lost walks mark their pairs full), full detection of the marked
+ * pairs, refinement, the merge (tcc_merge_classify: out's lists have room for 2n tracks, n inside,
+ * n contacts). */
+int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, tcc_error *err);
 
 /* ---------------------------------------------------------------- impact.c */
 

@@ -120,21 +120,7 @@ int tcc_cluster_normals(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx 
 int tcc_line_triangle(const double o[3], const double d[3], const double a[3], const double b[3],
                       const double c[3], double *t, double *u, double *v)
 {
-    /* incremental.line_triangle, expression for expression */
-    double e1[3], e2[3], p[3], s[3], q[3];
-    sub3(b, a, e1);
-    sub3(c, a, e2);
-    cross3(d, e2, p);
-    double det = dot3(e1, p);
-    double e11 = dot3(e1, e1);
-    int ok = fabs(det) > 1e-14 * (e11 > 1e-30 ? e11 : 1e-30);
-    double inv = ok ? 1.0 / det : 0.0;
-    sub3(o, a, s);
-    *u = dot3(s, p) * inv;
-    cross3(s, e1, q);
-    *v = dot3(d, q) * inv;
-    *t = dot3(e2, q) * inv;
-    return ok;
+    return tcc_line_triangle_inline(o, d, a, b, c, t, u, v);
 }
 
 /* Eigen decomposition of a symmetric 4x4 matrix (cyclic Jacobi); columns of V are eigenvectors. */

@@ -207,6 +207,47 @@ int tcc_relative_measure(const tcc_idx *old_keys, const double *old_avg, const d
     return TCC_OK;
 }
 
+int tcc_cluster_state(const double *x, const double *prev, tcc_idx n, const tcc_idx *order, tcc_idx norder,
+                      const tcc_idx *ptr, tcc_idx k, const tcc_idx *box_index, tcc_idx nindex, const tcc_idx *box_ptr,
+                      double inflate, double *avg, double *dev, double *lo, double *hi, tcc_error *err)
+{
+    int rc = tcc_cluster_motion(x, prev, n, order, norder, ptr, k, avg, dev, err);
+    return rc ? rc : tcc_cluster_boxes(x, n, box_index, nindex, box_ptr, k, inflate, lo, hi, err);
+}
+
+int tcc_pair_step(const tcc_pair_step_in *in, tcc_idx cap, tcc_idx *pi, tcc_idx *pj, uint8_t *full, tcc_idx *keys,
+                  double *rel_avg, double *rel_dev, double *amplitude, tcc_idx *np, tcc_idx *nfull, tcc_error *err)
+{
+    tcc_box_pairs(in->lo_a, in->hi_a, in->ka, in->lo_b, in->hi_b, in->kb, in->self_pairs, pi, pj, cap, np);
+    *nfull = 0;
+    if (*np > cap) return TCC_OK; /* the caller calls again with room for *np */
+    tcc_idx m = *np;
+    /* forced: every pair of a new collider, or each pair with a cluster a tear changed */
+    uint8_t *mask = NULL;
+    if (!in->first && in->nforced > 0) {
+        tcc_idx km = in->ka > in->kb ? in->ka : in->kb;
+        mask = calloc((size_t)(km > 0 ? km : 1), 1);
+        if (!mask) return tcc_fail(err, TCC_ERR_NOMEM, "no memory for %lld clusters", (long long)km);
+        for (tcc_idx i = 0; i < in->nforced; i++)
+            if (in->forced[i] >= 0 && in->forced[i] < km) mask[in->forced[i]] = 1;
+    }
+    for (tcc_idx p = 0; p < m; p++) {
+        int f = in->first;
+        if (mask) f = (pi[p] < in->ka && mask[pi[p]]) || (in->self_pairs && pj[p] < in->kb && mask[pj[p]]);
+        full[p] = (uint8_t)f;
+    }
+    free(mask);
+    if (!in->avg_a) {
+        for (tcc_idx p = 0; p < m; p++) *nfull += full[p];
+        return TCC_OK;
+    }
+    /* full is read as the force and written as the verdict: tcc_relative_measure reads a pair's force
+     * before it writes that pair's verdict, once per pair */
+    return tcc_relative_measure(in->old_keys, in->old_avg, in->old_dev, in->nold, pi, pj, m, in->avg_a, in->dev_a,
+                                in->ka, in->avg_b, in->dev_b, in->kb, (in->first || in->nforced > 0) ? full : NULL,
+                                in->threshold, in->lookahead, keys, rel_avg, rel_dev, amplitude, full, nfull, err);
+}
+
 /* ------------------------------------------------------------------ the trip rule (issue 15)
  *
  * A bound, not a threshold per step: per close pair (a, b), how far any vertex of a can have moved

@@ -17,6 +17,7 @@
 #include "collide.h"
 
 #include <math.h>
+#include <string.h>
 
 /* table rows: an array (rows checked against other arguments after parsing), a scalar */
 #define ARR(name, type, flags, ndim, d1, d2) {name, type, flags, ndim, {-1, d1, d2}}
@@ -317,6 +318,122 @@ static PyObject *py_relative_measure(PyObject *self, PyObject *args, PyObject *k
     pyarg_release(&s);
     if (rc) return kernel_error(&err);
     return PyLong_FromLongLong(nfull);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec CLUSTER_STATE[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("previous", PA_F64, 0, 2, 3, 0),
+    ARR("order", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    ARR("box_index", PA_I64, 0, 1, 0, 0),
+    ARR("box_ptr", PA_I64, 0, 1, 0, 0),
+    VAL("inflate", PA_DOUBLE),
+    ARR("avg", PA_F64, OUT, 2, 3, 0),
+    ARR("dev", PA_F64, OUT, 1, 0, 0),
+    ARR("lo", PA_F64, OUT, 2, 3, 0),
+    ARR("hi", PA_F64, OUT, 2, 3, 0),
+};
+enum { CS_X, CS_PREV, CS_ORDER, CS_PTR, CS_BI, CS_BPTR, CS_INFL, CS_AVG, CS_DEV, CS_LO, CS_HI, CS_N };
+
+static PyObject *py_cluster_state(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("cluster_state", CLUSTER_STATE, CS_N);
+    Py_ssize_t n = ROWS(CS_X), k = ROWS(CS_PTR) - 1;
+    if (!bounds_ok(ROWS(CS_PTR), "ptr", "cluster")) goto fail;
+    CHECK_ROWS(CS_PREV, n);
+    CHECK_ROWS(CS_BPTR, k + 1);
+    CHECK_ROWS(CS_AVG, k);
+    CHECK_ROWS(CS_DEV, k);
+    CHECK_ROWS(CS_LO, k);
+    CHECK_ROWS(CS_HI, k);
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_cluster_state(D(CS_X), D(CS_PREV), n, D(CS_ORDER), ROWS(CS_ORDER), D(CS_PTR), k, D(CS_BI), ROWS(CS_BI),
+                          D(CS_BPTR), s.v[CS_INFL].d, D(CS_AVG), D(CS_DEV), D(CS_LO), D(CS_HI), &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec PAIR_STEP[] = {
+    ARR("lo_a", PA_F64, 0, 2, 3, 0),
+    ARR("hi_a", PA_F64, 0, 2, 3, 0),
+    ARR("lo_b", PA_F64, 0, 2, 3, 0),
+    ARR("hi_b", PA_F64, 0, 2, 3, 0),
+    VAL("self_pairs", PA_FLAG),
+    VAL("first", PA_FLAG),
+    ARR("forced", PA_I64, OPT, 1, 0, 0),
+    ARR("avg_a", PA_F64, OPT, 2, 3, 0),
+    ARR("dev_a", PA_F64, OPT, 1, 0, 0),
+    ARR("avg_b", PA_F64, OPT, 2, 3, 0),
+    ARR("dev_b", PA_F64, OPT, 1, 0, 0),
+    ARR("old_keys", PA_I64, 0, 1, 0, 0),
+    ARR("old_avg", PA_F64, 0, 2, 3, 0),
+    ARR("old_dev", PA_F64, 0, 1, 0, 0),
+    VAL("threshold", PA_DOUBLE),
+    VAL("lookahead", PA_DOUBLE),
+    ARR("i", PA_I64, OUT, 1, 0, 0),
+    ARR("j", PA_I64, OUT, 1, 0, 0),
+    ARR("full", PA_BOOL, OUT, 1, 0, 0),
+    ARR("keys", PA_I64, OUT, 1, 0, 0),
+    ARR("rel_avg", PA_F64, OUT, 2, 3, 0),
+    ARR("rel_dev", PA_F64, OUT, 1, 0, 0),
+    ARR("amplitude", PA_F64, OUT, 1, 0, 0),
+};
+enum { PS_LOA, PS_HIA, PS_LOB, PS_HIB, PS_SELF, PS_FIRST, PS_FORCED, PS_AA, PS_DA, PS_AB, PS_DB, PS_OK, PS_OA, PS_OD,
+       PS_TH, PS_LA, PS_I, PS_J, PS_FULL, PS_KEYS, PS_RA, PS_RD, PS_AMP, PS_N };
+
+static PyObject *py_pair_step(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("pair_step", PAIR_STEP, PS_N);
+    Py_ssize_t ka = ROWS(PS_LOA), kb = ROWS(PS_LOB), cap = ROWS(PS_I), nold = ROWS(PS_OK);
+    CHECK_ROWS(PS_HIA, ka);
+    CHECK_ROWS(PS_HIB, kb);
+    int relative = D(PS_AA) != NULL;
+    if (relative != (D(PS_DA) != NULL) || relative != (D(PS_AB) != NULL) || relative != (D(PS_DB) != NULL)) {
+        PyErr_SetString(PyExc_ValueError, "pair_step: avg_a, dev_a, avg_b and dev_b go together (all or none)");
+        goto fail;
+    }
+    CHECK_ROWS(PS_AA, ka);
+    CHECK_ROWS(PS_DA, ka);
+    CHECK_ROWS(PS_AB, kb);
+    CHECK_ROWS(PS_DB, kb);
+    CHECK_ROWS(PS_OA, nold);
+    CHECK_ROWS(PS_OD, nold);
+    CHECK_ROWS(PS_J, cap);
+    CHECK_ROWS(PS_FULL, cap);
+    CHECK_ROWS(PS_KEYS, cap);
+    CHECK_ROWS(PS_RA, cap);
+    CHECK_ROWS(PS_RD, cap);
+    CHECK_ROWS(PS_AMP, cap);
+    double threshold = s.v[PS_TH].d, lookahead = s.v[PS_LA].d;
+    if (isnan(threshold) || !isfinite(lookahead) || lookahead < 0) {
+        PyErr_SetString(PyExc_ValueError, "threshold must be a number and lookahead a finite number of steps >= 0");
+        goto fail;
+    }
+    if (s.v[PS_SELF].i && ka != kb) {
+        PyErr_SetString(PyExc_ValueError, "pair_step: self pairs need the same boxes on both sides");
+        goto fail;
+    }
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_pair_step_in in = {D(PS_LOA), D(PS_HIA), D(PS_LOB), D(PS_HIB), ka, kb, s.v[PS_SELF].i, s.v[PS_FIRST].i,
+                           D(PS_FORCED), ROWS(PS_FORCED), D(PS_AA), D(PS_DA), D(PS_AB), D(PS_DB), D(PS_OK), D(PS_OA),
+                           D(PS_OD), nold, threshold, lookahead};
+    tcc_error err = {0};
+    tcc_idx np_ = 0, nfull = 0;
+    int rc;
+    RUN(tcc_pair_step(&in, cap, D(PS_I), D(PS_J), D(PS_FULL), D(PS_KEYS), D(PS_RA), D(PS_RD), D(PS_AMP), &np_, &nfull,
+                      &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return Py_BuildValue("LL", (long long)np_, (long long)nfull);
 fail:
     pyarg_release(&s);
     return NULL;
@@ -1156,6 +1273,7 @@ static int bvh_from(pyarg_set *p, int first, tcc_bvh *b)
     b->nnodes = pyarg_nrows(p, first + 1);
     b->prim = pyarg_data(p, first + 3);
     b->nprim = pyarg_nrows(p, first + 3);
+    b->corner = NULL;
     return 0;
 }
 
@@ -1336,76 +1454,462 @@ fail:
     return NULL;
 }
 
-static const pyarg_spec CCD_CULL[] = {
-    ARR("positions", PA_F64, 0, 2, 3, 0),
-    ARR("quads", PA_I64, 0, 2, 4, 0),
-    VAL("split", PA_INT),
-    ARR("displacement", PA_F64, 0, 2, 3, 0),
-    ARR("gap", PA_F64, 0, 1, 0, 0),
-    ARR("slack", PA_F64, OUT, 1, 0, 0),
-    VAL("update", PA_FLAG),
-    ARR("out", PA_I64, OUT, 1, 0, 0),
-    /* the blocks of tcc_ccd_cull_blocks: all four or none */
-    ARR("block_ptr", PA_I64, OPT, 1, 0, 0),
-    ARR("block_vptr", PA_I64, OPT, 1, 0, 0),
-    ARR("block_vertices", PA_I64, OPT, 1, 0, 0),
-    ARR("block_min", PA_F64, OUT | OPT, 1, 0, 0),
-    ARR("block_debt", PA_F64, OUT | OPT, 1, 0, 0),
-    /* with the blocks: a second motion from positions, culled after the first without update */
-    ARR("predicted", PA_F64, OPT, 2, 3, 0),
-    ARR("predicted_out", PA_I64, OUT | OPT, 1, 0, 0),
-};
-enum { CU_X, CU_Q, CU_SPLIT, CU_MOVE, CU_GAP, CU_SLACK, CU_UPD, CU_OUT, CU_BPTR, CU_BVPTR, CU_BV, CU_BMIN, CU_BDEBT,
-       CU_PRED, CU_PRED_OUT, CU_N };
+/* ---------------------------------------------------------------- a collider's step (detect.c) */
 
-static PyObject *py_ccd_cull(PyObject *self, PyObject *args, PyObject *kw)
+static const pyarg_spec DETECT[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("previous", PA_F64, 0, 2, 3, 0),
+    ARR("velocity", PA_F64, OPT, 2, 3, 0),
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    ARR("vt_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("vt_tri", PA_I64, 0, 1, 0, 0),
+    ARR("order", PA_I64, 0, 1, 0, 0),
+    ARR("ptr", PA_I64, 0, 1, 0, 0),
+    ARR("labels", PA_I64, 0, 1, 0, 0),
+    ARR("normals", PA_F64, OUT, 2, 3, 0),
+    ARR("has_normal", PA_BOOL, OUT, 1, 0, 0),
+    ARR("done", PA_BOOL, OUT, 1, 0, 0),
+    VAL("kind", PA_INT),
+    ARR("target_vertices", PA_F64, 0, 2, 3, 0),
+    ARR("target_triangles", PA_I64, 0, 2, 3, 0),
+    ARR("adjacency", PA_I64, 0, 2, 3, 0),
+    ARR("flip", PA_BOOL, 0, 2, 3, 0),
+    ARR("target_previous", PA_F64, 0, 2, 3, 0),
+    ARR("target_velocity", PA_F64, OPT, 2, 3, 0),
+    ARR("tri_labels", PA_I64, 0, 1, 0, 0),
+    ARR("box_lo", PA_F64, 0, 2, 3, 0),
+    ARR("box_hi", PA_F64, 0, 2, 3, 0),
+    RING_ROW,
+    ARR("node_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("node", PA_I64, 0, 2, 2, 0),
+    ARR("box", PA_F64, OUT, 2, 6, 0),
+    ARR("prim", PA_I64, 0, 1, 0, 0),
+    ARR("corner", PA_F64, OUT, 2, 9, 0),
+    ARR("refit_step", PA_I64, OUT, 1, 0, 0),
+    VAL("step", PA_SSIZE),
+    ARR("pair_i", PA_I64, 0, 1, 0, 0),
+    ARR("pair_j", PA_I64, 0, 1, 0, 0),
+    ARR("full", PA_BOOL, OUT, 1, 0, 0),
+    ARR("track_key", PA_I64, 0, 1, 0, 0),
+    ARR("track_tri", PA_I64, 0, 1, 0, 0),
+    ARR("track_side", PA_I8, 0, 1, 0, 0),
+    ARR("inside", PA_I64, 0, 1, 0, 0),
+    VAL("thickness", PA_DOUBLE),
+    VAL("track_range", PA_DOUBLE),
+    VAL("ray_length", PA_DOUBLE),
+    VAL("inflate", PA_DOUBLE),
+    VAL("backoff", PA_DOUBLE),
+    VAL("first", PA_FLAG),
+    ARR("out_key", PA_I64, OUT, 1, 0, 0),
+    ARR("out_tri", PA_I64, OUT, 1, 0, 0),
+    ARR("out_side", PA_I8, OUT, 1, 0, 0),
+    ARR("out_inside", PA_I64, OUT, 1, 0, 0),
+    ARR("contact_vertex", PA_I64, OUT, 1, 0, 0),
+    ARR("depth", PA_F64, OUT, 1, 0, 0),
+    ARR("normal", PA_F64, OUT, 2, 3, 0),
+    ARR("contact_velocity", PA_F64, OUT, 2, 3, 0),
+    ARR("stats", PA_I64, OUT, 1, 0, 0),
+    ARR("times", PA_F64, OUT | OPT, 1, 0, 0),
+};
+enum { DT_X, DT_PREV, DT_VEL, DT_TRI, DT_VTP, DT_VTT, DT_ORDER, DT_PTR, DT_LABELS, DT_NRM, DT_HAS, DT_DONE, DT_KIND,
+       DT_TX, DT_TT, DT_ADJ, DT_FLIP, DT_TPREV, DT_TVEL, DT_TLAB, DT_LO, DT_HI, DT_RING, DT_NPTR,
+       DT_NODE, DT_BOX, DT_PRIM, DT_CORNER, DT_REFIT, DT_STEP, DT_PI, DT_PJ, DT_FULL, DT_KEY, DT_KTRI, DT_KSIDE, DT_INSIDE, DT_TH,
+       DT_TR, DT_LEN, DT_INFL, DT_BACK, DT_FIRST, DT_OKEY, DT_OTRI, DT_OSIDE, DT_OIN, DT_CV, DT_DEPTH, DT_CN, DT_CVEL,
+       DT_STATS, DT_TIMES, DT_N };
+
+static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
 {
-    PARSE("ccd_cull", CCD_CULL, CU_N);
-    Py_ssize_t n = ROWS(CU_X), k = ROWS(CU_Q);
-    CHECK_ROWS(CU_MOVE, n);
-    CHECK_ROWS(CU_GAP, k);
-    CHECK_ROWS(CU_SLACK, k);
-    CHECK_ROWS(CU_OUT, k);
-    int blocks = D(CU_BPTR) != NULL;
-    if (blocks != (D(CU_BVPTR) != NULL) || blocks != (D(CU_BV) != NULL) || blocks != (D(CU_BMIN) != NULL) ||
-        blocks != (D(CU_BDEBT) != NULL)) {
-        PyErr_SetString(PyExc_ValueError, "ccd_cull: block_ptr, block_vptr, block_vertices, block_min and block_debt "
-                                          "go together (all or none)");
+    PARSE("detect", DETECT, DT_N);
+    Py_ssize_t n = ROWS(DT_X), nt = ROWS(DT_TRI), nv = ROWS(DT_TX), ntt = ROWS(DT_TT), kc = ROWS(DT_PTR) - 1;
+    Py_ssize_t kb = ROWS(DT_NPTR) - 1, np = ROWS(DT_PI), kt = ROWS(DT_KEY);
+    if (!bounds_ok(ROWS(DT_PTR), "ptr", "cluster") || !bounds_ok(ROWS(DT_NPTR), "node_ptr", "cluster") ||
+        !bounds_ok(ROWS(DT_VTP), "vt_ptr", "vertex"))
+        goto fail;
+    CHECK_ROWS(DT_PREV, n);
+    CHECK_ROWS(DT_VEL, n);
+    CHECK_ROWS(DT_VTP, n + 1);
+    CHECK_ROWS(DT_ORDER, n);
+    CHECK_ROWS(DT_LABELS, n);
+    CHECK_ROWS(DT_NRM, n);
+    CHECK_ROWS(DT_HAS, n);
+    CHECK_ROWS(DT_DONE, n);
+    CHECK_ROWS(DT_ADJ, ntt);
+    CHECK_ROWS(DT_FLIP, ntt);
+    CHECK_ROWS(DT_TPREV, nv);
+    CHECK_ROWS(DT_TVEL, nv);
+    CHECK_ROWS(DT_TLAB, ntt);
+    CHECK_ROWS(DT_LO, kb);
+    CHECK_ROWS(DT_HI, kb);
+    CHECK_ROWS(DT_BOX, ROWS(DT_NODE));
+    CHECK_ROWS(DT_REFIT, kb);
+    CHECK_ROWS(DT_CORNER, ROWS(DT_PRIM));
+    CHECK_ROWS(DT_PJ, np);
+    CHECK_ROWS(DT_FULL, np);
+    CHECK_ROWS(DT_KTRI, kt);
+    CHECK_ROWS(DT_KSIDE, kt);
+    CHECK_ROWS(DT_OKEY, 2 * n);
+    CHECK_ROWS(DT_OTRI, 2 * n);
+    CHECK_ROWS(DT_OSIDE, 2 * n);
+    CHECK_ROWS(DT_OIN, n);
+    CHECK_ROWS(DT_CV, n);
+    CHECK_ROWS(DT_DEPTH, n);
+    CHECK_ROWS(DT_CN, n);
+    CHECK_ROWS(DT_CVEL, n);
+    CHECK_ROWS(DT_STATS, 8);
+    CHECK_ROWS(DT_TIMES, 4);
+    int kind = s.v[DT_KIND].i;
+    if (!kind_ok(kind)) goto fail;
+    if (finite_param(s.v[DT_TH].d, "thickness", 1) || finite_param(s.v[DT_TR].d, "track_range", 1) ||
+        finite_param(s.v[DT_LEN].d, "ray_length", 1) || finite_param(s.v[DT_INFL].d, "inflate", 1) ||
+        finite_param(s.v[DT_BACK].d, "backoff", 1))
+        goto fail;
+    if (kind == TCC_SELF && nv != n) {
+        PyErr_SetString(PyExc_ValueError, "detect: self-collision's target is the cloth (the same vertices)");
         goto fail;
     }
-    int pred = D(CU_PRED) != NULL;
-    if (pred != (D(CU_PRED_OUT) != NULL) || (pred && !blocks)) {
-        PyErr_SetString(PyExc_ValueError, "ccd_cull: predicted and predicted_out go together, and with the blocks");
+    if (pyarg_no_overlap(&s)) goto fail;
+    const tcc_idx *lab = D(DT_LABELS), *tlab = D(DT_TLAB), *ord = D(DT_ORDER), *ptr = D(DT_PTR);
+    tcc_detect_in in;
+    memset(&in, 0, sizeof in);
+    in.x = D(DT_X); in.x_prev = D(DT_PREV); in.velocity = D(DT_VEL); in.n = n;
+    in.tri = D(DT_TRI); in.nt = nt; in.vt_ptr = D(DT_VTP); in.vt_tri = D(DT_VTT); in.nvt = ROWS(DT_VTT);
+    in.order = ord; in.ptr = ptr; in.labels = lab; in.norder = ROWS(DT_ORDER); in.kc = kc;
+    in.normals = D(DT_NRM); in.has_normal = D(DT_HAS); in.done = D(DT_DONE);
+    in.kind = kind;
+    in.target = (tcc_mesh){D(DT_TX), nv, D(DT_TT), ntt, D(DT_ADJ), D(DT_FLIP)};
+    in.target_prev = D(DT_TPREV); in.target_velocity = D(DT_TVEL);
+    in.tri_labels = tlab; in.kb = kb;
+    in.box_lo = D(DT_LO); in.box_hi = D(DT_HI);
+    in.ring = ring_from(&s, DT_RING);
+    if (in.ring.table && in.ring.rows < n) {
+        PyErr_Format(PyExc_ValueError, "detect: the ring table needs a row per cloth vertex (%zd)", n);
         goto fail;
     }
-    CHECK_ROWS(CU_PRED, n);
-    CHECK_ROWS(CU_PRED_OUT, k);
-    Py_ssize_t nb = 0;
-    if (blocks) {
-        nb = ROWS(CU_BPTR) - 1;
-        if (nb < 0) {
-            PyErr_SetString(PyExc_ValueError, "ccd_cull: block_ptr needs at least one entry (0)");
+    in.bvh = (tcc_bvh){D(DT_NPTR), kb, D(DT_NODE), D(DT_BOX), ROWS(DT_NODE), D(DT_PRIM), ROWS(DT_PRIM), D(DT_CORNER)};
+    in.refit_step = D(DT_REFIT); in.step = s.v[DT_STEP].n;
+    in.pi = D(DT_PI); in.pj = D(DT_PJ); in.full = D(DT_FULL); in.np = np;
+    in.track_key = D(DT_KEY); in.track_tri = D(DT_KTRI); in.track_side = D(DT_KSIDE); in.kt = kt;
+    in.inside = D(DT_INSIDE); in.ninside = ROWS(DT_INSIDE);
+    in.thickness = s.v[DT_TH].d; in.track_range = s.v[DT_TR].d; in.ray_length = s.v[DT_LEN].d;
+    in.inflate = s.v[DT_INFL].d; in.backoff = s.v[DT_BACK].d; in.first = s.v[DT_FIRST].i;
+    tcc_merge_out out = {D(DT_OKEY), D(DT_OTRI), D(DT_OSIDE), 0, D(DT_OIN), 0, D(DT_CV), D(DT_DEPTH), D(DT_CN),
+                         D(DT_CVEL), 0};
+    tcc_detect_stats st;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_detect(&in, &out, &st, &err));
+    if (rc == TCC_OK) {
+        tcc_idx vals[8] = {out.ntracks, out.ninside, out.ncontacts, st.tracked, st.lost, st.full_pairs, st.rays,
+                           st.hits};
+        memcpy(D(DT_STATS), vals, sizeof vals);
+        if (D(DT_TIMES)) memcpy(D(DT_TIMES), st.seconds, sizeof st.seconds);
+    }
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+/* ---------------------------------------------------------------- the swept stage (swept.c) */
+
+/* the rows of one kind of pairs in SWEPT_STEP: its pairs, blocks, memory and outputs */
+#define SWEPT_KIND_ROWS(p)                                                                                            \
+    ARR(p "quads", PA_I64, 0, 2, 4, 0), ARR(p "gap", PA_F64, 0, 1, 0, 0), ARR(p "slack", PA_F64, OUT, 1, 0, 0),        \
+        ARR(p "block_ptr", PA_I64, 0, 1, 0, 0), ARR(p "block_vptr", PA_I64, 0, 1, 0, 0),                             \
+        ARR(p "block_vertices", PA_I64, 0, 1, 0, 0), ARR(p "block_state", PA_F64, OUT, 2, 2, 0),                      \
+        ARR(p "block_reference", PA_F64, OUT, 2, 3, 0), ARR(p "block_gptr", PA_I64, 0, 1, 0, 0),                      \
+        ARR(p "block_groups", PA_I64, 0, 1, 0, 0),                                                                    \
+        ARR(p "memory", PA_I64, 0, 1, 0, 0), ARR(p "memory_normal", PA_F64, 0, 2, 3, 0),                              \
+        ARR(p "memory_out", PA_I64, OUT, 1, 0, 0), ARR(p "memory_normal_out", PA_F64, OUT, 2, 3, 0),                   \
+        ARR(p "pairs_out", PA_I64, OUT, 1, 0, 0), ARR(p "normal_out", PA_F64, OUT, 2, 3, 0),                          \
+        ARR(p "depth_out", PA_F64, OUT, 1, 0, 0), ARR(p "weights_out", PA_F64, OUT, 2, 3, 0)
+enum { SK_Q, SK_GAP, SK_SLACK, SK_BPTR, SK_BVPTR, SK_BV, SK_BSTATE, SK_BREF, SK_BGPTR, SK_BG, SK_MEM, SK_MEMN, SK_MEMO, SK_MEMNO,
+       SK_PAIRS, SK_NORMAL, SK_DEPTH, SK_W, SK_N };
+
+static const pyarg_spec SWEPT_STEP[] = {
+    ARR("positions", PA_F64, 0, 2, 3, 0),
+    ARR("previous", PA_F64, OPT, 2, 3, 0),
+    ARR("velocity", PA_F64, OPT, 2, 3, 0),
+    VAL("dt", PA_DOUBLE),
+    VAL("thickness", PA_DOUBLE),
+    ARR("group_ptr", PA_I64, 0, 1, 0, 0),
+    ARR("group_vertices", PA_I64, 0, 1, 0, 0),
+    ARR("has_reference", PA_BOOL, OUT, 1, 0, 0),
+    SWEPT_KIND_ROWS("vt_"),
+    SWEPT_KIND_ROWS("ee_"),
+    ARR("counts", PA_I64, OUT, 1, 0, 0),
+    ARR("vt_handed_out", PA_I64, OUT | OPT, 1, 0, 0),
+    ARR("vt_predicted_out", PA_I64, OUT | OPT, 1, 0, 0),
+    ARR("ee_handed_out", PA_I64, OUT | OPT, 1, 0, 0),
+    ARR("ee_predicted_out", PA_I64, OUT | OPT, 1, 0, 0),
+};
+enum { SS_X, SS_PREV, SS_V, SS_DT, SS_TH, SS_GPTR, SS_GV, SS_HAS, SS_VT, SS_EE = SS_VT + SK_N,
+       SS_COUNTS = SS_EE + SK_N, SS_CAND, SS_N = SS_CAND + 4 };
+enum { SWEPT_COUNTS = 12 }; /* per kind: memory, live, predicted, tested, crossed, remembered, handed out (both
+                               windows), blocks settled by the bounds 1, 2, 3, blocks read */
+
+/* A kind's rows of the table from argument `first` into K, shapes checked (n vertices). */
+static int swept_kind_from(pyarg_set *p, int first, int split, tcc_swept_kind *K)
+{
+    Py_ssize_t k = pyarg_nrows(p, first + SK_Q), nb = pyarg_nrows(p, first + SK_BPTR) - 1;
+    if (nb < 0) {
+        PyErr_Format(PyExc_ValueError, "%s needs at least one entry (0)", p->spec[first + SK_BPTR].name);
+        return -1;
+    }
+    if (pyarg_rows(p, first + SK_GAP, k) || pyarg_rows(p, first + SK_SLACK, k) || pyarg_rows(p, first + SK_BVPTR, nb + 1) ||
+        pyarg_rows(p, first + SK_BSTATE, nb) || pyarg_rows(p, first + SK_BGPTR, nb + 1) ||
+        pyarg_rows(p, first + SK_BREF, pyarg_nrows(p, first + SK_BV)) ||
+        pyarg_rows(p, first + SK_MEMN, pyarg_nrows(p, first + SK_MEM)) || pyarg_rows(p, first + SK_MEMO, k) ||
+        pyarg_rows(p, first + SK_MEMNO, k) || pyarg_rows(p, first + SK_PAIRS, k) || pyarg_rows(p, first + SK_NORMAL, k) ||
+        pyarg_rows(p, first + SK_DEPTH, k) || pyarg_rows(p, first + SK_W, k))
+        return -1;
+    memset(K, 0, sizeof *K);
+    K->split = split;
+    K->quad = pyarg_data(p, first + SK_Q);
+    K->k = k;
+    K->gap = pyarg_data(p, first + SK_GAP);
+    K->slack = pyarg_data(p, first + SK_SLACK);
+    K->bptr = pyarg_data(p, first + SK_BPTR);
+    K->bvptr = pyarg_data(p, first + SK_BVPTR);
+    K->bverts = pyarg_data(p, first + SK_BV);
+    K->bgptr = pyarg_data(p, first + SK_BGPTR);
+    K->bgroups = pyarg_data(p, first + SK_BG);
+    K->nb = nb;
+    K->nbv = pyarg_nrows(p, first + SK_BV);
+    K->nbg = pyarg_nrows(p, first + SK_BG);
+    K->bstate = pyarg_data(p, first + SK_BSTATE);
+    K->bref = pyarg_data(p, first + SK_BREF);
+    K->mem = pyarg_data(p, first + SK_MEM);
+    K->mem_n = pyarg_data(p, first + SK_MEMN);
+    K->nmem = pyarg_nrows(p, first + SK_MEM);
+    K->mem_out = pyarg_data(p, first + SK_MEMO);
+    K->mem_n_out = pyarg_data(p, first + SK_MEMNO);
+    K->out_q = pyarg_data(p, first + SK_PAIRS);
+    K->out_normal = pyarg_data(p, first + SK_NORMAL);
+    K->out_depth = pyarg_data(p, first + SK_DEPTH);
+    K->out_w = pyarg_data(p, first + SK_W);
+    return 0;
+}
+
+static PyObject *py_swept_step(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("swept_step", SWEPT_STEP, SS_N);
+    Py_ssize_t n = ROWS(SS_X);
+    CHECK_ROWS(SS_PREV, n);
+    CHECK_ROWS(SS_V, n);
+    CHECK_ROWS(SS_HAS, 1);
+    CHECK_ROWS(SS_COUNTS, 2 * SWEPT_COUNTS);
+    if (pyarg_nrows(&s, SS_GPTR) < 1) {
+        PyErr_SetString(PyExc_ValueError, "group_ptr needs at least one entry (0)");
+        goto fail;
+    }
+    if (finite_param(s.v[SS_DT].d, "dt", 1) || finite_param(s.v[SS_TH].d, "thickness", 1)) goto fail;
+    tcc_swept sw;
+    memset(&sw, 0, sizeof sw);
+    if (swept_kind_from(&s, SS_VT, 1, &sw.kind[0]) || swept_kind_from(&s, SS_EE, 2, &sw.kind[1])) goto fail;
+    for (int k = 0; k < 2; k++) {
+        int a = SS_CAND + 2 * k;
+        if ((D(a) != NULL) != (D(a + 1) != NULL)) {
+            PyErr_SetString(PyExc_ValueError, "swept_step: a kind's handed_out and predicted_out go together");
             goto fail;
         }
-        CHECK_ROWS(CU_BVPTR, nb + 1);
-        CHECK_ROWS(CU_BMIN, nb);
-        CHECK_ROWS(CU_BDEBT, nb);
+        CHECK_ROWS(a, sw.kind[k].k);
+        CHECK_ROWS(a + 1, sw.kind[k].k);
+        sw.cand_out[k] = D(a);
+        sw.pcand_out[k] = D(a + 1);
+    }
+    if (pyarg_no_overlap(&s)) goto fail;
+    sw.x = D(SS_X);
+    sw.x_prev = D(SS_PREV);
+    sw.v = D(SS_V);
+    sw.n = n;
+    sw.dt = s.v[SS_DT].d;
+    sw.thickness = s.v[SS_TH].d;
+    sw.group_ptr = D(SS_GPTR);
+    sw.ngroups = ROWS(SS_GPTR) - 1;
+    sw.group_vertices = D(SS_GV);
+    sw.ngv = ROWS(SS_GV);
+    sw.has_ref = D(SS_HAS);
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_swept_step(&sw, &err));
+    if (rc == TCC_OK) {
+        tcc_idx *c = D(SS_COUNTS);
+        for (int k = 0; k < 2; k++, c += SWEPT_COUNTS) {
+            const tcc_swept_kind *K = &sw.kind[k];
+            tcc_idx v[SWEPT_COUNTS] = {K->nmem_out, K->nlive, K->npred, K->tested, K->crossed, K->remembered,
+                                       sw.ncand[k], sw.npcand[k], K->settled[0], K->settled[1],
+                                       K->settled[2], K->settled[3]};
+            memcpy(c, v, sizeof v);
+        }
+    }
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    Py_RETURN_NONE;
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+#define SWEPT_LIST_ROWS(p)                                                                                            \
+    ARR(p "quads", PA_I64, 0, 2, 4, 0), ARR(p "pairs", PA_I64, 0, 1, 0, 0), ARR(p "normal", PA_F64, 0, 2, 3, 0),       \
+        ARR(p "depth", PA_F64, 0, 1, 0, 0), ARR(p "weights", PA_F64, 0, 2, 3, 0), VAL(p "live", PA_SSIZE)
+enum { SL_Q, SL_PAIRS, SL_NORMAL, SL_DEPTH, SL_W, SL_LIVE, SL_N };
+
+static const pyarg_spec SWEPT_ROWS[] = {
+    SWEPT_LIST_ROWS("vt_"),
+    SWEPT_LIST_ROWS("ee_"),
+    ARR("velocity", PA_F64, OPT, 2, 3, 0),
+    VAL("n", PA_SSIZE),
+    ARR("vertex", PA_I32, 0, 1, 0, 0),
+    ARR("normal", PA_F64, 0, 2, 3, 0),
+    ARR("depth", PA_F64, 0, 1, 0, 0),
+    ARR("contact_velocity", PA_F64, 0, 2, 3, 0),
+    ARR("friction", PA_F64, 0, 1, 0, 0),
+    VAL("cloth_friction", PA_DOUBLE),
+    ARR("out_vertex", PA_I32, OUT, 1, 0, 0),
+    ARR("out_normal", PA_F64, OUT, 2, 3, 0),
+    ARR("out_depth", PA_F64, OUT, 1, 0, 0),
+    ARR("out_velocity", PA_F64, OUT, 2, 3, 0),
+    ARR("out_friction", PA_F64, OUT, 1, 0, 0),
+};
+enum { SR_VT, SR_EE = SR_VT + SL_N, SR_V = SR_EE + SL_N, SR_NV, SR_EV, SR_EN, SR_ED, SR_EVEL, SR_EF, SR_FRIC, SR_OV, SR_ON,
+       SR_OD, SR_OVEL, SR_OF, SR_N };
+
+static PyObject *py_swept_rows(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("swept_rows", SWEPT_ROWS, SR_N);
+    Py_ssize_t n = s.v[SR_NV].n, ne = ROWS(SR_EV), cap = ROWS(SR_OV);
+    CHECK_ROWS(SR_V, n);
+    CHECK_ROWS(SR_EN, ne);
+    CHECK_ROWS(SR_ED, ne);
+    CHECK_ROWS(SR_EVEL, ne);
+    CHECK_ROWS(SR_EF, ne);
+    CHECK_ROWS(SR_ON, cap);
+    CHECK_ROWS(SR_OD, cap);
+    CHECK_ROWS(SR_OVEL, cap);
+    CHECK_ROWS(SR_OF, cap);
+    if (n < 0) {
+        PyErr_SetString(PyExc_ValueError, "n must be a vertex count >= 0");
+        goto fail;
+    }
+    tcc_swept_kind kinds[2];
+    for (int k = 0; k < 2; k++) {
+        int a = k ? SR_EE : SR_VT;
+        Py_ssize_t m = ROWS(a + SL_PAIRS), live = s.v[a + SL_LIVE].n;
+        CHECK_ROWS(a + SL_NORMAL, m);
+        CHECK_ROWS(a + SL_DEPTH, m);
+        CHECK_ROWS(a + SL_W, m);
+        if (live < 0 || live > m) {
+            PyErr_Format(PyExc_ValueError, "%s must lie in [0, %zd]", s.spec[a + SL_LIVE].name, m);
+            goto fail;
+        }
+        memset(&kinds[k], 0, sizeof kinds[k]);
+        kinds[k].split = k ? 2 : 1;
+        kinds[k].quad = D(a + SL_Q);
+        kinds[k].k = ROWS(a + SL_Q);
+        kinds[k].out_q = D(a + SL_PAIRS);
+        kinds[k].out_normal = D(a + SL_NORMAL);
+        kinds[k].out_depth = D(a + SL_DEPTH);
+        kinds[k].out_w = D(a + SL_W);
+        kinds[k].nlive = live;
+        kinds[k].npred = m - live;
+    }
+    if (finite_param(s.v[SR_FRIC].d, "cloth_friction", 1)) goto fail;
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    tcc_idx count = 0, bad = 0;
+    int rc;
+    RUN(tcc_swept_rows(kinds, D(SR_V), n, D(SR_EV), D(SR_EN), D(SR_ED), D(SR_EVEL), D(SR_EF), ne, s.v[SR_FRIC].d,
+                       D(SR_OV), D(SR_ON), D(SR_OD), D(SR_OVEL), D(SR_OF), cap, &count, &bad, &err));
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return Py_BuildValue("LL", (long long)count, (long long)bad);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec SWEPT_PAIRS[] = {
+    ARR("triangles", PA_I64, 0, 2, 3, 0),
+    RING_ROW,
+    VAL("n", PA_SSIZE),
+    ARR("edges", PA_I64, OUT, 2, 2, 0),
+    ARR("vt", PA_I64, OUT, 2, 2, 0),
+    ARR("ee", PA_I64, OUT, 2, 2, 0),
+};
+enum { SP_T, SP_RING, SP_NV, SP_E, SP_VT, SP_EE, SP_N };
+
+static PyObject *py_swept_pairs(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("swept_pairs", SWEPT_PAIRS, SP_N);
+    Py_ssize_t n = s.v[SP_NV].n;
+    tcc_ring ring = ring_from(&s, SP_RING);
+    if (n < 0 || !ring.table) {
+        PyErr_SetString(PyExc_ValueError, "swept_pairs: n must be >= 0 and the ring table given");
+        goto fail;
     }
     if (pyarg_no_overlap(&s)) goto fail;
     tcc_error err = {0};
-    tcc_idx count = 0, count2 = 0;
+    tcc_idx ne = 0, nvt = 0, nee = 0;
     int rc;
-    if (blocks)
-        RUN(tcc_ccd_cull_blocks(D(CU_X), n, D(CU_Q), k, s.v[CU_SPLIT].i, D(CU_MOVE), D(CU_GAP), D(CU_SLACK),
-                                s.v[CU_UPD].i, D(CU_BPTR), nb, D(CU_BVPTR), D(CU_BV), ROWS(CU_BV), D(CU_BMIN),
-                                D(CU_BDEBT), D(CU_OUT), &count, D(CU_PRED), D(CU_PRED_OUT), &count2, &err));
-    else
-        RUN(tcc_ccd_cull(D(CU_X), n, D(CU_Q), k, s.v[CU_SPLIT].i, D(CU_MOVE), D(CU_GAP), D(CU_SLACK), s.v[CU_UPD].i,
-                         D(CU_OUT), &count, &err));
+    RUN(tcc_swept_pairs(D(SP_T), ROWS(SP_T), n, &ring, D(SP_E), ROWS(SP_E), D(SP_VT), ROWS(SP_VT), D(SP_EE), ROWS(SP_EE),
+                        &ne, &nvt, &nee, &err));
     pyarg_release(&s);
     if (rc) return kernel_error(&err);
-    if (pred) return Py_BuildValue("LL", (long long)count, (long long)count2);
-    return PyLong_FromLongLong(count);
+    return Py_BuildValue("LLL", (long long)ne, (long long)nvt, (long long)nee);
+fail:
+    pyarg_release(&s);
+    return NULL;
+}
+
+static const pyarg_spec SWEPT_BLOCKS[] = {
+    ARR("quads", PA_I64, 0, 2, 4, 0),
+    VAL("size", PA_SSIZE),
+    ARR("group", PA_I64, 0, 1, 0, 0),
+    ARR("block_ptr", PA_I64, OUT, 1, 0, 0),
+    ARR("block_vptr", PA_I64, OUT, 1, 0, 0),
+    ARR("block_vertices", PA_I64, OUT, 1, 0, 0),
+    ARR("block_gptr", PA_I64, OUT, 1, 0, 0),
+    ARR("block_groups", PA_I64, OUT, 1, 0, 0),
+};
+enum { SB_Q, SB_SIZE, SB_G, SB_PTR, SB_VPTR, SB_V, SB_GPTR, SB_GR, SB_N };
+
+static PyObject *py_swept_blocks(PyObject *self, PyObject *args, PyObject *kw)
+{
+    PARSE("swept_blocks", SWEPT_BLOCKS, SB_N);
+    Py_ssize_t k = ROWS(SB_Q), size = s.v[SB_SIZE].n;
+    if (size < 1) {
+        PyErr_SetString(PyExc_ValueError, "swept_blocks: size must be >= 1");
+        goto fail;
+    }
+    Py_ssize_t nb = (k + size - 1) / size;
+    CHECK_ROWS(SB_PTR, nb + 1);
+    CHECK_ROWS(SB_VPTR, nb + 1);
+    CHECK_ROWS(SB_GPTR, nb + 1);
+    CHECK_ROWS(SB_V, 4 * k);
+    CHECK_ROWS(SB_GR, 4 * k);
+    const tcc_idx *g = D(SB_G);
+    Py_ssize_t n = ROWS(SB_G);
+    for (Py_ssize_t v = 0; v < n; v++)
+        if (g[v] < 0) {
+            PyErr_Format(PyExc_ValueError, "swept_blocks: group[%zd] is negative", v);
+            goto fail;
+        }
+    if (pyarg_no_overlap(&s)) goto fail;
+    tcc_error err = {0};
+    int rc;
+    RUN(tcc_swept_blocks(D(SB_Q), k, size, g, n, D(SB_PTR), D(SB_VPTR), D(SB_V), D(SB_GPTR), D(SB_GR), &err));
+    tcc_idx nv = 0, ng = 0;
+    if (rc == TCC_OK) {
+        nv = ((tcc_idx *)D(SB_VPTR))[nb];
+        ng = ((tcc_idx *)D(SB_GPTR))[nb];
+    }
+    pyarg_release(&s);
+    if (rc) return kernel_error(&err);
+    return Py_BuildValue("LL", (long long)nv, (long long)ng);
 fail:
     pyarg_release(&s);
     return NULL;
@@ -1500,6 +2004,14 @@ static PyMethodDef methods[] = {
     KERNEL(relative_measure,
            "relative_measure(old_keys, old_avg, old_dev, i, j, avg_a, dev_a, avg_b, dev_b, force, threshold, keys, "
            "rel_avg, rel_dev, amplitude, full, lookahead=0) -> number of full pairs."),
+    KERNEL(cluster_state,
+           "cluster_state(positions, previous, order, ptr, box_index, box_ptr, inflate, avg, dev, lo, hi): "
+           "cluster_motion and cluster_boxes in one call."),
+    KERNEL(pair_step,
+           "pair_step(lo_a, hi_a, lo_b, hi_b, self_pairs, first, forced, avg_a, dev_a, avg_b, dev_b, old_keys, "
+           "old_avg, old_dev, threshold, lookahead, i, j, full, keys, rel_avg, rel_dev, amplitude) -> (pairs, full "
+           "pairs): a collider's close pairs, those forced to full detection, and with avg_a the relative measure's "
+           "update (measure.c tcc_pair_step); pairs > len(i): nothing else written, call again with more room."),
     KERNEL(cluster_fit,
            "cluster_fit(positions, previous, order, ptr, reach, fit): affine fit of each cluster's displacement, "
            "its largest residual and |L| (the trip rule, measure.c)."),
@@ -1558,15 +2070,6 @@ static PyMethodDef methods[] = {
            "ccd_edge_edge(start, end, edge_a, edge_b, gap, toi, params, side, pair_gap=None) -> hits: the earliest time in [0, 1] "
            "at which each pair of moving edges comes within gap, the closest points' parameters and the side of "
            "edge a from edge b before."),
-    KERNEL(ccd_cull,
-           "ccd_cull(positions, quads, split, displacement, gap, slack, update, out) -> count: the pairs that may "
-           "come within their gap over a motion of the given displacement per vertex (their indices into out), from a lower "
-           "bound slack of distance - gap carried per pair (updated and recomputed at positions with update). "
-           "block_ptr=None, block_vptr=None, block_vertices=None, block_min=None, block_debt=None: the same by "
-           "blocks of pairs, a block whose vertices moved less relative to each other than its bound allows is "
-           "skipped unread (ccd.c tcc_ccd_cull_blocks). predicted=None, predicted_out=None (with the blocks): a "
-           "second motion culled after the first without update, in the same pass; the result is then the pair "
-           "(count, predicted count)."),
     KERNEL(edge_edge_state,
            "edge_edge_state(positions, edge_a, edge_b, sd, dist, params, normal): signed distance along the unit "
            "common normal, distance and closest-point parameters of each edge pair."),
@@ -1588,6 +2091,37 @@ static PyMethodDef methods[] = {
            "impact_resolve(start, end, velocity, mass, rest, triangles, vertex_owner, edge_owner, node, prim, adjacency, "
            "flip, interior, vt_ptr, vt_tri, patch, loop, loop_off, dt, gap, rest_fraction, min_rest, impulse_passes, zone_passes) -> counts: the step's motion start -> end made free "
            "of self-crossings (impulses, rigid impact zones; impact.c), end and velocity corrected in place."),
+    KERNEL(detect,
+           "detect(positions, previous, velocity, triangles, vt_ptr, vt_tri, order, ptr, labels, normals, has_normal, "
+           "done, kind, target_vertices, target_triangles, adjacency, flip, target_previous, target_velocity, "
+           "tri_labels, box_lo, box_hi, ring, node_ptr, node, box, prim, corner, refit_step, step, "
+           "pair_i, "
+           "pair_j, full, track_key, track_tri, track_side, inside, thickness, track_range, ray_length, inflate, "
+           "backoff, first, out_key, out_tri, out_side, out_inside, contact_vertex, depth, normal, contact_velocity, "
+           "stats, times=None): one collider's step (detect.c): walks, full detection of the marked pairs in the "
+           "collider's trees, refinement, merge; stats (8,): tracks, inside, contacts, tracked, lost, full pairs, "
+           "rays, hits; times (4,): seconds of the walks, casts, refinement, merge."),
+    KERNEL(swept_pairs,
+           "swept_pairs(triangles, ring, n, edges, vt, ee) -> (edges, vt pairs, ee pairs): the swept stage's pairs of a "
+           "topology (swept.c tcc_swept_pairs), each list ascending; a list is written only when it fits: call again "
+           "with room for the counts."),
+    KERNEL(swept_blocks,
+           "swept_blocks(quads, size, group, block_ptr, block_vptr, block_vertices, block_gptr, block_groups) -> "
+           "(vertices, groups): the cull's blocks of `size` consecutive pairs, their vertices and groups ascending."),
+    KERNEL(swept_step,
+           "swept_step(positions, previous, velocity, dt, thickness, group_ptr, group_vertices, has_reference, "
+           "vt_* and ee_* (quads, gap, slack, block_ptr, block_vptr, block_vertices, block_state, block_reference, "
+           "block_gptr, block_groups, memory, memory_normal, memory_out, memory_normal_out, pairs_out, normal_out, "
+           "depth_out, weights_out), counts, vt_handed_out=None, vt_predicted_out=None, ee_handed_out=None, "
+           "ee_predicted_out=None): one step of the swept stage (swept.c): the cull, the swept tests, the "
+           "remembered crossings, and per kind the pairs that give contacts; counts (24,) per kind: memory, live, "
+           "predicted, tested, crossed, remembered, handed out (real, predicted), blocks settled by the bounds 1, 2, 3, "
+           "blocks read."),
+    KERNEL(swept_rows,
+           "swept_rows(vt_* and ee_* (quads, pairs, normal, depth, weights, live), velocity, n, vertex, normal, "
+           "depth, contact_velocity, friction, cloth_friction, out_vertex, out_normal, out_depth, out_velocity, "
+           "out_friction) -> (count, rows without a normal): the swept pairs' contact rows merged by vertex after "
+           "the colliders' contacts (written only when count fits the outputs)."),
     {NULL, NULL, 0, NULL},
 };
 

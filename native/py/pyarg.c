@@ -4,6 +4,7 @@
 #include "pyarg.h"
 
 #include <stdarg.h>
+#include <stdlib.h>
 #include <stdio.h>
 #include <string.h>
 
@@ -208,11 +209,17 @@ int pyarg_parse(pyarg_set *s, const char *fname, const pyarg_spec *spec, int n, 
     if (kw) {
         Py_ssize_t pos = 0;
         PyObject *key, *val;
+        int hint = 0; /* keywords usually come in table order: the search starts after the last match */
         while (PyDict_Next(kw, &pos, &key, &val)) {
             const char *k = PyUnicode_AsUTF8AndSize(key, NULL);
             if (!k) return -1;
-            int j = 0;
-            while (j < n && strcmp(spec[j].name, k) != 0) j++;
+            int j = hint, tried = 0;
+            while (tried < n && strcmp(spec[j].name, k) != 0) {
+                j = j + 1 < n ? j + 1 : 0;
+                tried++;
+            }
+            if (tried == n) j = n;
+            else hint = j + 1 < n ? j + 1 : 0;
             if (j == n) {
                 PyErr_Format(PyExc_TypeError, "%s() got an unexpected keyword argument '%s'", fname, k);
                 return -1;
@@ -251,22 +258,37 @@ int pyarg_rows(pyarg_set *s, int i, Py_ssize_t rows)
     return shape_error(sp, s->shape_error, &v->view, want);
 }
 
+typedef struct {
+    const char *lo, *hi;
+    int i;
+} span;
+
+static int by_start(const void *a, const void *b)
+{
+    const span *x = a, *y = b;
+    return x->lo < y->lo ? -1 : x->lo > y->lo;
+}
+
 int pyarg_no_overlap(const pyarg_set *s)
 {
+    /* the arguments' memory spans in address order: an output overlapping another argument overlaps
+     * one of the spans that start before it ends (tables of ~50 arrays: a sort, not all pairs) */
+    span sp[PYARG_MAX];
+    int m = 0;
     for (int i = 0; i < s->n; i++) {
         const pyarg_value *a = &s->v[i];
-        if (!a->held || !(s->spec[i].flags & PA_OUT) || a->view.len == 0) continue;
-        const char *a0 = a->view.buf, *a1 = a0 + a->view.len;
-        for (int j = 0; j < s->n; j++) {
-            const pyarg_value *b = &s->v[j];
-            if (j == i || !b->held || b->view.len == 0) continue;
-            const char *b0 = b->view.buf, *b1 = b0 + b->view.len;
-            if (a0 < b1 && b0 < a1) {
-                pyarg_error(PyExc_ValueError, "output %s shares memory with %s: pass separate arrays", s->spec[i].name,
-                            s->spec[j].name);
-                return -1;
-            }
-        }
+        if (!a->held || a->view.len == 0) continue;
+        sp[m++] = (span){a->view.buf, (const char *)a->view.buf + a->view.len, i};
     }
+    qsort(sp, (size_t)m, sizeof *sp, by_start);
+    for (int j = 0; j < m; j++)
+        for (int k = j + 1; k < m && sp[k].lo < sp[j].hi; k++) {
+            int a = sp[j].i, b = sp[k].i;
+            if (!(s->spec[a].flags & PA_OUT) && !(s->spec[b].flags & PA_OUT)) continue; /* inputs may share */
+            int out = (s->spec[a].flags & PA_OUT) ? a : b, other = out == a ? b : a;
+            pyarg_error(PyExc_ValueError, "output %s shares memory with %s: pass separate arrays", s->spec[out].name,
+                        s->spec[other].name);
+            return -1;
+        }
     return 0;
 }

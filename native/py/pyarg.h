@@ -54,7 +54,7 @@ typedef struct pyarg_value {
     Py_ssize_t n;        /* PA_SSIZE */
 } pyarg_value;
 
-#define PYARG_MAX 40
+#define PYARG_MAX 64
 
 typedef struct pyarg_set {
     const pyarg_spec *spec;

@@ -4,7 +4,9 @@
 # The core is every .c file of native/ except the Python bindings (pymodule.c, py/).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-out=${TMPDIR:-/tmp}/tearcloth_native_tests
+# one binary per run: several worktrees building at once into one path ran each other's binaries
+out=${TMPDIR:-/tmp}/tearcloth_native_tests.$$
+trap 'rm -f "$out" "$out.collide"' EXIT
 core=$(ls *.c | grep -v '^pymodule\.c$')
 # shellcheck disable=SC2086
 cc -std=c17 -g -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=all \

@@ -2,7 +2,7 @@
  * AddressSanitizer and UndefinedBehaviorSanitizer by native/tests/run_sanitizers.sh. A cloth grid
  * deforms step by step over a closed box body that moves; every step runs the per-step kernels a
  * detection runs (normals, cluster motion, boxes, pairs, the relative measure, rays,
- * refinement of candidate hits, walks), the grid is then "torn" (a row of vertices duplicated,
+ * refinement of candidate hits, walks, the swept stage), the grid is then "torn" (a row of vertices duplicated,
  * triangles re-indexed) and run again, and bad indices must come back as errors. Each check prints and counts; the exit code is the number of
  * failures. */
 #include "collide.h"
@@ -273,127 +273,6 @@ static void test_ccd(const mesh *m)
             CHECK(side[q] == 1, "side %d of a vertex coming from the normal's side", side[q]);
             CHECK(fabs(w[3 * q] - 1.0 / 3) < 1e-9 && fabs(w[3 * q + 1] - 1.0 / 3) < 1e-9, "weights %g %g", w[3 * q], w[3 * q + 1]);
         }
-    /* the carried distance bound (tcc_ccd_cull): unknown bounds hand every pair out and are made
-       exact at x1; then with no motion only the pairs within their gap come out again (the driven
-       vertex sits at the far triangle's centre - 1 cm below it); bad input is an error */
-    {
-        tcc_idx *quad = malloc(sizeof(tcc_idx) * 4 * (size_t)k), *out = malloc(sizeof(tcc_idx) * (size_t)k);
-        double *gapq = malloc(sizeof(double) * (size_t)k), *slack = malloc(sizeof(double) * (size_t)k);
-        double *disp = calloc(nx, sizeof(double));
-        for (tcc_idx q = 0; q < k; q++) {
-            quad[4 * q] = pv[q];
-            for (int j = 0; j < 3; j++) quad[4 * q + 1 + j] = m->tri[3 * pt[q] + j];
-            gapq[q] = 0.002;
-            slack[q] = -INFINITY;
-        }
-        for (int i = 0; i < 3; i++) disp[i] = x1[i] - x0[i];
-        tcc_idx nout = -1;
-        rc = tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, out, &nout, &err);
-        CHECK(rc == TCC_OK && nout == k, "unknown bounds: rc %d, %lld of %lld handed out", rc, (long long)nout, (long long)k);
-        int finite = 1;
-        for (tcc_idx q = 0; q < k; q++) finite &= isfinite(slack[q]);
-        CHECK(finite, "every bound made exact");
-        memset(disp, 0, sizeof(double) * nx);
-        rc = tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, out, &nout, &err);
-        tcc_idx close = 0;
-        for (tcc_idx q = 0; q < k; q++) close += slack[q] <= 0;
-        CHECK(rc == TCC_OK && nout == close && nout < k, "still: rc %d, %lld handed out, %lld within their gap of %lld",
-              rc, (long long)nout, (long long)close, (long long)k);
-        tcc_error c1 = {0}, c2 = {0}, c3 = {0};
-        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 3, disp, gapq, slack, 0, out, &nout, &c1) == TCC_ERR_VALUE, "split 3 is a value error");
-        disp[4] = NAN;
-        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, out, &nout, &c2) == TCC_ERR_VALUE, "a NaN displacement is a value error");
-        disp[4] = 0.0;
-        quad[4 * (k - 1) + 2] = m->nv;
-        CHECK(tcc_ccd_cull(x1, m->nv, quad, k, 2, disp, gapq, slack, 0, out, &nout, &c3) == TCC_ERR_INDEX, "a vertex out of range is an index error");
-        quad[4 * (k - 1) + 2] = m->tri[3 * pt[k - 1] + 1];
-        /* by blocks (tcc_ccd_cull_blocks) of 3 pairs, each with its pairs' corners: unknown bounds hand
-           every pair out; still, the same pairs as pairwise; a block moved rigidly is skipped unread
-           (its debt grows by 0, a corrupt quad in it goes unnoticed) while a block whose vertices move
-           apart is read; bad blocks are errors */
-        tcc_idx nb = (k + 2) / 3, *bptr = malloc(sizeof(tcc_idx) * (size_t)(nb + 1));
-        tcc_idx *bvptr = malloc(sizeof(tcc_idx) * (size_t)(nb + 1)), *bv = malloc(sizeof(tcc_idx) * 4 * (size_t)k);
-        double *bmin = malloc(sizeof(double) * (size_t)nb), *bdebt = calloc((size_t)nb, sizeof(double));
-        tcc_idx nbv = 0;
-        for (tcc_idx b = 0; b < nb; b++) {
-            bptr[b] = 3 * b;
-            bvptr[b] = nbv;
-            for (tcc_idx q = 3 * b; q < 3 * b + 3 && q < k; q++)
-                for (int j = 0; j < 4; j++) bv[nbv++] = quad[4 * q + j];  /* repeats are allowed */
-            bmin[b] = -INFINITY;
-        }
-        bptr[nb] = k;
-        bvptr[nb] = nbv;
-        for (tcc_idx q = 0; q < k; q++) slack[q] = -INFINITY;
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout == k, "blocks, unknown bounds: rc %d, %lld of %lld handed out", rc, (long long)nout, (long long)k);
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout == close, "blocks, still: rc %d, %lld handed out, %lld within their gap", rc,
-              (long long)nout, (long long)close);
-        tcc_idx open_blocks = 0;
-        for (tcc_idx b = 0; b < nb; b++) open_blocks += !(bmin[b] > 0);
-        CHECK(open_blocks < nb, "%lld of %lld blocks hold a pair within its gap: nothing to skip", (long long)open_blocks, (long long)nb);
-        for (tcc_idx v = 0; v < m->nv; v++) disp[3 * v] = 1e-3;  /* a rigid shift: no relative motion */
-        tcc_idx far_b = 0;
-        while (far_b < nb - 1 && !(bmin[far_b] > 1e-3)) far_b++;
-        CHECK(bmin[far_b] > 1e-3, "no block 1 mm clear of its gaps");
-        tcc_idx saved = quad[4 * bptr[far_b]];
-        quad[4 * bptr[far_b]] = m->nv;  /* read, this would be an index error */
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout == close && bdebt[far_b] == 0.0, "blocks, rigid shift: rc %d, %lld handed out, debt %g",
-              rc, (long long)nout, bdebt[far_b]);
-        quad[4 * bptr[far_b]] = saved;
-        double before = bmin[far_b];
-        for (tcc_idx v = 0; v < m->nv; v++) disp[3 * v] = 1e-4 * (double)(v % 2);  /* neighbours 0.1 mm apart */
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        CHECK(rc == TCC_OK && nout >= close && bmin[far_b] == before && bdebt[far_b] == 0.0,
-              "blocks, predicted (nothing carried): rc %d, %lld handed out", rc, (long long)nout);
-        rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                 &nout, NULL, NULL, NULL, &err);
-        int parity[2] = {0, 0};
-        for (tcc_idx i = bvptr[far_b]; i < bvptr[far_b + 1]; i++) parity[bv[i] % 2] = 1;
-        double want = (parity[0] && parity[1]) ? 1e-4 : 0.0;
-        CHECK(rc == TCC_OK && nout >= close && fabs(bdebt[far_b] - want) < 1e-12,
-              "blocks, relative motion charged as debt: rc %d, debt %g, want %g", rc, bdebt[far_b], want);
-        /* a second (predicted) motion in the same pass: the same as a second call without update */
-        {
-            double *slack2 = malloc(sizeof(double) * (size_t)k), *bmin2 = malloc(sizeof(double) * (size_t)nb);
-            double *bdebt2 = malloc(sizeof(double) * (size_t)nb), *pred = malloc(sizeof(double) * nx);
-            tcc_idx *outa = malloc(sizeof(tcc_idx) * (size_t)k), *outb = malloc(sizeof(tcc_idx) * (size_t)k);
-            tcc_idx *outc = malloc(sizeof(tcc_idx) * (size_t)k), na = 0, nb2 = 0, nc = 0;
-            memcpy(slack2, slack, sizeof(double) * (size_t)k);
-            memcpy(bmin2, bmin, sizeof(double) * (size_t)nb);
-            memcpy(bdebt2, bdebt, sizeof(double) * (size_t)nb);
-            for (size_t i = 0; i < nx; i++) pred[i] = 2e-2 * sin(0.7 * (double)i);  /* 2 cm: some blocks open */
-            rc = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 1, bptr, nb, bvptr, bv, nbv, bmin, bdebt,
-                                     out, &nout, pred, outa, &na, &err);
-            int rc2 = tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack2, 1, bptr, nb, bvptr, bv, nbv, bmin2,
-                                          bdebt2, outb, &nb2, NULL, NULL, NULL, &err);
-            rc2 |= tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, pred, gapq, slack2, 0, bptr, nb, bvptr, bv, nbv, bmin2,
-                                       bdebt2, outc, &nc, NULL, NULL, NULL, &err);
-            int same = rc == TCC_OK && rc2 == TCC_OK && nout == nb2 && na == nc && na > 0;
-            for (tcc_idx i = 0; same && i < nout; i++) same = out[i] == outb[i];
-            for (tcc_idx i = 0; same && i < na; i++) same = outa[i] == outc[i];
-            for (tcc_idx q = 0; same && q < k; q++) same = slack[q] == slack2[q];
-            CHECK(same, "blocks, predicted in the same pass: %lld / %lld and %lld / %lld handed out", (long long)nout,
-                  (long long)nb2, (long long)na, (long long)nc);
-            free(slack2); free(bmin2); free(bdebt2); free(pred); free(outa); free(outb); free(outc);
-        }
-        tcc_error c4 = {0}, c5 = {0};
-        bptr[nb] = k - 1;
-        CHECK(tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                  &nout, NULL, NULL, NULL, &c4) == TCC_ERR_VALUE, "blocks not covering the pairs are a value error");
-        bptr[nb] = k;
-        bv[nbv - 1] = -1;
-        CHECK(tcc_ccd_cull_blocks(x1, m->nv, quad, k, 1, disp, gapq, slack, 0, bptr, nb, bvptr, bv, nbv, bmin, bdebt, out,
-                                  &nout, NULL, NULL, NULL, &c5) == TCC_ERR_INDEX, "a block vertex out of range is an index error");
-        free(bptr); free(bvptr); free(bv); free(bmin); free(bdebt);
-        free(quad); free(out); free(gapq); free(slack); free(disp);
-    }
     /* edge (0, 1), across an edge of the far triangle, driven along the normal through it */
     tcc_idx ea[2] = {0, 1}, eb[2] = {m->tri[3 * far], m->tri[3 * far + 2]};
     const double *pa = m->x + 3 * eb[0], *pb = m->x + 3 * eb[1];
@@ -451,6 +330,363 @@ static void test_ccd(const mesh *m)
     free(x0); free(x1); free(pv); free(pt); free(toi); free(w); free(side);
 }
 
+/* The swept stage's step (swept.c) on the grid's pairs near each other (vertex-triangle: a vertex and
+ * a triangle two rows over; edge-edge: parallel edges a row apart), in blocks of 8 pairs: over steps
+ * that turn the grid, jitter it, shift it and now and then throw one vertex through a triangle, every
+ * pair the exact swept test hits over the real motion (gap 0 and its gap) and over the prediction is
+ * among those the cull handed out; a vertex driven through a triangle is remembered and gives four
+ * contact rows, merged by vertex; quiet steps settle most blocks without reading them; bad input is
+ * an error. */
+typedef struct {
+    tcc_idx *quad, k, nb, nbv, nbg, *bptr, *bvptr, *bv, *bgptr, *bg, *mem, *memo, *outq, *cand, *pcand;
+    double *gap, *slack, *bstate, *bref, *memn, *memno, *outn, *outd, *outw;
+} swept_kind_arrays;
+
+static int cmp_idx(const void *a, const void *b)
+{
+    tcc_idx x = *(const tcc_idx *)a, y = *(const tcc_idx *)b;
+    return x < y ? -1 : x > y;
+}
+
+/* pairs of kind split over the grid m, blocks of 8, groups of 16 vertex ids */
+static void swept_arrays(const mesh *m, int split, swept_kind_arrays *A)
+{
+    tcc_idx cap = 2 * m->nt + 2 * m->nv;
+    A->quad = malloc(sizeof(tcc_idx) * 4 * cap);
+    A->k = 0;
+    if (split == 1) {
+        for (tcc_idx f = 0; f < m->nt; f++) {
+            const tcc_idx *t = m->tri + 3 * f;
+            tcc_idx v = t[0] + 2 < m->nv ? t[0] + 2 : t[0] - 2; /* two rows over in the column */
+            if (v == t[0] || v == t[1] || v == t[2]) continue;
+            tcc_idx *q = A->quad + 4 * A->k++;
+            q[0] = v; q[1] = t[0]; q[2] = t[1]; q[3] = t[2];
+        }
+    } else {
+        for (tcc_idx f = 0; f < m->nt; f++) {
+            const tcc_idx *t = m->tri + 3 * f;
+            tcc_idx a = t[0], b = t[1], c = t[1] + 1 < m->nv ? t[1] + 1 : t[1], d = t[2] + 1 < m->nv ? t[2] + 1 : t[2];
+            if (a == c || a == d || b == c || b == d || c == d) continue;
+            tcc_idx *q = A->quad + 4 * A->k++;
+            q[0] = a; q[1] = b; q[2] = c; q[3] = d;
+        }
+    }
+    A->nb = (A->k + 7) / 8;
+    A->bptr = malloc(sizeof(tcc_idx) * (A->nb + 1));
+    A->bvptr = malloc(sizeof(tcc_idx) * (A->nb + 1));
+    A->bgptr = malloc(sizeof(tcc_idx) * (A->nb + 1));
+    A->bv = malloc(sizeof(tcc_idx) * 32 * A->nb);
+    A->bg = malloc(sizeof(tcc_idx) * 32 * A->nb);
+    A->nbv = A->nbg = 0;
+    for (tcc_idx b = 0; b < A->nb; b++) {
+        A->bptr[b] = 8 * b;
+        A->bvptr[b] = A->nbv;
+        A->bgptr[b] = A->nbg;
+        tcc_idx e = 8 * b + 8 < A->k ? 8 * b + 8 : A->k, start = A->nbv;
+        for (tcc_idx q = 8 * b; q < e; q++)
+            for (int j = 0; j < 4; j++) A->bv[A->nbv++] = A->quad[4 * q + j];
+        qsort(A->bv + start, (size_t)(A->nbv - start), sizeof(tcc_idx), cmp_idx);
+        tcc_idx u = start;
+        for (tcc_idx i = start; i < A->nbv; i++)
+            if (i == start || A->bv[i] != A->bv[u - 1]) A->bv[u++] = A->bv[i];
+        A->nbv = u;
+        for (tcc_idx i = start; i < u; i++) {
+            tcc_idx g = A->bv[i] / 16;
+            if (A->nbg == A->bgptr[b] || A->bg[A->nbg - 1] != g) A->bg[A->nbg++] = g;
+        }
+    }
+    A->bptr[A->nb] = A->k;
+    A->bvptr[A->nb] = A->nbv;
+    A->bgptr[A->nb] = A->nbg;
+    A->gap = malloc(sizeof(double) * A->k);
+    A->slack = malloc(sizeof(double) * A->k);
+    for (tcc_idx q = 0; q < A->k; q++) {
+        A->gap[q] = 0.001;
+        A->slack[q] = -INFINITY;
+    }
+    A->bstate = malloc(sizeof(double) * 2 * A->nb);
+    for (tcc_idx b = 0; b < A->nb; b++) {
+        A->bstate[2 * b] = -INFINITY;
+        A->bstate[2 * b + 1] = 0.0;
+    }
+    A->bref = malloc(sizeof(double) * 3 * A->nbv);
+    A->mem = malloc(sizeof(tcc_idx) * A->k);
+    A->memo = malloc(sizeof(tcc_idx) * A->k);
+    A->outq = malloc(sizeof(tcc_idx) * A->k);
+    A->cand = malloc(sizeof(tcc_idx) * A->k);
+    A->pcand = malloc(sizeof(tcc_idx) * A->k);
+    A->memn = malloc(sizeof(double) * 3 * A->k);
+    A->memno = malloc(sizeof(double) * 3 * A->k);
+    A->outn = malloc(sizeof(double) * 3 * A->k);
+    A->outd = malloc(sizeof(double) * A->k);
+    A->outw = malloc(sizeof(double) * 3 * A->k);
+}
+
+static void swept_free(swept_kind_arrays *A)
+{
+    free(A->quad); free(A->bptr); free(A->bvptr); free(A->bgptr); free(A->bv); free(A->bg); free(A->gap);
+    free(A->slack); free(A->bstate); free(A->bref); free(A->mem); free(A->memo); free(A->outq); free(A->cand);
+    free(A->pcand); free(A->memn); free(A->memno); free(A->outn); free(A->outd); free(A->outw);
+}
+
+static void swept_bind(swept_kind_arrays *A, int split, tcc_idx nmem, tcc_swept_kind *K)
+{
+    memset(K, 0, sizeof *K);
+    K->split = split;
+    K->quad = A->quad; K->k = A->k; K->gap = A->gap; K->slack = A->slack;
+    K->bptr = A->bptr; K->bvptr = A->bvptr; K->bverts = A->bv; K->bgptr = A->bgptr; K->bgroups = A->bg;
+    K->nb = A->nb; K->nbv = A->nbv; K->nbg = A->nbg; K->bstate = A->bstate; K->bref = A->bref;
+    K->mem = A->mem; K->mem_n = A->memn; K->nmem = nmem; K->mem_out = A->memo; K->mem_n_out = A->memno;
+    K->out_q = A->outq; K->out_normal = A->outn; K->out_depth = A->outd; K->out_w = A->outw;
+}
+
+static int handed(const tcc_idx *l, tcc_idx n, tcc_idx q)
+{
+    for (tcc_idx i = 0; i < n; i++)
+        if (l[i] == q) return 1;
+    return 0;
+}
+
+static void test_swept_step(const mesh *m)
+{
+    tcc_idx n = m->nv, ng = (n + 15) / 16;
+    double *x0 = malloc(sizeof(double) * 3 * n), *xp = malloc(sizeof(double) * 3 * n);
+    double *x = malloc(sizeof(double) * 3 * n), *v = malloc(sizeof(double) * 3 * n), *x1 = malloc(sizeof(double) * 3 * n);
+    memcpy(x0, m->x, sizeof(double) * 3 * n);
+    memcpy(xp, m->x, sizeof(double) * 3 * n);
+    tcc_idx *gptr = malloc(sizeof(tcc_idx) * (ng + 1)), *gv = malloc(sizeof(tcc_idx) * n);
+    for (tcc_idx g = 0; g <= ng; g++) gptr[g] = 16 * g < n ? 16 * g : n;
+    for (tcc_idx i = 0; i < n; i++) gv[i] = i;
+    swept_kind_arrays A[2];
+    swept_arrays(m, 1, &A[0]);
+    swept_arrays(m, 2, &A[1]);
+    CHECK(A[0].k > 100 && A[1].k > 100, "swept pairs: %lld vertex-triangle, %lld edge-edge", (long long)A[0].k,
+          (long long)A[1].k);
+    tcc_idx nmem[2] = {0, 0}, missed = 0, hits = 0, quiet_blocks = 0, quiet_settled = 0, remembered_rows = 0;
+    uint8_t has_ref = 0;
+    double dt = 1e-3, ang = 0.0;
+    unsigned seed = 12345;
+    tcc_error err = {0};
+    for (int step = 0; step < 60; step++) {
+        int violent = step >= 20 && step < 35;
+        ang += 0.002;
+        double c = cos(ang), sn = sin(ang);
+        for (tcc_idx i = 0; i < n; i++) {
+            const double *p = x0 + 3 * i;
+            double j[3];
+            for (int a = 0; a < 3; a++) {
+                seed = seed * 1103515245u + 12345u;
+                j[a] = ((double)(seed >> 8) / 16777216.0 - 0.5) * (violent ? 4e-3 : 2e-5);
+            }
+            x[3 * i] = c * p[0] - sn * p[1] + 0.001 * step + j[0];
+            x[3 * i + 1] = sn * p[0] + c * p[1] + j[1];
+            x[3 * i + 2] = p[2] + j[2];
+            for (int a = 0; a < 3; a++) v[3 * i + a] = (x[3 * i + a] - xp[3 * i + a]) / dt;
+        }
+        if (step == 39 || step == 40) { /* one vertex thrown through its pair's triangle (3 mm each side) */
+            const tcc_idx *q = A[0].quad + 4 * (A[0].k / 2);
+            double cen[3] = {0, 0, 0};
+            for (int j = 1; j < 4; j++)
+                for (int a = 0; a < 3; a++) cen[a] += x[3 * q[j] + a] / 3.0;
+            for (int a = 0; a < 3; a++) x[3 * q[0] + a] = cen[a] + (a == 2 ? (step == 39 ? 0.003 : -0.003) : 0.0);
+        }
+        tcc_swept s;
+        memset(&s, 0, sizeof s);
+        s.x = x; s.x_prev = step ? xp : NULL; s.v = v; s.n = n; s.dt = dt; s.thickness = 0.004;
+        s.group_ptr = gptr; s.group_vertices = gv; s.ngroups = ng; s.ngv = n; s.has_ref = &has_ref;
+        for (int k = 0; k < 2; k++) {
+            swept_bind(&A[k], k + 1, nmem[k], &s.kind[k]);
+            s.cand_out[k] = A[k].cand;
+            s.pcand_out[k] = A[k].pcand;
+        }
+        int rc = tcc_swept_step(&s, &err);
+        CHECK(rc == TCC_OK, "swept step %d: %s", step, err.what);
+        if (rc) break;
+        for (tcc_idx i = 0; i < 3 * n; i++) x1[i] = x[i] + dt * v[i];
+        /* every pair the exact tests hit was handed out */
+        for (int k = 0; k < 2; k++) {
+            for (tcc_idx q = 0; q < A[k].k; q++) {
+                const tcc_idx *id = A[k].quad + 4 * q;
+                const double *P0[4], *P1[4], *P2[4];
+                for (int j = 0; j < 4; j++) {
+                    P0[j] = xp + 3 * id[j];
+                    P1[j] = x + 3 * id[j];
+                    P2[j] = x1 + 3 * id[j];
+                }
+                double toi, w[3];
+                int8_t side;
+                int real = step > 0 && (k ? tcc_ee_sweep(P0, P1, A[k].gap[q], &toi, w, &side)
+                                          : tcc_vt_sweep(P0, P1, A[k].gap[q], &toi, w, &side));
+                int pred = k ? tcc_ee_sweep(P1, P2, A[k].gap[q], &toi, w, &side)
+                             : tcc_vt_sweep(P1, P2, A[k].gap[q], &toi, w, &side);
+                hits += real + pred;
+                missed += (real && !handed(A[k].cand, s.ncand[k], q)) || (pred && !handed(A[k].pcand, s.npcand[k], q));
+            }
+            if (step >= 5 && step < 20) {
+                quiet_blocks += A[k].nb;
+                quiet_settled += s.kind[k].settled[0] + s.kind[k].settled[1];
+            }
+            /* the memory carries to the next step */
+            nmem[k] = s.kind[k].nmem_out;
+            memcpy(A[k].mem, A[k].memo, sizeof(tcc_idx) * (size_t)nmem[k]);
+            memcpy(A[k].memn, A[k].memno, sizeof(double) * 3 * (size_t)nmem[k]);
+        }
+        if (step == 40) {
+            CHECK(s.kind[0].crossed >= 1 && s.kind[0].nlive >= 1, "the thrown vertex is remembered: %lld crossed, %lld live",
+                  (long long)s.kind[0].crossed, (long long)s.kind[0].nlive);
+            /* its rows, merged after one collider contact of vertex 0 */
+            tcc_idx rows = 4 * (s.kind[0].nlive + s.kind[0].npred + s.kind[1].nlive + s.kind[1].npred), count = 0, bad = 0;
+            int32_t ev = 0, *ov = malloc(sizeof(int32_t) * (rows + 1));
+            double en[3] = {0, 0, 1}, ed = 0.001, evel[3] = {0, 0, 0}, ef = 0.3;
+            double *on = malloc(sizeof(double) * 3 * (rows + 1)), *od = malloc(sizeof(double) * (rows + 1));
+            double *ovel = malloc(sizeof(double) * 3 * (rows + 1)), *of = malloc(sizeof(double) * (rows + 1));
+            rc = tcc_swept_rows(s.kind, v, n, &ev, en, &ed, evel, &ef, 1, 0.5, ov, on, od, ovel, of, rows + 1, &count,
+                                &bad, &err);
+            int sorted = 1;
+            for (tcc_idx i = 1; i < count; i++) sorted &= ov[i] >= ov[i - 1];
+            CHECK(rc == TCC_OK && count == 1 + rows - bad && sorted && ov[0] == 0 && od[0] == 0.001,
+                  "swept rows: rc %d, %lld of %lld rows, sorted %d", rc, (long long)count, (long long)rows, sorted);
+            remembered_rows = rows;
+            tcc_idx small = 0;
+            CHECK(tcc_swept_rows(s.kind, v, n, &ev, en, &ed, evel, &ef, 1, 0.5, ov, on, od, ovel, of, 0, &small, &bad,
+                                 &err) == TCC_OK && small == count, "rows without room: only counted");
+            free(ov); free(on); free(od); free(ovel); free(of);
+        }
+        memcpy(xp, x, sizeof(double) * 3 * n);
+    }
+    CHECK(missed == 0 && hits > 0, "swept cull: %lld pairs hit but not handed out (of %lld hits)", (long long)missed,
+          (long long)hits);
+    CHECK(remembered_rows >= 4, "the remembered pair gives rows");
+    CHECK(quiet_settled > quiet_blocks / 2, "quiet steps: %lld of %lld blocks settled unread", (long long)quiet_settled,
+          (long long)quiet_blocks);
+    /* bad input: errors, never reads out of bounds */
+    {
+        tcc_swept s;
+        memset(&s, 0, sizeof s);
+        s.x = x; s.x_prev = xp; s.v = v; s.n = n; s.dt = dt; s.thickness = 0.004;
+        s.group_ptr = gptr; s.group_vertices = gv; s.ngroups = ng; s.ngv = n; s.has_ref = &has_ref;
+        for (int k = 0; k < 2; k++) swept_bind(&A[k], k + 1, 0, &s.kind[k]);
+        tcc_error e1 = {0}, e2 = {0}, e3 = {0}, e4 = {0}, e5 = {0};
+        gv[3] = n;
+        CHECK(tcc_swept_step(&s, &e1) == TCC_ERR_INDEX, "a group vertex out of range is an index error");
+        gv[3] = 3;
+        A[0].mem[0] = A[0].k;
+        s.kind[0].nmem = 1;
+        CHECK(tcc_swept_step(&s, &e2) == TCC_ERR_INDEX, "a remembered pair out of range is an index error");
+        s.kind[0].nmem = 0;
+        x[5] = NAN;
+        CHECK(tcc_swept_step(&s, &e3) == TCC_ERR_VALUE, "a NaN position is a value error");
+        x[5] = 0.0;
+        tcc_idx keep = A[1].bptr[A[1].nb];
+        A[1].bptr[A[1].nb] = keep - 1;
+        CHECK(tcc_swept_step(&s, &e4) == TCC_ERR_VALUE, "blocks not covering the pairs are a value error");
+        A[1].bptr[A[1].nb] = keep;
+        /* a pair whose corner is not among its block's vertices, read (every bound unknown) */
+        for (tcc_idx b = 0; b < A[0].nb; b++) A[0].bstate[2 * b] = -INFINITY;
+        tcc_idx saved = A[0].quad[1];
+        A[0].quad[1] = A[0].quad[4 * (A[0].k - 1) + 1] == saved ? A[0].quad[4 * (A[0].k - 1) + 2] : A[0].quad[4 * (A[0].k - 1) + 1];
+        int rc5 = tcc_swept_step(&s, &e5);
+        CHECK(rc5 == TCC_ERR_VALUE || rc5 == TCC_ERR_INDEX, "a pair outside its block's vertices is an error (rc %d)", rc5);
+        A[0].quad[1] = saved;
+    }
+    swept_free(&A[0]);
+    swept_free(&A[1]);
+    free(x0); free(xp); free(x); free(v); free(x1); free(gptr); free(gv);
+}
+
+/* The swept stage's pairs and blocks of a topology (swept.c tcc_swept_pairs, tcc_swept_blocks) on the
+ * grid, before and after the tear: every list ascending and once per pair, each vertex-triangle
+ * pair's vertex in the ring of a corner and not a corner, edge pairs sharing no vertex, every block
+ * holding its pairs' corners (ascending) and their groups; too little room only counts; bad indices
+ * are errors. */
+static void test_swept_build(const mesh *m)
+{
+    enum { W = 16 };
+    tcc_idx n = m->nv, nt = m->nt;
+    tcc_idx *table = malloc(sizeof(tcc_idx) * W * n);
+    for (tcc_idx i = 0; i < W * n; i++) table[i] = -1;
+    for (tcc_idx v = 0; v < n; v++) table[W * v] = v;
+    for (tcc_idx f = 0; f < nt; f++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) {
+                tcc_idx *row = table + W * m->tri[3 * f + a], vb = m->tri[3 * f + b];
+                for (int w = 0; w < W; w++) {
+                    if (row[w] == vb) break;
+                    if (row[w] < 0) { row[w] = vb; break; }
+                }
+            }
+    tcc_ring ring = {table, n, W};
+    tcc_idx ne = 0, nvt = 0, nee = 0;
+    tcc_error err = {0};
+    int rc = tcc_swept_pairs(m->tri, nt, n, &ring, NULL, 0, NULL, 0, NULL, 0, &ne, &nvt, &nee, &err);
+    CHECK(rc == TCC_OK && ne > 0 && nvt == 0 && nee == 0, "no room: the edges counted (%lld), nothing else", (long long)ne);
+    tcc_idx *edges = malloc(sizeof(tcc_idx) * 2 * ne);
+    rc = tcc_swept_pairs(m->tri, nt, n, &ring, edges, ne, NULL, 0, NULL, 0, &ne, &nvt, &nee, &err);
+    CHECK(rc == TCC_OK && nvt > 0 && nee > 0, "counts: %lld vt, %lld ee", (long long)nvt, (long long)nee);
+    tcc_idx *vt = malloc(sizeof(tcc_idx) * 2 * nvt), *ee = malloc(sizeof(tcc_idx) * 2 * nee);
+    rc = tcc_swept_pairs(m->tri, nt, n, &ring, edges, ne, vt, nvt, ee, nee, &ne, &nvt, &nee, &err);
+    CHECK(rc == TCC_OK, "swept pairs: %s", err.what);
+    int bad = 0;
+    for (tcc_idx i = 0; i < ne; i++)
+        bad += !(edges[2 * i] < edges[2 * i + 1] &&
+                 (i == 0 || edges[2 * i] > edges[2 * i - 2] || (edges[2 * i] == edges[2 * i - 2] && edges[2 * i + 1] > edges[2 * i - 1])));
+    CHECK(bad == 0, "edges ascending, once each: %d bad", bad);
+    bad = 0;
+    for (tcc_idx i = 0; i < nvt; i++) {
+        tcc_idx u = vt[2 * i], t = vt[2 * i + 1];
+        const tcc_idx *c = m->tri + 3 * t;
+        int in_ring = 0;
+        for (int k = 0; k < 3; k++)
+            for (int w = 0; w < W; w++) in_ring |= table[W * c[k] + w] == u;
+        bad += !(in_ring && u != c[0] && u != c[1] && u != c[2] &&
+                 (i == 0 || u > vt[2 * i - 2] || (u == vt[2 * i - 2] && t > vt[2 * i - 1])));
+    }
+    CHECK(bad == 0, "vertex-triangle pairs: %d bad of %lld", bad, (long long)nvt);
+    bad = 0;
+    for (tcc_idx i = 0; i < nee; i++) {
+        tcc_idx a = ee[2 * i], b = ee[2 * i + 1];
+        const tcc_idx *ea = edges + 2 * a, *eb = edges + 2 * b;
+        bad += !(a < b && ea[0] != eb[0] && ea[0] != eb[1] && ea[1] != eb[0] && ea[1] != eb[1] &&
+                 (i == 0 || a > ee[2 * i - 2] || (a == ee[2 * i - 2] && b > ee[2 * i - 1])));
+    }
+    CHECK(bad == 0, "edge-edge pairs: %d bad of %lld", bad, (long long)nee);
+    /* blocks of 7 edge pairs over groups of 10 vertex ids */
+    tcc_idx k = nee, *quad = malloc(sizeof(tcc_idx) * 4 * k), *group = malloc(sizeof(tcc_idx) * n);
+    for (tcc_idx i = 0; i < k; i++) {
+        quad[4 * i] = edges[2 * ee[2 * i]];
+        quad[4 * i + 1] = edges[2 * ee[2 * i] + 1];
+        quad[4 * i + 2] = edges[2 * ee[2 * i + 1]];
+        quad[4 * i + 3] = edges[2 * ee[2 * i + 1] + 1];
+    }
+    for (tcc_idx v = 0; v < n; v++) group[v] = v / 10;
+    tcc_idx nb = (k + 6) / 7, *bptr = malloc(sizeof(tcc_idx) * (nb + 1)), *bvptr = malloc(sizeof(tcc_idx) * (nb + 1));
+    tcc_idx *bgptr = malloc(sizeof(tcc_idx) * (nb + 1)), *bv = malloc(sizeof(tcc_idx) * 4 * k), *bg = malloc(sizeof(tcc_idx) * 4 * k);
+    rc = tcc_swept_blocks(quad, k, 7, group, n, bptr, bvptr, bv, bgptr, bg, &err);
+    CHECK(rc == TCC_OK && bptr[nb] == k, "swept blocks: %s", err.what);
+    bad = 0;
+    for (tcc_idx b = 0; b < nb && rc == TCC_OK; b++) {
+        for (tcc_idx i = bvptr[b] + 1; i < bvptr[b + 1]; i++) bad += bv[i] <= bv[i - 1];
+        for (tcc_idx i = bgptr[b] + 1; i < bgptr[b + 1]; i++) bad += bg[i] <= bg[i - 1];
+        for (tcc_idx q = bptr[b]; q < bptr[b + 1]; q++)
+            for (int j = 0; j < 4; j++) {
+                int found = 0, gfound = 0;
+                for (tcc_idx i = bvptr[b]; i < bvptr[b + 1]; i++) found |= bv[i] == quad[4 * q + j];
+                for (tcc_idx i = bgptr[b]; i < bgptr[b + 1]; i++) gfound |= bg[i] == group[quad[4 * q + j]];
+                bad += !found || !gfound;
+            }
+    }
+    CHECK(bad == 0, "blocks hold their pairs' corners and groups, ascending: %d bad", bad);
+    tcc_error e1 = {0}, e2 = {0};
+    quad[5] = n;
+    CHECK(tcc_swept_blocks(quad, k, 7, group, n, bptr, bvptr, bv, bgptr, bg, &e1) == TCC_ERR_INDEX,
+          "a pair's vertex out of range is an index error");
+    table[3] = n;
+    CHECK(tcc_swept_pairs(m->tri, nt, n, &ring, edges, ne, vt, nvt, ee, nee, &ne, &nvt, &nee, &e2) == TCC_ERR_INDEX,
+          "a ring entry out of range is an index error");
+    free(table); free(edges); free(vt); free(ee); free(quad); free(group); free(bptr); free(bvptr); free(bgptr);
+    free(bv); free(bg);
+}
+
 /* The cloth's BVHs (bvh.c): the grid wrapped around a cylinder that breathes and wobbles, so its
  * vertices' inward rays cross to the far side; every step the trees are refitted (never rebuilt)
  * and each ray's first hit in every cluster must equal a brute-force test of the cluster's
@@ -504,12 +740,14 @@ static void test_bvh(mesh *m)
     int rc = tcc_bvh_build(&tm, tptr, stri, nt, K, node_ptr, node, box, 2 * nt, prim, &nnodes, &err);
     CHECK(rc == TCC_OK && nnodes > K && nnodes <= 2 * nt, "bvh build: rc %d (%s), %lld nodes", rc, err.what,
           (long long)nnodes);
-    tcc_bvh b = {node_ptr, K, node, box, nnodes, prim, nt};
+    double *corner = malloc(sizeof(double) * 9 * nt);
+    tcc_bvh b = {node_ptr, K, node, box, nnodes, prim, nt, corner};
     tcc_idx stamp[K];
     for (int c = 0; c < K; c++) stamp[c] = -1;
     tcc_idx *rv = malloc(sizeof(tcc_idx) * 2 * nv * K), *rs = malloc(sizeof(tcc_idx) * 2 * nv * K);
     tcc_idx *ht = malloc(sizeof(tcc_idx) * 2 * nv * K);
-    int compared = 0, found = 0, mismatched = 0;
+    int compared = 0, found = 0, mismatched = 0, line_compared = 0, line_mismatched = 0, blocked_mismatched = 0,
+        blocked_any = 0;
     for (int step = 0; step < 4; step++) {
         /* wrap x onto 1.7 pi of a cylinder of radius 0.1 + 0.01 step, wobbling in y */
         double R = 0.1 + 0.01 * step;
@@ -548,6 +786,27 @@ static void test_bvh(mesh *m)
                     found += h.tri >= 0;
                     if (rc != TCC_OK || (h.tri >= 0) != isfinite(ref) || (h.tri >= 0 && fabs(h.t - ref) > 1e-12))
                         mismatched++;
+                    /* both rays in one traversal (tcc_bvh_line): slot `slot` of the line along +n */
+                    double n0[3] = {nrm[3 * v], nrm[3 * v + 1], nrm[3 * v + 2]}, w0 = 0.5, w1 = -0.5;
+                    tcc_idx lt[2] = {-1, -1};
+                    tcc_bvh_line(&tm, &b, c, m->x + 3 * v, n0, 1 << slot, 0.0, &w0, &w1, &ring, v, lt);
+                    double lref = slot ? -w1 : w0;
+                    line_compared++;
+                    if ((lt[slot] >= 0) != isfinite(ref) || (lt[slot] >= 0 && fabs(lref - ref) > 1e-12)) line_mismatched++;
+                    /* blocked: whether another triangle is hit within 0.5 m (its ring not skipped) */
+                    double stop = 0.5; /* anything hit, other than the first hit, within 0.5 m */
+                    int blk = tcc_bvh_blocked(&b, c, m->x + 3 * v, d, -1e-9, stop, lt[slot]);
+                    int want = 0;
+                    for (tcc_idx f = tptr[c]; f < tptr[c + 1] && !want; f++) {
+                        if (stri[f] == lt[slot]) continue;
+                        const tcc_idx *tv = m->tri + 3 * stri[f];
+                        double tt, uu, ww;
+                        if (!tcc_line_triangle(m->x + 3 * v, d, m->x + 3 * tv[0], m->x + 3 * tv[1], m->x + 3 * tv[2], &tt, &uu, &ww))
+                            continue;
+                        want = uu >= 0 && ww >= 0 && uu + ww <= 1 && tt >= -1e-9 && tt < stop;
+                    }
+                    blocked_mismatched += blk != want;
+                    blocked_any += want;
                 }
         /* the step's self detection: every cluster pair, one call */
         tcc_idx pa[K * K], pb[K * K], np = 0;
@@ -578,6 +837,13 @@ static void test_bvh(mesh *m)
     }
     CHECK(mismatched == 0 && found > compared / 20, "bvh first hits vs brute force: %d of %d differ (%d hits)",
           mismatched, compared, found);
+    CHECK(line_mismatched == 0 && line_compared == compared, "bvh line hits vs brute force: %d of %d differ",
+          line_mismatched, line_compared);
+    CHECK(blocked_mismatched == 0 && blocked_any > 0, "bvh blocked vs brute force: %d differ (%d blocked)",
+          blocked_mismatched, blocked_any);
+    /* a checked tree reads no index out of range; a corrupt one is an error */
+    tcc_error e6 = {0};
+    CHECK(tcc_bvh_check(&tm, &b, 0, &e6) == TCC_OK, "a built tree checks: %s", e6.what);
     /* bad trees and indices are errors, never reads out of bounds */
     tcc_hit h;
     tcc_error e1 = {0}, e2 = {0}, e3 = {0}, e4 = {0}, e5 = {0};
@@ -590,6 +856,8 @@ static void test_bvh(mesh *m)
     keep = prim[0];
     prim[0] = nt;
     CHECK(tcc_bvh_refit(&tm, &b, 0, &e3) == TCC_ERR_INDEX, "a leaf triangle out of range is an index error");
+    tcc_error e7 = {0};
+    CHECK(tcc_bvh_check(&tm, &b, 0, &e7) == TCC_ERR_INDEX, "a checked leaf triangle out of range is an index error");
     prim[0] = keep;
     tcc_idx bad_pair = K, zero_pair = 0;
     tcc_ray_setup setup = {m->x, nrm, has, NULL, nv, order, ptr, nv, K, box, box, K, 0.5, 0.5, 0.0, 0.0};
@@ -600,7 +868,307 @@ static void test_bvh(mesh *m)
           "a node array without room for 2 rows per triangle is a value error");
     memcpy(m->x, x0, sizeof(double) * 3 * nv);
     free(x0); free(nrm); free(has); free(order); free(stri); free(prim); free(node); free(box); free(table);
-    free(rv); free(rs); free(ht);
+    free(rv); free(rs); free(ht); free(corner);
+}
+
+/* A collider's step in one call (detect.c, with measure.c's cluster_state and pair_step): the grid
+ * deforming over a closed box that rises through it, and against itself; tracks and measures carried
+ * from step to step as the Python detector carries them. Every contact is a vertex with a normal,
+ * tracks stay sorted, a vertex the box swallowed is inside with a contact deeper than the thickness,
+ * and every full-detection hit is the nearest of the line among the tripped clusters' triangles
+ * (brute force); bad input is an error. */
+static void build_scene_tree(const tcc_mesh *tm, tcc_idx k, const tcc_idx *tptr, const tcc_idx *tord, tcc_idx **node_ptr,
+                             tcc_idx **node, double **box, tcc_idx **prim, double **corner, tcc_idx *nnodes)
+{
+    tcc_idx rows = tptr[k];
+    *node_ptr = malloc(sizeof(tcc_idx) * (k + 1));
+    *node = malloc(sizeof(tcc_idx) * 4 * (rows + 1));
+    *box = malloc(sizeof(double) * 12 * (rows + 1));
+    *prim = malloc(sizeof(tcc_idx) * (rows + 1));
+    *corner = malloc(sizeof(double) * 9 * (rows + 1));
+    tcc_error err = {0};
+    int rc = tcc_bvh_build(tm, tptr, tord, rows, k, *node_ptr, *node, *box, 2 * rows, *prim, nnodes, &err);
+    CHECK(rc == TCC_OK, "scene tree: %s", err.what);
+}
+
+static void test_detect_pipeline(mesh *m)
+{
+    enum { K = 6, KB = 2, W = 16 };
+    const double th = 0.004, tr = th + 1.5 * 0.003, inflate = 0.5 * (0.003 + th), bo = 1e-6;
+    tcc_idx n = m->nv, nt = m->nt;
+    /* the cloth: strips of rows, vertex -> triangles, labels, its trees over its own triangles */
+    tcc_idx *order = malloc(sizeof(tcc_idx) * n), ptr[K + 1], tptr[K + 1], *labels = malloc(sizeof(tcc_idx) * n);
+    strips(n, nt, K, order, ptr, tptr);
+    for (int c = 0; c < K; c++)
+        for (tcc_idx i = ptr[c]; i < ptr[c + 1]; i++) labels[order[i]] = c;
+    tcc_idx *tlab = malloc(sizeof(tcc_idx) * nt), *tord = malloc(sizeof(tcc_idx) * nt), tp2[K + 1] = {0};
+    for (tcc_idx f = 0; f < nt; f++) tlab[f] = labels[m->tri[3 * f]];
+    for (tcc_idx f = 0; f < nt; f++) tp2[tlab[f] + 1]++;
+    for (int c = 0; c < K; c++) tp2[c + 1] += tp2[c];
+    {
+        tcc_idx fill[K];
+        for (int c = 0; c < K; c++) fill[c] = tp2[c];
+        for (tcc_idx f = 0; f < nt; f++) tord[fill[tlab[f]]++] = f;
+    }
+    tcc_idx *vt_ptr = calloc(n + 1, sizeof(tcc_idx)), *vt_tri = malloc(sizeof(tcc_idx) * 3 * nt);
+    for (tcc_idx i = 0; i < 3 * nt; i++) vt_ptr[m->tri[i] + 1]++;
+    for (tcc_idx v = 0; v < n; v++) vt_ptr[v + 1] += vt_ptr[v];
+    {
+        tcc_idx *fill = malloc(sizeof(tcc_idx) * n);
+        memcpy(fill, vt_ptr, sizeof(tcc_idx) * n);
+        for (tcc_idx i = 0; i < 3 * nt; i++) vt_tri[fill[m->tri[i]]++] = i / 3;
+        free(fill);
+    }
+    tcc_idx *bindex = malloc(sizeof(tcc_idx) * (n + 3 * nt)), bptr_c[K + 1]; /* box members: own vertices, triangles' */
+    {
+        tcc_idx q = 0;
+        for (int c = 0; c < K; c++) {
+            bptr_c[c] = q;
+            for (tcc_idx i = ptr[c]; i < ptr[c + 1]; i++) bindex[q++] = order[i];
+            for (tcc_idx f = tp2[c]; f < tp2[c + 1]; f++)
+                for (int k = 0; k < 3; k++) bindex[q++] = m->tri[3 * tord[f] + k];
+        }
+        bptr_c[K] = q;
+    }
+    tcc_idx *adj = malloc(sizeof(tcc_idx) * 3 * nt);
+    uint8_t *flip = calloc(3 * nt, 1);
+    for (tcc_idx f = 0; f < nt; f++)
+        for (int e = 0; e < 3; e++) {
+            tcc_idx a = m->tri[3 * f + e], b = m->tri[3 * f + (e + 1) % 3];
+            adj[3 * f + e] = -1;
+            for (tcc_idx g = 0; g < nt && adj[3 * f + e] < 0; g++) {
+                if (g == f) continue;
+                for (int h = 0; h < 3; h++) {
+                    tcc_idx c = m->tri[3 * g + h], d = m->tri[3 * g + (h + 1) % 3];
+                    if ((c == a && d == b) || (c == b && d == a)) {
+                        adj[3 * f + e] = g;
+                        flip[3 * f + e] = c == a;
+                    }
+                }
+            }
+        }
+    tcc_idx *table = malloc(sizeof(tcc_idx) * W * n);
+    for (tcc_idx i = 0; i < W * n; i++) table[i] = -1;
+    for (tcc_idx v = 0; v < n; v++) table[W * v] = v;
+    for (tcc_idx f = 0; f < nt; f++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) {
+                tcc_idx *row = table + W * m->tri[3 * f + a], vb = m->tri[3 * f + b];
+                for (int w = 0; w < W; w++) {
+                    if (row[w] == vb) break;
+                    if (row[w] < 0) { row[w] = vb; break; }
+                }
+            }
+    tcc_mesh cm = {m->x, n, m->tri, nt, adj, flip};
+    tcc_idx *cnp, *cnode, *cprim, cnn = 0;
+    double *cbox, *ccorner;
+    build_scene_tree(&cm, K, tp2, tord, &cnp, &cnode, &cbox, &cprim, &ccorner, &cnn);
+    /* the body: a closed box, its 12 triangles in 2 clusters */
+    double bx[24], bprev[24], bvel[24] = {0};
+    box_at(bx, 0.0, 0.0, -0.2);
+    memcpy(bprev, bx, sizeof bx);
+    tcc_idx btlab[12], btord[12], btp[KB + 1] = {0, 6, 12}, border[8] = {0, 1, 2, 3, 4, 5, 6, 7}, bvp[KB + 1] = {0, 4, 8};
+    for (int f = 0; f < 12; f++) { btlab[f] = f / 6; btord[f] = f; }
+    tcc_idx bbi[8 + 36], bbp[KB + 1];
+    {
+        tcc_idx q = 0;
+        for (int c = 0; c < KB; c++) {
+            bbp[c] = q;
+            for (int v = 4 * c; v < 4 * c + 4; v++) bbi[q++] = v;
+            for (int f = 6 * c; f < 6 * c + 6; f++)
+                for (int k = 0; k < 3; k++) bbi[q++] = BOX_T[3 * f + k];
+        }
+        bbp[KB] = q;
+    }
+    tcc_idx badj[36];
+    uint8_t bflip[36] = {0};
+    for (int f = 0; f < 12; f++)
+        for (int e = 0; e < 3; e++) {
+            tcc_idx a = BOX_T[3 * f + e], b = BOX_T[3 * f + (e + 1) % 3];
+            badj[3 * f + e] = -1;
+            for (int g = 0; g < 12; g++)
+                for (int h = 0; h < 3; h++)
+                    if (g != f && BOX_T[3 * g + h] == b && BOX_T[3 * g + (h + 1) % 3] == a) badj[3 * f + e] = g;
+        }
+    tcc_mesh bm = {bx, 8, BOX_T, 12, badj, bflip};
+    tcc_idx *bnp, *bnode, *bprim, bnn = 0;
+    double *bbox, *bcorner;
+    build_scene_tree(&bm, KB, btp, btord, &bnp, &bnode, &bbox, &bprim, &bcorner, &bnn);
+    /* state carried from step to step */
+    double *prev = malloc(sizeof(double) * 3 * n), *normals = malloc(sizeof(double) * 3 * n);
+    uint8_t *has = calloc(n, 1), *done = calloc(n, 1);
+    memcpy(prev, m->x, sizeof(double) * 3 * n);
+    tcc_idx crefit[K], brefit[KB];
+    for (int c = 0; c < K; c++) crefit[c] = -1;
+    for (int c = 0; c < KB; c++) brefit[c] = -1;
+    struct target_state {
+        tcc_idx *key, *tri, *inside, kt, ni, *okey, *otri, *oin;
+        int8_t *side, *oside;
+        tcc_idx *keys;
+        double *ravg, *rdev;
+        tcc_idx nold;
+    } st[2];
+    for (int k = 0; k < 2; k++) {
+        st[k].key = malloc(sizeof(tcc_idx) * 2 * n); st[k].tri = malloc(sizeof(tcc_idx) * 2 * n);
+        st[k].side = malloc(2 * n); st[k].inside = malloc(sizeof(tcc_idx) * n);
+        st[k].okey = malloc(sizeof(tcc_idx) * 2 * n); st[k].otri = malloc(sizeof(tcc_idx) * 2 * n);
+        st[k].oside = malloc(2 * n); st[k].oin = malloc(sizeof(tcc_idx) * n);
+        st[k].keys = malloc(sizeof(tcc_idx) * K * K); st[k].ravg = malloc(sizeof(double) * 3 * K * K);
+        st[k].rdev = malloc(sizeof(double) * K * K);
+        st[k].kt = st[k].ni = st[k].nold = 0;
+    }
+    tcc_idx *cv = malloc(sizeof(tcc_idx) * n);
+    double *depth = malloc(sizeof(double) * n), *cn = malloc(sizeof(double) * 3 * n), *cvel = malloc(sizeof(double) * 3 * n);
+    int inside_seen = 0, contacts_seen = 0, bad_contacts = 0, unsorted = 0, full_seen = 0, nearest_bad = 0, hits_seen = 0;
+    tcc_error err = {0};
+    for (int step = 0; step < 30; step++) {
+        box_at(bx, 0.0, 0.0, -0.2 + 0.008 * step); /* rises through the cloth at 8 mm per step */
+        for (int i = 0; i < 24; i++) bvel[i] = (bx[i] - bprev[i]) / 1e-3;
+        for (tcc_idx v = 0; v < n; v++) m->x[3 * v + 2] = 0.003 * sin(8.0 * m->x[3 * v] + 0.5 * step);
+        double cavg[3 * K], cdev[K], clo[3 * K], chi[3 * K], bavg[3 * KB], bdev[KB], blo[3 * KB], bhi[3 * KB];
+        CHECK(tcc_cluster_state(m->x, prev, n, order, n, ptr, K, bindex, bptr_c[K], bptr_c, inflate, cavg, cdev, clo, chi,
+                                &err) == TCC_OK, "cloth state: %s", err.what);
+        CHECK(tcc_cluster_state(bx, bprev, 8, border, 8, bvp, KB, bbi, bbp[KB], bbp, inflate, bavg, bdev, blo, bhi, &err) ==
+                  TCC_OK, "body state: %s", err.what);
+        memset(done, 0, (size_t)n);
+        for (int k = 0; k < 2; k++) {
+            int self = k == 1;
+            tcc_idx pi[K * K], pj[K * K], np_ = 0, nfull = 0, keys[K * K];
+            double ravg[3 * K * K], rdev[K * K], amp[K * K];
+            uint8_t full[K * K];
+            tcc_pair_step_in ps = {clo, chi, self ? clo : blo, self ? chi : bhi, K, self ? K : KB, self, step == 0,
+                                   NULL, 0, cavg, cdev, self ? cavg : bavg, self ? cdev : bdev, st[k].keys, st[k].ravg,
+                                   st[k].rdev, st[k].nold, 0.0015, 3.0};
+            CHECK(tcc_pair_step(&ps, K * K, pi, pj, full, keys, ravg, rdev, amp, &np_, &nfull, &err) == TCC_OK,
+                  "pair step: %s", err.what);
+            memcpy(st[k].keys, keys, sizeof(tcc_idx) * np_);
+            memcpy(st[k].ravg, ravg, sizeof(double) * 3 * np_);
+            memcpy(st[k].rdev, rdev, sizeof(double) * np_);
+            st[k].nold = np_;
+            tcc_detect_in in;
+            memset(&in, 0, sizeof in);
+            in.x = m->x; in.x_prev = prev; in.velocity = NULL; in.n = n; in.tri = m->tri; in.nt = nt;
+            in.vt_ptr = vt_ptr; in.vt_tri = vt_tri; in.nvt = 3 * nt; in.order = order; in.ptr = ptr; in.labels = labels;
+            in.norder = n; in.kc = K; in.normals = normals; in.has_normal = has; in.done = done;
+            in.kind = self ? TCC_SELF : TCC_VOLUME;
+            if (self) {
+                in.target = cm; in.target_prev = prev; in.tri_labels = tlab; in.kb = K; in.box_lo = clo;
+                in.box_hi = chi;
+                in.ring = (tcc_ring){table, n, W};
+                in.bvh = (tcc_bvh){cnp, K, cnode, cbox, cnn, cprim, nt, ccorner};
+                in.refit_step = crefit;
+            } else {
+                in.target = bm; in.target_prev = bprev; in.target_velocity = bvel; in.tri_labels = btlab;
+                in.kb = KB; in.box_lo = blo; in.box_hi = bhi;
+                in.bvh = (tcc_bvh){bnp, KB, bnode, bbox, bnn, bprim, 12, bcorner};
+                in.refit_step = brefit;
+            }
+            in.step = step; in.pi = pi; in.pj = pj; in.full = full; in.np = np_;
+            in.track_key = st[k].key; in.track_tri = st[k].tri; in.track_side = st[k].side; in.kt = st[k].kt;
+            in.inside = st[k].inside; in.ninside = self ? 0 : st[k].ni;
+            in.thickness = th; in.track_range = tr; in.ray_length = tr; in.inflate = inflate; in.backoff = bo;
+            in.first = step == 0;
+            tcc_merge_out out = {st[k].okey, st[k].otri, st[k].oside, 0, st[k].oin, 0, cv, depth, cn, cvel, 0};
+            tcc_detect_stats ds;
+            int rc = tcc_detect(&in, &out, &ds, &err);
+            CHECK(rc == TCC_OK, "step %d %s: %s", step, self ? "self" : "body", err.what);
+            if (rc) continue;
+            full_seen += ds.full_pairs > 0;
+            hits_seen += (int)ds.hits;
+            for (tcc_idx i = 0; i < out.ncontacts; i++) {
+                double l = sqrt(cn[3 * i] * cn[3 * i] + cn[3 * i + 1] * cn[3 * i + 1] + cn[3 * i + 2] * cn[3 * i + 2]);
+                bad_contacts += !(depth[i] > 0 && isfinite(depth[i]) && fabs(l - 1.0) < 1e-9 && cv[i] >= 0 && cv[i] < n &&
+                                  (i == 0 || cv[i] > cv[i - 1]));
+            }
+            for (tcc_idx i = 1; i < out.ntracks; i++) unsorted += st[k].okey[i] <= st[k].okey[i - 1];
+            contacts_seen += (int)out.ncontacts;
+            if (!self) {
+                inside_seen += (int)out.ninside;
+                /* a vertex inside the box has a contact deeper than the thickness */
+                for (tcc_idx i = 0; i < out.ninside; i++) {
+                    tcc_idx v = st[k].oin[i], j = 0;
+                    while (j < out.ncontacts && cv[j] != v) j++;
+                    bad_contacts += !(j < out.ncontacts && depth[j] > th);
+                }
+            }
+            /* every tracked hit of a full pair's vertex is no farther than the nearest triangle of the
+             * collider along its line (brute force over all of the collider's triangles, within the
+             * track range: the track can only be nearer, or an untripped cluster's) */
+            for (tcc_idx i = 0; i < out.ntracks && !self; i++) {
+                tcc_idx v = st[k].okey[i] >> 1, slot = st[k].okey[i] & 1, f = st[k].otri[i];
+                double sg = slot ? -1.0 : 1.0, d[3] = {normals[3 * v] * sg, normals[3 * v + 1] * sg, normals[3 * v + 2] * sg};
+                double t, u, w;
+                const tcc_idx *tv = BOX_T + 3 * f;
+                nearest_bad += !(f >= 0 && f < 12 &&
+                                 tcc_line_triangle(m->x + 3 * v, d, bx + 3 * tv[0], bx + 3 * tv[1], bx + 3 * tv[2], &t, &u, &w));
+            }
+            st[k].kt = out.ntracks;
+            memcpy(st[k].key, st[k].okey, sizeof(tcc_idx) * out.ntracks);
+            memcpy(st[k].tri, st[k].otri, sizeof(tcc_idx) * out.ntracks);
+            memcpy(st[k].side, st[k].oside, (size_t)out.ntracks);
+            if (!self) {
+                st[k].ni = out.ninside;
+                memcpy(st[k].inside, st[k].oin, sizeof(tcc_idx) * out.ninside);
+            }
+        }
+        memcpy(prev, m->x, sizeof(double) * 3 * n);
+        memcpy(bprev, bx, sizeof bx);
+    }
+    CHECK(full_seen > 0 && hits_seen > 0 && contacts_seen > 0, "full detection ran and found contacts (%d, %d, %d)",
+          full_seen, hits_seen, contacts_seen);
+    CHECK(inside_seen > 0, "the rising box swallowed cloth vertices");
+    CHECK(bad_contacts == 0 && unsorted == 0 && nearest_bad == 0, "contacts %d bad, tracks %d unsorted, %d tracks off their triangles",
+          bad_contacts, unsorted, nearest_bad);
+    /* bad input: errors, never reads out of bounds */
+    {
+        tcc_idx pi[1] = {K / 2}, pj[1] = {KB}, key[2] = {4, 2}, tri[2] = {0, 0};
+        double blo2[3 * KB], bhi2[3 * KB], bavg2[3 * KB], bdev2[KB];
+        box_at(bx, 0.0, 0.0, 0.0); /* around the cloth's middle: its rays reach the box */
+        tcc_cluster_state(bx, bprev, 8, border, 8, bvp, KB, bbi, bbp[KB], bbp, inflate, bavg2, bdev2, blo2, bhi2, &err);
+        int8_t side[2] = {1, 1};
+        uint8_t full[1] = {1};
+        tcc_detect_in in;
+        memset(&in, 0, sizeof in);
+        in.x = m->x; in.x_prev = prev; in.n = n; in.tri = m->tri; in.nt = nt; in.vt_ptr = vt_ptr; in.vt_tri = vt_tri;
+        in.nvt = 3 * nt; in.order = order; in.ptr = ptr; in.labels = labels; in.norder = n; in.kc = K;
+        in.normals = normals; in.has_normal = has; in.done = done; in.kind = TCC_VOLUME; in.target = bm;
+        in.target_prev = bprev; in.tri_labels = btlab; in.kb = KB; in.box_lo = blo2; in.box_hi = bhi2; in.bvh = (tcc_bvh){bnp, KB, bnode, bbox, bnn, bprim, 12, bcorner};
+        in.refit_step = brefit; in.step = 99; in.pi = pi; in.pj = pj; in.full = full; in.np = 1;
+        in.thickness = th; in.track_range = tr; in.ray_length = tr; in.inflate = inflate; in.backoff = bo;
+        tcc_merge_out out = {st[0].okey, st[0].otri, st[0].oside, 0, st[0].oin, 0, cv, depth, cn, cvel, 0};
+        tcc_detect_stats ds;
+        tcc_error e1 = {0}, e2 = {0}, e3 = {0}, e4 = {0};
+        CHECK(tcc_detect(&in, &out, &ds, &e1) == TCC_ERR_VALUE, "a pair's collider cluster out of range is an error");
+        pj[0] = 0;
+        in.track_key = key; in.track_tri = tri; in.track_side = side; in.kt = 2;
+        CHECK(tcc_detect(&in, &out, &ds, &e2) == TCC_ERR_VALUE, "unsorted track keys are an error");
+        in.kt = 0;
+        in.kind = 7;
+        CHECK(tcc_detect(&in, &out, &ds, &e3) == TCC_ERR_VALUE, "an unknown kind is an error");
+        in.kind = TCC_VOLUME;
+        tcc_error e5 = {0}, e6 = {0};
+        labels[0] = K;
+        CHECK(tcc_detect(&in, &out, &ds, &e5) == TCC_ERR_INDEX, "a cloth label out of range is an index error");
+        labels[0] = 0;
+        btlab[3] = KB;
+        CHECK(tcc_detect(&in, &out, &ds, &e6) == TCC_ERR_INDEX, "a collider triangle's cluster out of range is an index error");
+        btlab[3] = 0;
+        tcc_idx keepn = bnode[2 * bnp[0]];
+        bnode[2 * bnp[0]] = bnp[0]; /* the root its own child */
+        brefit[0] = brefit[1] = -1;
+        memset(done, 0, (size_t)n);
+        int rc4 = tcc_detect(&in, &out, &ds, &e4);
+        CHECK(rc4 == TCC_ERR_INDEX, "a corrupt tree is an index error (rc %d: %s)", rc4, e4.what);
+        bnode[2 * bnp[0]] = keepn;
+    }
+    for (tcc_idx v = 0; v < n; v++) m->x[3 * v + 2] = 0.0;
+    for (int k = 0; k < 2; k++) {
+        free(st[k].key); free(st[k].tri); free(st[k].side); free(st[k].inside); free(st[k].okey); free(st[k].otri);
+        free(st[k].oside); free(st[k].oin); free(st[k].keys); free(st[k].ravg); free(st[k].rdev);
+    }
+    free(order); free(labels); free(tlab); free(tord); free(vt_ptr); free(vt_tri); free(bindex); free(adj); free(flip);
+    free(table); free(cnp); free(cnode); free(cbox); free(cprim); free(ccorner); free(bnp); free(bnode); free(bbox);
+    free(bprim); free(bcorner); free(prev); free(normals); free(has); free(done); free(cv); free(depth); free(cn); free(cvel);
 }
 
 /* ------------------------------------------------------------------ the impact guard (impact.c) */
@@ -890,12 +1458,18 @@ int main(void)
     mesh m = grid();
     test_measure_and_detection_steps(&m);
     test_ccd(&m);
+    test_swept_step(&m);
+    test_swept_build(&m);
     test_bvh(&m);
     test_impact(&m, 0);
+    test_detect_pipeline(&m);
     tear(&m);
     test_measure_and_detection_steps(&m);
+    test_swept_step(&m);
+    test_swept_build(&m);
     test_bvh(&m);
     test_impact(&m, 1);
+    test_detect_pipeline(&m);
     free(m.x);
     free(m.tri);
     printf("collide: %d checks, %d failures\n", checks, failures);
