@@ -214,7 +214,9 @@ def test_simulation_stall_zeroes_the_force_within_the_stall_timeout(servo):
         time.sleep(timeout + 0.1)  # the caller stops stepping
         for hand, stamp in stamps.items():
             t, f = live.force_log.series(hand)
-            assert np.abs(f[(t > stamp - 0.05) & (t < stamp)]).max() > 0.0  # force was on
+            # force was on while the caller stepped (a window of the whole pull, not only the last
+            # 50 ms: on a loaded machine one late step may already have stalled the servo there)
+            assert np.abs(f[(t > stamp - 0.4) & (t < stamp)]).max() > 0.0
             late = t >= stamp + timeout - period  # the servo clock's own guarantee
             assert late.sum() >= 20 and not np.abs(f[late]).any()
         resumed = time.perf_counter()
