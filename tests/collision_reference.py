@@ -333,21 +333,8 @@ class ReferenceDetector(CollisionDetector):
         that stage only catches crossings after the fact).
         """
         t_start = time.perf_counter()
-        pos = np.ascontiguousarray(positions, np.float64)
-        tri = np.ascontiguousarray(triangles, np.int64)
-        if self.cloth is None or tri.shape != self.cloth.triangles.shape or pos.shape != self.cloth.vertices.shape:
-            self.set_cloth(pos, tri)
+        pos, step = self._begin_step(positions, triangles, velocities)
         cloth = self.cloth
-        cloth.vertices = pos
-        if velocities is None:
-            cloth.velocities = None
-        else:
-            vel = np.ascontiguousarray(velocities, np.float64)
-            if vel.shape != pos.shape:
-                raise ValueError(f"velocities must have the shape of positions {pos.shape}, got {vel.shape}")
-            cloth.velocities = vel
-        self._step += 1
-        step = self._step
         lazy = _Normals(cloth, pos)
         normals, has_normal = lazy.normals, lazy.has_normal
 
@@ -624,48 +611,6 @@ class ReferenceDetector(CollisionDetector):
         lo = target.vertices.min(axis=0)
         hi = target.vertices.max(axis=0)
         return float(np.linalg.norm(hi - lo))
-
-    def _merge_and_classify(self, plan, pos, normals):
-        """Merge walked tracks with new hits (nearest per vertex and slot), classify (C), store the
-        tracks for the next step. Returns this collider's deepest contact per vertex, sorted by
-        vertex: (vertex, depth, normal, velocity, friction)."""
-        name, target = plan.name, plan.target
-        tracks = self._tracks[name]
-        if tracks.key.size == 0 and plan.found is None:
-            # nothing tracked, nothing found: no tracks, nobody inside, no contact
-            tracks.inside = kernels.EMPTY_I64
-            return kernels.EMPTY_I64, None, None, None, target.friction
-        is_self = name == "__self__"
-        r_w = plan.walked
-        if plan.found is not None:
-            v_f, s_f, r_f, st = plan.found
-        else:
-            v_f = s_f = kernels.EMPTY_I64
-            r_f, st = kernels.NO_HITS, None
-        cap = tracks.key.size + v_f.size
-        okey, otri, oin, cv = np.empty((4, cap), np.int64)
-        oside = np.empty(cap, np.int8)
-        depth = np.empty(cap)
-        normal, velocity = np.empty((2, cap, 3))
-        cloth_vel = self.cloth.velocities
-        nt, ni, nc = _collide.merge_classify(
-            positions=pos, normals=normals, previous=self._cloth_prev, velocity=cloth_vel,
-            target_vertices=target.vertices, target_triangles=target.triangles,
-            target_previous=self._cloth_prev if is_self else target.measured,
-            target_velocity=cloth_vel if is_self else target.velocities,
-            kind=kernels.KIND["self" if is_self else target.kind], first=self._first,
-            thickness=self.thickness, track_range=self.track_range,
-            track_key=tracks.key, track_tri=tracks.tri, track_side=tracks.side,
-            walked_tri=r_w.tri, walked_t=r_w.t, walked_u=r_w.u, walked_v=r_w.v, walked_flips=r_w.flips,
-            found_vertex=v_f, found_slot=s_f, found_tri=r_f.tri, found_t=r_f.t, found_u=r_f.u, found_v=r_f.v,
-            found_flips=r_f.flips, found_status=None if st is None else st.view(bool),
-            out_key=okey, out_tri=otri, out_side=oside, out_inside=oin,
-            contact_vertex=cv, depth=depth, normal=normal, contact_velocity=velocity,
-        )
-        tracks.key, tracks.tri, tracks.side = okey[:nt], otri[:nt], oside[:nt]
-        if target.kind == "volume" and not is_self:
-            tracks.inside = oin[:ni]
-        return cv[:nc], depth[:nc], normal[:nc], velocity[:nc], target.friction
 
     def _merge_and_classify(self, plan, pos, normals):
         """Merge walked tracks with new hits (nearest per vertex and slot), classify (C), store the

@@ -520,6 +520,24 @@ class CollisionDetector:
         return True
 
     # ------------------------------------------------------------------ detection
+    def _begin_step(self, positions, triangles, velocities):
+        """The step's input taken in (the cloth re-set when its shape changed): returns the
+        positions as float64 (n,3) m and the new step's number."""
+        pos = np.ascontiguousarray(positions, np.float64)
+        tri = np.ascontiguousarray(triangles, np.int64)
+        if self.cloth is None or tri.shape != self.cloth.triangles.shape or pos.shape != self.cloth.vertices.shape:
+            self.set_cloth(pos, tri)
+        self.cloth.vertices = pos
+        if velocities is None:
+            self.cloth.velocities = None
+        else:
+            vel = np.ascontiguousarray(velocities, np.float64)
+            if vel.shape != pos.shape:
+                raise ValueError(f"velocities must have the shape of positions {pos.shape}, got {vel.shape}")
+            self.cloth.velocities = vel
+        self._step += 1
+        return pos, self._step
+
     def detect(self, positions, triangles, velocities=None, dt=None):
         """Contacts of the cloth at ``positions`` (n,3) m with ``triangles`` (m,3).
 
@@ -529,21 +547,8 @@ class CollisionDetector:
         that stage only catches crossings after the fact).
         """
         t_start = time.perf_counter()
-        pos = np.ascontiguousarray(positions, np.float64)
-        tri = np.ascontiguousarray(triangles, np.int64)
-        if self.cloth is None or tri.shape != self.cloth.triangles.shape or pos.shape != self.cloth.vertices.shape:
-            self.set_cloth(pos, tri)
+        pos, step = self._begin_step(positions, triangles, velocities)
         cloth = self.cloth
-        cloth.vertices = pos
-        if velocities is None:
-            cloth.velocities = None
-        else:
-            vel = np.ascontiguousarray(velocities, np.float64)
-            if vel.shape != pos.shape:
-                raise ValueError(f"velocities must have the shape of positions {pos.shape}, got {vel.shape}")
-            cloth.velocities = vel
-        self._step += 1
-        step = self._step
         ws = self._workspace(pos.shape[0])
 
         # 1. measure ---------------------------------------------------------------

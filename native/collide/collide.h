@@ -75,6 +75,12 @@ static inline int tcc_ring_excludes(const tcc_ring *ring, tcc_idx v, const tcc_i
  * triangle. has_normal may be NULL. */
 int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, tcc_error *err);
 
+/* The normal of vertex v alone, summed from its incident triangles vt_tri[vt_ptr[v] .. vt_ptr[v+1]]
+ * in that order (zero, has_normal 0, for a vertex without area): the one sum both the cluster pass
+ * below and the detector's per-vertex need use, so their normals agree bit for bit. */
+int tcc_vertex_normal(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx *vt_tri, tcc_idx nvt, tcc_idx v,
+                      double *normals, uint8_t *has_normal, tcc_error *err);
+
 /* The same normals for the vertices of the listed clusters only (members order[ptr[c]..ptr[c+1]]
  * of each c in clusters[0..q)), each summed from its incident triangles vt_tri[vt_ptr[v] ..
  * vt_ptr[v+1]] in ascending order: bit for bit what tcc_vertex_normals gives. Other rows are not

@@ -69,40 +69,14 @@ static void hits_free(hit_list *l)
 }
 
 /* The cloth's normal of vertex v, if this step has not computed it yet: summed from its incident
- * triangles in vt_tri's order, as tcc_cluster_normals does (bit for bit the same). A step needs the
+ * triangles in vt_tri's order by tcc_vertex_normal, as tcc_cluster_normals does. A step needs the
  * normals of the vertices it walks or casts rays from, often a few hundred of thousands. */
 static int need_normal(const tcc_detect_in *in, tcc_idx v, tcc_error *err)
 {
     if (in->done[v]) return TCC_OK;
-    tcc_idx a0 = in->vt_ptr[v], a1 = in->vt_ptr[v + 1];
-    if (a0 < 0 || a1 < a0 || a1 > in->nvt)
-        return tcc_fail(err, TCC_ERR_INDEX, "vertex %lld's triangles span [%lld, %lld), outside the %lld listed",
-                        (long long)v, (long long)a0, (long long)a1, (long long)in->nvt);
-    double acc[3] = {0.0, 0.0, 0.0};
-    for (tcc_idx j = a0; j < a1; j++) {
-        tcc_idx f = in->vt_tri[j];
-        if (f < 0 || f >= in->nt)
-            return tcc_fail(err, TCC_ERR_INDEX, "triangle %lld is not in [0, %lld)", (long long)f, (long long)in->nt);
-        const tcc_idx *t = in->tri + 3 * f;
-        for (int a = 0; a < 3; a++)
-            if (t[a] < 0 || t[a] >= in->n)
-                return tcc_fail(err, TCC_ERR_INDEX, "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)",
-                                (long long)f, a, (long long)t[a], (long long)in->n);
-        double e1[3], e2[3], cr[3];
-        sub3(in->x + 3 * t[1], in->x + 3 * t[0], e1);
-        sub3(in->x + 3 * t[2], in->x + 3 * t[0], e2);
-        cross3(e1, e2, cr);
-        acc[0] += cr[0];
-        acc[1] += cr[1];
-        acc[2] += cr[2];
-    }
-    double len = sqrt(dot3(acc, acc));
-    double sc = len > 0 ? len : 1.0;
-    double *nv = in->normals + 3 * v;
-    nv[0] = acc[0] / sc;
-    nv[1] = acc[1] / sc;
-    nv[2] = acc[2] / sc;
-    in->has_normal[v] = dot3(nv, nv) > 0.5;
+    tcc_mesh m = {in->x, in->n, in->tri, in->nt, NULL, NULL};
+    int rc = tcc_vertex_normal(&m, in->vt_ptr, in->vt_tri, in->nvt, v, in->normals, in->has_normal, err);
+    if (rc) return rc;
     in->done[v] = 1;
     return TCC_OK;
 }

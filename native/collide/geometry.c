@@ -60,6 +60,41 @@ int tcc_vertex_normals(const tcc_mesh *m, double *normals, uint8_t *has_normal, 
     return TCC_OK;
 }
 
+int tcc_vertex_normal(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx *vt_tri, tcc_idx nvt, tcc_idx v,
+                      double *normals, uint8_t *has_normal, tcc_error *err)
+{
+    tcc_idx a0 = vt_ptr[v], a1 = vt_ptr[v + 1];
+    if (a0 < 0 || a1 < a0 || a1 > nvt)
+        return tcc_fail(err, TCC_ERR_INDEX, "vertex %lld's triangles span [%lld, %lld), outside the %lld listed",
+                        (long long)v, (long long)a0, (long long)a1, (long long)nvt);
+    double acc[3] = {0.0, 0.0, 0.0};
+    for (tcc_idx j = a0; j < a1; j++) {
+        tcc_idx f = vt_tri[j];
+        if (f < 0 || f >= m->nt)
+            return tcc_fail(err, TCC_ERR_INDEX, "triangle %lld is not in [0, %lld)", (long long)f, (long long)m->nt);
+        const tcc_idx *t = m->tri + 3 * f;
+        for (int a = 0; a < 3; a++)
+            if (t[a] < 0 || t[a] >= m->nv)
+                return tcc_fail(err, TCC_ERR_INDEX, "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)",
+                                (long long)f, a, (long long)t[a], (long long)m->nv);
+        double e1[3], e2[3], cr[3];
+        sub3(m->x + 3 * t[1], m->x + 3 * t[0], e1);
+        sub3(m->x + 3 * t[2], m->x + 3 * t[0], e2);
+        cross3(e1, e2, cr);
+        acc[0] += cr[0];
+        acc[1] += cr[1];
+        acc[2] += cr[2];
+    }
+    double len = sqrt(dot3(acc, acc));
+    double sc = len > 0 ? len : 1.0;
+    double *nv = normals + 3 * v;
+    nv[0] = acc[0] / sc;
+    nv[1] = acc[1] / sc;
+    nv[2] = acc[2] / sc;
+    has_normal[v] = dot3(nv, nv) > 0.5;
+    return TCC_OK;
+}
+
 int tcc_cluster_normals(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx *vt_tri, tcc_idx nvt,
                         const tcc_idx *order, tcc_idx norder, const tcc_idx *ptr, tcc_idx k, const tcc_idx *clusters,
                         tcc_idx q, double *normals, uint8_t *has_normal, uint8_t *done, tcc_error *err)
@@ -81,37 +116,8 @@ int tcc_cluster_normals(const tcc_mesh *m, const tcc_idx *vt_ptr, const tcc_idx 
             if (v < 0 || v >= m->nv)
                 return tcc_fail(err, TCC_ERR_INDEX, "order[%lld] = %lld is not a vertex index in [0, %lld)",
                                 (long long)i, (long long)v, (long long)m->nv);
-            tcc_idx a0 = vt_ptr[v], a1 = vt_ptr[v + 1];
-            if (a0 < 0 || a1 < a0 || a1 > nvt)
-                return tcc_fail(err, TCC_ERR_INDEX, "vertex %lld's triangles span [%lld, %lld), outside the %lld listed",
-                                (long long)v, (long long)a0, (long long)a1, (long long)nvt);
-            double acc[3] = {0.0, 0.0, 0.0};
-            for (tcc_idx j = a0; j < a1; j++) {
-                tcc_idx f = vt_tri[j];
-                if (f < 0 || f >= m->nt)
-                    return tcc_fail(err, TCC_ERR_INDEX, "triangle %lld is not in [0, %lld)", (long long)f,
-                                    (long long)m->nt);
-                const tcc_idx *t = m->tri + 3 * f;
-                for (int a = 0; a < 3; a++)
-                    if (t[a] < 0 || t[a] >= m->nv)
-                        return tcc_fail(err, TCC_ERR_INDEX,
-                                        "triangles[%lld, %d] = %lld is not a vertex index in [0, %lld)", (long long)f,
-                                        a, (long long)t[a], (long long)m->nv);
-                double e1[3], e2[3], cr[3];
-                sub3(m->x + 3 * t[1], m->x + 3 * t[0], e1);
-                sub3(m->x + 3 * t[2], m->x + 3 * t[0], e2);
-                cross3(e1, e2, cr);
-                acc[0] += cr[0];
-                acc[1] += cr[1];
-                acc[2] += cr[2];
-            }
-            double len = sqrt(dot3(acc, acc));
-            double sc = len > 0 ? len : 1.0;
-            double *nv = normals + 3 * v;
-            nv[0] = acc[0] / sc;
-            nv[1] = acc[1] / sc;
-            nv[2] = acc[2] / sc;
-            has_normal[v] = dot3(nv, nv) > 0.5;
+            int rc = tcc_vertex_normal(m, vt_ptr, vt_tri, nvt, v, normals, has_normal, err);
+            if (rc) return rc;
         }
     }
     return TCC_OK;
