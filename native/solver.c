@@ -501,7 +501,9 @@ static double translation_correction(tc_cloth *c, double *v)
 int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations)
 {
     const size_t n3 = 3 * (size_t)c->nv;
-    double *rhs = tc_vec_ptr(&c->sb2), *fix = tc_vec_ptr(&c->sfix), *fixu = tc_vec_ptr(&c->sfix2);
+    /* fixu in sz: read only until pcg's first line projects the warm start, before its first
+       preconditioner application writes z (a vector of its own was 12 bytes per triangle) */
+    double *rhs = tc_vec_ptr(&c->sb2), *fix = tc_vec_ptr(&c->sfix), *fixu = tc_vec_ptr(&c->sz);
     double *q = tc_vec_ptr(&c->sq), *r = tc_vec_ptr(&c->sr);
     tc_matvec(c, v0, rhs);
     for (size_t k = 0; k < n3; k++) { rhs[k] = b[k] - rhs[k]; v[k] -= v0[k]; }
