@@ -63,6 +63,12 @@ int tc_vec_reserve(tc_vec *v, size_t cap);       /* keeps contents; never shrink
 int tc_vec_resize(tc_vec *v, size_t len);        /* new items are zeroed */
 static inline void *tc_vec_ptr(const tc_vec *v) { return v->buf ? (void *)v->buf->data : 0; }
 int tc_vec_push_i32(tc_vec *v, int32_t x);        /* append one item (an int32 / a double array) */
+/* the C allocator's four, a block of 256 KB or more mapped on its own (see buf.c); what one of
+ * them made only they resize or free */
+void *tc_mem_malloc(size_t n);
+void *tc_mem_calloc(size_t k, size_t item);
+void *tc_mem_realloc(void *p, size_t n);
+void tc_mem_free(void *p);
 int tc_vec_push_f64(tc_vec *v, double x);
 
 /* ---------------- the cloth ---------------- */
