@@ -84,7 +84,7 @@ typedef struct level {
     int32_t nagg;
     double *B;             /* near-null space, n*b x NS row-major (levels >= 1, during a build) */
     uint8_t *dead;         /* per unknown: a mode its aggregate could not carry (levels >= 1) */
-    double *x, *rhs, *res; /* V-cycle vectors (levels >= 1; level 0 has res only) */
+    double *x, *rhs, *res; /* V-cycle vectors (levels >= 1; level 0 has none: level_vectors) */
     size_t cap_vec;
 } level;
 
@@ -1254,11 +1254,18 @@ static int tentative(level *L, const double *B, double *Tv, double *Bc, int32_t 
 
 /* ---------------- per-level pieces ---------------- */
 
-/* The V-cycle's vectors of a level: the finest has only res (its x and right-hand side are the
- * solver's output and residual), a coarse level x, rhs and res. */
+/* The V-cycle's vectors of a level: a coarse level has x, rhs and res; the finest none of its own
+ * (its x and right-hand side are the solver's output and residual, its residual the solver's q:
+ * tc_amg_apply), which at 100K triangles is 3.6 MB. */
 static int level_vectors(level *L, bool finest)
 {
     const size_t nb = (size_t)L->n * L->b;
+    if (finest) {
+        tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
+        L->x = L->rhs = L->res = NULL;
+        L->cap_vec = nb;
+        return 0;
+    }
     if (nb <= L->cap_vec && L->res) return 0;
     tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
     L->x = L->rhs = NULL;
@@ -1313,10 +1320,10 @@ static double spectral_radius(const tc_cloth *c, level *L, int l)
     const size_t nb = (size_t)L->n * L->b;
     double *x = L->x, *y = L->res, *z = L->rhs;
     double *own = NULL;
-    if (l == 0) {  /* the finest level has res only: two vectors of its own, for a moment */
-        own = tc_mem_malloc(2 * (nb ? nb : 1) * sizeof(double));
+    if (l == 0) {  /* the finest level has no vectors: three of its own, for a moment */
+        own = tc_mem_malloc(3 * (nb ? nb : 1) * sizeof(double));
         if (!own) return -1.0;
-        x = own; z = own + nb;
+        x = own; y = own + nb; z = own + 2 * nb;
     }
     for (size_t k = 0; k < nb; k++) x[k] = 1.0 + 0.5 * sin(1.7 * (double)k);
     if (l == 0) tc_constraint_filter(c, x);
@@ -1874,7 +1881,7 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
 double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z)
 {
     level *L = &h->lev[0], *N = &h->lev[1];
-    double *y = L->res;
+    double *y = tc_vec_ptr(&c->sq);  /* the fine residual in the solver's q (level_vectors) */
     memset(z, 0, 3 * (size_t)c->nv * sizeof(double));
     fine_gs(c, r, z, true);
     if (h->nlev >= 2) {

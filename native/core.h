@@ -381,7 +381,8 @@ void tc_amg_free(tc_amg *h);
  * aggregates unless `aggregate_again` or the mesh changed. 0, or -1 when out of memory. */
 int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again);
 bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c);
-double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r; r . z */
+/* z = V-cycle r; returns r . z. Its fine residual lives in the solver's q (sq): r and z are not it */
+double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);
 /* the Galerkin operators of the current matrix on the kept prolongators (0; -1: not valid for this
  * mesh, or out of memory: the hierarchy is dropped), and how many since the prolongators were made */
 int tc_amg_refresh(tc_amg *h, const tc_cloth *c);

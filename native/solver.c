@@ -352,6 +352,8 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
     const size_t n3 = 3 * (size_t)c->nv;
     double *r = tc_vec_ptr(&c->sr), *z = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp), *q = tc_vec_ptr(&c->sq);
     double rr = *rr_inout;
+    /* q is free while the cycle runs (read only between a product and the update): the cycle keeps
+       its fine residual there (amg.c) */
     double rz = tc_amg_apply(c, c->amg, r, z);
     memcpy(p, z, n3 * sizeof(double));
     int it = 0;

@@ -614,11 +614,18 @@ static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
     const double hot = weakest * smin;
     int32_t vmark = 0, *vs = tc_vec_ptr(&c->vstamp);
     const int32_t *T = tc_vec_ptr(&c->tri);
-    const double *X = tc_vec_ptr(&c->rest);
+    const double *X = tc_vec_ptr(&c->rest), *sig = tc_vec_ptr(&c->sig);
     for (int32_t k = 0; k < count; k++) {
         int32_t t = (t0 + k) % c->nt;
+        /* sigma_1 = mean + sqrt(dd^2 + sxy^2) <= mean + |dd| + |sxy|: a triangle that bound (with
+           room for the rounding of either side) leaves below the threshold is not hot, without the
+           square root; the others are judged on sigma_1 itself, derived from sigma as the PRINCIPAL
+           array is (core.h) */
+        const double *sg = sig + 3 * (size_t)t;
+        const double mean = 0.5 * (sg[0] + sg[1]), bound = fabs(0.5 * (sg[0] - sg[1])) + fabs(sg[2]);
+        if (mean + bound + 1e-12 * (fabs(mean) + bound) < hot) continue;
         double pr[2];
-        tc_tri_principal(c, (size_t)t, pr);  /* derived from sigma (core.h) */
+        tc_tri_principal(c, (size_t)t, pr);
         if (!(pr[0] > hot)) continue;
         if (!vmark) vmark = new_mark(c);
         double P[3];
