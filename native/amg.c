@@ -84,7 +84,7 @@ typedef struct level {
     int32_t nagg;
     double *B;             /* near-null space, n*b x NS row-major (levels >= 1, during a build) */
     uint8_t *dead;         /* per unknown: a mode its aggregate could not carry (levels >= 1) */
-    double *x, *rhs, *res; /* V-cycle vectors (levels >= 1; level 0 has res only) */
+    double *x, *rhs, *res; /* V-cycle vectors (levels >= 1; level 0 has none: level_vectors) */
     size_t cap_vec;
 } level;
 
@@ -118,7 +118,7 @@ static int grow(void **p, size_t *cap, size_t need, size_t item)
 {
     if (need <= *cap && *p) return 0;
     size_t n = need + need / 2 + 16;
-    void *q = realloc(*p, n * item);
+    void *q = tc_mem_realloc(*p, n * item);
     if (!q) return -1;
     *p = q;
     *cap = n;
@@ -130,17 +130,17 @@ static int grow(void **p, size_t *cap, size_t need, size_t item)
 static int bsr_reserve(bsr *a, int32_t n, size_t nnz)
 {
     if ((size_t)n + 1 > a->cap_rows || !a->ptr) {
-        int32_t *p = realloc(a->ptr, ((size_t)n + 1) * sizeof(int32_t));
+        int32_t *p = tc_mem_realloc(a->ptr, ((size_t)n + 1) * sizeof(int32_t));
         if (!p) return -1;
         a->ptr = p;
         a->cap_rows = (size_t)n + 1;
     }
     if (nnz > a->cap_nnz || !a->col || !a->val) {
         const size_t cn = nnz ? nnz : 1;
-        int32_t *col = realloc(a->col, cn * sizeof(int32_t));
+        int32_t *col = tc_mem_realloc(a->col, cn * sizeof(int32_t));
         if (!col) return -1;
         a->col = col;
-        float *v = realloc(a->val, cn * (size_t)a->br * (size_t)a->bc * sizeof(float));
+        float *v = tc_mem_realloc(a->val, cn * (size_t)a->br * (size_t)a->bc * sizeof(float));
         if (!v) return -1;
         a->val = v;
         a->cap_nnz = cn;
@@ -150,7 +150,7 @@ static int bsr_reserve(bsr *a, int32_t n, size_t nnz)
 
 static void bsr_free(bsr *a)
 {
-    free(a->ptr); free(a->col); free(a->val);
+    tc_mem_free(a->ptr); tc_mem_free(a->col); tc_mem_free(a->val);
     memset(a, 0, sizeof *a);
 }
 
@@ -160,10 +160,10 @@ void tc_amg_free(tc_amg *h)
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) {
         level *L = &h->lev[l];
         bsr_free(&L->A); bsr_free(&L->P);
-        free(L->dinv); free(L->agg); free(L->B); free(L->dead); free(L->x); free(L->rhs); free(L->res);
+        tc_mem_free(L->dinv); tc_mem_free(L->agg); tc_mem_free(L->B); tc_mem_free(L->dead); tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
     }
-    free(h->chol); free(h->mark); free(h->acc);
-    free(h);
+    tc_mem_free(h->chol); tc_mem_free(h->mark); tc_mem_free(h->acc);
+    tc_mem_free(h);
 }
 
 size_t tc_amg_bytes(const tc_amg *h)
@@ -373,7 +373,7 @@ typedef struct rowsrc {
 
 static int rowsrc_init(rowsrc *s, const tc_cloth *c, const level *L, int l, bool ref)
 {
-    free(s->col); free(s->val);
+    tc_mem_free(s->col); tc_mem_free(s->val);
     memset(s, 0, sizeof *s);
     s->c = c;
     s->ref = ref;
@@ -390,14 +390,14 @@ static int rowsrc_init(rowsrc *s, const tc_cloth *c, const level *L, int l, bool
         }
     }
     s->max_row = m;
-    s->col = malloc((size_t)m * sizeof(int32_t));
-    s->val = malloc((size_t)m * bb * sizeof(double));
+    s->col = tc_mem_malloc((size_t)m * sizeof(int32_t));
+    s->val = tc_mem_malloc((size_t)m * bb * sizeof(double));
     return s->col && s->val ? 0 : -1;
 }
 
 static void rowsrc_free(rowsrc *s)
 {
-    free(s->col); free(s->val);
+    tc_mem_free(s->col); tc_mem_free(s->val);
     s->col = NULL; s->val = NULL;
 }
 
@@ -750,8 +750,8 @@ static int galerkin_pattern(tc_amg *h, rowsrc *s, const bsr *P, bsr *C)
 {
     const int32_t n = P->n, na = P->m;
     int rc = -1;
-    int32_t *tptr = calloc((size_t)na + 1, sizeof(int32_t));
-    int32_t *trow = malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));
+    int32_t *tptr = tc_mem_calloc((size_t)na + 1, sizeof(int32_t));
+    int32_t *trow = tc_mem_malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));
     if (!tptr || !trow || scratch(h, na, 0)) goto done;
     for (int32_t a = 0; a < P->ptr[n]; a++) tptr[P->col[a] + 1]++;
     for (int32_t I = 0; I < na; I++) tptr[I + 1] += tptr[I];
@@ -797,7 +797,7 @@ static int galerkin_pattern(tc_amg *h, rowsrc *s, const bsr *P, bsr *C)
     C->ptr[na] = (int32_t)k;
     rc = 0;
 done:
-    free(tptr); free(trow);
+    tc_mem_free(tptr); tc_mem_free(trow);
     return rc;
 }
 
@@ -1020,10 +1020,10 @@ static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
     const int32_t most = h->run_blocks > 0 ? h->run_blocks : TC_AMG_GALERKIN_BLOCKS;
     int32_t run = nnz < most ? (nnz ? nnz : 1) : most;
     for (int32_t I = 0; I < C->n; I++) run = C->ptr[I + 1] - C->ptr[I] > run ? C->ptr[I + 1] - C->ptr[I] : run;  /* a row at least */
-    double *cv = malloc((size_t)run * NS * NS * sizeof(double));
-    int32_t *cols = malloc(((size_t)na + 1) * sizeof(int32_t));
-    int32_t *tptr = calloc((size_t)na + 1, sizeof(int32_t)), *trow = malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));
-    int32_t *seen = malloc(((size_t)n + 1) * sizeof(int32_t));
+    double *cv = tc_mem_malloc((size_t)run * NS * NS * sizeof(double));
+    int32_t *cols = tc_mem_malloc(((size_t)na + 1) * sizeof(int32_t));
+    int32_t *tptr = tc_mem_calloc((size_t)na + 1, sizeof(int32_t)), *trow = tc_mem_malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));
+    int32_t *seen = tc_mem_malloc(((size_t)n + 1) * sizeof(int32_t));
     int rcode = -1;
     if (!cv || !cols || !tptr || !trow || !seen || scratch(h, na, 0)) goto out;
     /* the rows of P^T: the fine rows each coarse row gathers from */
@@ -1079,7 +1079,7 @@ static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
     }
     rcode = 0;
 out:
-    free(cv); free(cols); free(tptr); free(trow); free(seen);
+    tc_mem_free(cv); tc_mem_free(cols); tc_mem_free(tptr); tc_mem_free(trow); tc_mem_free(seen);
     return rcode;
 }
 
@@ -1110,8 +1110,8 @@ static int strength_graph(rowsrc *s, const tc_cloth *c, int l, int32_t n, int b,
         for (int32_t a = 0; a < len; a++)
             if (col[a] == i) { dn[i] = sqrt(fro2(val + (size_t)a * bb, bb)); break; }
     }
-    int32_t *sptr = malloc(((size_t)n + 1) * sizeof(int32_t)), *scol = malloc((nnz + 1) * sizeof(int32_t));
-    if (!sptr || !scol) { free(sptr); free(scol); return -1; }
+    int32_t *sptr = tc_mem_malloc(((size_t)n + 1) * sizeof(int32_t)), *scol = tc_mem_malloc((nnz + 1) * sizeof(int32_t));
+    if (!sptr || !scol) { tc_mem_free(sptr); tc_mem_free(scol); return -1; }
     int32_t k = 0;
     for (int32_t i = 0; i < n; i++) {
         sptr[i] = k;
@@ -1169,7 +1169,7 @@ static int32_t aggregate(int32_t n, const int32_t *sptr, const int32_t *scol, co
 static int extend_aggregates(tc_amg *h, const tc_cloth *c)
 {
     level *L = &h->lev[0];
-    int32_t *na = realloc(L->agg, (size_t)c->nv * sizeof(int32_t));
+    int32_t *na = tc_mem_realloc(L->agg, (size_t)c->nv * sizeof(int32_t));
     if (!na) return -1;
     L->agg = na;
     const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol);
@@ -1194,8 +1194,8 @@ static int tentative(level *L, const double *B, double *Tv, double *Bc, int32_t 
     const int b = L->b;
     const size_t bs = (size_t)b * NS;
     /* rows of each aggregate, by a counting sort */
-    int32_t *start = calloc((size_t)na + 1, sizeof(int32_t)), *rows = malloc(((size_t)n + 1) * sizeof(int32_t));
-    if (!start || !rows) { free(start); free(rows); return -1; }
+    int32_t *start = tc_mem_calloc((size_t)na + 1, sizeof(int32_t)), *rows = tc_mem_malloc(((size_t)n + 1) * sizeof(int32_t));
+    if (!start || !rows) { tc_mem_free(start); tc_mem_free(rows); return -1; }
     for (int32_t i = 0; i < n; i++) if (L->agg[i] >= 0) start[L->agg[i] + 1]++;
     for (int32_t a = 0; a < na; a++) start[a + 1] += start[a];
     for (int32_t i = 0; i < n; i++) if (L->agg[i] >= 0) rows[start[L->agg[i]]++] = i;
@@ -1248,23 +1248,30 @@ static int tentative(level *L, const double *B, double *Tv, double *Bc, int32_t 
             if (lost) for (int i = 0; i < j; i++) R[i * NS + j] = 0.0;
         }
     }
-    free(start); free(rows);
+    tc_mem_free(start); tc_mem_free(rows);
     return 0;
 }
 
 /* ---------------- per-level pieces ---------------- */
 
-/* The V-cycle's vectors of a level: the finest has only res (its x and right-hand side are the
- * solver's output and residual), a coarse level x, rhs and res. */
+/* The V-cycle's vectors of a level: a coarse level has x, rhs and res; the finest none of its own
+ * (its x and right-hand side are the solver's output and residual, its residual the solver's q:
+ * tc_amg_apply), which at 100K triangles is 3.6 MB. */
 static int level_vectors(level *L, bool finest)
 {
     const size_t nb = (size_t)L->n * L->b;
+    if (finest) {
+        tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
+        L->x = L->rhs = L->res = NULL;
+        L->cap_vec = nb;
+        return 0;
+    }
     if (nb <= L->cap_vec && L->res) return 0;
-    free(L->x); free(L->rhs); free(L->res);
+    tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
     L->x = L->rhs = NULL;
     const size_t k = nb ? nb : 1;
-    if (!finest) { L->x = malloc(k * sizeof(double)); L->rhs = malloc(k * sizeof(double)); }
-    L->res = malloc(k * sizeof(double));
+    if (!finest) { L->x = tc_mem_malloc(k * sizeof(double)); L->rhs = tc_mem_malloc(k * sizeof(double)); }
+    L->res = tc_mem_malloc(k * sizeof(double));
     L->cap_vec = ((finest || (L->x && L->rhs)) && L->res) ? nb : 0;
     return L->cap_vec || !nb ? 0 : -1;
 }
@@ -1313,10 +1320,10 @@ static double spectral_radius(const tc_cloth *c, level *L, int l)
     const size_t nb = (size_t)L->n * L->b;
     double *x = L->x, *y = L->res, *z = L->rhs;
     double *own = NULL;
-    if (l == 0) {  /* the finest level has res only: two vectors of its own, for a moment */
-        own = malloc(2 * (nb ? nb : 1) * sizeof(double));
+    if (l == 0) {  /* the finest level has no vectors: three of its own, for a moment */
+        own = tc_mem_malloc(3 * (nb ? nb : 1) * sizeof(double));
         if (!own) return -1.0;
-        x = own; z = own + nb;
+        x = own; y = own + nb; z = own + 2 * nb;
     }
     for (size_t k = 0; k < nb; k++) x[k] = 1.0 + 0.5 * sin(1.7 * (double)k);
     if (l == 0) tc_constraint_filter(c, x);
@@ -1331,7 +1338,7 @@ static double spectral_radius(const tc_cloth *c, level *L, int l)
         const double s = 1.0 / sqrt(nz);
         for (size_t k = 0; k < nb; k++) x[k] = z[k] * s;
     }
-    free(own);
+    tc_mem_free(own);
     return rho > 0 ? 1.1 * rho : 1.0;
 }
 
@@ -1351,7 +1358,7 @@ static bool coarse_diag_block(const level *L, int32_t I, double d[NS * NS], floa
 static int coarse_diagonal(level *L)
 {
     const uint8_t *dead = L->dead;
-    double *di = realloc(L->dinv, ((size_t)L->n * NS * NS + 1) * sizeof(double));
+    double *di = tc_mem_realloc(L->dinv, ((size_t)L->n * NS * NS + 1) * sizeof(double));
     if (!di) return -1;
     L->dinv = di;
     for (int32_t i = 0; i < L->n; i++) {
@@ -1396,7 +1403,7 @@ static int coarsest_factor(tc_amg *h)
 static void fine_modes(const tc_cloth *c, const level *L, double *B)
 {
     const double *x = tc_vec_ptr(&c->x);
-    double *cen = calloc((size_t)L->nagg * 4 + 1, sizeof(double));
+    double *cen = tc_mem_calloc((size_t)L->nagg * 4 + 1, sizeof(double));
     if (cen) {
         for (int32_t i = 0; i < L->n; i++) {
             const int32_t a = L->agg[i];
@@ -1420,14 +1427,14 @@ static void fine_modes(const tc_cloth *c, const level *L, double *B)
         memset(r, 0, 3 * NS * sizeof(double));
         gemm_acc(r, S, m, 3, 3, NS);
     }
-    free(cen);
+    tc_mem_free(cen);
 }
 
 /* ---------------- the hierarchy ---------------- */
 
 tc_amg *tc_amg_new(void)
 {
-    tc_amg *h = calloc(1, sizeof(tc_amg));
+    tc_amg *h = tc_mem_calloc(1, sizeof(tc_amg));
     if (h) h->choice = -1;
     return h;
 }
@@ -1461,9 +1468,9 @@ void tc_amg_drop(tc_amg *h)
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) {
         level *L = &h->lev[l];
         bsr_free(&L->A); bsr_free(&L->P);
-        free(L->dinv); free(L->agg); free(L->B); free(L->dead); free(L->x); free(L->rhs); free(L->res);
+        tc_mem_free(L->dinv); tc_mem_free(L->agg); tc_mem_free(L->B); tc_mem_free(L->dead); tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
     }
-    free(h->chol); free(h->mark); free(h->acc);
+    tc_mem_free(h->chol); tc_mem_free(h->mark); tc_mem_free(h->acc);
     memset(h, 0, sizeof *h);
     h->choice = choice;
     h->forget = forget;
@@ -1530,16 +1537,16 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         /* the prolongator is made on the reference filter (contacts free: see the file's head) */
         if (rowsrc_init(&src, c, L, l, true)) goto out;
         if (l >= kept) {
-            free(dn); free(pass1);
-            dn = malloc((size_t)n * sizeof(double));
-            pass1 = malloc((size_t)n * sizeof(int32_t));
+            tc_mem_free(dn); tc_mem_free(pass1);
+            dn = tc_mem_malloc((size_t)n * sizeof(double));
+            pass1 = tc_mem_malloc((size_t)n * sizeof(int32_t));
             if (!dn || !pass1) goto out;
-            int32_t *na = realloc(L->agg, (size_t)n * sizeof(int32_t));
+            int32_t *na = tc_mem_realloc(L->agg, (size_t)n * sizeof(int32_t));
             if (!na) goto out;
             L->agg = na;
             if (strength_graph(&src, c, l, n, L->b, dn, &sptr, &scol)) goto out;
             L->nagg = aggregate(n, sptr, scol, dn, L->agg, pass1);
-            free(sptr); free(scol);
+            tc_mem_free(sptr); tc_mem_free(scol);
             sptr = scol = NULL;
         }
         const int32_t na = L->nagg;
@@ -1549,25 +1556,25 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
         if (rho < 0) goto out;  /* out of memory */
         L->omega = 4.0 / (3.0 * rho);
         /* near-null space and tentative prolongator */
-        free(B); free(Tv);
-        B = malloc((size_t)n * L->b * NS * sizeof(double));
-        Tv = malloc(((size_t)n * L->b * NS + 1) * sizeof(double));
-        free(dead);
-        dead = malloc(((size_t)na * NS + 1) * sizeof(int32_t));
+        tc_mem_free(B); tc_mem_free(Tv);
+        B = tc_mem_malloc((size_t)n * L->b * NS * sizeof(double));
+        Tv = tc_mem_malloc(((size_t)n * L->b * NS + 1) * sizeof(double));
+        tc_mem_free(dead);
+        dead = tc_mem_malloc(((size_t)na * NS + 1) * sizeof(int32_t));
         if (!B || !Tv || !dead) goto out;
         if (l == 0) fine_modes(c, L, B);
         else memcpy(B, L->B, (size_t)n * L->b * NS * sizeof(double));
-        double *Bc = realloc(N->B, ((size_t)na * NS * NS + 1) * sizeof(double));
-        uint8_t *nd = realloc(N->dead, (size_t)na * NS + 1);
+        double *Bc = tc_mem_realloc(N->B, ((size_t)na * NS * NS + 1) * sizeof(double));
+        uint8_t *nd = tc_mem_realloc(N->dead, (size_t)na * NS + 1);
         if (!Bc || !nd) { if (Bc) N->B = Bc; if (nd) N->dead = nd; goto out; }
         N->B = Bc;
         N->dead = nd;
         if (tentative(L, B, Tv, Bc, dead)) goto out;
         for (size_t k = 0; k < (size_t)na * NS; k++) nd[k] = (uint8_t)dead[k];
-        free(B);  /* Tv holds it now, orthonormalised */
+        tc_mem_free(B);  /* Tv holds it now, orthonormalised */
         B = NULL;
         if ((l == 0 ? prolongator_3 : prolongator_6)(h, &src, L, l, Tv, &L->P)) goto out;
-        free(Tv);
+        tc_mem_free(Tv);
         Tv = NULL;
         if (galerkin_pattern(h, &src, &L->P, &N->A)) goto out;
         N->n = na; N->b = NS;
@@ -1579,7 +1586,7 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
     if (coarsest_factor(h)) goto out;
     /* the coarse near-null spaces only feed the next level's tentative prolongator in this build:
        a refresh keeps the prolongators, so they go (288 bytes an aggregate) */
-    for (int l = 1; l < TC_AMG_MAX_LEVELS; l++) { free(h->lev[l].B); h->lev[l].B = NULL; }
+    for (int l = 1; l < TC_AMG_MAX_LEVELS; l++) { tc_mem_free(h->lev[l].B); h->lev[l].B = NULL; }
     h->pair_version = c->pair_version;
     h->nv = c->nv;
     h->agg_levels = nlev - 1;
@@ -1593,7 +1600,7 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
     rc = 0;
 out:
     rowsrc_free(&src);
-    free(pass1); free(dead); free(dn); free(B); free(Tv); free(sptr); free(scol);
+    tc_mem_free(pass1); tc_mem_free(dead); tc_mem_free(dn); tc_mem_free(B); tc_mem_free(Tv); tc_mem_free(sptr); tc_mem_free(scol);
     if (rc) { h->nlev = 0; h->agg_levels = 0; }
     return rc;
 }
@@ -1839,8 +1846,8 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
     if (!h || h->nlev < 2) return -1.0;
     level *L = &h->lev[0], *N = &h->lev[1];
     const size_t nf = (size_t)L->n * 3, nc = (size_t)N->n * NS;
-    double *u = malloc(nc * sizeof(double)), *v = malloc(nc * sizeof(double)), *w = malloc(nc * sizeof(double));
-    double *pu = malloc(nf * sizeof(double)), *pv = malloc(nf * sizeof(double)), *apv = malloc(nf * sizeof(double));
+    double *u = tc_mem_malloc(nc * sizeof(double)), *v = tc_mem_malloc(nc * sizeof(double)), *w = tc_mem_malloc(nc * sizeof(double));
+    double *pu = tc_mem_malloc(nf * sizeof(double)), *pv = tc_mem_malloc(nf * sizeof(double)), *apv = tc_mem_malloc(nf * sizeof(double));
     double worst = -1.0;
     if (u && v && w && pu && pv && apv) {
         worst = 0.0;
@@ -1864,7 +1871,7 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
             worst = fmax(worst, fmax(fabs(coarse - fine), fabs(coarse - swapped)) / scale);
         }
     }
-    free(u); free(v); free(w); free(pu); free(pv); free(apv);
+    tc_mem_free(u); tc_mem_free(v); tc_mem_free(w); tc_mem_free(pu); tc_mem_free(pv); tc_mem_free(apv);
     return worst;
 }
 
@@ -1874,7 +1881,7 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
 double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z)
 {
     level *L = &h->lev[0], *N = &h->lev[1];
-    double *y = L->res;
+    double *y = tc_vec_ptr(&c->sq);  /* the fine residual in the solver's q (level_vectors) */
     memset(z, 0, 3 * (size_t)c->nv * sizeof(double));
     fine_gs(c, r, z, true);
     if (h->nlev >= 2) {

@@ -237,7 +237,7 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
     case TC_TRIANGLES: v = &c->tri; r = (size_t)c->nt; *item = sizeof(int32_t); break;
     case TC_CORNER_UV: v = &c->uv; r = (size_t)c->nt; k = 6; break;
     case TC_STRESS: r = (size_t)c->nt; k = 9; break;
-    case TC_PRINCIPAL: v = &c->principal; r = (size_t)c->nt; k = 2; break;
+    case TC_PRINCIPAL: r = (size_t)c->nt; k = 2; break;
     case TC_PRINCIPAL_DIR: r = (size_t)c->nt; k = 3; break;
     default: return NULL;
     }
@@ -250,6 +250,7 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
         double *o = (double *)b->data;
         for (size_t t = 0; t < r; t++) {
             if (id == TC_STRESS) tc_tri_world_stress(c, t, o + 9 * t);
+            else if (id == TC_PRINCIPAL) tc_tri_principal(c, t, o + 2 * t);
             else tc_tri_principal_dir(c, t, o + 3 * t);
         }
         return b;

@@ -150,8 +150,11 @@
 /* numeric refreshes on one set of prolongators before they are made again (RESMOOTH) */
 #define TC_AMG_RESMOOTH 8
 /* blocks of a coarse operator summed in double at a time by a refresh (its transient buffer: 288
- * bytes a block, 4.7 MB; the operator itself is kept in float) */
-#define TC_AMG_GALERKIN_BLOCKS 16384
+ * bytes a block, 1.2 MB; the operator itself is kept in float). At 16384 (4.7 MB) a refresh of a
+ * 100K-triangle cloth peaked 53 bytes per triangle over its steady state; at 4096, 16: a fine row
+ * whose P reaches two runs is made once per run, and runs of 4096 blocks still hold most rows of
+ * C's 53K (100K triangles: refresh time within the noise of two interleaved runs) */
+#define TC_AMG_GALERKIN_BLOCKS 4096
 /* ... or sooner: when a solve's residual falls by less than 1/this of the rate per iteration of the
  * first solve on the current prolongators (solver.c), the coarse operators are refreshed at the
  * next sub-step, and if the next solve is still that slow, the prolongators are made again. The

@@ -63,6 +63,12 @@ int tc_vec_reserve(tc_vec *v, size_t cap);       /* keeps contents; never shrink
 int tc_vec_resize(tc_vec *v, size_t len);        /* new items are zeroed */
 static inline void *tc_vec_ptr(const tc_vec *v) { return v->buf ? (void *)v->buf->data : 0; }
 int tc_vec_push_i32(tc_vec *v, int32_t x);        /* append one item (an int32 / a double array) */
+/* the C allocator's four, a block of 256 KB or more mapped on its own (see buf.c); what one of
+ * them made only they resize or free */
+void *tc_mem_malloc(size_t n);
+void *tc_mem_calloc(size_t k, size_t item);
+void *tc_mem_realloc(void *p, size_t n);
+void tc_mem_free(void *p);
 int tc_vec_push_f64(tc_vec *v, double x);
 
 /* ---------------- the cloth ---------------- */
@@ -122,7 +128,7 @@ struct tc_cloth {
     tc_vec sig;              /* double x3: local 2-D stress (xx, yy, xy) */
     tc_vec stress;           /* empty: the world stress is derived from rot and sig (tc_world_stress); kept
                                 in the table so that the snapshots of the builds that stored it resume */
-    tc_vec principal;        /* double x2 */
+    tc_vec principal;        /* empty, as stress: sigma's eigenvalues (tc_tri_principal) */
     tc_vec pdir;             /* empty, as stress (tc_principal_dir) */
     tc_vec uv;               /* double x6 corner uv */
     tc_vec tgrain;           /* double: the triangle's own grain angle (rad), NaN: the material's */
@@ -134,7 +140,7 @@ struct tc_cloth {
     tc_vec pi, pj;           /* int32 endpoints, pi < pj; -1 when free */
     tc_vec puse;             /* int32 number of triangle edges + stencils using the pair */
     tc_vec ptris;            /* int32 x2 triangles on this edge (-1 none) */
-    tc_vec pstencil;         /* int32 stencil owned by this edge or -1 */
+    tc_vec pstencil;         /* int32 >= 0: this edge has a bending stencil (mesh.c), -1: none */
     tc_vec pbend;            /* double: bending scalar for the pair */
     tc_vec pfree;            /* int32 stack of free pair ids */
     /* hash (min,max) -> pair id, open addressing, power-of-two capacity: a slot holds the pair id
@@ -142,8 +148,10 @@ struct tc_cloth {
     int32_t *hvals;
     size_t hcap, hcount, htomb;
 
-    tc_vec stencils;         /* tc_stencil */
-    tc_vec sfree;            /* int32 free stencil ids */
+    tc_vec stencils;         /* empty: a stencil is made from its edge's triangles when added or removed
+                                (mesh.c); kept in the table, with sfree, so that the snapshots of the
+                                builds that stored them resume */
+    tc_vec sfree;            /* empty (was: free stencil ids) */
 
     /* handles */
     tc_handle *handles;
@@ -160,7 +168,9 @@ struct tc_cloth {
     tc_vec diag;             /* 9 per vertex */
     tc_vec pinv;             /* 9 per vertex */
     tc_vec sb, sr, sz, sp, sq, sfix, x0, v0, fel;
-    tc_vec sb2, sfix2;       /* right-hand side and prescribed values of the velocity-change solve */
+    tc_vec sb2;              /* right-hand side of the velocity-change solve */
+    tc_vec sfix2;            /* empty: its prescribed values live in sz (solver.c); kept in the table
+                                so that the snapshots of the builds that had it resume */
     tc_vec sdv;              /* velocity change of the last sub-step: the next solve's warm start */
     tc_vec snorm, scount;    /* per vertex: contact normal basis (3 x 3) and its size */
 
@@ -316,6 +326,15 @@ void tc_matvec_sub_sparse(const tc_cloth *c, const double *q, double *y);
  * (TC_HOT: the same contraction into FMAs), it gives the stored values bit for bit. */
 void tc_tri_world_stress(const tc_cloth *c, size_t t, double S[9]);
 void tc_tri_principal_dir(const tc_cloth *c, size_t t, double d[3]);
+/* Its principal stresses, largest first: the eigenvalues of sigma, likewise derived where read
+ * (tearing's scan, the PRINCIPAL array) instead of stored: 16 bytes per triangle. */
+void tc_tri_principal(const tc_cloth *c, size_t t, double p[2]);
+static inline void tc_principal(const double s[3], double p[2])
+{
+    const double sxx = s[0], syy = s[1], sxy = s[2];
+    const double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), rad = sqrt(dd * dd + sxy * sxy);
+    p[0] = mean + rad; p[1] = mean - rad;
+}
 static inline void tc_world_stress(const double R[6], const double s[3], double S[9])
 {
     for (int i = 0; i < 3; i++)
@@ -362,7 +381,8 @@ void tc_amg_free(tc_amg *h);
  * aggregates unless `aggregate_again` or the mesh changed. 0, or -1 when out of memory. */
 int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again);
 bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c);
-double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);  /* z = V-cycle r; r . z */
+/* z = V-cycle r; returns r . z. Its fine residual lives in the solver's q (sq): r and z are not it */
+double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);
 /* the Galerkin operators of the current matrix on the kept prolongators (0; -1: not valid for this
  * mesh, or out of memory: the hierarchy is dropped), and how many since the prolongators were made */
 int tc_amg_refresh(tc_amg *h, const tc_cloth *c);

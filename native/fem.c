@@ -121,7 +121,7 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
     const double h = c->mat.thickness;
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
-    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *pr = tc_vec_ptr(&c->principal);
+    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig);
     double *f = tc_vec_ptr(&c->fel);
     double carried2 = 0.0;  /* the solver's scale of elastic forces (solver.c) */
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
@@ -165,10 +165,8 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
             f[3 * i0 + k] -= fa + fb;
             carried2 += fa * fa + fb * fb + (fa + fb) * (fa + fb);
         }
-        /* the world stress and the principal direction are not stored: R and sigma give them
-           (tc_world_stress, tc_principal_dir), for tearing and the arrays' readers */
-        double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), rad = sqrt(dd * dd + sxy * sxy);
-        pr[2 * t] = mean + rad; pr[2 * t + 1] = mean - rad;
+        /* the world stress, the principal stresses and direction are not stored: R and sigma give
+           them (tc_world_stress, tc_principal, tc_principal_dir), for tearing and the arrays' readers */
     }
     c->carried2 = isfinite(carried2) ? carried2 : 0.0;
     return isfinite(worst2) ? sqrt(worst2) : NAN;
@@ -177,6 +175,11 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
 TC_HOT __attribute__((noinline)) void tc_tri_world_stress(const tc_cloth *c, size_t t, double S[9])
 {
     tc_world_stress((const double *)tc_vec_ptr(&c->rot) + 6 * t, (const double *)tc_vec_ptr(&c->sig) + 3 * t, S);
+}
+
+TC_HOT __attribute__((noinline)) void tc_tri_principal(const tc_cloth *c, size_t t, double p[2])
+{
+    tc_principal((const double *)tc_vec_ptr(&c->sig) + 3 * t, p);
 }
 
 TC_HOT __attribute__((noinline)) void tc_tri_principal_dir(const tc_cloth *c, size_t t, double d[3])
@@ -733,7 +736,7 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
     const double *AX = tc_vec_ptr(&c->taxis), *PL = tc_vec_ptr(&c->tplast);
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
-    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig), *pr = tc_vec_ptr(&c->principal);
+    double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig);
     double *f = tc_vec_ptr(&c->fel);
     double worst2 = 0.0, carried2 = 0.0;
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
@@ -800,9 +803,9 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
             TC_UNROLL
             for (int k = 0; k < 3; k++) eps[k][l] = e3[k];
         }
-        /* stress, forces, principal stresses (the world stress and the principal direction: from
-           R and sigma where read, tc_world_stress / tc_principal_dir) */
-        double fab[6][TC_LANES], prin[2][TC_LANES];
+        /* stress and forces (the world stress, the principal stresses and direction: from R and
+           sigma where read, tc_world_stress / tc_principal / tc_principal_dir) */
+        double fab[6][TC_LANES];
         for (int l = 0; l < TC_LANES; l++) {
             double sxx, syy, sxy;
             const double e0 = eps[0][l], e1 = eps[1][l], e2 = eps[2][l];
@@ -825,8 +828,6 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
                 fab[k][l] = -w * (P0 * g0 + P1 * g1);
                 fab[3 + k][l] = -w * (P0 * g2 + P1 * g3);
             }
-            const double mean = 0.5 * (sxx + syy), dd = 0.5 * (sxx - syy), rad = sqrt(dd * dd + sxy * sxy);
-            prin[0][l] = mean + rad; prin[1][l] = mean - rad;
         }
         /* out, triangle by triangle in order (the force sums as the reference's) */
         for (int l = 0; l < nl; l++) {
@@ -836,7 +837,6 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
             for (int k = 0; k < 6; k++) Rall[6 * t + k] = in.R[k][l];
             TC_UNROLL
             for (int k = 0; k < 3; k++) sig[3 * t + k] = in.sig[k][l];
-            pr[2 * t] = prin[0][l]; pr[2 * t + 1] = prin[1][l];
             const int32_t i0 = T[3 * t], i1 = T[3 * t + 1], i2 = T[3 * t + 2];
             TC_UNROLL
             for (int k = 0; k < 3; k++) {

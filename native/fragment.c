@@ -117,9 +117,6 @@ static void renumber(tc_cloth *c, const int32_t *vmap, const int32_t *tmap)
         if (pi[p] > pj[p]) { int32_t t = pi[p]; pi[p] = pj[p]; pj[p] = t; }
         if (tmap) for (int s = 0; s < 2; s++) if (pt[2 * p + s] >= 0) pt[2 * p + s] = tmap[pt[2 * p + s]];
     }
-    tc_stencil *st = tc_vec_ptr(&c->stencils);
-    for (size_t s = 0; s < c->stencils.len; s++)
-        if (st[s].pair >= 0) for (int k = 0; k < 4; k++) st[s].v[k] = vmap[st[s].v[k]];
     int32_t *vt = tc_vec_ptr(&c->vtri);
     if (tmap) for (int32_t v = 0; v < c->nv; v++) if (vt[v] >= 0) vt[v] = tmap[vt[v]];
     for (int32_t h = 0; h < c->nh; h++) {
@@ -164,6 +161,7 @@ static void swap_rows(tc_vec *v, size_t per, int32_t a, int32_t b)
 {
     unsigned char *d = tc_vec_ptr(v);
     const size_t sz = per * v->item;
+    if (v->len < ((size_t)(a > b ? a : b) + 1) * per) return;  /* an array kept empty (sfix2: core.h) */
     for (size_t k = 0; k < sz; k++) {
         unsigned char t = d[(size_t)a * sz + k];
         d[(size_t)a * sz + k] = d[(size_t)b * sz + k];

@@ -68,10 +68,14 @@ int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b)
     c->pair_version++;  /* a new pair, or a triangle's edge where a flap was: the rows change */
     if (p >= 0) { ((int32_t *)tc_vec_ptr(&c->puse))[p]++; return p; }
     if (a > b) { int32_t t = a; a = b; b = t; }
-    /* at half load (live keys and tombstones) rebuild: twice as large when the live keys alone
-       fill a quarter of it, else the same size (that only sweeps the tombstones away) */
-    if ((c->hcount + c->htomb + 1) * 2 > c->hcap) {
-        if (hash_rehash(c, c->hcount * 4 + TC_HASH_INITIAL > c->hcap ? c->hcap * 2 : c->hcap)) return -1;
+    /* at three-quarter load (live keys and tombstones) rebuild: twice as large when the live keys
+       alone fill half of it, else the same size (that only sweeps the tombstones away). The load
+       then stays in (3/8, 3/4]: linear probing at 0.6 reads ~1.7 slots per hit and ~3.6 per miss,
+       and the pairs are looked up at the build and by tears, not in a step; the earlier half-load
+       rule kept a 100K-triangle cloth's 300K pairs in 2^20 slots (4 MB, 42 B per triangle) where
+       2^19 hold them (21 B) */
+    if ((c->hcount + c->htomb + 1) * 4 > c->hcap * 3) {
+        if (hash_rehash(c, c->hcount * 2 + TC_HASH_INITIAL > c->hcap ? c->hcap * 2 : c->hcap)) return -1;
     }
     if (c->pfree.len) {
         p = ((int32_t *)tc_vec_ptr(&c->pfree))[--c->pfree.len];
@@ -134,7 +138,7 @@ int tc_reserve_vertices(tc_cloth *c, int32_t n)
 {
     size_t N = (size_t)n;
     tc_vec *v3[] = {&c->x, &c->v, &c->rest, &c->force, &c->sb, &c->sr, &c->sz, &c->sp, &c->sq,
-                    &c->sfix, &c->sb2, &c->sfix2, &c->sdv, &c->x0, &c->v0, &c->fel, &c->vkinetic};
+                    &c->sfix, &c->sb2, &c->sdv, &c->x0, &c->v0, &c->fel, &c->vkinetic};
     for (size_t i = 0; i < sizeof v3 / sizeof *v3; i++)
         if (tc_vec_resize(v3[i], 3 * N)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->diag, 12 * N) || tc_vec_resize(&c->pinv, 9 * N) ||
@@ -159,7 +163,7 @@ int tc_reserve_triangles(tc_cloth *c, int32_t m)
     size_t M = (size_t)m;
     if (tc_vec_resize(&c->tri, 3 * M) || tc_vec_resize(&c->tpair, 3 * M) ||
         tc_vec_resize(&c->grad, 4 * M) || tc_vec_resize(&c->area, M) || tc_vec_resize(&c->rot, 6 * M) ||
-        tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->principal, 2 * M) || tc_vec_resize(&c->uv, 6 * M))
+        tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->uv, 6 * M))
         return TC_ERR_NOMEM;
     size_t old = c->tgrain.len;
     if (tc_vec_resize(&c->tgrain, M) || tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M) ||
@@ -304,13 +308,19 @@ static void stencil_apply(tc_cloth *c, const tc_stencil *s, double sign)
  * any flat configuration of the four vertices; its Hessian is constant, so it costs nothing to
  * re-assemble. Bergou et al. weight by 3/(A0+A1); we use 1/(A0+A1) so that k is the plate's
  * bending stiffness D: a sheet rolled into a cylinder of radius r then stores D/2 A / r^2 (checked
- * in tests/test_fem.py: within 2 % on a regular mesh, ~15 % on a strongly jittered one). */
-int tc_stencil_add(tc_cloth *c, int32_t ep)
+ * in tests/test_fem.py: within 2 % on a regular mesh, ~15 % on a strongly jittered one).
+ *
+ * A stencil is not stored: it lives in vbend and pbend (stencil_apply), and pstencil marks the
+ * edges that have one. Its removal makes it again from the edge's two triangles, which are those
+ * it was made from: every change to a triangle (its corners, its rest shape, its place in ptris)
+ * happens between stencils_off and stencils_on of its edges (remesh.c) or removes it with them
+ * (fragment.c), and rest positions and areas change nowhere else; the same doubles through the same
+ * operations give the same bits, so what the removal subtracts is what the addition added. (Stored,
+ * the stencils were 64 bytes per interior edge: 96 bytes per triangle.) 0: the edge has none. */
+static int stencil_make(const tc_cloth *c, int32_t ep, tc_stencil *s)
 {
-    int32_t *pst = tc_vec_ptr(&c->pstencil);
-    if (pst[ep] >= 0) return TC_OK;
     const int32_t *pt = (const int32_t *)tc_vec_ptr(&c->ptris) + 2 * (size_t)ep;
-    if (pt[0] < 0 || pt[1] < 0) return TC_OK;
+    if (pt[0] < 0 || pt[1] < 0) return 0;
     int32_t v0 = ((int32_t *)tc_vec_ptr(&c->pi))[ep], v1 = ((int32_t *)tc_vec_ptr(&c->pj))[ep];
     const int32_t *T0 = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)pt[0];
     const int32_t *T1 = (const int32_t *)tc_vec_ptr(&c->tri) + 3 * (size_t)pt[1];
@@ -319,26 +329,26 @@ int tc_stencil_add(tc_cloth *c, int32_t ep)
         if (T0[k] != v0 && T0[k] != v1) v2 = T0[k];
         if (T1[k] != v0 && T1[k] != v1) v3 = T1[k];
     }
-    if (v2 < 0 || v3 < 0 || v2 == v3) return TC_OK;
+    if (v2 < 0 || v3 < 0 || v2 == v3) return 0;
     const double *X = tc_vec_ptr(&c->rest);
     const double *x0 = X + 3 * (size_t)v0, *x1 = X + 3 * (size_t)v1, *x2 = X + 3 * (size_t)v2, *x3 = X + 3 * (size_t)v3;
     double c0A = cotan(x0, x1, x2), c1A = cotan(x1, x0, x2);
     double c0B = cotan(x0, x1, x3), c1B = cotan(x1, x0, x3);
     const double *A = tc_vec_ptr(&c->area);
-    tc_stencil s = {.v = {v0, v1, v2, v3},
-                    .q = {c1A + c1B, c0A + c0B, -c0A - c1A, -c0B - c1B},
-                    .coef = 1.0 / (A[pt[0]] + A[pt[1]]),
-                    .pair = ep};
-    int32_t id;
-    if (c->sfree.len) id = ((int32_t *)tc_vec_ptr(&c->sfree))[--c->sfree.len];
-    else {
-        id = (int32_t)c->stencils.len;
-        if (tc_vec_resize(&c->stencils, c->stencils.len + 1)) return TC_ERR_NOMEM;
-    }
-    if (tc_pair_acquire(c, v2, v3) < 0) return TC_ERR_NOMEM;  /* the flap pair */
-    ((tc_stencil *)tc_vec_ptr(&c->stencils))[id] = s;
-    pst = tc_vec_ptr(&c->pstencil);
-    pst[ep] = id;
+    *s = (tc_stencil){.v = {v0, v1, v2, v3},
+                      .q = {c1A + c1B, c0A + c0B, -c0A - c1A, -c0B - c1B},
+                      .coef = 1.0 / (A[pt[0]] + A[pt[1]]),
+                      .pair = ep};
+    return 1;
+}
+
+int tc_stencil_add(tc_cloth *c, int32_t ep)
+{
+    if (((const int32_t *)tc_vec_ptr(&c->pstencil))[ep] >= 0) return TC_OK;
+    tc_stencil s;
+    if (!stencil_make(c, ep, &s)) return TC_OK;
+    if (tc_pair_acquire(c, s.v[2], s.v[3]) < 0) return TC_ERR_NOMEM;  /* the flap pair */
+    ((int32_t *)tc_vec_ptr(&c->pstencil))[ep] = 0;
     stencil_apply(c, &s, 1.0);
     return TC_OK;
 }
@@ -346,20 +356,13 @@ int tc_stencil_add(tc_cloth *c, int32_t ep)
 void tc_stencil_remove(tc_cloth *c, int32_t ep)
 {
     int32_t *pst = tc_vec_ptr(&c->pstencil);
-    int32_t id = pst[ep];
-    if (id < 0) return;
-    tc_stencil s = ((tc_stencil *)tc_vec_ptr(&c->stencils))[id];
-    stencil_apply(c, &s, -1.0);
+    if (pst[ep] < 0) return;
     pst[ep] = -1;
-    /* a freed slot names no vertex: fragment.c's renumbering skips freed slots, so ids kept here
-       went stale when a removal compacted the vertices (past nv: snapshots of it were refused) */
-    tc_stencil *freed = (tc_stencil *)tc_vec_ptr(&c->stencils) + id;
-    freed->pair = -1;
-    for (int k = 0; k < 4; k++) freed->v[k] = -1;
+    tc_stencil s;
+    if (!stencil_make(c, ep, &s)) return;  /* only a corrupted snapshot marks such an edge */
+    stencil_apply(c, &s, -1.0);
     int32_t fp = tc_pair_find(c, s.v[2], s.v[3]);
     if (fp >= 0) tc_pair_release(c, fp);
-    if (tc_vec_resize(&c->sfree, c->sfree.len + 1) == TC_OK)
-        ((int32_t *)tc_vec_ptr(&c->sfree))[c->sfree.len - 1] = id;
 }
 
 /* ---------------- build from arrays ---------------- */

@@ -223,10 +223,9 @@ static int32_t split_edge(tc_cloth *c, int32_t a, int32_t b, double s)
         /* the new element inherits the rotation so the first force evaluation starts from it, and
            the stress (sigma, from which with R the world stress is derived: core.h) so tearing
            later in this step (before the next element pass) reads its parent's instead of zero */
-        double *R = tc_vec_ptr(&c->rot), *SG = tc_vec_ptr(&c->sig), *P2 = tc_vec_ptr(&c->principal);
+        double *R = tc_vec_ptr(&c->rot), *SG = tc_vec_ptr(&c->sig);
         memcpy(R + 6 * (size_t)t2, R + 6 * (size_t)t, 6 * sizeof(double));
         memcpy(SG + 3 * (size_t)t2, SG + 3 * (size_t)t, 3 * sizeof(double));
-        memcpy(P2 + 2 * (size_t)t2, P2 + 2 * (size_t)t, 2 * sizeof(double));
         /* and the material: its warp (in the rest space, where both halves lie in the parent's
            plane), its own grain angle and its plastic strain (in the warp/weft axes), see ortho.c */
         double *TW = tc_vec_ptr(&c->twarp), *TG = tc_vec_ptr(&c->tgrain), *TL = tc_vec_ptr(&c->tplast);

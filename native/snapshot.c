@@ -170,11 +170,11 @@ static int all_finite(const tc_vec *v)
 /* Counts and indices: everything a step dereferences. Returns the name of what is wrong, or NULL. */
 static const char *check(const tc_cloth *c)
 {
-    const size_t nv = (size_t)c->nv, nt = (size_t)c->nt, np = c->pi.len, ns = c->stencils.len;
+    const size_t nv = (size_t)c->nv, nt = (size_t)c->nt, np = c->pi.len;
     struct { const tc_vec *v; size_t len; const char *name; } lens[] = {
         {&c->x, 3 * nv, "x"}, {&c->v, 3 * nv, "v"}, {&c->rest, 3 * nv, "rest"}, {&c->force, 3 * nv, "force"},
         {&c->sb, 3 * nv, "sb"}, {&c->sr, 3 * nv, "sr"}, {&c->sz, 3 * nv, "sz"}, {&c->sp, 3 * nv, "sp"},
-        {&c->sq, 3 * nv, "sq"}, {&c->sfix, 3 * nv, "sfix"}, {&c->sb2, 3 * nv, "sb2"}, {&c->sfix2, 3 * nv, "sfix2"},
+        {&c->sq, 3 * nv, "sq"}, {&c->sfix, 3 * nv, "sfix"}, {&c->sb2, 3 * nv, "sb2"},
         {&c->sdv, 3 * nv, "sdv"}, {&c->x0, 3 * nv, "x0"}, {&c->v0, 3 * nv, "v0"}, {&c->fel, 3 * nv, "fel"},
         {&c->diag, 12 * nv, "diag"}, {&c->pinv, 9 * nv, "pinv"}, {&c->snorm, 9 * nv, "snorm"},
         {&c->scount, nv, "scount"}, {&c->vsa, nv, "vsa"}, {&c->vcstate, nv, "vcstate"}, {&c->vkinetic, 3 * nv, "vkinetic"}, {&c->mass, nv, "mass"}, {&c->vbend, nv, "vbend"},
@@ -182,7 +182,7 @@ static const char *check(const tc_cloth *c)
         {&c->vhandle, nv, "vhandle"}, {&c->vpin, nv, "vpin"}, {&c->groups, nv * (size_t)(c->ng ? c->ng : 1), "groups"},
         {&c->tri, 3 * nt, "tri"}, {&c->tpair, 3 * nt, "tpair"}, {&c->grad, 4 * nt, "grad"}, {&c->area, nt, "area"},
         {&c->rot, 6 * nt, "rot"}, {&c->sig, 3 * nt, "sig"},
-        {&c->principal, 2 * nt, "principal"}, {&c->uv, 6 * nt, "uv"},
+        {&c->uv, 6 * nt, "uv"},
         {&c->pj, np, "pj"}, {&c->puse, np, "puse"}, {&c->ptris, 2 * np, "ptris"}, {&c->pstencil, np, "pstencil"},
         {&c->pbend, np, "pbend"}, {&c->tipdir, 3 * c->tips.len, "tipdir"}, {&c->tipadv, c->tips.len, "tipadv"},
         {&c->cactive, c->cvert.len, "cactive"}, {&c->cnormal, 3 * c->cvert.len, "cnormal"},
@@ -206,9 +206,8 @@ static const char *check(const tc_cloth *c)
     if (!in_range(&c->pi, -1, c->nv)) return "pi";
     if (!in_range(&c->pj, -1, c->nv)) return "pj";
     if (!in_range(&c->ptris, -1, c->nt)) return "ptris";
-    if (!in_range(&c->pstencil, -1, (int64_t)ns)) return "pstencil";
+    if (!in_range(&c->pstencil, -1, (int64_t)INT32_MAX + 1)) return "pstencil";  /* >= 0: has a stencil */
     if (!in_range(&c->pfree, 0, (int64_t)np)) return "pfree";
-    if (!in_range(&c->sfree, 0, (int64_t)ns)) return "sfree";
     if (!in_range(&c->vtri, -1, c->nt)) return "vtri";
     if (!in_range(&c->vhandle, -1, c->nh)) return "vhandle";
     if (!in_range(&c->tips, 0, c->nv)) return "tips";
@@ -217,15 +216,6 @@ static const char *check(const tc_cloth *c)
     if (!in_range(&c->ev_par, -1, c->nv)) return "ev_par";
     if (!in_range(&c->ev_chg, 0, c->nt)) return "ev_chg";
     if (!in_range(&c->ev_newt, 0, c->nt)) return "ev_newt";
-    const tc_stencil *st = tc_vec_ptr(&c->stencils);
-    for (size_t s = 0; s < ns; s++) {
-        if (st[s].pair < -1 || st[s].pair >= (int64_t)np) return "stencils";
-        /* a freed slot (pair -1) is never read, only overwritten when reused: states written before
-           mesh.c cleared its vertices may hold ids a fragment removal left past nv */
-        if (st[s].pair >= 0)
-            for (int k = 0; k < 4; k++)
-                if (st[s].v[k] < 0 || st[s].v[k] >= c->nv) return "stencils";
-    }
     if (c->rows_built) {
         if (c->rptr.len != (size_t)c->rows_nv + 1 || c->fptr.len != (size_t)c->rows_nv + 1 || c->rows_nv > c->nv)
             return "rows";
@@ -337,10 +327,18 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
        judges its contacts afresh, as on first touch) */
     if (arrays < tc_vec_table_len && (tc_vec_resize(&c->vcstate, (size_t)c->nv) || tc_vec_resize(&c->vkinetic, 3 * (size_t)c->nv)))
         FAIL("out of memory");
-    /* a blob of the builds that stored the world stress and principal direction (derived now, see
-       core.h) carries them: nothing reads them, so they go */
-    tc_vec_free(&c->stress); tc_vec_free(&c->pdir);
-    if (tc_vec_init(&c->stress, sizeof(double), 1) || tc_vec_init(&c->pdir, sizeof(double), 1)) FAIL("out of memory");
+    /* a blob of the builds that stored the world stress, the principal stresses and direction
+       (derived now, see core.h) or had a vector of their own for the solve's prescribed part
+       (sfix2: in sz now, solver.c) carries them: nothing reads them, so they go */
+    tc_vec_free(&c->stress); tc_vec_free(&c->pdir); tc_vec_free(&c->principal); tc_vec_free(&c->sfix2);
+    if (tc_vec_init(&c->stress, sizeof(double), 1) || tc_vec_init(&c->pdir, sizeof(double), 1) ||
+        tc_vec_init(&c->principal, sizeof(double), 1) || tc_vec_init(&c->sfix2, sizeof(double), 1))
+        FAIL("out of memory");
+    /* and the builds that stored the bending stencils (made again from the mesh now, mesh.c) carry
+       them and their free list: their pstencil ids, >= 0, mark the edges that have one */
+    tc_vec_free(&c->stencils); tc_vec_free(&c->sfree);
+    if (tc_vec_init(&c->stencils, sizeof(tc_stencil), 1) || tc_vec_init(&c->sfree, sizeof(int32_t), 1))
+        FAIL("out of memory");
     where = "the pair hash";
     uint64_t hcap, hcount, htomb;
     GET(&hcap, 8); GET(&hcount, 8); GET(&htomb, 8);

@@ -352,6 +352,8 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
     const size_t n3 = 3 * (size_t)c->nv;
     double *r = tc_vec_ptr(&c->sr), *z = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp), *q = tc_vec_ptr(&c->sq);
     double rr = *rr_inout;
+    /* q is free while the cycle runs (read only between a product and the update): the cycle keeps
+       its fine residual there (amg.c) */
     double rz = tc_amg_apply(c, c->amg, r, z);
     memcpy(p, z, n3 * sizeof(double));
     int it = 0;
@@ -501,7 +503,9 @@ static double translation_correction(tc_cloth *c, double *v)
 int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations)
 {
     const size_t n3 = 3 * (size_t)c->nv;
-    double *rhs = tc_vec_ptr(&c->sb2), *fix = tc_vec_ptr(&c->sfix), *fixu = tc_vec_ptr(&c->sfix2);
+    /* fixu in sz: read only until pcg's first line projects the warm start, before its first
+       preconditioner application writes z (a vector of its own was 12 bytes per triangle) */
+    double *rhs = tc_vec_ptr(&c->sb2), *fix = tc_vec_ptr(&c->sfix), *fixu = tc_vec_ptr(&c->sz);
     double *q = tc_vec_ptr(&c->sq), *r = tc_vec_ptr(&c->sr);
     tc_matvec(c, v0, rhs);
     for (size_t k = 0; k < n3; k++) { rhs[k] = b[k] - rhs[k]; v[k] -= v0[k]; }

@@ -605,7 +605,7 @@ static int32_t flood(tc_cloth *c, int32_t v, int32_t emark, int32_t fmark)
  * best TC_TEAR_CANDIDATES regions per step, returned best first. */
 static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
 {
-    const double *pr = tc_vec_ptr(&c->principal), *st = tc_vec_ptr(&c->strength);
+    const double *st = tc_vec_ptr(&c->strength);
     double smin = INFINITY;
     for (int32_t v = 0; v < c->nv; v++) smin = st[v] < smin ? st[v] : smin;
     /* woven: no thread index exceeds sigma_1 over the weaker thread's strength */
@@ -614,10 +614,19 @@ static int scan(tc_cloth *c, int32_t t0, int32_t count, candidate *cs)
     const double hot = weakest * smin;
     int32_t vmark = 0, *vs = tc_vec_ptr(&c->vstamp);
     const int32_t *T = tc_vec_ptr(&c->tri);
-    const double *X = tc_vec_ptr(&c->rest);
+    const double *X = tc_vec_ptr(&c->rest), *sig = tc_vec_ptr(&c->sig);
     for (int32_t k = 0; k < count; k++) {
         int32_t t = (t0 + k) % c->nt;
-        if (!(pr[2 * (size_t)t] > hot)) continue;
+        /* sigma_1 = mean + sqrt(dd^2 + sxy^2) <= mean + |dd| + |sxy|: a triangle that bound (with
+           room for the rounding of either side) leaves below the threshold is not hot, without the
+           square root; the others are judged on sigma_1 itself, derived from sigma as the PRINCIPAL
+           array is (core.h) */
+        const double *sg = sig + 3 * (size_t)t;
+        const double mean = 0.5 * (sg[0] + sg[1]), bound = fabs(0.5 * (sg[0] - sg[1])) + fabs(sg[2]);
+        if (mean + bound + 1e-12 * (fabs(mean) + bound) < hot) continue;
+        double pr[2];
+        tc_tri_principal(c, (size_t)t, pr);
+        if (!(pr[0] > hot)) continue;
         if (!vmark) vmark = new_mark(c);
         double P[3];
         for (int q = 0; q < 3; q++) P[q] = (X[3 * T[3 * t] + q] + X[3 * T[3 * t + 1] + q] + X[3 * T[3 * t + 2] + q]) / 3.0;

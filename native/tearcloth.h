@@ -243,8 +243,8 @@ typedef struct tc_energy {
 tc_energy tc_cloth_energy(tc_cloth *c);
 
 /* Arrays, readable without copying; the returned block carries a new reference (tc_buf_decref it).
- * Sizes follow the current vertex / triangle counts. TC_STRESS and TC_PRINCIPAL_DIR are derived
- * at the call (the core keeps the rotation and 2-D stress only) into a block of the caller's own,
+ * Sizes follow the current vertex / triangle counts. TC_STRESS, TC_PRINCIPAL and TC_PRINCIPAL_DIR
+ * are derived at the call (the core keeps the rotation and 2-D stress only) into a block of the caller's own,
  * which later steps do not update. */
 typedef enum tc_array_id {
     TC_POSITIONS,        /* n x 3 float64 */
