@@ -1,0 +1,53 @@
+"""The bench's target table (BENCHMARKS.md): each issue's figure read from the run's JSON, met or
+missed by the issue's own bound, and parts a run did not include simply absent."""
+from tearcloth.bench.report import targets_markdown
+
+
+def rows(table):
+    """{figure: (value, verdict)} of the markdown target table."""
+    out = {}
+    for line in table:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        if len(cells) == 4 and cells[0] not in ("figure", "---"):
+            out[cells[0]] = (cells[1], cells[3])
+    return out
+
+
+def race(ratio, cpu_ratio, share, depth_m, inside):
+    return {"blender_cloth": {"ratio": ratio, "ours_penetration_max_m": depth_m, "ours_vertices_inside": inside,
+                              "detail": {"cpu_ratio": cpu_ratio, "ours_collision_share_of_substep": share}}}
+
+
+def test_the_race_rows_say_met_or_missed_by_the_issue_bounds():
+    r = rows(targets_markdown(race(1.62, 1.38, 0.24, 0.0042, 1)))
+    assert r["ours / Blender cloth per frame"] == ("1.62", "**missed**")
+    assert r["ours / Blender cloth, CPU seconds per frame"][0] == "1.38"
+    assert r["collision share of our sub-step in the race"] == ("0.24", "**missed**")
+    assert r["our deepest vertex in the body, race"] == ("4.2 mm (1 inside)", "met")
+    r = rows(targets_markdown(race(0.45, 0.40, 0.18, 0.006, 0)))
+    assert r["ours / Blender cloth per frame"][1] == "met"
+    assert r["collision share of our sub-step in the race"][1] == "met"
+    assert r["our deepest vertex in the body, race"][1] == "**missed**"  # 6 mm is deeper than 5
+    r = rows(targets_markdown(race(0.45, 0.40, 0.18, 0.001, 5)))
+    assert r["our deepest vertex in the body, race"][1] == "**missed**"  # 5 vertices inside, more than 4
+
+
+def test_scaling_rows_count_bytes_per_triangle_and_unconverged_steps():
+    sc = {"exponent": 1.33, "peak_mb_100k": 118.0, "bytes_per_triangle_100k": 1190.0, "unconverged_steps": 0}
+    r = rows(targets_markdown({"scaling": sc}))
+    assert r["scaling exponent"] == ("1.33", "**missed**")
+    assert r["peak memory per triangle at 100K"] == ("1190 B", "**missed**")
+    assert r["unconverged steps in the scaling run"] == ("0", "met")
+    r = rows(targets_markdown({"scaling": dict(sc, bytes_per_triangle_100k=990.0, unconverged_steps=3)}))
+    assert r["peak memory per triangle at 100K"][1] == "met"
+    assert r["unconverged steps in the scaling run"] == ("3", "**missed**")
+
+
+def test_an_empty_run_has_no_table_and_the_roofline_sentence_reads_the_run():
+    assert targets_markdown({}) == []
+    tshirt = {"fem_ms": 3.17, "tearing_before_ms": 0.011, "tearing_after_ms": 0.007, "tearing_after_steps": 200,
+              "step_ratio_after_50_cuts": 1.06, "total_after_ms": 2.69, "total_before_ms": 3.18,
+              "product_vs_roofline": 4.79}
+    table = targets_markdown({"table1": {"tshirt": tshirt}})
+    assert rows(table)["FEM step, T-shirt (3.3K triangles)"] == ("3.17 ms", "**missed**")
+    assert "4.8x its memory roofline" in table[-2]
