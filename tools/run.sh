@@ -111,7 +111,8 @@ CORE_ONLY=(test_native_arm64.py test_platforms.py test_bake_resume_tshirt.py tes
            test_collision_session.py test_collision_recall.py test_solver_amg.py test_scenes.py
            test_orthotropic.py test_plasticity.py test_fragments.py
            test_fem.py test_solver.py test_solver_simd.py test_snapshot.py test_tearing.py
-           test_collision_kernels.py test_collision_ccd.py test_collision_clusters.py)
+           test_collision_kernels.py test_collision_ccd.py test_collision_clusters.py
+           test_collision_impact.py test_contact_friction.py)
 # pytest workers (pytest-xdist): one per core, at most 4; files stay whole on one worker
 # (--dist loadfile) so module fixtures are built once; the extension zips are built once per run
 # for all workers (tests/extension_build.py). TEARCLOTH_TEST_WORKERS=1: serial.
