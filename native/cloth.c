@@ -43,7 +43,6 @@ void tc_cloth_destroy(tc_cloth *c)
     FOR_EACH_VEC(c, FREE_VEC)
 #undef FREE_VEC
     free(c->hvals);
-    free(c->tslot); free(c->pcover);
     for (int32_t h = 0; h < c->nh; h++) { free(c->handles[h].verts); free(c->handles[h].grasp); }
     free(c->handles);
     tc_amg_free(c->amg);
@@ -153,7 +152,7 @@ int tc_cloth_num_groups(const tc_cloth *c) { return c->ng; }
 tc_stats tc_cloth_stats(const tc_cloth *c) { return c->stats; }
 
 /* The FOR_EACH_VEC arrays, then the storage outside them: one table is the whole account. */
-enum { MEMORY_EXTRA = 3 };
+enum { MEMORY_EXTRA = 2 };
 size_t tc_cloth_memory_count(void) { return tc_vec_table_len + MEMORY_EXTRA; }
 const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *held)
 {
@@ -166,11 +165,7 @@ const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *h
     }
     switch (k - tc_vec_table_len) {
     case 0: *used = (c->hcount + c->htomb) * sizeof(int32_t); *held = c->hcap * sizeof(int32_t); return "pair_hash";
-    case 1:
-        *used = (size_t)c->tslot_nt * 9 * sizeof(int32_t) + c->pi.len;
-        *held = c->tslot_cap * sizeof(int32_t) + c->pcover_cap;  /* tslot_cap counts int32s */
-        return "tslot";
-    case 2: *used = *held = tc_amg_bytes(c->amg); return "amg";
+    case 1: *used = *held = tc_amg_bytes(c->amg); return "amg";
     default: return NULL;
     }
 }

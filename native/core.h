@@ -167,7 +167,10 @@ struct tc_cloth {
     /* solver scratch, sized to 3 * vertex capacity */
     tc_vec diag;             /* 9 per vertex */
     tc_vec pinv;             /* 9 per vertex */
-    tc_vec sb, sr, sz, sp, sq, sfix, x0, v0, fel;
+    tc_vec sr, sz, sp, sq, sfix, v0;
+    tc_vec sb, x0, fel;      /* empty: b lives in force during a sub-step, x0 in sp after the solve
+                                (step.c), the elastic force in force (fem.c's tc_total_force); kept
+                                in the table so that the snapshots of the builds that had them resume */
     tc_vec sb2;              /* right-hand side of the velocity-change solve */
     tc_vec sfix2;            /* empty: its prescribed values live in sz (solver.c); kept in the table
                                 so that the snapshots of the builds that had it resume */
@@ -223,15 +226,6 @@ struct tc_cloth {
                                  new prolongators if one was refreshed for it already */
     bool amg_stale_refreshed; /* refreshed for staleness since its prolongators were made */
     bool amg_chosen;          /* this sub-step's solves use it (solver.c's choose_amg) */
-
-    /* fem.c's per-triangle slot table (derived from the rows, never part of a snapshot: rebuilt
-     * when tslot_version, the rows_version it was built for, or the counts no longer match) */
-    int32_t *tslot;           /* 9 per triangle: per edge, offsets in rblk of its two blocks, 2 pair + first */
-    uint8_t *pcover;          /* per pair: some triangle writes its edge blocks */
-    size_t tslot_cap, pcover_cap;
-    uint64_t tslot_version;
-    int32_t tslot_nt, tslot_nv;
-    bool tslot_built;
 };
 
 /* Every array of a cloth (cloth.c's FOR_EACH_VEC as a table): its name, where it sits in the struct
@@ -307,6 +301,8 @@ int tc_event_changed_triangle(tc_cloth *c, int32_t t);  /* once per step; never 
 /* ---------------- fem.c ---------------- */
 double tc_element_pass(tc_cloth *c, const double *x);  /* returns the largest stretch (NaN if not finite) */
 void tc_bending_force(const tc_cloth *c, const double *x, double *f);
+/* force := the element pass's elastic part (in force) + gravity + bending at x */
+void tc_total_force(tc_cloth *c, const double *x);
 int tc_assemble(tc_cloth *c, double dt);  /* TC_ERR_NOMEM if the rows could not grow */
 /* tc_element_pass at x and tc_assemble for a sub-step of dt in one pass over the triangles; the
  * largest stretch in *worst */
@@ -426,7 +422,6 @@ int tc_fragments_remove(tc_cloth *c);
 int tc_tear_step(tc_cloth *c, double dt);  /* dt: the step just taken (s), for the tips' advance */
 
 /* ---------------- step.c ---------------- */
-void tc_total_force(tc_cloth *c, const double *x);
 void tc_refresh(tc_cloth *c);  /* element state and forces of the current positions, if stale */
 
 #endif

@@ -122,7 +122,7 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
     double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig);
-    double *f = tc_vec_ptr(&c->fel);
+    double *f = tc_vec_ptr(&c->force);  /* the elastic part; tc_total_force adds the rest */
     double carried2 = 0.0;  /* the solver's scale of elastic forces (solver.c) */
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
     for (int32_t t = 0; t < c->nt; t++) {
@@ -206,6 +206,20 @@ TC_HOT void tc_bending_force(const tc_cloth *c, const double *x, double *f)
         fi[0] -= s * xj[0]; fi[1] -= s * xj[1]; fi[2] -= s * xj[2];
         fj[0] -= s * xi[0]; fj[1] -= s * xi[1]; fj[2] -= s * xi[2];
     }
+}
+
+/* The total force at positions x in `force`, which the element pass filled with the elastic part:
+ * plus gravity and bending. (The elastic part had an array of its own, fel, read only here: 12
+ * bytes per triangle. A pass that leaves the element state stale, as tearing's, calls this after
+ * it so that `force` is never the elastic part alone when read.) */
+void tc_total_force(tc_cloth *c, const double *x)
+{
+    double *f = tc_vec_ptr(&c->force);
+    const double *m = tc_vec_ptr(&c->mass);
+    const double *g = c->solver.gravity;
+    for (int32_t i = 0; i < c->nv; i++)
+        for (int k = 0; k < 3; k++) f[3 * i + k] = f[3 * i + k] + m[i] * g[k];
+    tc_bending_force(c, x, f);
 }
 
 /* the small loops inside a lane loop unrolled before the vectoriser runs, which then sees one
@@ -355,7 +369,7 @@ TC_INLINE void assemble_reference(tc_cloth *c, double dt, const bool general)
  * compiler keeps one vector register per quantity (4 doubles in the AVX2/FMA clone of TC_HOT, 2
  * in SSE2, NEON on arm64) with no branch inside (the collapsed elements, rare, are redone one by
  * one through corotate()); then the batch is written out triangle by triangle, in the reference's
- * order, into slots looked up in a table built once per row pattern (tslots_update). The element
+ * order, into the slots of its pairs (batch_slots). The element
  * pass and the assembly share the batch: when both are due on the same positions (a sub-step
  * whose element state was stale) one pass over the triangles does both (tc_element_assemble).
  * They differ from the reference only in rounding (FMA; the corotation's S^-1 by one division; a
@@ -380,45 +394,30 @@ enum { TC_LANES = 4, TSLOT = 9 };
 /* triangle edge e joins local vertices EA[e] and EB[e]; its pair is tpair[3 - EA - EB] */
 static const int EA[3] = {0, 0, 1}, EB[3] = {1, 2, 2};
 
-/* The slot table: for edge e of triangle t, tslot[9 t + 3 e ..] = the offset in rblk of
- * A_{va,vb} in row va, that of A_{vb,va} in row vb, and 2 p + first (p the pair; first when t is
- * the lowest-numbered triangle on the edge: it stores the block where the others add, as the
- * reference's sum does after its clearing, so rblk is never cleared). pcover[p]: some triangle
- * writes edge pair p (else the assembly writes its bending part alone). Rebuilt when the row
- * pattern was (a tear, a split, a fragment removed) or the triangles changed in number. */
-static int tslots_update(tc_cloth *c)
+/* The slots of a batch: for edge e of triangle t, ts[9 l + 3 e ..] (l = t - t0) = the offset in
+ * rblk of A_{va,vb} in row va, that of A_{vb,va} in row vb, and 2 p + first (p the pair; first when
+ * t is the lowest-numbered triangle on the edge: it stores the block where the others add, as the
+ * reference's sum does after its clearing, so rblk is never cleared). Derived per batch from the
+ * pair's slots (pslot) and triangles (ptris): a table of them per triangle, built once per row
+ * pattern, was 36 bytes per triangle (and a byte per pair), a twentieth of the memory of a 100K-
+ * triangle cloth, for 12 lookups a batch into arrays the pass walks in about the same order. */
+TC_INLINE void batch_slots(const tc_cloth *c, int32_t t0, int nl, int32_t *restrict ts)
 {
-    if (c->tslot_built && c->tslot_version == c->rows_version && c->tslot_nt == c->nt && c->tslot_nv == c->nv) return TC_OK;
-    const size_t np = c->pi.len, nt = (size_t)c->nt;
-    if (TSLOT * nt > c->tslot_cap) {
-        int32_t *ts = realloc(c->tslot, TSLOT * nt * sizeof *ts);
-        if (!ts) return TC_ERR_NOMEM;
-        c->tslot = ts; c->tslot_cap = TSLOT * nt;
-    }
-    if (np > c->pcover_cap) {
-        uint8_t *pc = realloc(c->pcover, np);
-        if (!pc) return TC_ERR_NOMEM;
-        c->pcover = pc; c->pcover_cap = np;
-    }
-    memset(c->pcover, 0, np);
     const int32_t *T = tc_vec_ptr(&c->tri), *TP = tc_vec_ptr(&c->tpair), *pi = tc_vec_ptr(&c->pi);
-    const int32_t *slot = tc_vec_ptr(&c->pslot);
-    for (size_t t = 0; t < nt; t++)
+    const int32_t *slot = tc_vec_ptr(&c->pslot), *PT = tc_vec_ptr(&c->ptris);
+    for (int l = 0; l < nl; l++) {
+        const int32_t t = t0 + l;
         TC_UNROLL
         for (int e = 0; e < 3; e++) {
-            const int32_t p = TP[3 * t + (3 - EA[e] - EB[e])];
-            const int own = T[3 * t + EA[e]] == pi[p] ? 0 : 1;  /* which of the pair's slots is row va's */
-            int32_t *ts = c->tslot + TSLOT * t + 3 * e;
-            ts[0] = 9 * slot[2 * p + own];
-            ts[1] = 9 * slot[2 * p + 1 - own];
-            ts[2] = 2 * p + (c->pcover[p] == 0);
-            c->pcover[p] = 1;
+            const int32_t p = TP[3 * (size_t)t + (3 - EA[e] - EB[e])];
+            const int own = T[3 * (size_t)t + EA[e]] == pi[p] ? 0 : 1;  /* which of the pair's slots is row va's */
+            const int32_t a = PT[2 * (size_t)p], b = PT[2 * (size_t)p + 1];  /* t is one of them */
+            int32_t *o = ts + TSLOT * l + 3 * e;
+            o[0] = 9 * slot[2 * (size_t)p + own];
+            o[1] = 9 * slot[2 * (size_t)p + 1 - own];
+            o[2] = 2 * p + ((a < 0 || a >= t) && (b < 0 || b >= t));
         }
-    c->tslot_built = true;
-    c->tslot_version = c->rows_version;
-    c->tslot_nt = c->nt;
-    c->tslot_nv = c->nv;
-    return TC_OK;
+    }
 }
 
 /* What the stiffness of a batch reads, for TC_LANES consecutive triangles as stored (rotation R
@@ -676,14 +675,14 @@ TC_TARGET_AVX2 static void scatter_batch_avx2(double *restrict D, double *restri
 }
 #endif
 
-/* Before the triangles: diagonal blocks cleared to mass and bending, flaps and the edge pairs no
- * triangle writes (none in a consistent mesh) set to their bending part. */
+/* Before the triangles: diagonal blocks cleared to mass and bending, flaps set to their bending
+ * part. (An edge pair is one a triangle uses (ptris), and that triangle writes its blocks.) */
 static void assemble_begin(tc_cloth *c, const fem_params *pp)
 {
     const double ks = pp->ks, kb = pp->kb, ms = pp->ms;
     c->mass_scale = ms;
     const double *m = tc_vec_ptr(&c->mass), *vb = tc_vec_ptr(&c->vbend), *pb = tc_vec_ptr(&c->pbend);
-    double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
+    double *D = tc_vec_ptr(&c->diag), *FV = tc_vec_ptr(&c->fval);
     const int32_t *pi = tc_vec_ptr(&c->pi), *slot = tc_vec_ptr(&c->pslot);
     memset(D, 0, 12 * (size_t)c->nv * sizeof *D);
     for (int32_t v = 0; v < c->nv; v++) {
@@ -692,14 +691,9 @@ static void assemble_begin(tc_cloth *c, const fem_params *pp)
     }
     const size_t np = c->pi.len;
     for (size_t p = 0; p < np; p++) {
-        if (pi[p] < 0) continue;
+        if (pi[p] < 0 || tc_pair_is_edge(c, p)) continue;
         const double s = ks * kb * pb[p];
-        if (!tc_pair_is_edge(c, p)) { FV[slot[2 * p]] = s; FV[slot[2 * p + 1]] = s; continue; }
-        if (c->pcover[p]) continue;
-        double *a = RB + 9 * (size_t)slot[2 * p], *b = RB + 9 * (size_t)slot[2 * p + 1];
-        memset(a, 0, 9 * sizeof *a); memset(b, 0, 9 * sizeof *b);
-        a[0] = s; a[4] = s; a[8] = s;
-        b[0] = s; b[4] = s; b[8] = s;
+        FV[slot[2 * p]] = s; FV[slot[2 * p + 1]] = s;
     }
 }
 
@@ -713,16 +707,15 @@ TC_INLINE void assemble_batch(tc_cloth *c, const fem_params *pp, int32_t t0, int
     const double kbend = pp->ks * pp->kb, *pb = tc_vec_ptr(&c->pbend);
     const int32_t *T = tc_vec_ptr(&c->tri);
     double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk);
+    int32_t ts[TSLOT * TC_LANES];
+    batch_slots(c, t0, nl, ts);
 #ifdef TC_X86_64
     if (tc_simd_level() == TC_SIMD_AVX2) {
-        scatter_batch_avx2(D, RB, T + 3 * (size_t)t0, c->tslot + TSLOT * (size_t)t0, pb, kbend, B, nl);
+        scatter_batch_avx2(D, RB, T + 3 * (size_t)t0, ts, pb, kbend, B, nl);
         return;
     }
 #endif
-    for (int l = 0; l < nl; l++) {
-        const size_t t = (size_t)(t0 + l);
-        scatter_lane(D, RB, T + 3 * t, c->tslot + TSLOT * t, pb, kbend, B, l);
-    }
+    for (int l = 0; l < nl; l++) scatter_lane(D, RB, T + 3 * (size_t)(t0 + l), ts + TSLOT * l, pb, kbend, B, l);
 }
 
 /* The element pass by batches (see element_pass_reference for the physics), and with `fuse` the
@@ -737,7 +730,7 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
     const int32_t *T = tc_vec_ptr(&c->tri);
     const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area);
     double *Rall = tc_vec_ptr(&c->rot), *sig = tc_vec_ptr(&c->sig);
-    double *f = tc_vec_ptr(&c->fel);
+    double *f = tc_vec_ptr(&c->force);  /* the elastic part; tc_total_force adds the rest */
     double worst2 = 0.0, carried2 = 0.0;
     memset(f, 0, 3 * (size_t)c->nv * sizeof *f);
     if (fuse) assemble_begin(c, &pp);
@@ -872,7 +865,7 @@ TC_HOT double tc_element_pass(tc_cloth *c, const double *x)
 
 static int rows_ready(tc_cloth *c)
 {
-    if (tc_rows_update(c) || tslots_update(c)) {
+    if (tc_rows_update(c)) {
         tc_set_err(c, "out of memory building the rows of the system matrix");
         return TC_ERR_NOMEM;
     }

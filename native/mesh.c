@@ -137,8 +137,9 @@ void tc_pair_hash_rebuild(tc_cloth *c)
 int tc_reserve_vertices(tc_cloth *c, int32_t n)
 {
     size_t N = (size_t)n;
-    tc_vec *v3[] = {&c->x, &c->v, &c->rest, &c->force, &c->sb, &c->sr, &c->sz, &c->sp, &c->sq,
-                    &c->sfix, &c->sb2, &c->sdv, &c->x0, &c->v0, &c->fel, &c->vkinetic};
+    /* sb, x0 and fel stay empty (step.c, fem.c) */
+    tc_vec *v3[] = {&c->x, &c->v, &c->rest, &c->force, &c->sr, &c->sz, &c->sp, &c->sq,
+                    &c->sfix, &c->sb2, &c->sdv, &c->v0, &c->vkinetic};
     for (size_t i = 0; i < sizeof v3 / sizeof *v3; i++)
         if (tc_vec_resize(v3[i], 3 * N)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->diag, 12 * N) || tc_vec_resize(&c->pinv, 9 * N) ||

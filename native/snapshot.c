@@ -173,9 +173,9 @@ static const char *check(const tc_cloth *c)
     const size_t nv = (size_t)c->nv, nt = (size_t)c->nt, np = c->pi.len;
     struct { const tc_vec *v; size_t len; const char *name; } lens[] = {
         {&c->x, 3 * nv, "x"}, {&c->v, 3 * nv, "v"}, {&c->rest, 3 * nv, "rest"}, {&c->force, 3 * nv, "force"},
-        {&c->sb, 3 * nv, "sb"}, {&c->sr, 3 * nv, "sr"}, {&c->sz, 3 * nv, "sz"}, {&c->sp, 3 * nv, "sp"},
+        {&c->sr, 3 * nv, "sr"}, {&c->sz, 3 * nv, "sz"}, {&c->sp, 3 * nv, "sp"},
         {&c->sq, 3 * nv, "sq"}, {&c->sfix, 3 * nv, "sfix"}, {&c->sb2, 3 * nv, "sb2"},
-        {&c->sdv, 3 * nv, "sdv"}, {&c->x0, 3 * nv, "x0"}, {&c->v0, 3 * nv, "v0"}, {&c->fel, 3 * nv, "fel"},
+        {&c->sdv, 3 * nv, "sdv"}, {&c->v0, 3 * nv, "v0"},
         {&c->diag, 12 * nv, "diag"}, {&c->pinv, 9 * nv, "pinv"}, {&c->snorm, 9 * nv, "snorm"},
         {&c->scount, nv, "scount"}, {&c->vsa, nv, "vsa"}, {&c->vcstate, nv, "vcstate"}, {&c->vkinetic, 3 * nv, "vkinetic"}, {&c->mass, nv, "mass"}, {&c->vbend, nv, "vbend"},
         {&c->strength, nv, "strength"}, {&c->vtri, nv, "vtri"}, {&c->vflag, nv, "vflag"},
@@ -333,6 +333,14 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
     tc_vec_free(&c->stress); tc_vec_free(&c->pdir); tc_vec_free(&c->principal); tc_vec_free(&c->sfix2);
     if (tc_vec_init(&c->stress, sizeof(double), 1) || tc_vec_init(&c->pdir, sizeof(double), 1) ||
         tc_vec_init(&c->principal, sizeof(double), 1) || tc_vec_init(&c->sfix2, sizeof(double), 1))
+        FAIL("out of memory");
+    /* likewise the builds that had vectors of their own for b, x0 and the elastic force (in force,
+       sp and force now: step.c, fem.c); their contents were scratch, rewritten before read, except
+       the elastic force, which a stale cloth's next sub-step makes again and a fresh one's force
+       already holds in its total */
+    tc_vec_free(&c->sb); tc_vec_free(&c->x0); tc_vec_free(&c->fel);
+    if (tc_vec_init(&c->sb, sizeof(double), 1) || tc_vec_init(&c->x0, sizeof(double), 1) ||
+        tc_vec_init(&c->fel, sizeof(double), 1))
         FAIL("out of memory");
     /* and the builds that stored the bending stencils (made again from the mesh now, mesh.c) carry
        them and their free list: their pstencil ids, >= 0, mark the edges that have one */

@@ -26,17 +26,6 @@
 /* substep()'s outcome when its solve stopped at the iteration cap (internal to this file) */
 enum { TC_UNCONVERGED = -1 };
 
-/* Per-vertex force at positions x: elastic (fel, already computed) + bending + gravity. */
-void tc_total_force(tc_cloth *c, const double *x)
-{
-    double *f = tc_vec_ptr(&c->force);
-    const double *fe = tc_vec_ptr(&c->fel), *m = tc_vec_ptr(&c->mass);
-    const double *g = c->solver.gravity;
-    for (int32_t i = 0; i < c->nv; i++)
-        for (int k = 0; k < 3; k++) f[3 * i + k] = fe[3 * i + k] + m[i] * g[k];
-    tc_bending_force(c, x, f);
-}
-
 void tc_refresh(tc_cloth *c)
 {
     if (!c->dirty) return;
@@ -50,7 +39,11 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     const int32_t n = c->nv;
     const size_t n3 = 3 * (size_t)n;
     double *x = tc_vec_ptr(&c->x), *v = tc_vec_ptr(&c->v);
-    double *x0 = tc_vec_ptr(&c->x0), *v0 = tc_vec_ptr(&c->v0), *b = tc_vec_ptr(&c->sb);
+    /* b (the right-hand side) in `force`: read only to make b here, made again at the sub-step's
+       end (and by a rollback's pass). x0 need not be copied: x stays where the sub-step began
+       until its update below, which keeps a copy in sp first. Each had a vector of
+       its own: 12 bytes per triangle each. */
+    double *v0 = tc_vec_ptr(&c->v0), *b = tc_vec_ptr(&c->force);
     /* element state stale (first sub-step, after a tear, a yield, a setter): its pass and this
        sub-step's assembly share one pass over the triangles (the positions do not move between) */
     const bool fused = c->dirty;
@@ -60,18 +53,18 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         tc_total_force(c, x);
         c->dirty = false;
     }
-    memcpy(x0, x, n3 * sizeof(double));
     memcpy(v0, v, n3 * sizeof(double));
     tc_constraints_begin(c, dt, alpha_target);
     const int32_t nc = (int32_t)c->cvert.len;
+    /* before b takes the force's place: a failed assembly leaves the force as it was */
+    if (!fused && tc_assemble(c, dt)) return TC_ERR_NOMEM;
 
     /* right-hand side M v0 + dt f(x0), and the kinetic friction of the vertices that slid */
-    const double *m = tc_vec_ptr(&c->mass), *f = tc_vec_ptr(&c->force);
+    const double *m = tc_vec_ptr(&c->mass);
     for (int32_t i = 0; i < n; i++)
-        for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * f[3 * i + q];
+        for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * b[3 * i + q];
     if (nc) tc_contacts_kinetic_start(c, b, dt);
 
-    if (!fused && tc_assemble(c, dt)) return TC_ERR_NOMEM;
     tc_precondition_build(c);
     /* warm start: the velocity change of the last step (constant acceleration), exact for a
        falling cloth and close for any smooth motion; pcg projects it onto this step's constraints */
@@ -121,6 +114,9 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
        as the next attempt's first guess, as it leaves its velocity change as the warm start */
     tc_contacts_carry(c);
 
+    /* the solver's scratch is free from here (the carry above read the last of it) */
+    double *x0 = tc_vec_ptr(&c->sp);
+    memcpy(x0, x, n3 * sizeof(double));
     for (size_t k = 0; k < n3; k++) x[k] = x0[k] + dt * v[k];
     tc_contacts_take_back_push(c, v, dt);
     {
@@ -172,7 +168,7 @@ static int span(tc_cloth *c, double dt, double a0, double a1, int depth)
     }
     const size_t n3 = 3 * (size_t)c->nv;
     double *x = tc_vec_ptr(&c->x), *v = tc_vec_ptr(&c->v), *dv = tc_vec_ptr(&c->sdv);
-    memcpy(x, tc_vec_ptr(&c->x0), n3 * sizeof(double));
+    memcpy(x, tc_vec_ptr(&c->sp), n3 * sizeof(double));  /* where the sub-step began (substep) */
     memcpy(v, tc_vec_ptr(&c->v0), n3 * sizeof(double));
     for (size_t k = 0; k < n3; k++) dv[k] *= 0.5;  /* the warm start of a step half as long */
     tc_element_pass(c, x);

@@ -176,7 +176,7 @@ static double disc_stress(tc_cloth *c, int32_t v, double *dir, double *normal, d
 int tc_cloth_vertex_stress(tc_cloth *c, int32_t v, double *value, double direction[3])
 {
     if (v < 0 || v >= c->nv) { tc_set_err(c, "vertex %d is outside [0, %d)", (int)v, (int)c->nv); return TC_ERR_INPUT; }
-    if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); }
+    if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); tc_total_force(c, tc_vec_ptr(&c->x)); }
     if (marks_ready(c)) return TC_ERR_NOMEM;
     *value = disc_stress(c, v, direction, NULL, NULL);
     return TC_OK;
@@ -835,7 +835,7 @@ static int start_tears(tc_cloth *c, const candidate *cs, int n, double dt)
 
 int tc_tear_step(tc_cloth *c, double dt)
 {
-    if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); }
+    if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); tc_total_force(c, tc_vec_ptr(&c->x)); }
     if (c->nt == 0) return TC_OK;
     if (marks_ready(c)) return TC_ERR_NOMEM;
     /* how far: the tips that ran before this step */
@@ -860,7 +860,7 @@ int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3]
     double l = sqrt(dot3(direction, direction));
     if (!(l > 0) || !isfinite(l)) { tc_set_err(c, "scripted tear direction must be a non-zero finite vector"); return TC_ERR_INPUT; }
     if (!(length > 0) || !isfinite(length)) { tc_set_err(c, "scripted tear length must be > 0 m (got %g)", length); return TC_ERR_INPUT; }
-    if (c->dirty) tc_element_pass(c, tc_vec_ptr(&c->x));
+    if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); tc_total_force(c, tc_vec_ptr(&c->x)); }
     double d[3] = {direction[0] / l, direction[1] / l, direction[2] / l};
     const double *x = tc_vec_ptr(&c->x);
     double origin[3] = {x[3 * start], x[3 * start + 1], x[3 * start + 2]};
