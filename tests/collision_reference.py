@@ -19,7 +19,6 @@ from tearcloth import _collide
 from tearcloth.collision import kernels
 from tearcloth.collision.detector import CollisionDetector, _Plan
 from tearcloth.collision.incremental import barycentric, walk
-from tearcloth.collision.measure import AbsoluteMeasure
 from tearcloth.collision.narrow import (RAY_BACKOFF, ClusterBVH, ClusterScenes, Contacts, build_scene, cast,
                                         face_normals, initial_side, vertex_normals)
 
@@ -346,14 +345,7 @@ class ReferenceDetector(CollisionDetector):
         else:
             avg_c, dev_c = kernels.cluster_motion(cloth.clustering, pos, self._cloth_prev)
         lo_c, hi_c = kernels.cluster_boxes(cloth.clustering, pos, self.inflate)
-        due_c = None
-        if self.measure == "absolute":
-            due_c = self._abs.setdefault(
-                "__cloth__", AbsoluteMeasure(self.displacement_threshold, self.lookahead)).accumulate(avg_c, dev_c)
-            forget = getattr(self, "_abs_cloth_forget", None)
-            if forget is not None and len(forget):
-                due_c[forget[forget < due_c.size]] = True
-                self._abs_cloth_forget = None
+        due_c = self._cloth_due(avg_c, dev_c) if self.measure == "absolute" else None
         plans = []
         n_close = 0
         for name, target in self._targets():

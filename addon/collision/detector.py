@@ -538,6 +538,17 @@ class CollisionDetector:
         self._step += 1
         return pos, self._step
 
+    def _cloth_due(self, avg_c, dev_c):
+        """The absolute measure's cloth clusters due for full detection this step (bool (k,)),
+        those a tear marked (_abs_cloth_forget) included once."""
+        due_c = self._abs.setdefault(
+            "__cloth__", AbsoluteMeasure(self.displacement_threshold, self.lookahead)).accumulate(avg_c, dev_c)
+        forget = getattr(self, "_abs_cloth_forget", None)
+        if forget is not None and len(forget):
+            due_c[forget[forget < due_c.size]] = True
+            self._abs_cloth_forget = None
+        return due_c
+
     def detect(self, positions, triangles, velocities=None, dt=None):
         """Contacts of the cloth at ``positions`` (n,3) m with ``triangles`` (m,3).
 
@@ -558,14 +569,7 @@ class CollisionDetector:
         if bound_rule:
             fit_c = kernels.cluster_fit(cloth.clustering, pos, self._cloth_prev, self.trip_reach)
             side_c = (cloth.clustering, pos, self._cloth_prev, fit_c)
-        due_c = None
-        if self.measure == "absolute":
-            due_c = self._abs.setdefault(
-                "__cloth__", AbsoluteMeasure(self.displacement_threshold, self.lookahead)).accumulate(avg_c, dev_c)
-            forget = getattr(self, "_abs_cloth_forget", None)
-            if forget is not None and len(forget):
-                due_c[forget[forget < due_c.size]] = True
-                self._abs_cloth_forget = None
+        due_c = self._cloth_due(avg_c, dev_c) if self.measure == "absolute" else None
         plans = []
         n_close = 0
         for name, target in self._targets():
