@@ -131,8 +131,10 @@ struct tc_cloth {
     tc_vec principal;        /* empty, as stress: sigma's eigenvalues (tc_tri_principal) */
     tc_vec pdir;             /* empty, as stress (tc_principal_dir) */
     tc_vec uv;               /* double x6 corner uv */
-    tc_vec tgrain;           /* double: the triangle's own grain angle (rad), NaN: the material's */
-    tc_vec twarp;            /* double x3: unit warp direction in the rest space (ortho.c) */
+    tc_vec tgrain;           /* double: the triangle's own grain angle (rad), NaN: the material's; empty
+                                until one is set (all NaN, ortho.c) */
+    tc_vec twarp;            /* double x3: unit warp direction in the rest space (ortho.c); empty, with
+                                taxis, while no material has read them (tc_axes_stored) */
     tc_vec taxis;            /* double x2: the warp as (cos, sin) in the triangle's 2-D rest frame */
     tc_vec tplast;           /* double x4: plastic strain in warp/weft axes (ww, ff, wf), kappa */
 
@@ -261,6 +263,10 @@ bool tc_material_general(const tc_material *m);     /* orthotropic or plastic: f
 void tc_ortho_moduli(const tc_material *m, double Q[4]);  /* Q11, Q22, Q12, Q66 in warp/weft axes (Pa) */
 void tc_axes_set(tc_cloth *c, int32_t t, bool from_uv);  /* taxis from twarp (from the UVs if from_uv or unset) */
 void tc_axes_refresh(tc_cloth *c);                  /* every triangle's warp again from its UVs and grain */
+/* twarp and taxis are stored (from the first orthotropic or plastic material on: ortho.c's head) */
+static inline bool tc_axes_stored(const tc_cloth *c) { return c->twarp.len != 0; }
+int tc_axes_store(tc_cloth *c);                     /* made from the UVs and grain if not stored; TC_ERR_NOMEM */
+void tc_tri_warp(const tc_cloth *c, int32_t t, double w[3]);  /* stored, or made as tc_axes_store would */
 int32_t tc_plastic_commit(tc_cloth *c);             /* after a kept sub-step: triangles that yielded */
 
 /* ---------------- mesh.c ---------------- */

@@ -166,12 +166,15 @@ int tc_reserve_triangles(tc_cloth *c, int32_t m)
         tc_vec_resize(&c->grad, 4 * M) || tc_vec_resize(&c->area, M) || tc_vec_resize(&c->rot, 6 * M) ||
         tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->uv, 6 * M))
         return TC_ERR_NOMEM;
-    size_t old = c->tgrain.len;
-    if (tc_vec_resize(&c->tgrain, M) || tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M) ||
+    /* the grain angles and the axes only where stored (ortho.c's head) */
+    const size_t old = c->tgrain.len;
+    if ((old && tc_vec_resize(&c->tgrain, M)) ||
+        (tc_axes_stored(c) && (tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M))) ||
         tc_vec_resize(&c->tplast, 4 * M))
         return TC_ERR_NOMEM;
     /* a new triangle has no grain angle of its own until told (the remesh copies its parent's) */
-    for (size_t t = old; t < M; t++) ((double *)tc_vec_ptr(&c->tgrain))[t] = NAN;
+    if (old)
+        for (size_t t = old; t < M; t++) ((double *)tc_vec_ptr(&c->tgrain))[t] = NAN;
     return TC_OK;
 }
 

@@ -182,7 +182,7 @@ static const char *check(const tc_cloth *c)
         {&c->vhandle, nv, "vhandle"}, {&c->vpin, nv, "vpin"}, {&c->groups, nv * (size_t)(c->ng ? c->ng : 1), "groups"},
         {&c->tri, 3 * nt, "tri"}, {&c->tpair, 3 * nt, "tpair"}, {&c->grad, 4 * nt, "grad"}, {&c->area, nt, "area"},
         {&c->rot, 6 * nt, "rot"}, {&c->sig, 3 * nt, "sig"},
-        {&c->uv, 6 * nt, "uv"},
+        {&c->uv, 6 * nt, "uv"}, {&c->tplast, 4 * nt, "tplast"},
         {&c->pj, np, "pj"}, {&c->puse, np, "puse"}, {&c->ptris, 2 * np, "ptris"}, {&c->pstencil, np, "pstencil"},
         {&c->pbend, np, "pbend"}, {&c->tipdir, 3 * c->tips.len, "tipdir"}, {&c->tipadv, c->tips.len, "tipadv"},
         {&c->cactive, c->cvert.len, "cactive"}, {&c->cnormal, 3 * c->cvert.len, "cnormal"},
@@ -192,6 +192,9 @@ static const char *check(const tc_cloth *c)
     };
     for (size_t k = 0; k < sizeof lens / sizeof *lens; k++)
         if (lens[k].v->len != lens[k].len) return lens[k].name;
+    /* stored or not (ortho.c's head); the axes both or neither */
+    if (c->tgrain.len && c->tgrain.len != nt) return "tgrain";
+    if (c->twarp.len != (c->taxis.len ? 3 * nt : 0) || c->taxis.len != (c->twarp.len ? 2 * nt : 0)) return "twarp";
     if (!all_finite(&c->x)) return "x (not finite)";
     if (!all_finite(&c->v)) return "v (not finite)";
     if (!all_finite(&c->rest)) return "rest (not finite)";
@@ -399,6 +402,8 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
     if (r.at != r.n) FAIL("snapshot is corrupted (%zu bytes left over)", r.n - r.at);
     const char *bad = check(c);
     if (bad) FAIL("snapshot is inconsistent (%s does not match the counts or points out of range)", bad);
+    /* a sheet whose material reads the axes stores them (a blob written so always has them) */
+    if (tc_material_general(&c->mat) && tc_axes_store(c)) FAIL("out of memory");
     return c;
 fail:
     free(keys);
