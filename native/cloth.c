@@ -121,6 +121,7 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
     if (tc_material_general(&c->mat) && tc_axes_store(c)) FAIL("out of memory");
     if (tc_mesh_build(c, msg, msz)) { tc_cloth_destroy(c); return NULL; }
     tc_masses_update(c);
+    tc_pair_hash_drop(c);  /* made again when a tear needs it (mesh.c) */
     c->dirty = true;
     return c;
 #undef FAIL

@@ -146,7 +146,8 @@ struct tc_cloth {
     tc_vec pbend;            /* double: bending scalar for the pair */
     tc_vec pfree;            /* int32 stack of free pair ids */
     /* hash (min,max) -> pair id, open addressing, power-of-two capacity: a slot holds the pair id
-     * (-1 empty, -2 tombstone), its key is that pair's pi, pj (mesh.c) */
+     * (-1 empty, -2 tombstone), its key is that pair's pi, pj (mesh.c); NULL (hcap 0) between a
+     * new cloth's build and its first tear (tc_pair_hash_ensure) */
     int32_t *hvals;
     size_t hcap, hcount, htomb;
 
@@ -275,6 +276,9 @@ int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b);
 int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b);  /* find or create, use += 1 */
 void tc_pair_release(tc_cloth *c, int32_t p);                 /* use -= 1, frees at 0 */
 void tc_pair_hash_rebuild(tc_cloth *c);                       /* after the pairs' ends were renumbered */
+/* the hash is dropped after a build and made again when a tear needs it (mesh.c) */
+int tc_pair_hash_ensure(tc_cloth *c);                         /* TC_ERR_NOMEM */
+void tc_pair_hash_drop(tc_cloth *c);
 int tc_tri_rest(tc_cloth *c, int32_t t, char *msg, size_t msz);
 void tc_masses_update(tc_cloth *c);
 int tc_stencil_add(tc_cloth *c, int32_t edge_pair);

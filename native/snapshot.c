@@ -111,6 +111,10 @@ int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
         put_u32(&w, (uint32_t)v->item); put_u64(&w, (uint64_t)v->len);
         put(&w, tc_vec_ptr(v), v->len * v->item);
     }
+    /* the pair hash; one dropped (mesh.c: between a build and the first tear) is made for the blob
+       and dropped again (the format keeps it, so the blobs of earlier builds and this one's read alike) */
+    const bool made = !c->hvals;
+    if (made && tc_pair_hash_ensure((tc_cloth *)c)) { free(w.p); return TC_ERR_NOMEM; }
     put_u64(&w, c->hcap); put_u64(&w, c->hcount); put_u64(&w, c->htomb);
     /* the layout of the builds that kept the keys beside the ids (key i, key j, id per slot; key i
        -1 empty, -2 tombstone), so one reader takes the blobs of either: the keys are the pairs'
@@ -121,6 +125,7 @@ int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
         for (size_t s = 0; s < c->hcap; s++) put_i32(&w, c->hvals[s] < 0 ? -1 : pj[c->hvals[s]]);
         put(&w, c->hvals, c->hcap * sizeof(int32_t));
     }
+    if (made) tc_pair_hash_drop((tc_cloth *)c);
     put_i32(&w, c->nh);
     for (int32_t h = 0; h < c->nh; h++) {
         const tc_handle *H = &c->handles[h];

@@ -1365,6 +1365,54 @@ static void test_axes_stored_when_read(void)
     tc_cloth_destroy(a); tc_cloth_destroy(b); tc_cloth_destroy(d);
 }
 
+/* The pair hash is dropped after a build, made again when a tear needs it (mesh.c): lookups agree
+ * with and without it, a snapshot of a sheet without it restores (with it, as read: the restored
+ * sheet's snapshot is the blob), and a scripted tear makes it and cuts. */
+static void test_pair_hash_dropped(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(9, 9, 0.1, 0.1, &V, &T, &n, &m);
+    char msg[512];
+    tc_material mat = tc_material_default();
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, &mat, msg, sizeof msg);
+    CHECK(c, "hash cloth: %s", msg);
+    if (!c) { free(V); free(T); return; }
+    size_t used, held;
+    for (size_t k = 0; k < tc_cloth_memory_count(); k++)
+        if (!strcmp(tc_cloth_memory(c, k, &used, &held), "pair_hash")) CHECK(held == 0, "a built cloth holds its pair hash (%zu bytes)", held);
+    const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
+    const size_t np = c->pi.len;
+    bool scan_ok = true;
+    for (size_t p = 0; p < np; p++) scan_ok &= pi[p] < 0 || (tc_pair_find(c, pj[p], pi[p]) == (int32_t)p);
+    CHECK(scan_ok && tc_pair_find(c, 0, n - 1) == -1, "lookups without the hash");
+    void *blob = NULL; size_t size = 0;
+    CHECK(tc_cloth_snapshot(c, &blob, &size) == TC_OK && !c->hvals, "snapshot without the hash");
+    tc_cloth *d = blob ? tc_cloth_from_snapshot(blob, size, msg, sizeof msg) : NULL;
+    CHECK(d && d->hvals && d->pi.len == np, "restored: %s", d ? "without its hash" : msg);
+    if (d) {
+        void *again = NULL; size_t size2 = 0;
+        CHECK(tc_cloth_snapshot(d, &again, &size2) == TC_OK && size2 == size && !memcmp(again, blob, size), "restored sheet's blob differs");
+        free(again);
+        tc_pair_hash_drop(d);  /* and the tear below makes it again */
+    }
+    free(blob);
+    CHECK(tc_pair_hash_ensure(c) == TC_OK && c->hvals && c->hcount + c->htomb < c->hcap, "hash made again");
+    bool hash_ok = true;
+    for (size_t p = 0; p < np; p++) hash_ok &= pi[p] < 0 || (tc_pair_find(c, pi[p], pj[p]) == (int32_t)p);
+    CHECK(hash_ok, "lookups with the hash made again");
+    if (d) {
+        const double dir[3] = {0.0, 1.0, 0.0};  /* from the middle of an edge, into the sheet */
+        int32_t cuts = 0;
+        CHECK(tc_cloth_scripted_tear(d, 4 * 9 + 0, dir, 0.05, &cuts) == TC_OK && cuts > 0 && d->hvals, "scripted tear: %d cuts", (int)cuts);
+        const int32_t *di = tc_vec_ptr(&d->pi), *dj = tc_vec_ptr(&d->pj);
+        bool after = true;
+        for (size_t p = 0; p < d->pi.len; p++) after &= di[p] < 0 || (tc_pair_find(d, di[p], dj[p]) == (int32_t)p);
+        CHECK(after, "lookups after the tear");
+    }
+    free(V); free(T);
+    tc_cloth_destroy(c); tc_cloth_destroy(d);
+}
+
 int main(void)
 {
     printf("kernel %s\n", tc_simd_name(tc_simd_level()));  /* TEARCLOTH_SIMD, or the CPU's best */
@@ -1373,6 +1421,7 @@ int main(void)
     test_defaults_pass_their_checks();
     test_strip_and_tear();
     test_axes_stored_when_read();
+    test_pair_hash_dropped();
     test_contacts_and_arrays();
     test_contact_squeeze_and_friction();
     test_solver();
