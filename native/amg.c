@@ -27,7 +27,13 @@
  *   - Coarsest level (at most TC_AMG_COARSEST unknowns): a dense Cholesky factor.
  * P and the coarse operators are stored in float32 (computed in double, read into double): the
  * V-cycle is a preconditioner, any fixed SPD approximation serves, and half the bytes are half the
- * memory (the target is 1 KB per triangle at 100K) and half the traffic of its products.
+ * memory (the target is 1 KB per triangle at 100K) and half the traffic of its products. A coarse
+ * operator is exactly symmetric (its lower blocks are made as the transposes of the upper ones), so
+ * only its upper blocks (J >= I) are stored; a lower slot names its mirror's block (bsr.vix) and
+ * every reader takes it transposed, with the same operations in the same order as on a stored
+ * copy (the products' lower blocks come first in a row: their accumulators are kept transposed
+ * and turned once per row), so results are those of the full storage to the bit. 36 bytes per
+ * triangle of a 100K-triangle square.
  *
  * Contacts. The V-cycle as a map of the residual is M^-T (M + M^T - A') M^-1 + W A_c^-1 W^T with
  * W = (I - M^-T A') S P and M the forward sweep: symmetric positive for ANY symmetric positive
@@ -66,13 +72,24 @@
 
 enum { NS = 6 };  /* near-null-space modes: 3 translations, 3 rotations */
 
-/* block sparse rows with float32 blocks: n block rows, m block columns, blocks br x bc row-major */
+/* block sparse rows with float32 blocks: n block rows, m block columns, blocks br x bc row-major.
+ * A symmetric one (the coarse operators) stores its upper blocks only: vix gives each slot its
+ * block in val, its own (J >= I) or its mirror's, read transposed (J < I); without vix slot a's
+ * block is val's a-th. */
 typedef struct bsr {
     int32_t n, m, br, bc;
     int32_t *ptr, *col;
+    int32_t *vix;
     float *val;
-    size_t cap_rows, cap_nnz;
+    size_t cap_rows, cap_nnz, cap_val;
 } bsr;
+
+/* slot a's block (of row i: transposed when bsr_lower) */
+static inline const float *bsr_block(const bsr *M, int32_t a)
+{
+    return M->val + (size_t)(M->vix ? M->vix[a] : a) * (size_t)M->br * (size_t)M->bc;
+}
+static inline bool bsr_lower(const bsr *M, int32_t i, int32_t a) { return M->vix && M->col[a] < i; }
 
 typedef struct level {
     int32_t n, b;          /* block rows and block size (3 on the finest level, NS below) */
@@ -125,9 +142,9 @@ static int grow(void **p, size_t *cap, size_t need, size_t item)
     return 0;
 }
 
-/* room for n block rows and nnz blocks, exactly (a hierarchy is made again at the same sizes on
- * every refresh, so slack would only be held) */
-static int bsr_reserve(bsr *a, int32_t n, size_t nnz)
+/* room for n block rows and nnz slots (with their vix when sym), exactly (a hierarchy is made
+ * again at the same sizes on every refresh, so slack would only be held) */
+static int bsr_reserve(bsr *a, int32_t n, size_t nnz, bool sym)
 {
     if ((size_t)n + 1 > a->cap_rows || !a->ptr) {
         int32_t *p = tc_mem_realloc(a->ptr, ((size_t)n + 1) * sizeof(int32_t));
@@ -135,22 +152,38 @@ static int bsr_reserve(bsr *a, int32_t n, size_t nnz)
         a->ptr = p;
         a->cap_rows = (size_t)n + 1;
     }
-    if (nnz > a->cap_nnz || !a->col || !a->val) {
+    if (nnz > a->cap_nnz || !a->col || (sym && !a->vix)) {
         const size_t cn = nnz ? nnz : 1;
         int32_t *col = tc_mem_realloc(a->col, cn * sizeof(int32_t));
         if (!col) return -1;
         a->col = col;
+        if (sym) {
+            int32_t *x = tc_mem_realloc(a->vix, cn * sizeof(int32_t));
+            if (!x) return -1;
+            a->vix = x;
+        }
+        a->cap_nnz = cn;
+    }
+    if (!sym && a->vix) { tc_mem_free(a->vix); a->vix = NULL; }
+    return 0;
+}
+
+/* room for nb blocks of values, exactly */
+static int bsr_reserve_values(bsr *a, size_t nb)
+{
+    if (nb > a->cap_val || !a->val) {
+        const size_t cn = nb ? nb : 1;
         float *v = tc_mem_realloc(a->val, cn * (size_t)a->br * (size_t)a->bc * sizeof(float));
         if (!v) return -1;
         a->val = v;
-        a->cap_nnz = cn;
+        a->cap_val = cn;
     }
     return 0;
 }
 
 static void bsr_free(bsr *a)
 {
-    tc_mem_free(a->ptr); tc_mem_free(a->col); tc_mem_free(a->val);
+    tc_mem_free(a->ptr); tc_mem_free(a->col); tc_mem_free(a->vix); tc_mem_free(a->val);
     memset(a, 0, sizeof *a);
 }
 
@@ -174,7 +207,7 @@ size_t tc_amg_bytes(const tc_amg *h)
         const level *L = &h->lev[l];
         const bsr *m[2] = {&L->A, &L->P};
         for (int k = 0; k < 2; k++)
-            s += m[k]->cap_rows * 4 + m[k]->cap_nnz * (4 + 4 * (size_t)m[k]->br * (size_t)m[k]->bc);
+            s += m[k]->cap_rows * 4 + m[k]->cap_nnz * (m[k]->vix ? 8 : 4) + m[k]->cap_val * 4 * (size_t)m[k]->br * (size_t)m[k]->bc;
         const size_t n = (size_t)L->n, b = (size_t)L->b;
         if (L->agg) s += n * 4;
         if (L->dinv) s += n * b * b * 8;
@@ -414,8 +447,15 @@ static inline int32_t row_get(rowsrc *s, int32_t i, const int32_t **col, const d
     const int32_t a = s->A->ptr[i], k = s->A->ptr[i + 1] - a;
     *col = s->A->col + a;
     if (want_val) {
-        const float *v = s->A->val + (size_t)a * NS * NS;
-        for (size_t q = 0; q < (size_t)k * NS * NS; q++) s->val[q] = v[q];
+        for (int32_t j = 0; j < k; j++) {
+            const float *v = bsr_block(s->A, a + j);
+            double *o = s->val + (size_t)j * NS * NS;
+            if (bsr_lower(s->A, i, a + j))
+                for (int r = 0; r < NS; r++)
+                    for (int q = 0; q < NS; q++) o[r * NS + q] = v[q * NS + r];
+            else
+                for (int q = 0; q < NS * NS; q++) o[q] = v[q];
+        }
         *val = s->val;
     }
     return k;
@@ -442,6 +482,22 @@ static inline int32_t row_get(rowsrc *s, int32_t i, const int32_t **col, const d
 BSR_DOT(dot_3, 3)
 BSR_DOT(dot_6, 6)
 #undef BSR_DOT
+
+/* the same for a symmetric operator (upper blocks stored): a lower slot's block read transposed */
+static void dot_sym(const bsr *M, const double *restrict x, double *restrict y, bool add)
+{
+    for (int32_t i = 0; i < M->n; i++) {
+        double acc[NS] = {0};
+        for (int32_t a = M->ptr[i]; a < M->ptr[i + 1]; a++) {
+            const float *v = bsr_block(M, a);
+            const double *xj = x + (size_t)M->col[a] * NS;
+            const int rs = bsr_lower(M, i, a) ? 1 : NS, cs = rs == 1 ? NS : 1;
+            for (int r = 0; r < NS; r++)
+                for (int q = 0; q < NS; q++) acc[r] += (double)v[r * rs + q * cs] * xj[q];
+        }
+        for (int r = 0; r < NS; r++) y[(size_t)i * NS + r] = add ? y[(size_t)i * NS + r] + acc[r] : acc[r];
+    }
+}
 
 /* y = M^T x (y zeroed first): a scatter over M's rows, the axpy form (the restriction) */
 #define BSR_AXPY_T(NAME, BR)                                                                          \
@@ -504,6 +560,64 @@ AVX2 static inline double hsum(__m256d a, __m128d b)
 BSR_DOT_AVX2(dot_3_avx2, 3)
 BSR_DOT_AVX2(dot_6_avx2, 6)
 #undef BSR_DOT_AVX2
+
+/* Row i of a symmetric operator: its lower slots (a prefix of the row: columns sorted) from *pa
+ * on, summed into a4/a2 (row r: columns 0-3 and 4-5 of the block row, as the kernels above and the
+ * Gauss-Seidel sweep keep them) with the stored upper block A_JI read as A_IJ = A_JI^T: row q of
+ * A_JI is column q of A_IJ, so its accumulators are kept transposed (t[q]: lane r) and turned once
+ * at the end. Each of the 36 sums gets the same fused multiply-adds in the same order as from a
+ * stored A_IJ, so the results are the same to the bit. *pa moves past them. */
+AVX2 static inline void lower_sum_avx2(const bsr *M, int32_t i, int32_t *pa, const double *restrict x, __m256d a4[NS],
+                                       __m128d a2[NS])
+{
+    int32_t a = *pa;
+    const int32_t end = M->ptr[i + 1];
+    for (int r = 0; r < NS; r++) { a4[r] = _mm256_setzero_pd(); a2[r] = _mm_setzero_pd(); }
+    if (a >= end || M->col[a] >= i) return;
+    __m256d t4[NS];
+    __m128d t2[NS];
+    for (int q = 0; q < NS; q++) { t4[q] = _mm256_setzero_pd(); t2[q] = _mm_setzero_pd(); }
+    for (; a < end && M->col[a] < i; a++) {
+        const float *v = bsr_block(M, a);
+        const double *xj = x + (size_t)M->col[a] * NS;
+        for (int q = 0; q < NS; q++) {
+            const __m256d xq = _mm256_broadcast_sd(xj + q);
+            t4[q] = _mm256_fmadd_pd(ld4f(v + q * NS), xq, t4[q]);
+            t2[q] = _mm_fmadd_pd(ld2f(v + q * NS + 4), _mm256_castpd256_pd128(xq), t2[q]);
+        }
+    }
+    double acc[NS * NS];  /* acc[r NS + q] */
+    for (int q = 0; q < NS; q++) {
+        double c[NS];
+        _mm256_storeu_pd(c, t4[q]);
+        _mm_storeu_pd(c + 4, t2[q]);
+        for (int r = 0; r < NS; r++) acc[r * NS + q] = c[r];
+    }
+    for (int r = 0; r < NS; r++) { a4[r] = _mm256_loadu_pd(acc + r * NS); a2[r] = _mm_loadu_pd(acc + r * NS + 4); }
+    *pa = a;
+}
+
+AVX2 static void dot_sym_avx2(const bsr *M, const double *restrict x, double *restrict y, bool add)
+{
+    for (int32_t i = 0; i < M->n; i++) {
+        __m256d a4[NS];
+        __m128d a2[NS];
+        int32_t a = M->ptr[i];
+        lower_sum_avx2(M, i, &a, x, a4, a2);
+        for (; a < M->ptr[i + 1]; a++) {
+            const float *v = bsr_block(M, a);
+            const double *xj = x + (size_t)M->col[a] * NS;
+            const __m256d x4 = _mm256_loadu_pd(xj);
+            const __m128d x2 = _mm_loadu_pd(xj + 4);
+            for (int r = 0; r < NS; r++) {
+                a4[r] = _mm256_fmadd_pd(ld4f(v + r * NS), x4, a4[r]);
+                a2[r] = _mm_fmadd_pd(ld2f(v + r * NS + 4), x2, a2[r]);
+            }
+        }
+        double *yi = y + (size_t)i * NS;
+        for (int r = 0; r < NS; r++) yi[r] = add ? yi[r] + hsum(a4[r], a2[r]) : hsum(a4[r], a2[r]);
+    }
+}
 #define BSR_AXPY_T_AVX2(NAME, BR)                                                                     \
     AVX2 static void NAME(const bsr *M, const double *restrict x, double *restrict y)                 \
     {                                                                                                 \
@@ -548,9 +662,9 @@ static inline bool avx2(void)
 static void bsr_apply(const bsr *M, const double *x, double *y, bool add)
 {
 #ifdef TC_AMG_AVX2
-    if (avx2()) { (M->br == 3 ? dot_3_avx2 : dot_6_avx2)(M, x, y, add); return; }
+    if (avx2()) { (M->vix ? dot_sym_avx2 : M->br == 3 ? dot_3_avx2 : dot_6_avx2)(M, x, y, add); return; }
 #endif
-    (M->br == 3 ? dot_3 : dot_6)(M, x, y, add);
+    (M->vix ? dot_sym : M->br == 3 ? dot_3 : dot_6)(M, x, y, add);
 }
 
 /* y = M^T x */
@@ -577,11 +691,12 @@ static void gs_sweep(const bsr *A, const double *dinv, const double *restrict b,
         for (int32_t a = A->ptr[I]; a < A->ptr[I + 1]; a++) {
             const int32_t J = A->col[a];
             if (J == I) continue;
-            const float *v = A->val + (size_t)a * NS * NS;
+            const float *v = bsr_block(A, a);
             const double *xj = x + (size_t)J * NS;
+            const int rs = bsr_lower(A, I, a) ? 1 : NS, cs = rs == 1 ? NS : 1;  /* A_IJ = A_JI^T */
             for (int r = 0; r < NS; r++) {
                 double t = 0.0;
-                for (int q = 0; q < NS; q++) t += (double)v[r * NS + q] * xj[q];
+                for (int q = 0; q < NS; q++) t += (double)v[r * rs + q * cs] * xj[q];
                 s[r] -= t;
             }
         }
@@ -603,11 +718,12 @@ __attribute__((target("avx2,fma"))) static void gs_sweep_avx2(const bsr *A, cons
         const int32_t I = forward ? k : A->n - 1 - k;
         __m256d a4[NS];
         __m128d a2[NS];
-        for (int r = 0; r < NS; r++) { a4[r] = _mm256_setzero_pd(); a2[r] = _mm_setzero_pd(); }
-        for (int32_t a = A->ptr[I]; a < A->ptr[I + 1]; a++) {
+        int32_t a0 = A->ptr[I];
+        lower_sum_avx2(A, I, &a0, x, a4, a2);  /* the lower blocks, stored as their mirrors */
+        for (int32_t a = a0; a < A->ptr[I + 1]; a++) {
             const int32_t J = A->col[a];
             if (J == I) continue;
-            const float *v = A->val + (size_t)a * NS * NS;
+            const float *v = bsr_block(A, a);
             const double *xj = x + (size_t)J * NS;
             const __m256d x4 = _mm256_loadu_pd(xj);
             const __m128d x2 = _mm_loadu_pd(xj + 4);
@@ -672,7 +788,7 @@ static int scratch(tc_amg *h, int32_t m, size_t acc)
             }                                                                                         \
         }                                                                                             \
         for (int32_t J = 0; J < L->nagg; J++) mark[J] = -1;                                           \
-        if (bsr_reserve(P, n, k)) return -1;                                                          \
+        if (bsr_reserve(P, n, k, false) || bsr_reserve_values(P, k)) return -1;                                                          \
         k = 0;                                                                                        \
         for (int32_t i = 0; i < n; i++) {                                                             \
             P->ptr[i] = (int32_t)k;                                                                   \
@@ -763,7 +879,7 @@ static int galerkin_pattern(tc_amg *h, rowsrc *s, const bsr *P, bsr *C)
     C->n = C->m = na; C->br = C->bc = NS;
     size_t k = 0;
     for (int pass = 0; pass < 2; pass++) {
-        if (pass == 1 && bsr_reserve(C, na, k)) goto done;
+        if (pass == 1 && bsr_reserve(C, na, k, true)) goto done;
         k = 0;
         for (int32_t I = 0; I < na; I++) {
             if (pass) C->ptr[I] = (int32_t)k;
@@ -795,6 +911,22 @@ static int galerkin_pattern(tc_amg *h, rowsrc *s, const bsr *P, bsr *C)
         for (int32_t J = 0; J < na; J++) mark[J] = -1;
     }
     C->ptr[na] = (int32_t)k;
+    /* C is symmetric: its upper blocks stored, in slot order, a lower slot naming its mirror's
+       (one past them a zero block for a mirror missing, which a symmetric A never leaves) */
+    {
+        int32_t nup = 0;
+        for (int32_t I = 0; I < na; I++)
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++)
+                if (C->col[a] >= I) C->vix[a] = nup++;
+        for (int32_t I = 0; I < na; I++)
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++)
+                if (C->col[a] < I) {
+                    const int32_t t = find_slot(C, C->col[a], I);
+                    C->vix[a] = t >= 0 ? C->vix[t] : nup;
+                }
+        if (bsr_reserve_values(C, (size_t)nup + 1)) goto done;
+        memset(C->val + (size_t)nup * NS * NS, 0, NS * NS * sizeof(float));
+    }
     rc = 0;
 done:
     tc_mem_free(tptr); tc_mem_free(trow);
@@ -829,12 +961,13 @@ static inline void flap3(double *restrict acc, double f, const float *restrict p
 {
     for (int k = 0; k < 3 * NS; k++) acc[k] += f * (double)pb[k];
 }
-/* acc (6 x 6) += A (6 x 6 float, row-major) P (6 x 6 float) */
-static inline void blk6(double *restrict acc, const float *restrict a, const float *restrict pb)
+/* acc (6 x 6) += A (6 x 6 float: A[r][q] = a[rs r + cs q], row-major or, a stored mirror,
+ * transposed) P (6 x 6 float) */
+static inline void blk6(double *restrict acc, const float *restrict a, int rs, int cs, const float *restrict pb)
 {
     for (int r = 0; r < NS; r++)
         for (int q = 0; q < NS; q++) {
-            const double x = a[r * NS + q];
+            const double x = a[r * rs + q * cs];
             for (int e = 0; e < NS; e++) acc[r * NS + e] += x * (double)pb[q * NS + e];
         }
 }
@@ -878,7 +1011,7 @@ AVX2I static inline void flap3_avx2(double *restrict acc, double f, const float 
         _mm_storeu_pd(acc + r * NS + 4, _mm_fmadd_pd(_mm256_castpd256_pd128(x), ld2f(pb + r * NS + 4), _mm_loadu_pd(acc + r * NS + 4)));
     }
 }
-AVX2I static inline void blk6_avx2(double *restrict acc, const float *restrict a, const float *restrict pb)
+AVX2I static inline void blk6_avx2(double *restrict acc, const float *restrict a, int rs, int cs, const float *restrict pb)
 {
     __m256d p4[NS];
     __m128d p2[NS];
@@ -887,7 +1020,7 @@ AVX2I static inline void blk6_avx2(double *restrict acc, const float *restrict a
         __m256d o4 = _mm256_loadu_pd(acc + r * NS);
         __m128d o2 = _mm_loadu_pd(acc + r * NS + 4);
         for (int q = 0; q < NS; q++) {
-            const __m256d x = _mm256_set1_pd((double)a[r * NS + q]);
+            const __m256d x = _mm256_set1_pd((double)a[r * rs + q * cs]);
             o4 = _mm256_fmadd_pd(x, p4[q], o4);
             o2 = _mm_fmadd_pd(_mm256_castpd256_pd128(x), p2[q], o2);
         }
@@ -941,7 +1074,7 @@ static inline double *ap_slot(aprow *w, int32_t J, int B)
  * cv (indexed from C->ptr[I0]). */
 #define GALERKIN_ROW(NAME, ATTR, BLK3, FLAP3, BLK6, PTA3, PTA6)                                       \
     ATTR static int NAME(tc_amg *h, const tc_cloth *c, const level *L, int l, const bsr *C, double *cv, aprow *w, \
-                         int32_t i, int32_t I0, int32_t I1)                                           \
+                         int32_t i, int32_t I0, int32_t I1, int32_t vbase)                            \
     {                                                                                                 \
         const bsr *P = &L->P;                                                                         \
         const int B = L->b;                                                                           \
@@ -976,13 +1109,13 @@ static inline double *ap_slot(aprow *w, int32_t J, int B)
             w->acc = h->acc;                                                                          \
             for (int32_t a = L->A.ptr[i]; a < L->A.ptr[i + 1]; a++) {                                 \
                 const int32_t j = L->A.col[a];                                                        \
-                const float *av = L->A.val + (size_t)a * NS * NS;                                     \
+                const float *av = bsr_block(&L->A, a);                                                \
+                const int rs = bsr_lower(&L->A, i, a) ? 1 : NS, cs = rs == 1 ? NS : 1;                \
                 for (int32_t b = P->ptr[j]; b < P->ptr[j + 1]; b++)                                   \
-                    BLK6(ap_slot(w, P->col[b], NS), av, P->val + (size_t)b * NS * NS);                \
+                    BLK6(ap_slot(w, P->col[b], NS), av, rs, cs, P->val + (size_t)b * NS * NS);        \
             }                                                                                         \
         }                                                                                             \
         /* C's row I walked in order, each column's accumulator found by its mark (no search) */     \
-        const int32_t base = C->ptr[I0];                                                              \
         for (int32_t b = P->ptr[i]; b < P->ptr[i + 1]; b++) {                                         \
             const int32_t I = P->col[b];                                                              \
             if (I < I0 || I >= I1) continue;                                                          \
@@ -992,8 +1125,9 @@ static inline double *ap_slot(aprow *w, int32_t J, int B)
                 const int32_t J = C->col[a];                                                          \
                 const int32_t q = J >= I ? w->mark[J] : -1;                                           \
                 if (q < 0) continue;                                                                  \
-                if (B == 3) PTA3(cv + (size_t)(a - base) * NS * NS, pb, w->acc + (size_t)q * 3 * NS); \
-                else PTA6(cv + (size_t)(a - base) * NS * NS, pb, w->acc + (size_t)q * NS * NS);       \
+                double *o = cv + (size_t)(C->vix[a] - vbase) * NS * NS; /* an upper block: stored */    \
+                if (B == 3) PTA3(o, pb, w->acc + (size_t)q * 3 * NS);                                 \
+                else PTA6(o, pb, w->acc + (size_t)q * NS * NS);                                       \
             }                                                                                         \
         }                                                                                             \
         for (int32_t q = 0; q < w->m; q++) w->mark[w->cols[q]] = -1;                                  \
@@ -1006,11 +1140,22 @@ GALERKIN_ROW(galerkin_row_avx2, AVX2F, blk3_avx2, flap3_avx2, blk6_avx2, pta3_av
 #endif
 #undef GALERKIN_ROW
 
+/* upper slots (J >= I, the stored blocks) of C's rows [I0, I1) */
+static int32_t upper_slots(const bsr *C, int32_t I0, int32_t I1)
+{
+    int32_t k = 0;
+    for (int32_t I = I0; I < I1; I++)
+        for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) k += C->col[a] >= I;
+    return k;
+}
+
 /* C = P^T A P on C's pattern (level l: 0 from fem.c's rows, else from the level's float operator),
  * by runs of C's rows of at most TC_AMG_GALERKIN_BLOCKS blocks: the double buffer is that big, not
  * C's size (at 100K triangles C holds ~125K blocks: 36 MB in double beside its 18 MB in float, the
  * peak of a refresh). A fine row whose P reaches two runs is made once for each (few: aggregates
- * are numbered along the mesh). */
+ * are numbered along the mesh). The runs are counted in slots, lower ones too, as when those were
+ * stored: a block's sum then takes its fine rows in the same order; the buffer holds the run's
+ * upper blocks only, the ones summed (about half: half the transient peak of a refresh). */
 static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
 {
     const level *L = &h->lev[l];
@@ -1020,7 +1165,14 @@ static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
     const int32_t most = h->run_blocks > 0 ? h->run_blocks : TC_AMG_GALERKIN_BLOCKS;
     int32_t run = nnz < most ? (nnz ? nnz : 1) : most;
     for (int32_t I = 0; I < C->n; I++) run = C->ptr[I + 1] - C->ptr[I] > run ? C->ptr[I + 1] - C->ptr[I] : run;  /* a row at least */
-    double *cv = tc_mem_malloc((size_t)run * NS * NS * sizeof(double));
+    int32_t most_upper = 1;
+    for (int32_t I0 = 0, I1 = 0; I0 < na; I0 = I1) {  /* the runs below, for the largest one's upper blocks */
+        I1 = I0 + 1;
+        while (I1 < na && C->ptr[I1 + 1] - C->ptr[I0] <= run) I1++;
+        const int32_t u = upper_slots(C, I0, I1);
+        if (u > most_upper) most_upper = u;
+    }
+    double *cv = tc_mem_malloc((size_t)most_upper * NS * NS * sizeof(double));
     int32_t *cols = tc_mem_malloc(((size_t)na + 1) * sizeof(int32_t));
     int32_t *tptr = tc_mem_calloc((size_t)na + 1, sizeof(int32_t)), *trow = tc_mem_malloc(((size_t)P->ptr[n] + 1) * sizeof(int32_t));
     int32_t *seen = tc_mem_malloc(((size_t)n + 1) * sizeof(int32_t));
@@ -1035,11 +1187,12 @@ static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
     tptr[0] = 0;
     for (int32_t i = 0; i < n; i++) seen[i] = -1;
     aprow w = {h->mark, cols, NULL, 0};
+    int32_t vbase = 0;  /* the run's first upper block (they are numbered in slot order) */
     for (int32_t I0 = 0, I1 = 0; I0 < na; I0 = I1) {
         /* the run [I0, I1): at least one row, at most `run` blocks */
         I1 = I0 + 1;
         while (I1 < na && C->ptr[I1 + 1] - C->ptr[I0] <= run) I1++;
-        const int32_t base = C->ptr[I0], nb = C->ptr[I1] - base;
+        const int32_t nb = upper_slots(C, I0, I1);
         memset(cv, 0, (size_t)nb * NS * NS * sizeof(double));
         for (int32_t I = I0; I < I1; I++)
             for (int32_t t = tptr[I]; t < tptr[I + 1]; t++) {
@@ -1047,35 +1200,24 @@ static int galerkin_numeric(tc_amg *h, const tc_cloth *c, int l)
                 if (seen[i] == I0) continue;
                 seen[i] = I0;
 #ifdef TC_AMG_AVX2
-                if (avx2()) { if (galerkin_row_avx2(h, c, L, l, C, cv, &w, i, I0, I1)) goto out; continue; }
+                if (avx2()) { if (galerkin_row_avx2(h, c, L, l, C, cv, &w, i, I0, I1, vbase)) goto out; continue; }
 #endif
-                if (galerkin_row_c(h, c, L, l, C, cv, &w, i, I0, I1)) goto out;
+                if (galerkin_row_c(h, c, L, l, C, cv, &w, i, I0, I1, vbase)) goto out;
             }
-        /* the run's upper blocks narrowed (the diagonal ones made exactly symmetric), its lower
-           blocks the transposes of their mirrors (rows before or in the run: final already), so C
-           is exactly symmetric */
+        /* the run's upper blocks narrowed (the diagonal ones made exactly symmetric); the lower ones
+           are their mirrors, read transposed (C is exactly symmetric) */
         for (int32_t I = I0; I < I1; I++)
             for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
                 const int32_t J = C->col[a];
                 if (J < I) continue;
-                double *u = cv + (size_t)(a - base) * NS * NS;
+                double *u = cv + (size_t)(C->vix[a] - vbase) * NS * NS;
                 if (J == I)
                     for (int r = 0; r < NS; r++)
                         for (int q = r + 1; q < NS; q++) u[r * NS + q] = u[q * NS + r] = 0.5 * (u[r * NS + q] + u[q * NS + r]);
-                float *f = C->val + (size_t)a * NS * NS;
+                float *f = (float *)bsr_block(C, a);
                 for (int q = 0; q < NS * NS; q++) f[q] = (float)u[q];
             }
-        for (int32_t I = I0; I < I1; I++)
-            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
-                const int32_t J = C->col[a];
-                if (J >= I) continue;
-                const int32_t t = find_slot(C, J, I);
-                float *o = C->val + (size_t)a * NS * NS;
-                if (t < 0) { memset(o, 0, NS * NS * sizeof(float)); continue; }  /* cannot happen */
-                const float *u = C->val + (size_t)t * NS * NS;
-                for (int r = 0; r < NS; r++)
-                    for (int q = 0; q < NS; q++) o[r * NS + q] = u[q * NS + r];
-            }
+        vbase += nb;
     }
     rcode = 0;
 out:
@@ -1347,7 +1489,7 @@ static bool coarse_diag_block(const level *L, int32_t I, double d[NS * NS], floa
 {
     const int32_t s = find_slot(&L->A, I, I);
     if (s < 0) return false;
-    float *v = L->A.val + (size_t)s * NS * NS;
+    float *v = (float *)bsr_block(&L->A, s);  /* a diagonal block is stored */
     for (int q = 0; q < NS * NS; q++) d[q] = v[q];
     if (stored) *stored = v;
     return true;
@@ -1389,9 +1531,10 @@ static int coarsest_factor(tc_amg *h)
     for (int32_t i = 0; i < C->n; i++)
         for (int32_t a = C->A.ptr[i]; a < C->A.ptr[i + 1]; a++) {
             const int32_t j = C->A.col[a];
-            const float *v = C->A.val + (size_t)a * NS * NS;
+            const float *v = bsr_block(&C->A, a);
+            const int rs = bsr_lower(&C->A, i, a) ? 1 : NS, cs = rs == 1 ? NS : 1;
             for (int r = 0; r < NS; r++)
-                for (int q = 0; q < NS; q++) h->chol[(size_t)(i * NS + r) * m + (j * NS + q)] = v[r * NS + q];
+                for (int q = 0; q < NS; q++) h->chol[(size_t)(i * NS + r) * m + (j * NS + q)] = v[r * rs + q * cs];
         }
     cholesky(h->chol, m);
     h->nc = m;

@@ -118,8 +118,10 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
     if (groups && n_groups) memcpy(tc_vec_ptr(&c->groups), groups, (size_t)n * n_groups * sizeof(double));
     for (int32_t t = 0; t < m; t++)
         if (tc_tri_rest(c, t, msg, msz)) { tc_cloth_destroy(c); return NULL; }
+    if (tc_material_general(&c->mat) && tc_axes_store(c)) FAIL("out of memory");
     if (tc_mesh_build(c, msg, msz)) { tc_cloth_destroy(c); return NULL; }
     tc_masses_update(c);
+    tc_pair_hash_drop(c);  /* made again when a tear needs it (mesh.c) */
     c->dirty = true;
     return c;
 #undef FAIL
@@ -129,9 +131,13 @@ int tc_cloth_set_material(tc_cloth *c, const tc_material *m)
 {
     if (tc_material_check(m, c->err, sizeof c->err)) return TC_ERR_INPUT;
     double rho_h = c->mat.density * c->mat.thickness, grain = c->mat.grain_angle;
+    const tc_material was = c->mat;
     c->mat = *m;
+    /* the first material that reads the axes makes them, with its grain (ortho.c's head) */
+    if (tc_material_general(m) && !tc_axes_stored(c)) {
+        if (tc_axes_store(c)) { c->mat = was; tc_set_err(c, "out of memory"); return TC_ERR_NOMEM; }
+    } else if (grain != m->grain_angle) tc_axes_refresh(c);
     if (rho_h != m->density * m->thickness) tc_masses_update(c);
-    if (grain != m->grain_angle) tc_axes_refresh(c);
     c->dirty = true;
     return TC_OK;
 }
@@ -226,8 +232,8 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
     case TC_FORCES: v = &c->force; break;
     case TC_GROUPS: v = &c->groups; k = (size_t)c->ng; break;
     case TC_TEAR_STRENGTH: v = &c->strength; k = 1; break;
-    case TC_GRAIN_ANGLES: v = &c->tgrain; r = (size_t)c->nt; k = 1; break;
-    case TC_WARP: v = &c->twarp; r = (size_t)c->nt; k = 3; break;
+    case TC_GRAIN_ANGLES: v = c->tgrain.len ? &c->tgrain : NULL; r = (size_t)c->nt; k = 1; break;
+    case TC_WARP: v = tc_axes_stored(c) ? &c->twarp : NULL; r = (size_t)c->nt; k = 3; break;
     case TC_PLASTIC_STRAIN: v = &c->tplast; r = (size_t)c->nt; k = 4; break;
     case TC_TRIANGLES: v = &c->tri; r = (size_t)c->nt; *item = sizeof(int32_t); break;
     case TC_CORNER_UV: v = &c->uv; r = (size_t)c->nt; k = 6; break;
@@ -239,12 +245,15 @@ tc_buf *tc_cloth_array(tc_cloth *c, tc_array_id id, size_t *rows, size_t *cols, 
     /* outputs must describe the current positions */
     if (id == TC_STRESS || id == TC_PRINCIPAL || id == TC_PRINCIPAL_DIR || id == TC_FORCES) tc_refresh(c);
     *rows = r; *cols = k;
-    if (!v) {  /* derived from R and sigma (core.h), into a block of the reader's own */
+    if (!v) {  /* derived from R and sigma (core.h), or the grain angles and warps a sheet does not
+                  store (all NaN; made from the UVs: ortho.c), into a block of the reader's own */
         tc_buf *b = tc_buf_new(r * k * sizeof(double));
         if (!b) { tc_set_err(c, "out of memory"); return NULL; }
         double *o = (double *)b->data;
         for (size_t t = 0; t < r; t++) {
             if (id == TC_STRESS) tc_tri_world_stress(c, t, o + 9 * t);
+            else if (id == TC_GRAIN_ANGLES) o[t] = NAN;
+            else if (id == TC_WARP) tc_tri_warp(c, (int32_t)t, o + 3 * t);
             else if (id == TC_PRINCIPAL) tc_tri_principal(c, t, o + 2 * t);
             else tc_tri_principal_dir(c, t, o + 3 * t);
         }

@@ -149,8 +149,9 @@
 #define TC_AMG_REFRESH_ITERATIONS 16
 /* numeric refreshes on one set of prolongators before they are made again (RESMOOTH) */
 #define TC_AMG_RESMOOTH 8
-/* blocks of a coarse operator summed in double at a time by a refresh (its transient buffer: 288
- * bytes a block, 1.2 MB; the operator itself is kept in float). At 16384 (4.7 MB) a refresh of a
+/* blocks of a coarse operator summed in double at a time by a refresh (counted in slots, lower ones
+ * too; its transient buffer holds the run's upper blocks, about half: 288 bytes a block, 0.6 MB;
+ * the operator itself is kept in float, upper blocks only). At 16384 (4.7 MB) a refresh of a
  * 100K-triangle cloth peaked 53 bytes per triangle over its steady state; at 4096, 16: a fine row
  * whose P reaches two runs is made once per run, and runs of 4096 blocks still hold most rows of
  * C's 53K (100K triangles: refresh time within the noise of two interleaved runs) */

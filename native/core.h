@@ -131,8 +131,10 @@ struct tc_cloth {
     tc_vec principal;        /* empty, as stress: sigma's eigenvalues (tc_tri_principal) */
     tc_vec pdir;             /* empty, as stress (tc_principal_dir) */
     tc_vec uv;               /* double x6 corner uv */
-    tc_vec tgrain;           /* double: the triangle's own grain angle (rad), NaN: the material's */
-    tc_vec twarp;            /* double x3: unit warp direction in the rest space (ortho.c) */
+    tc_vec tgrain;           /* double: the triangle's own grain angle (rad), NaN: the material's; empty
+                                until one is set (all NaN, ortho.c) */
+    tc_vec twarp;            /* double x3: unit warp direction in the rest space (ortho.c); empty, with
+                                taxis, while no material has read them (tc_axes_stored) */
     tc_vec taxis;            /* double x2: the warp as (cos, sin) in the triangle's 2-D rest frame */
     tc_vec tplast;           /* double x4: plastic strain in warp/weft axes (ww, ff, wf), kappa */
 
@@ -144,7 +146,8 @@ struct tc_cloth {
     tc_vec pbend;            /* double: bending scalar for the pair */
     tc_vec pfree;            /* int32 stack of free pair ids */
     /* hash (min,max) -> pair id, open addressing, power-of-two capacity: a slot holds the pair id
-     * (-1 empty, -2 tombstone), its key is that pair's pi, pj (mesh.c) */
+     * (-1 empty, -2 tombstone), its key is that pair's pi, pj (mesh.c); NULL (hcap 0) between a
+     * new cloth's build and its first tear (tc_pair_hash_ensure) */
     int32_t *hvals;
     size_t hcap, hcount, htomb;
 
@@ -261,6 +264,10 @@ bool tc_material_general(const tc_material *m);     /* orthotropic or plastic: f
 void tc_ortho_moduli(const tc_material *m, double Q[4]);  /* Q11, Q22, Q12, Q66 in warp/weft axes (Pa) */
 void tc_axes_set(tc_cloth *c, int32_t t, bool from_uv);  /* taxis from twarp (from the UVs if from_uv or unset) */
 void tc_axes_refresh(tc_cloth *c);                  /* every triangle's warp again from its UVs and grain */
+/* twarp and taxis are stored (from the first orthotropic or plastic material on: ortho.c's head) */
+static inline bool tc_axes_stored(const tc_cloth *c) { return c->twarp.len != 0; }
+int tc_axes_store(tc_cloth *c);                     /* made from the UVs and grain if not stored; TC_ERR_NOMEM */
+void tc_tri_warp(const tc_cloth *c, int32_t t, double w[3]);  /* stored, or made as tc_axes_store would */
 int32_t tc_plastic_commit(tc_cloth *c);             /* after a kept sub-step: triangles that yielded */
 
 /* ---------------- mesh.c ---------------- */
@@ -269,6 +276,9 @@ int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b);
 int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b);  /* find or create, use += 1 */
 void tc_pair_release(tc_cloth *c, int32_t p);                 /* use -= 1, frees at 0 */
 void tc_pair_hash_rebuild(tc_cloth *c);                       /* after the pairs' ends were renumbered */
+/* the hash is dropped after a build and made again when a tear needs it (mesh.c) */
+int tc_pair_hash_ensure(tc_cloth *c);                         /* TC_ERR_NOMEM */
+void tc_pair_hash_drop(tc_cloth *c);
 int tc_tri_rest(tc_cloth *c, int32_t t, char *msg, size_t msz);
 void tc_masses_update(tc_cloth *c);
 int tc_stencil_add(tc_cloth *c, int32_t edge_pair);

@@ -50,9 +50,44 @@ static int hash_rehash(tc_cloth *c, size_t ncap)
     return TC_OK;
 }
 
+/* The hash serves lookups: the mesh build, tears (tc_tear_step when a tip runs or a tear starts,
+ * tc_cloth_scripted_tear) and the removal of the pieces they free; no step of a cloth that does not
+ * tear reads it. So a new cloth drops it after its build (a 100K-triangle cloth's 2^19 slots: 21
+ * bytes per triangle, 2 % of its memory target) and makes it again from the pairs when a tear
+ * first needs it (tc_pair_hash_ensure); a snapshot carries it (made for the blob where dropped), and
+ * a cloth read from one keeps it as read, so that its own snapshot is the blob it came from. Where it is absent a release leaves it
+ * absent (it is made from the pairs as they are then) and a lookup scans the pairs (a caller that
+ * did not ensure it: correct, slow). */
+int tc_pair_hash_ensure(tc_cloth *c)
+{
+    if (c->hvals) return TC_OK;
+    const int32_t *pi = tc_vec_ptr(&c->pi);
+    size_t live = 0, cap = TC_HASH_INITIAL;
+    for (size_t p = 0; p < c->pi.len; p++) live += pi[p] >= 0;
+    while ((live + 1) * 4 > cap * 3) cap *= 2;  /* under acquire's three-quarter load, one more fits */
+    c->hvals = malloc(cap * sizeof(int32_t));
+    if (!c->hvals) return TC_ERR_NOMEM;
+    c->hcap = cap;
+    tc_pair_hash_rebuild(c);
+    return TC_OK;
+}
+
+void tc_pair_hash_drop(tc_cloth *c)
+{
+    free(c->hvals);
+    c->hvals = NULL;
+    c->hcap = c->hcount = c->htomb = 0;
+}
+
 int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b)
 {
     if (a > b) { int32_t t = a; a = b; b = t; }
+    if (!c->hvals) {
+        const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
+        for (size_t p = 0; p < c->pi.len; p++)
+            if (pi[p] == a && pj[p] == b) return (int32_t)p;
+        return -1;
+    }
     size_t s = hslot(a, b, c->hcap);
     for (;;) {
         int32_t v = c->hvals[s];
@@ -64,6 +99,7 @@ int32_t tc_pair_find(const tc_cloth *c, int32_t a, int32_t b)
 
 int32_t tc_pair_acquire(tc_cloth *c, int32_t a, int32_t b)
 {
+    if (tc_pair_hash_ensure(c)) return -1;
     int32_t p = tc_pair_find(c, a, b);
     c->pair_version++;  /* a new pair, or a triangle's edge where a flap was: the rows change */
     if (p >= 0) { ((int32_t *)tc_vec_ptr(&c->puse))[p]++; return p; }
@@ -107,9 +143,11 @@ void tc_pair_release(tc_cloth *c, int32_t p)
     c->pair_version++;  /* an edge may become a flap, or the pair go */
     if (--use[p] > 0) return;
     int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
-    size_t s = hslot(pi[p], pj[p], c->hcap);
-    while (c->hvals[s] != p) s = (s + 1) & (c->hcap - 1);
-    c->hvals[s] = HTOMB; c->hcount--; c->htomb++;
+    if (c->hvals) {
+        size_t s = hslot(pi[p], pj[p], c->hcap);
+        while (c->hvals[s] != p) s = (s + 1) & (c->hcap - 1);
+        c->hvals[s] = HTOMB; c->hcount--; c->htomb++;
+    }
     pi[p] = -1; pj[p] = -1;
     ((double *)tc_vec_ptr(&c->pbend))[p] = 0.0;
     if (tc_vec_resize(&c->pfree, c->pfree.len + 1) == TC_OK)
@@ -120,6 +158,7 @@ void tc_pair_release(tc_cloth *c, int32_t p)
  * keys than before, so it cannot fail. */
 void tc_pair_hash_rebuild(tc_cloth *c)
 {
+    if (!c->hvals) return;  /* made from the pairs when next needed */
     const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
     for (size_t s = 0; s < c->hcap; s++) c->hvals[s] = HEMPTY;
     c->hcount = 0; c->htomb = 0;
@@ -166,12 +205,15 @@ int tc_reserve_triangles(tc_cloth *c, int32_t m)
         tc_vec_resize(&c->grad, 4 * M) || tc_vec_resize(&c->area, M) || tc_vec_resize(&c->rot, 6 * M) ||
         tc_vec_resize(&c->sig, 3 * M) || tc_vec_resize(&c->uv, 6 * M))
         return TC_ERR_NOMEM;
-    size_t old = c->tgrain.len;
-    if (tc_vec_resize(&c->tgrain, M) || tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M) ||
+    /* the grain angles and the axes only where stored (ortho.c's head) */
+    const size_t old = c->tgrain.len;
+    if ((old && tc_vec_resize(&c->tgrain, M)) ||
+        (tc_axes_stored(c) && (tc_vec_resize(&c->twarp, 3 * M) || tc_vec_resize(&c->taxis, 2 * M))) ||
         tc_vec_resize(&c->tplast, 4 * M))
         return TC_ERR_NOMEM;
     /* a new triangle has no grain angle of its own until told (the remesh copies its parent's) */
-    for (size_t t = old; t < M; t++) ((double *)tc_vec_ptr(&c->tgrain))[t] = NAN;
+    if (old)
+        for (size_t t = old; t < M; t++) ((double *)tc_vec_ptr(&c->tgrain))[t] = NAN;
     return TC_OK;
 }
 

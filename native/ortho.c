@@ -6,7 +6,13 @@
  * AXES. Each triangle keeps its warp as a unit vector in the rest space (twarp), so a triangle the
  * remesh splits hands it on unchanged (the halves lie in the parent's plane), and as (cos, sin) in
  * its own 2-D rest frame (taxis, what the element loop reads), derived again whenever the rest
- * frame is (tc_tri_rest). The warp is the direction of increasing u with v constant, dX/du, as a
+ * frame is (tc_tri_rest). Only a sheet whose material reads them stores them (orthotropic or
+ * plastic: tc_material_general, from the first time its material is, then for good): an isotropic
+ * one reads neither, and they were 40 bytes per triangle, 4 % of the memory target of a
+ * 100K-triangle cloth. When a material first needs them they are made from the UVs and grain
+ * angles (tc_axes_store), as a new cloth makes them; a reader of the warp of a sheet that stores
+ * none gets them made so (tc_tri_warp). Likewise the triangles' own grain angles (tgrain) are
+ * stored from the first tc_cloth_set_grain_angles on; none stored reads as NaN everywhere. The warp is the direction of increasing u with v constant, dX/du, as a
  * thread of a pattern piece laid on the UV map runs (garment patterns carry a grain line: it
  * follows the piece wherever it lies on the body); the weft is the in-plane perpendicular (a
  * sheared UV map is taken as orthogonal threads). Rotated by the grain angle about the rest normal
@@ -73,8 +79,8 @@ static void rest_frame(const tc_cloth *c, int32_t t, double *t1, double *t2, dou
     cross3(n, t1, t2);
 }
 
-/* The warp of triangle t from its UVs and grain angle, into twarp (see the head). */
-static void warp_from_uv(tc_cloth *c, int32_t t, const double *t1, const double *t2, const double *n)
+/* The warp of triangle t from its UVs and grain angle, into w (see the head). */
+static void warp_from_uv(const tc_cloth *c, int32_t t, const double *t1, const double *t2, const double *n, double *w)
 {
     const double *uv = (const double *)tc_vec_ptr(&c->uv) + 6 * (size_t)t, *g = (const double *)tc_vec_ptr(&c->grad) + 4 * (size_t)t;
     /* gradients of u and v in the rest frame; the thread v = const runs along perp(grad v) */
@@ -94,19 +100,19 @@ static void warp_from_uv(tc_cloth *c, int32_t t, const double *t1, const double 
     }
     const double l = sqrt(a * a + b * b);
     a /= l; b /= l;
-    const double own = ((const double *)tc_vec_ptr(&c->tgrain))[t];
+    const double own = c->tgrain.len ? ((const double *)tc_vec_ptr(&c->tgrain))[t] : NAN;
     const double phi = isfinite(own) ? own : c->mat.grain_angle, cp = cos(phi), sp = sin(phi);
     const double ra = a * cp - b * sp, rb = a * sp + b * cp;
-    double *w = (double *)tc_vec_ptr(&c->twarp) + 3 * (size_t)t;
     for (int k = 0; k < 3; k++) w[k] = ra * t1[k] + rb * t2[k];
 }
 
 void tc_axes_set(tc_cloth *c, int32_t t, bool from_uv)
 {
+    if (!tc_axes_stored(c)) return;
     double t1[3], t2[3], n[3];
     rest_frame(c, t, t1, t2, n);
     double *w = (double *)tc_vec_ptr(&c->twarp) + 3 * (size_t)t;
-    if (from_uv || !(dot3(w, w) > 0)) warp_from_uv(c, t, t1, t2, n);
+    if (from_uv || !(dot3(w, w) > 0)) warp_from_uv(c, t, t1, t2, n, w);
     double a = dot3(w, t1), b = dot3(w, t2), l = sqrt(a * a + b * b);
     double *ax = (double *)tc_vec_ptr(&c->taxis) + 2 * (size_t)t;
     if (l > 0 && isfinite(l)) { ax[0] = a / l; ax[1] = b / l; }
@@ -115,7 +121,32 @@ void tc_axes_set(tc_cloth *c, int32_t t, bool from_uv)
 
 void tc_axes_refresh(tc_cloth *c)
 {
+    if (!tc_axes_stored(c)) return;
     for (int32_t t = 0; t < c->nt; t++) tc_axes_set(c, t, true);
+}
+
+int tc_axes_store(tc_cloth *c)
+{
+    if (tc_axes_stored(c)) return TC_OK;
+    const size_t m = (size_t)c->nt;
+    /* fresh blocks: zero, so every warp is unset and made from the UVs, as for a new cloth */
+    if (tc_vec_resize(&c->twarp, 3 * m) || tc_vec_resize(&c->taxis, 2 * m)) {
+        c->twarp.len = c->taxis.len = 0;
+        return TC_ERR_NOMEM;
+    }
+    for (int32_t t = 0; t < c->nt; t++) tc_axes_set(c, t, false);
+    return TC_OK;
+}
+
+void tc_tri_warp(const tc_cloth *c, int32_t t, double w[3])
+{
+    if (tc_axes_stored(c)) {
+        memcpy(w, (const double *)tc_vec_ptr(&c->twarp) + 3 * (size_t)t, 3 * sizeof(double));
+        return;
+    }
+    double t1[3], t2[3], n[3];
+    rest_frame(c, t, t1, t2, n);
+    warp_from_uv(c, t, t1, t2, n, w);
 }
 
 int tc_cloth_set_grain_angles(tc_cloth *c, const double *angles, int32_t m)
@@ -127,6 +158,7 @@ int tc_cloth_set_grain_angles(tc_cloth *c, const double *angles, int32_t m)
                        (int)t, TC_GRAIN_ANGLE_MAX, angles[t]);
             return TC_ERR_INPUT;
         }
+    if (!c->tgrain.len && tc_vec_resize(&c->tgrain, (size_t)m)) { tc_set_err(c, "out of memory"); return TC_ERR_NOMEM; }
     memcpy(tc_vec_ptr(&c->tgrain), angles, (size_t)m * sizeof(double));
     tc_axes_refresh(c);
     c->dirty = true;

@@ -229,8 +229,8 @@ static int32_t split_edge(tc_cloth *c, int32_t a, int32_t b, double s)
         /* and the material: its warp (in the rest space, where both halves lie in the parent's
            plane), its own grain angle and its plastic strain (in the warp/weft axes), see ortho.c */
         double *TW = tc_vec_ptr(&c->twarp), *TG = tc_vec_ptr(&c->tgrain), *TL = tc_vec_ptr(&c->tplast);
-        memcpy(TW + 3 * (size_t)t2, TW + 3 * (size_t)t, 3 * sizeof(double));
-        TG[t2] = TG[t];
+        if (tc_axes_stored(c)) memcpy(TW + 3 * (size_t)t2, TW + 3 * (size_t)t, 3 * sizeof(double));
+        if (c->tgrain.len) TG[t2] = TG[t];
         memcpy(TL + 4 * (size_t)t2, TL + 4 * (size_t)t, 4 * sizeof(double));
         char msg[8];
         if (tc_tri_rest(c, t, msg, sizeof msg) || tc_tri_rest(c, t2, msg, sizeof msg)) {

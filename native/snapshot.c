@@ -111,6 +111,10 @@ int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
         put_u32(&w, (uint32_t)v->item); put_u64(&w, (uint64_t)v->len);
         put(&w, tc_vec_ptr(v), v->len * v->item);
     }
+    /* the pair hash; one dropped (mesh.c: between a build and the first tear) is made for the blob
+       and dropped again (the format keeps it, so the blobs of earlier builds and this one's read alike) */
+    const bool made = !c->hvals;
+    if (made && tc_pair_hash_ensure((tc_cloth *)c)) { free(w.p); return TC_ERR_NOMEM; }
     put_u64(&w, c->hcap); put_u64(&w, c->hcount); put_u64(&w, c->htomb);
     /* the layout of the builds that kept the keys beside the ids (key i, key j, id per slot; key i
        -1 empty, -2 tombstone), so one reader takes the blobs of either: the keys are the pairs'
@@ -121,6 +125,7 @@ int tc_cloth_snapshot(const tc_cloth *c, void **out, size_t *size)
         for (size_t s = 0; s < c->hcap; s++) put_i32(&w, c->hvals[s] < 0 ? -1 : pj[c->hvals[s]]);
         put(&w, c->hvals, c->hcap * sizeof(int32_t));
     }
+    if (made) tc_pair_hash_drop((tc_cloth *)c);
     put_i32(&w, c->nh);
     for (int32_t h = 0; h < c->nh; h++) {
         const tc_handle *H = &c->handles[h];
@@ -182,7 +187,7 @@ static const char *check(const tc_cloth *c)
         {&c->vhandle, nv, "vhandle"}, {&c->vpin, nv, "vpin"}, {&c->groups, nv * (size_t)(c->ng ? c->ng : 1), "groups"},
         {&c->tri, 3 * nt, "tri"}, {&c->tpair, 3 * nt, "tpair"}, {&c->grad, 4 * nt, "grad"}, {&c->area, nt, "area"},
         {&c->rot, 6 * nt, "rot"}, {&c->sig, 3 * nt, "sig"},
-        {&c->uv, 6 * nt, "uv"},
+        {&c->uv, 6 * nt, "uv"}, {&c->tplast, 4 * nt, "tplast"},
         {&c->pj, np, "pj"}, {&c->puse, np, "puse"}, {&c->ptris, 2 * np, "ptris"}, {&c->pstencil, np, "pstencil"},
         {&c->pbend, np, "pbend"}, {&c->tipdir, 3 * c->tips.len, "tipdir"}, {&c->tipadv, c->tips.len, "tipadv"},
         {&c->cactive, c->cvert.len, "cactive"}, {&c->cnormal, 3 * c->cvert.len, "cnormal"},
@@ -192,6 +197,9 @@ static const char *check(const tc_cloth *c)
     };
     for (size_t k = 0; k < sizeof lens / sizeof *lens; k++)
         if (lens[k].v->len != lens[k].len) return lens[k].name;
+    /* stored or not (ortho.c's head); the axes both or neither */
+    if (c->tgrain.len && c->tgrain.len != nt) return "tgrain";
+    if (c->twarp.len != (c->taxis.len ? 3 * nt : 0) || c->taxis.len != (c->twarp.len ? 2 * nt : 0)) return "twarp";
     if (!all_finite(&c->x)) return "x (not finite)";
     if (!all_finite(&c->v)) return "v (not finite)";
     if (!all_finite(&c->rest)) return "rest (not finite)";
@@ -399,6 +407,8 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
     if (r.at != r.n) FAIL("snapshot is corrupted (%zu bytes left over)", r.n - r.at);
     const char *bad = check(c);
     if (bad) FAIL("snapshot is inconsistent (%s does not match the counts or points out of range)", bad);
+    /* a sheet whose material reads the axes stores them (a blob written so always has them) */
+    if (tc_material_general(&c->mat) && tc_axes_store(c)) FAIL("out of memory");
     return c;
 fail:
     free(keys);

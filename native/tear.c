@@ -838,7 +838,8 @@ int tc_tear_step(tc_cloth *c, double dt)
     if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); tc_total_force(c, tc_vec_ptr(&c->x)); }
     if (c->nt == 0) return TC_OK;
     if (marks_ready(c)) return TC_ERR_NOMEM;
-    /* how far: the tips that ran before this step */
+    /* how far: the tips that ran before this step (they look pairs up: mesh.c's hash) */
+    if (c->tips.len && tc_pair_hash_ensure(c)) return TC_ERR_NOMEM;
     if (advance_tips(c, dt)) return TC_ERR_NOMEM;
     /* where: every triangle while no tear runs; with tips, one slice of 1/scan_period per step, so
        a region elsewhere starts its own tear within scan_period steps at a flat cost */
@@ -849,7 +850,7 @@ int tc_tear_step(tc_cloth *c, double dt)
     candidate cs[TC_CANDIDATES_KEPT];
     if (marks_ready(c)) return TC_ERR_NOMEM;
     int n = scan(c, t0, count, cs);
-    int rc = n ? start_tears(c, cs, n, dt) : TC_OK;
+    int rc = n ? (tc_pair_hash_ensure(c) ? TC_ERR_NOMEM : start_tears(c, cs, n, dt)) : TC_OK;
     return rc ? rc : tc_fragments_remove(c);  /* pieces the cuts set free, if tiny */
 }
 
@@ -860,6 +861,7 @@ int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3]
     double l = sqrt(dot3(direction, direction));
     if (!(l > 0) || !isfinite(l)) { tc_set_err(c, "scripted tear direction must be a non-zero finite vector"); return TC_ERR_INPUT; }
     if (!(length > 0) || !isfinite(length)) { tc_set_err(c, "scripted tear length must be > 0 m (got %g)", length); return TC_ERR_INPUT; }
+    if (tc_pair_hash_ensure(c)) { tc_set_err(c, "out of memory"); return TC_ERR_NOMEM; }  /* the cuts look pairs up */
     if (c->dirty) { tc_element_pass(c, tc_vec_ptr(&c->x)); tc_total_force(c, tc_vec_ptr(&c->x)); }
     double d[3] = {direction[0] / l, direction[1] / l, direction[2] / l};
     const double *x = tc_vec_ptr(&c->x);

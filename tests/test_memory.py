@@ -3,7 +3,8 @@ storage that was cut (the pair hash keeps ids only; the world stress, the princi
 direction are derived from R and sigma where read, not stored per triangle; the bending stencils
 are made again from their edge's triangles, not stored; the solve's prescribed part, its
 right-hand side, the sub-step's start x0 and the elastic force live in other vectors; the
-assembly's slots are derived from the pairs', not tabled per triangle)."""
+assembly's slots are derived from the pairs', not tabled per triangle; an isotropic sheet stores
+no warp axes; the pair hash exists only once a tear needed it)."""
 import numpy as np
 
 from meshes import sheet
@@ -39,16 +40,31 @@ def test_the_accounting_names_every_array_and_the_cut_storage_holds_nothing():
     assert "tslot" not in m
     for name in ("stress", "pdir", "principal", "stencils", "sfix2", "sb", "x0", "fel"):
         assert m[name][0] == 0, (name, m[name])
-    # the pair hash holds one int32 per slot at a load between 3/8 and 3/4 (mesh.c): at most
-    # 16 bytes per live pair (it held 48 with the keys beside the ids)
-    pairs = m["pi"][0] // 4  # every pair slot (pi: int32 per pair), live ones at most that
-    assert m["pair_hash"][1] <= 16 * pairs + 4 * 64, (m["pair_hash"], pairs)
-    # the whole cloth in use, per triangle, at 3600 triangles: seen 953 B after the cuts, 1029
-    # before sb, x0, fel (3 x 12 B) and the slot table (39 B) went, 1139 before the stencils (96 B),
-    # principal stresses (16) and sfix2, about 1310 before the world stress and direction (96 B)
-    # and the hash's keys (8 of its 12 bytes per slot)
+    # an isotropic sheet stores no warp axes nor own grain angles (ortho.c: 48 bytes per triangle);
+    # its readers get them derived
+    for name in ("twarp", "taxis", "tgrain"):
+        assert m[name][0] == 0, (name, m[name])
+    assert c.warp.shape == (len(T), 3) and np.allclose(np.linalg.norm(c.warp, axis=1), 1.0)
+    assert np.all(np.isnan(c.grain_angles))
+    # a cloth that never tore holds no pair hash (mesh.c: made when a tear first needs it)
+    assert m["pair_hash"] == (0, 0), m["pair_hash"]
+    # the whole cloth in use, per triangle, at 3600 triangles: seen 895 B after the warp axes and
+    # the hash went, 953 before, 1029 before sb, x0, fel (3 x 12 B) and the slot table (39 B) went,
+    # 1139 before the stencils (96 B), principal stresses (16) and sfix2, about 1310 before the
+    # world stress and direction (96 B) and the hash's keys (8 of its 12 bytes per slot)
     total = sum(u for u, _ in m.values())
-    assert total / len(T) < 1000, total / len(T)
+    assert total / len(T) < 940, total / len(T)
+
+
+def test_the_pair_hash_is_made_again_by_a_tear_within_its_bound():
+    c, V, T = stepped()
+    c.set_tearing(True)
+    assert c.scripted_tear(int(np.argmin(np.abs(V[:, 0] - 0.15) + V[:, 1])), (0.0, 1.0, 0.0), 0.03) > 0
+    m = c._c._memory()
+    # one int32 per slot at a load between 3/8 and 3/4 (mesh.c): at most 16 bytes per live pair
+    # (it held 48 with the keys beside the ids)
+    pairs = m["pi"][0] // 4  # every pair slot (pi: int32 per pair), live ones at most that
+    assert 0 < m["pair_hash"][1] <= 16 * pairs + 4 * 64, (m["pair_hash"], pairs)
 
 
 def test_derived_stress_is_consistent_with_the_principal_values_and_direction():

@@ -1293,6 +1293,126 @@ static void test_big_blocks(void)
     tc_buf_decref(b);
 }
 
+/* The axes (twarp, taxis) and own grain angles are stored only once read (ortho.c's head): an
+ * isotropic sheet holds none, its readers get them made as a stored sheet has them, bit for bit,
+ * and the first orthotropic material makes them as a sheet created with it does. */
+static size_t memory_used(const tc_cloth *c, const char *name)
+{
+    size_t used, held;
+    for (size_t k = 0; k < tc_cloth_memory_count(); k++)
+        if (!strcmp(tc_cloth_memory(c, k, &used, &held), name)) return used;
+    return (size_t)-1;
+}
+
+static void test_axes_stored_when_read(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(6, 5, 0.1, 0.08, &V, &T, &n, &m);
+    double *uv = malloc(6 * (size_t)m * sizeof(double));
+    for (int32_t t = 0; t < m; t++)
+        for (int k = 0; k < 3; k++) {  /* a UV map turned 30 degrees from the sheet's x */
+            const double *p = V + 3 * T[3 * t + k];
+            uv[6 * t + 2 * k] = 0.866 * p[0] + 0.5 * p[1]; uv[6 * t + 2 * k + 1] = -0.5 * p[0] + 0.866 * p[1];
+        }
+    char msg[512];
+    tc_material iso = tc_material_default(), wov = iso;
+    wov.orthotropic = 1; wov.young_weft = 0.5 * wov.young; wov.shear_modulus = 0.1 * wov.young; wov.grain_angle = 0.2;
+    tc_cloth *a = tc_cloth_create(V, n, T, m, NULL, 0, uv, NULL, 0, &iso, msg, sizeof msg);
+    tc_cloth *b = tc_cloth_create(V, n, T, m, NULL, 0, uv, NULL, 0, &wov, msg, sizeof msg);
+    CHECK(a && b, "axes cloths: %s", msg);
+    if (!a || !b) { free(V); free(T); free(uv); tc_cloth_destroy(a); tc_cloth_destroy(b); return; }
+    CHECK(memory_used(a, "twarp") == 0 && memory_used(a, "taxis") == 0 && memory_used(a, "tgrain") == 0,
+          "an isotropic sheet stores axes (%zu, %zu, %zu bytes)", memory_used(a, "twarp"), memory_used(a, "taxis"), memory_used(a, "tgrain"));
+    CHECK(memory_used(b, "twarp") == 24 * (size_t)m && memory_used(b, "taxis") == 16 * (size_t)m, "an orthotropic sheet stores its axes");
+    size_t r, k, item;
+    tc_buf *g = tc_cloth_array(a, TC_GRAIN_ANGLES, &r, &k, &item);
+    CHECK(g && r == (size_t)m && k == 1, "grain angles of an isotropic sheet");
+    if (g) { bool nan = true; for (size_t t = 0; t < r; t++) nan &= isnan(((double *)tc_buf_data(g))[t]); CHECK(nan, "grain angles not NaN"); }
+    tc_buf_decref(g);
+    /* the material's grain made into the stored sheet's warps: the derived ones of `a` with it */
+    iso.grain_angle = wov.grain_angle;
+    CHECK(tc_cloth_set_material(a, &iso) == TC_OK && memory_used(a, "twarp") == 0, "isotropic grain change");
+    tc_buf *wa = tc_cloth_array(a, TC_WARP, &r, &k, &item), *wb = tc_cloth_array(b, TC_WARP, &r, &k, &item);
+    CHECK(wa && wb && r == (size_t)m && k == 3 && !memcmp(tc_buf_data(wa), tc_buf_data(wb), 24 * (size_t)m), "derived warps differ from stored ones");
+    tc_buf_decref(wa);
+    /* a snapshot of the unstored sheet stays so; the first orthotropic material stores the same bits */
+    void *blob = NULL; size_t size = 0;
+    CHECK(tc_cloth_snapshot(a, &blob, &size) == TC_OK, "axes snapshot");
+    tc_cloth *d = blob ? tc_cloth_from_snapshot(blob, size, msg, sizeof msg) : NULL;
+    CHECK(d && memory_used(d, "twarp") == 0, "the unstored axes restored: %s", d ? "stored" : msg);
+    free(blob);
+    CHECK(tc_cloth_set_material(a, &wov) == TC_OK && memory_used(a, "twarp") == 24 * (size_t)m, "orthotropic material stores the axes");
+    wa = tc_cloth_array(a, TC_WARP, &r, &k, &item);
+    CHECK(wa && !memcmp(tc_buf_data(wa), tc_buf_data(wb), 24 * (size_t)m) &&
+          !memcmp(tc_vec_ptr(&a->taxis), tc_vec_ptr(&b->taxis), 16 * (size_t)m), "stored axes differ from a sheet made orthotropic");
+    tc_buf_decref(wa); tc_buf_decref(wb);
+    /* own grain angles: stored from the first set on, read by the derived warps too */
+    double *own = malloc((size_t)m * sizeof(double));
+    for (int32_t t = 0; t < m; t++) own[t] = t % 3 ? NAN : 0.7;
+    if (d) {
+        CHECK(tc_cloth_set_grain_angles(d, own, m) == TC_OK && memory_used(d, "tgrain") == 8 * (size_t)m, "own grain angles stored");
+        CHECK(tc_cloth_set_grain_angles(b, own, m) == TC_OK, "own grain angles (stored axes)");
+        tc_material dw = tc_cloth_material(d);
+        dw.grain_angle = wov.grain_angle;
+        CHECK(tc_cloth_set_material(d, &dw) == TC_OK, "isotropic grain change");
+        tc_buf *wd = tc_cloth_array(d, TC_WARP, &r, &k, &item);
+        CHECK(wd && !memcmp(tc_buf_data(wd), tc_vec_ptr(&b->twarp), 24 * (size_t)m), "derived warps ignore own grain angles");
+        tc_buf_decref(wd);
+        CHECK(tc_cloth_set_material(d, &wov) == TC_OK && !memcmp(tc_vec_ptr(&d->taxis), tc_vec_ptr(&b->taxis), 16 * (size_t)m),
+              "stored axes ignore own grain angles");
+    }
+    free(own); free(V); free(T); free(uv);
+    tc_cloth_destroy(a); tc_cloth_destroy(b); tc_cloth_destroy(d);
+}
+
+/* The pair hash is dropped after a build, made again when a tear needs it (mesh.c): lookups agree
+ * with and without it, a snapshot of a sheet without it restores (with it, as read: the restored
+ * sheet's snapshot is the blob), and a scripted tear makes it and cuts. */
+static void test_pair_hash_dropped(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(9, 9, 0.1, 0.1, &V, &T, &n, &m);
+    char msg[512];
+    tc_material mat = tc_material_default();
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, &mat, msg, sizeof msg);
+    CHECK(c, "hash cloth: %s", msg);
+    if (!c) { free(V); free(T); return; }
+    size_t used, held;
+    for (size_t k = 0; k < tc_cloth_memory_count(); k++)
+        if (!strcmp(tc_cloth_memory(c, k, &used, &held), "pair_hash")) CHECK(held == 0, "a built cloth holds its pair hash (%zu bytes)", held);
+    const int32_t *pi = tc_vec_ptr(&c->pi), *pj = tc_vec_ptr(&c->pj);
+    const size_t np = c->pi.len;
+    bool scan_ok = true;
+    for (size_t p = 0; p < np; p++) scan_ok &= pi[p] < 0 || (tc_pair_find(c, pj[p], pi[p]) == (int32_t)p);
+    CHECK(scan_ok && tc_pair_find(c, 0, n - 1) == -1, "lookups without the hash");
+    void *blob = NULL; size_t size = 0;
+    CHECK(tc_cloth_snapshot(c, &blob, &size) == TC_OK && !c->hvals, "snapshot without the hash");
+    tc_cloth *d = blob ? tc_cloth_from_snapshot(blob, size, msg, sizeof msg) : NULL;
+    CHECK(d && d->hvals && d->pi.len == np, "restored: %s", d ? "without its hash" : msg);
+    if (d) {
+        void *again = NULL; size_t size2 = 0;
+        CHECK(tc_cloth_snapshot(d, &again, &size2) == TC_OK && size2 == size && !memcmp(again, blob, size), "restored sheet's blob differs");
+        free(again);
+        tc_pair_hash_drop(d);  /* and the tear below makes it again */
+    }
+    free(blob);
+    CHECK(tc_pair_hash_ensure(c) == TC_OK && c->hvals && c->hcount + c->htomb < c->hcap, "hash made again");
+    bool hash_ok = true;
+    for (size_t p = 0; p < np; p++) hash_ok &= pi[p] < 0 || (tc_pair_find(c, pi[p], pj[p]) == (int32_t)p);
+    CHECK(hash_ok, "lookups with the hash made again");
+    if (d) {
+        const double dir[3] = {0.0, 1.0, 0.0};  /* from the middle of an edge, into the sheet */
+        int32_t cuts = 0;
+        CHECK(tc_cloth_scripted_tear(d, 4 * 9 + 0, dir, 0.05, &cuts) == TC_OK && cuts > 0 && d->hvals, "scripted tear: %d cuts", (int)cuts);
+        const int32_t *di = tc_vec_ptr(&d->pi), *dj = tc_vec_ptr(&d->pj);
+        bool after = true;
+        for (size_t p = 0; p < d->pi.len; p++) after &= di[p] < 0 || (tc_pair_find(d, di[p], dj[p]) == (int32_t)p);
+        CHECK(after, "lookups after the tear");
+    }
+    free(V); free(T);
+    tc_cloth_destroy(c); tc_cloth_destroy(d);
+}
+
 int main(void)
 {
     printf("kernel %s\n", tc_simd_name(tc_simd_level()));  /* TEARCLOTH_SIMD, or the CPU's best */
@@ -1300,6 +1420,8 @@ int main(void)
     test_bad_input();
     test_defaults_pass_their_checks();
     test_strip_and_tear();
+    test_axes_stored_when_read();
+    test_pair_hash_dropped();
     test_contacts_and_arrays();
     test_contact_squeeze_and_friction();
     test_solver();
