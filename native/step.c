@@ -83,7 +83,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     c->solver.cg_tolerance = loose;
     int converged = tc_solve_dv(c, v, v0, b, dt, &it);
     c->solver.cg_tolerance = tol;
-    int tight = loose == tol;
+    int tight = loose == tol || c->solve_residual <= tol;  /* (an exact solve: all held, at rest) */
     c->stats.solves++;
     double res = c->solve_residual, resf = c->solve_residual_force, fscale = c->solve_force_scale;
 
@@ -104,17 +104,9 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
             const int last = round == TC_CONTACT_ROUNDS;
             const int changed = tc_contacts_release(c, J, b, !last) + tc_contacts_touch(c, v, dt, !last);
             const int slid = tc_contacts_friction(c, J, v, b, dt, !last);
-            if (last) {  /* said, left as solved */
+            if (last) {  /* said, left as solved (the last round's solve was to the tolerance) */
                 c->stats.friction_cone_exceeded += slid;
                 if (changed + slid) c->stats.contact_rounds_capped++;
-                if (!tight) {
-                    converged &= tc_solve_dv(c, v, v0, b, dt, &it2);
-                    c->stats.solves++;
-                    it += it2;
-                    res = c->solve_residual; resf = c->solve_residual_force; fscale = c->solve_force_scale;
-                    tc_matvec(c, v, J);
-                    tc_contacts_friction(c, J, v, b, dt, 0);  /* the carry's scratch from this solve */
-                }
                 break;
             }
             c->stats.friction_slips += slid;
@@ -123,12 +115,14 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
                 tc_contact_basis(c, dt);
                 tc_precondition_constraints_changed(c);
             }
-            const int confirm = !(changed + slid);  /* the settled state, to the tolerance */
+            /* the settled state to the tolerance, and so is the last round's solve, whatever it
+               changed: the velocity kept is always one solved to the tolerance */
+            const int confirm = !(changed + slid) || round + 1 == TC_CONTACT_ROUNDS;
             if (confirm) loose = tol;  /* and every re-solve after it */
             c->solver.cg_tolerance = confirm ? tol : loose;
             converged &= tc_solve_dv(c, v, v0, b, dt, &it2);
             c->solver.cg_tolerance = tol;
-            tight = confirm || loose == tol;
+            tight = confirm || loose == tol || c->solve_residual <= tol;
             c->stats.solves++;
             it += it2;
             if (tight) { res = c->solve_residual; resf = c->solve_residual_force; fscale = c->solve_force_scale; }
