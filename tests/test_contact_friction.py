@@ -65,9 +65,11 @@ def test_a_sheet_on_an_incline_sticks_or_slides_as_coulomb_says(mu, carried):
             expect = (expect + a * DT) / (1.0 + cloth.material.damping_mass * DT)
         assert v.mean() == pytest.approx(expect, rel=1e-3), (v.mean(), expect)
         assert v.std() < 1e-3 * expect  # a rigid slide
-        # carried, the sheet starts every step after the first sliding as it should: one solve;
-        # forgotten, it is held first and solved again sliding
-        assert solves[1:] == [1 if carried else 2] * (steps - 1), solves
+        # carried, the sheet starts every step after the first sliding as it should: the guess
+        # solve (step.c: at TC_CONTACT_GUESS_LOOSENESS times the tolerance) changes nothing and
+        # only the solve to the tolerance follows; forgotten, it is held first and guessed again
+        # sliding before that one
+        assert solves[1:] == [2 if carried else 3] * (steps - 1), solves
         assert (st["slides_carried"] > 0) == carried
     assert np.abs(cloth.velocities @ n).max() < 1e-3  # stays on the plane
     assert st["contact_rounds_capped"] == 0

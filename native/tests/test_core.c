@@ -415,6 +415,13 @@ static void test_contacts_and_arrays(void)
         int rc = tc_cloth_step(c, 2e-3, 1);
         CHECK(rc == TC_OK, "contact step %d: %s", s, tc_cloth_error(c));
         if (rc) break;
+        /* with contacts the guess solves stop at a looser tolerance (step.c), but the velocity kept
+           is a solve to the tolerance, after at least one guess; without, one solve */
+        const tc_stats st = tc_cloth_stats(c);
+        const double tol = tc_cloth_solver(c).cg_tolerance;
+        CHECK(st.unconverged_substeps > 0 || st.cg_residual <= tol, "step %d: kept residual %g over the tolerance %g", s,
+              st.cg_residual, tol);
+        CHECK(k ? st.solves >= 2 : st.solves == 1, "step %d: %d solves with %d contacts", s, (int)st.solves, (int)k);
     }
     size_t rows, cols, item;
     tc_buf *xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
@@ -1136,7 +1143,8 @@ static void test_lift_and_touch(void)
         if (!pass) {
             CHECK(st.contacts == 0 && lo > 0.05, "thrown up: released, rising at %g..%g m/s", lo, hi);
         } else {
-            CHECK(st.lifts_carried == n && st.contacts == n && st.solves == 2, "thrown down: %lld started released, %d "
+            /* released (a guess), touched and guessed again, then solved to the tolerance */
+            CHECK(st.lifts_carried == n && st.contacts == n && st.solves == 3, "thrown down: %lld started released, %d "
                   "active after, %d solves", (long long)st.lifts_carried, (int)st.contacts, (int)st.solves);
             CHECK(fabs(lo) < 1e-9 && fabs(hi) < 1e-9, "at rest on the plane: %g..%g m/s", lo, hi);
         }
@@ -1231,9 +1239,11 @@ static void test_contact_squeeze_and_friction(void)
         st = tc_cloth_stats(c);
         CHECK(mus[t] < 0.3 ? st.friction_slips > 0 : st.friction_slips == 0, "slips %lld", (long long)st.friction_slips);
         /* a rigid slide with the carried state: its first solve is already right (sliding, with
-           last step's kinetic friction); forgotten: held, then solved again sliding */
+           last step's kinetic friction), a guess (step.c) that only the solve to the tolerance
+           follows; forgotten: held, then guessed again sliding before that one. Held (mu 0.5),
+           every direction is fixed: the first solve is exact, no other follows */
         const int slides = mus[t] < 0.3;
-        CHECK(st.solves == (forget && slides ? 2 : 1), "incline mu %g %s: %d solves in the last step", mus[t],
+        CHECK(st.solves == (slides ? (forget ? 3 : 2) : 1), "incline mu %g %s: %d solves in the last step", mus[t],
               forget ? "forgotten" : "carried", (int)st.solves);
         CHECK(slides && !forget ? st.slides_carried > 0 : st.slides_carried == 0, "slides carried %lld",
               (long long)st.slides_carried);
