@@ -631,6 +631,14 @@ typedef struct {
     double ray_length;  /* full detection's rays (m; a closed body's: track_range + 2 inflate + its extent) */
     double inflate, backoff;
     int first;          /* the first detection of this collider: new hits take their current side */
+    /* the pairs' clearance (optional, NULL: not measured): for each pair fully detected, the shortest
+     * distance along its cloth vertices' lines (+n and -n) to the nearest hit NOT within track_range
+     * (untracked), at most probe_length; track_range for a ray hit within it (it is tracked, the walk
+     * covers it) and for a vertex that was inside a closed body; NaN for the pairs not fully detected.
+     * probe_length >= ray_length: how far the lines of a cloth or thin surface are searched for it
+     * (only hits within ray_length become tracks, so the contacts do not depend on it). */
+    double *clearance;
+    double probe_length;
 } tcc_detect_in;
 
 typedef struct {
