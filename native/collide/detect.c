@@ -15,6 +15,11 @@
  * per ray the nearest, as tcc_merge_classify documents. Bodies use the same native trees as the
  * cloth (bvh.c's module docs say why).
  *
+ * With a clearance array, full detection also measures per pair how far its cloth vertices' lines are
+ * clear beyond the track range (the nearest untracked hit; the cloth's own and a thin surface's lines
+ * searched to probe_length for it, their tracks still only within ray_length): the relative measure's
+ * clearance credit (collision/detector.py's module docs, "Clearance").
+ *
  * The cloth's normals are computed per vertex when the step first needs them (the vertices of
  * tracked rays and of the cast clusters): `done` marks those computed, shared by the step's calls.
  */
