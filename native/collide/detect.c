@@ -316,13 +316,16 @@ int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, t
     for (tcc_idx c = 0; c < in->kc; c++)
         if (in->ptr[c + 1] < in->ptr[c])
             return tcc_fail(err, TCC_ERR_VALUE, "the cloth's cluster bounds must not decrease (cluster %lld)", (long long)c);
-    for (tcc_idx i = 0; i < n; i++)
-        if (in->order[i] < 0 || in->order[i] >= n || in->labels[i] < 0 || in->labels[i] >= in->kc)
-            return tcc_fail(err, TCC_ERR_INDEX, "order / labels entry %lld is out of range", (long long)i);
-    for (tcc_idx f = 0; f < in->target.nt; f++)
-        if (in->tri_labels[f] < 0 || in->tri_labels[f] >= in->kb)
-            return tcc_fail(err, TCC_ERR_INDEX, "tri_labels[%lld] = %lld is not a collider cluster", (long long)f,
-                            (long long)in->tri_labels[f]);
+    /* the branch-free passes (collide.h), then the first bad entry */
+    if (!tcc_all_in_range(in->order, n, n) || !tcc_all_in_range(in->labels, n, in->kc))
+        for (tcc_idx i = 0; i < n; i++)
+            if (in->order[i] < 0 || in->order[i] >= n || in->labels[i] < 0 || in->labels[i] >= in->kc)
+                return tcc_fail(err, TCC_ERR_INDEX, "order / labels entry %lld is out of range", (long long)i);
+    if (!tcc_all_in_range(in->tri_labels, in->target.nt, in->kb))
+        for (tcc_idx f = 0; f < in->target.nt; f++)
+            if (in->tri_labels[f] < 0 || in->tri_labels[f] >= in->kb)
+                return tcc_fail(err, TCC_ERR_INDEX, "tri_labels[%lld] = %lld is not a collider cluster", (long long)f,
+                                (long long)in->tri_labels[f]);
     if (in->nvt != in->vt_ptr[n] || in->vt_ptr[0] != 0)
         return tcc_fail(err, TCC_ERR_VALUE, "vt_ptr must run from 0 to the %lld listed triangles", (long long)in->nvt);
     if (in->bvh.k != in->kb || in->bvh.node_ptr[0] < 0 || in->bvh.node_ptr[in->kb] > in->bvh.nnodes)

@@ -7,6 +7,7 @@
  * failures. */
 #include "collide.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -1490,8 +1491,40 @@ static void test_impact(const mesh *m, int torn)
     free(rest); free(x0); free(x1); free(xa); free(v); free(va); free(mass);
 }
 
+/* collide.h's branch-free table checks against the branchy ones they stand for (every per-call check
+ * of a whole table goes through them): edge values of the int64 range and of the doubles. */
+static void test_table_checks(void)
+{
+    const tcc_idx vals[] = {0, 1, 2, 5, 6, 7, -1, -2, INT64_MIN, INT64_MIN + 1, INT64_MAX, INT64_MAX - 1,
+                            (tcc_idx)1 << 62, -((tcc_idx)1 << 62)};
+    const tcc_idx bounds[] = {-3, 0, 1, 2, 6, 7, INT64_MAX};
+    const int nv = (int)(sizeof vals / sizeof vals[0]);
+    for (int b = 0; b < (int)(sizeof bounds / sizeof bounds[0]); b++)
+        for (int i = 0; i < nv; i++)
+            for (int j = 0; j < nv; j++) {
+                tcc_idx a[5] = {0, vals[i], 0, vals[j], 0}; /* a bad entry among good ones (bound > 0) */
+                int want = 1;
+                for (int k = 0; k < 5; k++) want &= a[k] >= 0 && a[k] < bounds[b];
+                CHECK(tcc_all_in_range(a, 5, bounds[b]) == want, "in range: %lld, %lld in [0, %lld)", (long long)vals[i],
+                      (long long)vals[j], (long long)bounds[b]);
+                CHECK(tcc_all_in_range(a + 1, 1, bounds[b]) == (vals[i] >= 0 && vals[i] < bounds[b]),
+                      "in range: %lld alone in [0, %lld)", (long long)vals[i], (long long)bounds[b]);
+            }
+    CHECK(tcc_all_in_range(vals, 0, -1) == 1, "an empty table is in any range");
+    const double xs[] = {0.0, -0.0, 1.0, -1.5, DBL_MAX, -DBL_MAX, DBL_MIN, 4.9e-324, -4.9e-324, INFINITY, -INFINITY,
+                         NAN, -NAN, 1e308, 3.0e-300};
+    const int nx = (int)(sizeof xs / sizeof xs[0]);
+    for (int i = 0; i < nx; i++)
+        for (int j = 0; j < nx; j++) {
+            double x[7] = {1.0, 2.0, xs[i], 3.0, xs[j], 4.0, 5.0};
+            CHECK(tcc_all_finite(x, 7) == (isfinite(xs[i]) && isfinite(xs[j])), "finite: %g, %g", xs[i], xs[j]);
+        }
+    CHECK(tcc_all_finite(xs, 0) == 1, "an empty table is finite");
+}
+
 int main(void)
 {
+    test_table_checks();
     mesh m = grid();
     test_measure_and_detection_steps(&m);
     test_ccd(&m);
