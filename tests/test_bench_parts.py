@@ -245,3 +245,26 @@ def test_a_simulated_shirt_that_blows_up_ends_its_run_and_says_so(monkeypatch):
     calls["n"] = -10**9  # a run that completes leaves no stop behind
     bc.simulate_worn_shirt(1 / 240, 3, False, settle_s=1 / 240)
     assert bc.LAST_STOP == {}
+
+
+@pytest.mark.core_only
+def test_the_walking_case_carries_the_shirt_forward():
+    """The collision experiment's 'walking' motion (issue 15: the paper's moving character): the
+    root accelerates uniformly to WALK_SPEED over WALK_RAMP_S (no jump in position or speed), the
+    recording starts at that speed, and the simulated shirt goes along with the body."""
+    from tearcloth.bench import collision as bc
+
+    r = bc.WALK_RAMP_S
+    assert np.allclose(bc.root_travel(0.0), 0.0)
+    h = 1e-6
+    speed = lambda t: -(bc.root_travel(t + h)[1] - bc.root_travel(t - h)[1]) / (2 * h)  # noqa: E731
+    assert speed(r - 1e-3) == pytest.approx(bc.WALK_SPEED, rel=1e-2) and speed(r + 0.5) == pytest.approx(bc.WALK_SPEED)
+    assert bc.MOTIONS["walking"] == (True, True) and bc.MOTIONS["moving"] == (True, False)
+    dt = 1 / 240
+    body, shirt, rec, ms, share, tears = bc.simulate_worn_shirt(dt, 6, True, settle_s=dt, travel=True)
+    assert len(rec) == 6
+    body_y = [fr.body[:, 1].mean() for fr in rec]
+    cloth_y = [fr.cloth[:, 1].mean() for fr in rec]
+    # keyed once per 24 fps frame and interpolated: the body moves at the walking speed
+    assert (body_y[0] - body_y[-1]) / (5 * dt) == pytest.approx(bc.WALK_SPEED, rel=0.1)
+    assert (cloth_y[0] - cloth_y[-1]) / (5 * dt) == pytest.approx(bc.WALK_SPEED, rel=0.3)

@@ -15,6 +15,11 @@ dis_dev), cluster AABBs, close pairs by AABB overlap, and the accumulated measur
   detector doubles the tracking margin in this mode (``CollisionDetector.track_range``).
 * 'full': every close pair, every step.
 
+A ``RelativeMeasure`` pair's deviation accumulator may start below zero: the detector's clearance
+credit (detector.py module docs, "Clearance") - a pair whose full detection found its lines clear
+beyond the track range restarts at minus that extra margin, so eq. 4's amplitude passes the
+threshold only once the pair has moved by the margin it really has.
+
 Batching (``lookahead``): full detection has a fixed cost per step (vertex normals, one Embree call
 and one fit per collider cluster, refinement, merging) that dwarfs its cost per ray. Per-pair
 accumulators drift out of phase, so the relative measure left alone triggers a few pairs in almost

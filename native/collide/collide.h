@@ -26,6 +26,7 @@
 #include <stddef.h>
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 typedef int64_t tcc_idx;
 
@@ -38,6 +39,37 @@ typedef struct {
 
 /* Records the first error only: later failures keep the message of the first cause. */
 int tcc_fail(tcc_error *err, int code, const char *fmt, ...);
+
+/* The per-call checks of whole tables (cluster orders and labels, a collider's triangle labels, the
+ * swept stage's groups, the positions' finiteness) as one branch-free pass each, which the compiler
+ * vectorizes: with a branch per entry they were ~15 us of a quiet step (bench shirt, 1,700 vertices,
+ * a 7,600-triangle body). A caller that sees a failure re-scans with its own loop for the first bad
+ * entry and its message, so what is checked and what is said are unchanged. */
+
+/* Whether every a[i], i < count, is in [0, bound). Why it holds: for 0 <= a < bound both a and
+ * bound - 1 - a are in [0, bound) (sign bit clear); a negative a has the sign bit set, and for
+ * a >= bound, bound - 1 - a is in [-2^63, 0) (two's complement of int64: sign bit set). */
+static inline int tcc_all_in_range(const tcc_idx *a, tcc_idx count, tcc_idx bound)
+{
+    if (count <= 0) return 1;
+    if (bound <= 0) return 0;
+    uint64_t bad = 0, top = (uint64_t)(bound - 1);
+    for (tcc_idx i = 0; i < count; i++) bad |= (uint64_t)a[i] | (top - (uint64_t)a[i]);
+    return !(bad >> 63);
+}
+
+/* Whether every x[i], i < count, is finite: an exponent of all ones (inf, NaN) carries into the
+ * sign bit when one is added to the exponent field. */
+static inline int tcc_all_finite(const double *x, tcc_idx count)
+{
+    uint64_t bad = 0;
+    for (tcc_idx i = 0; i < count; i++) {
+        uint64_t b;
+        memcpy(&b, x + i, sizeof b);
+        bad |= (b & UINT64_C(0x7ff0000000000000)) + UINT64_C(0x0010000000000000);
+    }
+    return !(bad >> 63);
+}
 
 /* A triangle mesh as the kernels see it. adj/flip may be NULL where no walk is done. */
 typedef struct {
@@ -631,6 +663,14 @@ typedef struct {
     double ray_length;  /* full detection's rays (m; a closed body's: track_range + 2 inflate + its extent) */
     double inflate, backoff;
     int first;          /* the first detection of this collider: new hits take their current side */
+    /* the pairs' clearance (optional, NULL: not measured): for each pair fully detected, the shortest
+     * distance along its cloth vertices' lines (+n and -n) to the nearest hit NOT within track_range
+     * (untracked), at most probe_length; track_range for a ray hit within it (it is tracked, the walk
+     * covers it) and for a vertex that was inside a closed body; NaN for the pairs not fully detected.
+     * probe_length >= ray_length: how far the lines of a cloth or thin surface are searched for it
+     * (only hits within ray_length become tracks, so the contacts do not depend on it). */
+    double *clearance;
+    double probe_length;
 } tcc_detect_in;
 
 typedef struct {

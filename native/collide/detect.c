@@ -15,6 +15,11 @@
  * per ray the nearest, as tcc_merge_classify documents. Bodies use the same native trees as the
  * cloth (bvh.c's module docs say why).
  *
+ * With a clearance array, full detection also measures per pair how far its cloth vertices' lines are
+ * clear beyond the track range (the nearest untracked hit; the cloth's own and a thin surface's lines
+ * searched to probe_length for it, their tracks still only within ray_length): the relative measure's
+ * clearance credit (collision/detector.py's module docs, "Clearance").
+ *
  * The cloth's normals are computed per vertex when the step first needs them (the vertices of
  * tracked rays and of the cast clusters): `done` marks those computed, shared by the step's calls.
  */
@@ -128,8 +133,13 @@ static int tree_ready(tcc_detect_in *in, tcc_idx c, uint8_t *ready, tcc_error *e
  * contact either), so each later cluster is searched only nearer than that. A vertex that was inside
  * keeps every cluster's hit: there a far back face counts without confirmation (tcc_refine), and a
  * nearer front face beyond the track range would not stand in for it. */
-static int cast_cluster(tcc_detect_in *in, const tcc_ring *ring, tcc_idx a, const tcc_idx *b, tcc_idx nb, double len,
-                        const uint8_t *trusted, uint8_t *ready, hit_list *hits, tcc_idx *rays, tcc_error *err)
+/* With in->clearance, each pair pairs[q] (of b[q]) takes the minimum over a's vertices of how far their
+ * lines are clear (tcc_detect_in.clearance): the lines are searched to len, and a ray's nearest hit
+ * counts only beyond track_range (within it the ray is tracked); keep reports which hits become
+ * tracks' candidates: those within keep (a thin surface or the cloth: ray_length, whatever len). */
+static int cast_cluster(tcc_detect_in *in, const tcc_ring *ring, tcc_idx a, const tcc_idx *b, const tcc_idx *pairs,
+                        tcc_idx nb, double len, double keep, const uint8_t *trusted, uint8_t *ready, hit_list *hits,
+                        tcc_idx *rays, tcc_error *err)
 {
     int rc = TCC_OK;
     if (a < 0 || a >= in->kc)
@@ -148,9 +158,13 @@ static int cast_cluster(tcc_detect_in *in, const tcc_ring *ring, tcc_idx a, cons
     for (tcc_idx i = in->ptr[a]; i < in->ptr[a + 1] && rc == TCC_OK; i++) {
         tcc_idx v = in->order[i];
         if ((rc = need_normal(in, v, err))) break;
-        if (!in->has_normal[v]) continue;
         const double *x = in->x + 3 * v, *d = in->normals + 3 * v;
-        if (!(isfinite(x[0]) && isfinite(x[1]) && isfinite(x[2]))) continue;
+        if (!in->has_normal[v] || !(isfinite(x[0]) && isfinite(x[1]) && isfinite(x[2]))) {
+            /* no line to search: this vertex is judged by the paper's margin alone */
+            if (in->clearance)
+                for (tcc_idx q = 0; q < nb; q++) in->clearance[pairs[q]] = fmin(in->clearance[pairs[q]], in->track_range);
+            continue;
+        }
         double inv[3];
         for (int c = 0; c < 3; c++) inv[c] = fabs(d[c]) < 1e-300 ? INFINITY : 1.0 / d[c];
         int keep_all = trusted && trusted[v];
@@ -190,8 +204,17 @@ static int cast_cluster(tcc_detect_in *in, const tcc_ring *ring, tcc_idx a, cons
                 tcc_bvh_line(&in->target, &in->bvh, c, x, d, active, bo, &s0, &s1, ring, v, tri);
             }
         }
+        double dist[2] = {s0, -s1}; /* each ray's nearest hit, or len */
         for (int k = 0; k < 2 && !keep_all && rc == TCC_OK; k++)
-            if (tri[k] >= 0) rc = hits_push(hits, v, k, tri[k], err);
+            if (tri[k] >= 0 && dist[k] <= keep) rc = hits_push(hits, v, k, tri[k], err);
+        if (in->clearance && rc == TCC_OK) {
+            /* a hit within track_range is tracked (the walks follow it); an inside vertex is trusted
+             * to its tracks: both count as the paper's margin, no more */
+            double c = keep_all ? in->track_range : len;
+            for (int k = 0; k < 2 && !keep_all; k++)
+                if (tri[k] >= 0) c = fmin(c, fmax(dist[k], in->track_range));
+            for (tcc_idx q = 0; q < nb; q++) in->clearance[pairs[q]] = fmin(in->clearance[pairs[q]], c);
+        }
     }
     free(near);
     return rc;
@@ -293,13 +316,16 @@ int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, t
     for (tcc_idx c = 0; c < in->kc; c++)
         if (in->ptr[c + 1] < in->ptr[c])
             return tcc_fail(err, TCC_ERR_VALUE, "the cloth's cluster bounds must not decrease (cluster %lld)", (long long)c);
-    for (tcc_idx i = 0; i < n; i++)
-        if (in->order[i] < 0 || in->order[i] >= n || in->labels[i] < 0 || in->labels[i] >= in->kc)
-            return tcc_fail(err, TCC_ERR_INDEX, "order / labels entry %lld is out of range", (long long)i);
-    for (tcc_idx f = 0; f < in->target.nt; f++)
-        if (in->tri_labels[f] < 0 || in->tri_labels[f] >= in->kb)
-            return tcc_fail(err, TCC_ERR_INDEX, "tri_labels[%lld] = %lld is not a collider cluster", (long long)f,
-                            (long long)in->tri_labels[f]);
+    /* the branch-free passes (collide.h), then the first bad entry */
+    if (!tcc_all_in_range(in->order, n, n) || !tcc_all_in_range(in->labels, n, in->kc))
+        for (tcc_idx i = 0; i < n; i++)
+            if (in->order[i] < 0 || in->order[i] >= n || in->labels[i] < 0 || in->labels[i] >= in->kc)
+                return tcc_fail(err, TCC_ERR_INDEX, "order / labels entry %lld is out of range", (long long)i);
+    if (!tcc_all_in_range(in->tri_labels, in->target.nt, in->kb))
+        for (tcc_idx f = 0; f < in->target.nt; f++)
+            if (in->tri_labels[f] < 0 || in->tri_labels[f] >= in->kb)
+                return tcc_fail(err, TCC_ERR_INDEX, "tri_labels[%lld] = %lld is not a collider cluster", (long long)f,
+                                (long long)in->tri_labels[f]);
     if (in->nvt != in->vt_ptr[n] || in->vt_ptr[0] != 0)
         return tcc_fail(err, TCC_ERR_VALUE, "vt_ptr must run from 0 to the %lld listed triangles", (long long)in->nvt);
     if (in->bvh.k != in->kb || in->bvh.node_ptr[0] < 0 || in->bvh.node_ptr[in->kb] > in->bvh.nnodes)
@@ -394,9 +420,13 @@ int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, t
     tcc_idx nfull = 0;
     for (tcc_idx p = 0; p < in->np; p++) nfull += in->full[p] != 0;
     stats->full_pairs = nfull;
+    if (in->clearance)
+        for (tcc_idx p = 0; p < in->np; p++) in->clearance[p] = in->full[p] ? INFINITY : NAN;
     if (nfull) {
-        double len = in->ray_length;
-        if (volume) len = in->track_range + 2.0 * in->inflate + body_extent(in); /* a closed body's rays reach across it */
+        double len = in->ray_length, keep = in->ray_length;
+        if (volume) len = keep = in->track_range + 2.0 * in->inflate + body_extent(in); /* a closed body's rays reach across it */
+        else if (in->clearance && in->probe_length > len) len = in->probe_length;
+
         if (!in->bvh.corner) {
             rc = tcc_fail(err, TCC_ERR_VALUE, "full detection needs the trees' corner copies");
             goto done;
@@ -418,20 +448,29 @@ int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, t
             memset(inside_prev, 0, (size_t)n);
             for (tcc_idx i = 0; i < in->ninside; i++) inside_prev[in->inside[i]] = 1;
         }
-        tcc_idx *targets = malloc(sizeof(tcc_idx) * (size_t)(m + 1));
+        tcc_idx *targets = malloc(sizeof(tcc_idx) * 2 * (size_t)(m + 1));
         if (!targets) {
             rc = tcc_fail(err, TCC_ERR_NOMEM, "no memory for %lld pairs", (long long)m);
             goto done;
         }
+        tcc_idx *pairs = targets + m + 1;
         for (tcc_idx q = 0; q < m && rc == TCC_OK;) {
             tcc_idx e = q, nb = 0;
-            while (e < m && order[e].a == order[q].a) targets[nb++] = order[e++].b;
-            rc = cast_cluster(in, rp, order[q].a, targets, nb, len, volume && in->ninside ? inside_prev : NULL, ready,
-                              &hits, &stats->rays, err);
+            while (e < m && order[e].a == order[q].a) {
+                pairs[nb] = order[e].p;
+                targets[nb++] = order[e++].b;
+            }
+            rc = cast_cluster(in, rp, order[q].a, targets, pairs, nb, len, keep,
+                              volume && in->ninside ? inside_prev : NULL, ready, &hits, &stats->rays, err);
             q = e;
         }
         free(targets);
         if (rc) goto done;
+        /* a pair none of whose vertices had a line (an empty cluster), or lines of no finite length
+         * (a body's extent from NaN positions): the paper's margin */
+        if (in->clearance)
+            for (tcc_idx p = 0; p < in->np; p++)
+                if (in->full[p] && !(in->clearance[p] <= len)) in->clearance[p] = in->track_range;
     }
     stats->hits = hits.n;
     double t2 = now_s();

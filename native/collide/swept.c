@@ -201,10 +201,11 @@ static int check_kind(const tcc_swept_kind *K, tcc_idx n, tcc_idx ng, tcc_error 
             return tcc_fail(err, TCC_ERR_VALUE, "block %lld: block_ptr, block_vptr and block_gptr must not decrease",
                             (long long)b);
     }
-    for (tcc_idx i = 0; i < K->nbg; i++)
-        if (K->bgroups[i] < 0 || K->bgroups[i] >= ng)
-            return tcc_fail(err, TCC_ERR_INDEX, "block group %lld is not in [0, %lld)", (long long)K->bgroups[i],
-                            (long long)ng);
+    if (!tcc_all_in_range(K->bgroups, K->nbg, ng)) /* the branch-free pass, then the first bad one */
+        for (tcc_idx i = 0; i < K->nbg; i++)
+            if (K->bgroups[i] < 0 || K->bgroups[i] >= ng)
+                return tcc_fail(err, TCC_ERR_INDEX, "block group %lld is not in [0, %lld)", (long long)K->bgroups[i],
+                                (long long)ng);
     if (K->nmem > K->k)
         return tcc_fail(err, TCC_ERR_VALUE, "%lld remembered pairs of %lld", (long long)K->nmem, (long long)K->k);
     for (tcc_idx i = 0; i < K->nmem; i++)
@@ -435,31 +436,50 @@ done:
     return rc;
 }
 
-/* The group boxes (ng, 6) of the displacement b - a over each group's vertices, and the largest
- * diagonal. */
-static double group_boxes(const tcc_swept *s, const double *a, const double *b, double *box)
+/* The group boxes (ng, 6) of the displacement b - a over each group's vertices (box), with c (not
+ * NULL) also those of c - b (cbox, the largest diagonal in *cmax); returns the largest diagonal of
+ * box. One pass for both: the vertices are read once per step (a quiet step's cull is this pass). */
+static double group_boxes(const tcc_swept *s, const double *a, const double *b, double *box, const double *c,
+                          double *cbox, double *cmax)
 {
-    double umax = 0.0;
+    double umax = 0.0, vmax = 0.0;
     for (tcc_idx g = 0; g < s->ngroups; g++) {
-        double *bx = box + 6 * g;
-        for (int c = 0; c < 3; c++) {
-            bx[c] = INFINITY;
-            bx[3 + c] = -INFINITY;
+        double *bx = box + 6 * g, *cx = c ? cbox + 6 * g : NULL;
+        for (int k = 0; k < 3; k++) {
+            bx[k] = INFINITY;
+            bx[3 + k] = -INFINITY;
         }
+        if (cx)
+            for (int k = 0; k < 3; k++) {
+                cx[k] = INFINITY;
+                cx[3 + k] = -INFINITY;
+            }
         for (tcc_idx i = s->group_ptr[g]; i < s->group_ptr[g + 1]; i++) {
             tcc_idx v = s->group_vertices[i];
-            for (int c = 0; c < 3; c++) {
-                double d = b[3 * v + c] - a[3 * v + c];
-                if (d < bx[c]) bx[c] = d;
-                if (d > bx[3 + c]) bx[3 + c] = d;
+            for (int k = 0; k < 3; k++) {
+                double d = b[3 * v + k] - a[3 * v + k];
+                if (d < bx[k]) bx[k] = d;
+                if (d > bx[3 + k]) bx[3 + k] = d;
             }
+            if (cx)
+                for (int k = 0; k < 3; k++) {
+                    double d = c[3 * v + k] - b[3 * v + k];
+                    if (d < cx[k]) cx[k] = d;
+                    if (d > cx[3 + k]) cx[3 + k] = d;
+                }
         }
         if (s->group_ptr[g + 1] > s->group_ptr[g]) {
             double e[3] = {bx[3] - bx[0], bx[4] - bx[1], bx[5] - bx[2]};
             double l = sqrt(dot3(e, e));
             if (l > umax) umax = l;
+            if (cx) {
+                double f[3] = {cx[3] - cx[0], cx[4] - cx[1], cx[5] - cx[2]};
+                l = sqrt(dot3(f, f));
+                if (l > vmax) vmax = l;
+            }
         }
     }
+    if (cmax) *cmax = vmax;
     return umax;
 }
 
@@ -472,18 +492,21 @@ int tcc_swept_step(tcc_swept *s, tcc_error *err)
     for (tcc_idx g = 0; g < ng; g++)
         if (s->group_ptr[g + 1] < s->group_ptr[g])
             return tcc_fail(err, TCC_ERR_VALUE, "group %lld: group_ptr must not decrease", (long long)g);
-    for (tcc_idx i = 0; i < s->ngv; i++)
-        if (s->group_vertices[i] < 0 || s->group_vertices[i] >= n)
-            return tcc_fail(err, TCC_ERR_INDEX, "group vertex %lld is not in [0, %lld)", (long long)s->group_vertices[i],
-                            (long long)n);
+    if (!tcc_all_in_range(s->group_vertices, s->ngv, n)) /* the branch-free pass, then the first bad one */
+        for (tcc_idx i = 0; i < s->ngv; i++)
+            if (s->group_vertices[i] < 0 || s->group_vertices[i] >= n)
+                return tcc_fail(err, TCC_ERR_INDEX, "group vertex %lld is not in [0, %lld)",
+                                (long long)s->group_vertices[i], (long long)n);
     for (int k = 0; k < 2; k++)
         if ((rc = check_kind(&s->kind[k], n, ng, err))) return rc;
     int predict = s->v && s->dt > 0;
-    for (tcc_idx i = 0; i < 3 * n; i++)
-        if (!isfinite(s->x[i]) || (s->x_prev && !isfinite(s->x_prev[i])) || (predict && !isfinite(s->v[i])))
-            return tcc_fail(err, TCC_ERR_VALUE, "the position%s of vertex %lld %s not finite",
-                            predict ? ", previous position or velocity" : " or previous position", (long long)(i / 3),
-                            predict ? "are" : "is");
+    if (!tcc_all_finite(s->x, 3 * n) || (s->x_prev && !tcc_all_finite(s->x_prev, 3 * n)) ||
+        (predict && !tcc_all_finite(s->v, 3 * n))) /* the branch-free passes, then the first bad vertex */
+        for (tcc_idx i = 0; i < 3 * n; i++)
+            if (!isfinite(s->x[i]) || (s->x_prev && !isfinite(s->x_prev[i])) || (predict && !isfinite(s->v[i])))
+                return tcc_fail(err, TCC_ERR_VALUE, "the position%s of vertex %lld %s not finite",
+                                predict ? ", previous position or velocity" : " or previous position",
+                                (long long)(i / 3), predict ? "are" : "is");
     size_t bytes = (size_t)(6 * n + 12 * ng) * sizeof(double) + (size_t)(n + 1) * sizeof(tcc_idx);
     char *block = malloc(bytes);
     if (!block) return tcc_fail(err, TCC_ERR_NOMEM, "no memory for the swept stage of %lld vertices", (long long)n);
@@ -510,8 +533,8 @@ int tcc_swept_step(tcc_swept *s, tcc_error *err)
     if (predict)
         for (tcc_idx i = 0; i < 3 * n; i++) x1[i] = s->x[i] + s->dt * s->v[i]; /* swept.py's x + dt v */
     /* the groups' boxes of this step's motion and of the prediction, and the largest of each */
-    double ustep = group_boxes(s, s->x_prev ? s->x_prev : s->x, s->x, gstep);
-    double upred = predict ? group_boxes(s, s->x, x1, gpred) : 0.0;
+    double upred = 0.0;
+    double ustep = group_boxes(s, s->x_prev ? s->x_prev : s->x, s->x, gstep, predict ? x1 : NULL, gpred, &upred);
     for (int k = 0; k < 2; k++) {
         tcc_swept_kind *K = &s->kind[k];
         if ((rc = cull_kind(s, K, predict ? x1 : NULL, gstep, gpred, ustep, upred, rs, stamp, &tag, &cand, &pcand, err)))

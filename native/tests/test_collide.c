@@ -7,6 +7,7 @@
  * failures. */
 #include "collide.h"
 
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -1020,6 +1021,7 @@ static void test_detect_pipeline(mesh *m)
     tcc_idx *cv = malloc(sizeof(tcc_idx) * n);
     double *depth = malloc(sizeof(double) * n), *cn = malloc(sizeof(double) * 3 * n), *cvel = malloc(sizeof(double) * 3 * n);
     int inside_seen = 0, contacts_seen = 0, bad_contacts = 0, unsorted = 0, full_seen = 0, nearest_bad = 0, hits_seen = 0;
+    int clear_bad = 0, clear_credit = 0;
     tcc_error err = {0};
     for (int step = 0; step < 30; step++) {
         box_at(bx, 0.0, 0.0, -0.2 + 0.008 * step); /* rises through the cloth at 8 mm per step */
@@ -1068,11 +1070,45 @@ static void test_detect_pipeline(mesh *m)
             in.inside = st[k].inside; in.ninside = self ? 0 : st[k].ni;
             in.thickness = th; in.track_range = tr; in.ray_length = tr; in.inflate = inflate; in.backoff = bo;
             in.first = step == 0;
+            /* the pairs' clearance, on odd steps (even ones run without it, as a detector with no credit) */
+            double clr[K * K];
+            if (step & 1) {
+                in.clearance = clr;
+                in.probe_length = 4.0 * tr;
+            }
             tcc_merge_out out = {st[k].okey, st[k].otri, st[k].oside, 0, st[k].oin, 0, cv, depth, cn, cvel, 0};
             tcc_detect_stats ds;
             int rc = tcc_detect(&in, &out, &ds, &err);
             CHECK(rc == TCC_OK, "step %d %s: %s", step, self ? "self" : "body", err.what);
             if (rc) continue;
+            /* NaN for pairs not fully detected; else at least the track range, at most the lines'
+             * length; and no triangle of the pair's collider cluster lies on a line of its cloth
+             * cluster's vertices nearer than the clearance, beyond the track range (brute force over
+             * the box; the cloth's own lines skip their two-ring, not checked here) */
+            for (tcc_idx p = 0; p < np_ && (step & 1); p++) {
+                if (!full[p]) {
+                    clear_bad += !isnan(clr[p]);
+                    continue;
+                }
+                clear_bad += !(clr[p] >= tr && (self ? clr[p] <= 4.0 * tr : isfinite(clr[p])));
+                clear_credit += clr[p] > tr;
+                if (self || !(clr[p] > tr)) continue;
+                for (tcc_idx i = ptr[pi[p]]; i < ptr[pi[p] + 1]; i++) {
+                    tcc_idx v = order[i];
+                    for (int slot = 0; slot < 2 && has[v]; slot++) {
+                        double sg = slot ? -1.0 : 1.0, d[3] = {normals[3 * v] * sg, normals[3 * v + 1] * sg,
+                                                               normals[3 * v + 2] * sg};
+                        for (int f = 6 * (int)pj[p]; f < 6 * (int)pj[p] + 6; f++) {
+                            const tcc_idx *tv = BOX_T + 3 * f;
+                            double t, u, w;
+                            if (!tcc_line_triangle(m->x + 3 * v, d, bx + 3 * tv[0], bx + 3 * tv[1], bx + 3 * tv[2], &t,
+                                                   &u, &w))
+                                continue;
+                            if (u >= 0 && w >= 0 && u + w <= 1 && t >= -bo && t > tr && t < clr[p] - 1e-12) clear_bad++;
+                        }
+                    }
+                }
+            }
             full_seen += ds.full_pairs > 0;
             hits_seen += (int)ds.hits;
             for (tcc_idx i = 0; i < out.ncontacts; i++) {
@@ -1117,6 +1153,8 @@ static void test_detect_pipeline(mesh *m)
     CHECK(full_seen > 0 && hits_seen > 0 && contacts_seen > 0, "full detection ran and found contacts (%d, %d, %d)",
           full_seen, hits_seen, contacts_seen);
     CHECK(inside_seen > 0, "the rising box swallowed cloth vertices");
+    CHECK(clear_bad == 0 && clear_credit > 0, "pair clearances: %d wrong, %d beyond the track range", clear_bad,
+          clear_credit);
     CHECK(bad_contacts == 0 && unsorted == 0 && nearest_bad == 0, "contacts %d bad, tracks %d unsorted, %d tracks off their triangles",
           bad_contacts, unsorted, nearest_bad);
     /* bad input: errors, never reads out of bounds */
@@ -1453,8 +1491,40 @@ static void test_impact(const mesh *m, int torn)
     free(rest); free(x0); free(x1); free(xa); free(v); free(va); free(mass);
 }
 
+/* collide.h's branch-free table checks against the branchy ones they stand for (every per-call check
+ * of a whole table goes through them): edge values of the int64 range and of the doubles. */
+static void test_table_checks(void)
+{
+    const tcc_idx vals[] = {0, 1, 2, 5, 6, 7, -1, -2, INT64_MIN, INT64_MIN + 1, INT64_MAX, INT64_MAX - 1,
+                            (tcc_idx)1 << 62, -((tcc_idx)1 << 62)};
+    const tcc_idx bounds[] = {-3, 0, 1, 2, 6, 7, INT64_MAX};
+    const int nv = (int)(sizeof vals / sizeof vals[0]);
+    for (int b = 0; b < (int)(sizeof bounds / sizeof bounds[0]); b++)
+        for (int i = 0; i < nv; i++)
+            for (int j = 0; j < nv; j++) {
+                tcc_idx a[5] = {0, vals[i], 0, vals[j], 0}; /* a bad entry among good ones (bound > 0) */
+                int want = 1;
+                for (int k = 0; k < 5; k++) want &= a[k] >= 0 && a[k] < bounds[b];
+                CHECK(tcc_all_in_range(a, 5, bounds[b]) == want, "in range: %lld, %lld in [0, %lld)", (long long)vals[i],
+                      (long long)vals[j], (long long)bounds[b]);
+                CHECK(tcc_all_in_range(a + 1, 1, bounds[b]) == (vals[i] >= 0 && vals[i] < bounds[b]),
+                      "in range: %lld alone in [0, %lld)", (long long)vals[i], (long long)bounds[b]);
+            }
+    CHECK(tcc_all_in_range(vals, 0, -1) == 1, "an empty table is in any range");
+    const double xs[] = {0.0, -0.0, 1.0, -1.5, DBL_MAX, -DBL_MAX, DBL_MIN, 4.9e-324, -4.9e-324, INFINITY, -INFINITY,
+                         NAN, -NAN, 1e308, 3.0e-300};
+    const int nx = (int)(sizeof xs / sizeof xs[0]);
+    for (int i = 0; i < nx; i++)
+        for (int j = 0; j < nx; j++) {
+            double x[7] = {1.0, 2.0, xs[i], 3.0, xs[j], 4.0, 5.0};
+            CHECK(tcc_all_finite(x, 7) == (isfinite(xs[i]) && isfinite(xs[j])), "finite: %g, %g", xs[i], xs[j]);
+        }
+    CHECK(tcc_all_finite(xs, 0) == 1, "an empty table is finite");
+}
+
 int main(void)
 {
+    test_table_checks();
     mesh m = grid();
     test_measure_and_detection_steps(&m);
     test_ccd(&m);
