@@ -457,7 +457,11 @@ size_t tc_sgs_bytes(const tc_sgs *g) { return g ? g->bytes : 0; }
 static int sgs_prepare(tc_cloth *c)
 {
     tc_sgs *g = c->sgs;
-    if (g && g->version == c->rows_version && g->nv == c->nv) return 0;
+    const int32_t *rp0 = tc_vec_ptr(&c->rptr), *fp0 = tc_vec_ptr(&c->fptr);
+    /* the slot counts too: a schedule must never index rows it was not built for */
+    if (g && g->version == c->rows_version && g->nv == c->nv && g->lp[g->nv] + g->up[g->nv] == rp0[c->nv] &&
+        g->lfp[g->nv] + g->ufp[g->nv] == fp0[c->nv])
+        return 0;
     tc_sgs_free(g);
     c->sgs = g = calloc(1, sizeof *g);
     if (!g) return -1;
