@@ -94,6 +94,7 @@ typedef struct tc_handle {
 } tc_handle;
 
 typedef struct tc_amg tc_amg;
+typedef struct tc_sgs tc_sgs;
 
 typedef struct tc_stencil {
     int32_t v[4];            /* shared edge v0-v1, opposite vertices v2, v3 */
@@ -229,6 +230,10 @@ struct tc_cloth {
                                  new prolongators if one was refreshed for it already */
     bool amg_stale_refreshed; /* refreshed for staleness since its prolongators were made */
     bool amg_chosen;          /* this sub-step's solves use it (solver.c's choose_amg) */
+
+    /* the symmetric Gauss-Seidel sweeps' schedule (solver.c): derived from the row pattern, never
+       part of a snapshot; NULL until a solve uses it */
+    tc_sgs *sgs;
 };
 
 /* Every array of a cloth (cloth.c's FOR_EACH_VEC as a table): its name, where it sits in the struct
@@ -405,6 +410,8 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 again
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);
+void tc_sgs_free(tc_sgs *g);
+size_t tc_sgs_bytes(const tc_sgs *g);
 void tc_precondition_constraints_changed(tc_cloth *c);  /* after a re-built contact basis (step.c) */
 /* a snapshot is being taken: the next sub-step builds the hierarchy from scratch, as a run resumed
  * from it does (snapshot.c), so the two step alike to the bit */

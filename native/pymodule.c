@@ -255,7 +255,7 @@ static PyObject *Cloth_set_solver(PyObject *o, PyObject *args, PyObject *kw)
     if (pre) {
         s.preconditioner = tc_precond_from_name(pre);
         if (s.preconditioner < 0) {
-            PyErr_Format(PyExc_ValueError, "preconditioner must be 'auto', 'jacobi' or 'amg' (got '%s')", pre);
+            PyErr_Format(PyExc_ValueError, "preconditioner must be 'auto', 'jacobi', 'amg' or 'sgs' (got '%s')", pre);
             return NULL;
         }
     }

@@ -90,20 +90,20 @@ int tc_solver_check(const tc_solver_settings *s, char *msg, size_t msz)
     if (!(s->max_stretch > 1.0)) BAD("max_stretch must be > 1 (got %g)", s->max_stretch);
     if (!(s->contact_max_push > 0 && isfinite(s->contact_max_push))) BAD("contact_max_push must be > 0 m/s (got %g)", s->contact_max_push);
     if (!(s->contact_correction >= 0 && s->contact_correction <= 1)) BAD("contact_correction must lie in [0, 1] (got %g)", s->contact_correction);
-    if (!tc_precond_name(s->preconditioner)) BAD("preconditioner must be auto, jacobi or amg (got %d)", s->preconditioner);
+    if (!tc_precond_name(s->preconditioner)) BAD("preconditioner must be auto, jacobi, amg or sgs (got %d)", s->preconditioner);
     return TC_OK;
 }
 
-static const char *const PRECOND_NAMES[] = {"auto", "jacobi", "amg"};
+static const char *const PRECOND_NAMES[] = {"auto", "jacobi", "amg", "sgs"};
 
 int tc_precond_from_name(const char *name)
 {
-    for (int k = 0; k < 3; k++)
+    for (int k = 0; k < 4; k++)
         if (name && strcmp(name, PRECOND_NAMES[k]) == 0) return k;
     return -1;
 }
 
-const char *tc_precond_name(int p) { return p >= 0 && p < 3 ? PRECOND_NAMES[p] : NULL; }
+const char *tc_precond_name(int p) { return p >= 0 && p < 4 ? PRECOND_NAMES[p] : NULL; }
 
 int tc_tear_check(const tc_tear_settings *s, char *msg, size_t msz)
 {

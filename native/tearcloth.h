@@ -85,8 +85,8 @@ typedef struct tc_solver_settings {
     int preconditioner;       /* TC_PRECOND_*: of the CG (solver.c says when AUTO picks which) */
 } tc_solver_settings;
 
-enum { TC_PRECOND_AUTO = 0, TC_PRECOND_JACOBI = 1, TC_PRECOND_AMG = 2 };
-/* the names of the TC_PRECOND_* values ("auto", "jacobi", "amg"); -1 / NULL for an unknown one */
+enum { TC_PRECOND_AUTO = 0, TC_PRECOND_JACOBI = 1, TC_PRECOND_AMG = 2, TC_PRECOND_SGS = 3 };
+/* the names of the TC_PRECOND_* values ("auto", "jacobi", "amg", "sgs"); -1 / NULL for an unknown one */
 int tc_precond_from_name(const char *name);
 const char *tc_precond_name(int p);
 

@@ -40,7 +40,7 @@ def sliver_sheet(n=15, squeeze=0.99, every=4, seed=0):
     return V, T
 
 
-@pytest.mark.parametrize("preconditioner", ["jacobi", "amg"])
+@pytest.mark.parametrize("preconditioner", ["jacobi", "amg", "sgs"])
 def test_sliver_mesh_in_free_flight_keeps_momentum_and_never_gains_energy(preconditioner):
     V, T = sliver_sheet()
     assert min_angle_deg(V, T) < 1.0

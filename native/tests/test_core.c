@@ -611,7 +611,9 @@ static void test_amg(void)
     tc_solver_settings bad = tc_cloth_solver(cl[0]);
     bad.preconditioner = 7;
     CHECK(tc_cloth_set_solver(cl[0], &bad) == TC_ERR_INPUT, "unknown preconditioner refused");
-    CHECK(tc_precond_from_name("amg") == TC_PRECOND_AMG && tc_precond_from_name("x") < 0, "names");
+    CHECK(tc_precond_from_name("amg") == TC_PRECOND_AMG && tc_precond_from_name("sgs") == TC_PRECOND_SGS &&
+              tc_precond_from_name("x") < 0,
+          "names");
     int its[2] = {0, 0};
     double worst = 0.0;
     for (int step = 0; step < 30; step++) {
@@ -846,7 +848,7 @@ static int dense_solve(double *A, double *b, int n)
  * vertices' rows and columns eliminated (the filter keeps them at their prescribed zero), then a
  * cloth with no constraint (its translation correction included). Every kernel; a tolerance tight
  * enough that the iterative answer must equal the direct one to 1e-7 of its size. */
-static void test_solve_against_direct(void)
+static void test_solve_against_direct(int preconditioner)
 {
     for (int pinned = 1; pinned >= 0; pinned--) {
         double *V; int32_t *T, n, m;
@@ -856,7 +858,7 @@ static void test_solve_against_direct(void)
         if (!c) { CHECK(0, "create: %s", msg); free(V); free(T); return; }
         if (pinned) { const int32_t pins[4] = {0, 1, 2, 3}; tc_cloth_pin(c, pins, 4, 1); }
         tc_solver_settings s = tc_cloth_solver(c);
-        s.preconditioner = TC_PRECOND_JACOBI;
+        s.preconditioner = preconditioner;
         s.cg_tolerance = 1e-12;
         s.cg_max_iterations = 5000;
         CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
@@ -895,9 +897,12 @@ static void test_solve_against_direct(void)
             const int ok = tc_solve_dv(c, v, v0, b, 1e-3, &it);
             double worst = 0.0;
             for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - x[k]));
-            CHECK(ok && it > 0 && worst <= 1e-7 * xs, "%s, %s: CG off the direct solve by %.3g of %.3g (%d iterations, %s)",
-                  pinned ? "pinned" : "free", tc_simd_name(l), worst, xs, it, ok ? "converged" : "not converged");
-            if (l == level) printf("solve vs direct (%s): %d iterations, off by %.3g of %.3g\n", pinned ? "pinned" : "free", it, worst, xs);
+            CHECK(ok && it > 0 && worst <= 1e-7 * xs, "%s, %s, %s: CG off the direct solve by %.3g of %.3g (%d iterations, %s)",
+                  tc_precond_name(preconditioner), pinned ? "pinned" : "free", tc_simd_name(l), worst, xs, it,
+                  ok ? "converged" : "not converged");
+            if (l == level)
+                printf("solve vs direct (%s, %s): %d iterations, off by %.3g of %.3g\n", tc_precond_name(preconditioner),
+                       pinned ? "pinned" : "free", it, worst, xs);
         }
         tc_simd_select(level);
         free(A); free(e); free(col); free(b); free(v); free(v0); free(x); free(map); free(Ar); free(br); free(V); free(T);
@@ -911,7 +916,7 @@ static void test_solve_against_direct(void)
  * arithmetic up to rounding, so the iterates after 1, 2, 3 and 10 iterations (stopped at the cap,
  * counted as not converged) must agree to 1e-12 of their size: a kernel that read a wrong entry
  * or a neighbour's lane is off by far more at the first or second iteration. An odd vertex count exercises the last-vertex and odd-row paths. */
-static void test_cg_iterations_agree_across_kernels(void)
+static void test_cg_iterations_agree_across_kernels(int preconditioner)
 {
     double *V; int32_t *T, n, m;
     grid(7, 5, 0.06, 0.04, &V, &T, &n, &m);
@@ -922,7 +927,7 @@ static void test_cg_iterations_agree_across_kernels(void)
     const int32_t pins[3] = {0, 1, 2};
     tc_cloth_pin(c, pins, 3, 1);
     tc_solver_settings s = tc_cloth_solver(c);
-    s.preconditioner = TC_PRECOND_JACOBI;
+    s.preconditioner = preconditioner;
     CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
     for (int k = 0; k < 5; k++) CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
     /* the assembled diagonal blocks are symmetric up to the assembly's rounding (w x r_i x r_l is
@@ -963,9 +968,11 @@ static void test_cg_iterations_agree_across_kernels(void)
             }
             double worst = 0.0;
             for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - ref[k]));
-            CHECK(vs > 0 && worst <= 1e-12 * vs, "%s after %d CG iterations: off the scalar kernel by %.3g of %.3g",
-                  tc_simd_name(l), caps[ci], worst, vs);
-            if (ci == 3) printf("%s after %d CG iterations: off the scalar kernel by %.3g of %.3g\n", tc_simd_name(l), caps[ci], worst, vs);
+            CHECK(vs > 0 && worst <= 1e-12 * vs, "%s, %s after %d CG iterations: off the scalar kernel by %.3g of %.3g",
+                  tc_precond_name(preconditioner), tc_simd_name(l), caps[ci], worst, vs);
+            if (ci == 3)
+                printf("%s, %s after %d CG iterations: off the scalar kernel by %.3g of %.3g\n", tc_precond_name(preconditioner),
+                       tc_simd_name(l), caps[ci], worst, vs);
         }
     }
     tc_simd_select(level);
@@ -1435,8 +1442,10 @@ int main(void)
     test_contacts_and_arrays();
     test_contact_squeeze_and_friction();
     test_solver();
-    test_solve_against_direct();
-    test_cg_iterations_agree_across_kernels();
+    test_solve_against_direct(TC_PRECOND_JACOBI);
+    test_solve_against_direct(TC_PRECOND_SGS);
+    test_cg_iterations_agree_across_kernels(TC_PRECOND_JACOBI);
+    test_cg_iterations_agree_across_kernels(TC_PRECOND_SGS);
     test_amg();
     test_fragment_removal();
     test_fragment_removal_keeps_pairs_ordered();
