@@ -417,7 +417,8 @@ void tc_precondition_constraints_changed(tc_cloth *c);  /* after a re-built cont
  * from it does (snapshot.c), so the two step alike to the bit */
 void tc_precondition_snapshot(const tc_cloth *c);
 /* 1 when converged, 0 when stopped at the cap; iterations in *iterations (see solver.c) */
-int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations);
+int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, double tolerance,
+                int *iterations);
 
 /* ---------------- remesh.c ---------------- */
 /* Triangles around u reachable from `start` without crossing a boundary or a pair in `cut`: the

@@ -1036,8 +1036,9 @@ static double translation_correction(tc_cloth *c, double *v)
  * and tearing, whatever the mesh, the warm start or the preconditioner. (The earlier rule, relative
  * to the preconditioned norm of the right-hand side, depended on all three and stopped at the cap
  * with residuals up to 0.2 on meshes with slivers.) Fills the solver statistics of this solve and
- * returns 1 when it converged, 0 when it stopped at the iteration cap (or a breakdown). */
-int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, int *iterations)
+ * returns 1 when it converged, 0 when it stopped at the iteration cap (or a breakdown). tolerance is
+ * cg_tolerance, or a looser one for the contact rounds' guesses (step.c). */
+int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, double dt, double tolerance, int *iterations)
 {
     const size_t n3 = 3 * (size_t)c->nv;
     /* fixu in sz: read only until pcg's first line projects the warm start, before its first
@@ -1070,8 +1071,7 @@ int tc_solve_dv(tc_cloth *c, double *v, const double *v0, const double *b, doubl
     const double r02 = dotn(r, r, n3);
     f2 += r02 / (dt * dt);
 
-    const double tol = c->solver.cg_tolerance;
-    const double stop2 = tol * tol * dt * dt * f2;
+    const double stop2 = tolerance * tolerance * dt * dt * f2;
     int it = 0, ok = 1;
     double rr = 0.0;
     if (r02 == 0.0) {

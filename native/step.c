@@ -80,9 +80,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
        per sub-step, penetration unchanged (constants.h). */
     const double tol = c->solver.cg_tolerance;
     double loose = nc ? fmax(tol, fmin(TC_CONTACT_GUESS_LOOSENESS * tol, TC_CONTACT_GUESS_TOLERANCE_MAX)) : tol;
-    c->solver.cg_tolerance = loose;
-    int converged = tc_solve_dv(c, v, v0, b, dt, &it);
-    c->solver.cg_tolerance = tol;
+    int converged = tc_solve_dv(c, v, v0, b, dt, loose, &it);
     int tight = loose == tol || c->solve_residual <= tol;  /* (an exact solve: all held, at rest) */
     c->stats.solves++;
     double res = c->solve_residual, resf = c->solve_residual_force, fscale = c->solve_force_scale;
@@ -119,9 +117,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
                changed: the velocity kept is always one solved to the tolerance */
             const int confirm = !(changed + slid) || round + 1 == TC_CONTACT_ROUNDS;
             if (confirm) loose = tol;  /* and every re-solve after it */
-            c->solver.cg_tolerance = confirm ? tol : loose;
-            converged &= tc_solve_dv(c, v, v0, b, dt, &it2);
-            c->solver.cg_tolerance = tol;
+            converged &= tc_solve_dv(c, v, v0, b, dt, confirm ? tol : loose, &it2);
             tight = confirm || loose == tol || c->solve_residual <= tol;
             c->stats.solves++;
             it += it2;

@@ -894,7 +894,7 @@ static void test_solve_against_direct(int preconditioner)
             if (tc_simd_select(l) < 0) continue;
             memset(v, 0, (size_t)N * sizeof *v);
             int it = 0;
-            const int ok = tc_solve_dv(c, v, v0, b, 1e-3, &it);
+            const int ok = tc_solve_dv(c, v, v0, b, 1e-3, c->solver.cg_tolerance, &it);
             double worst = 0.0;
             for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - x[k]));
             CHECK(ok && it > 0 && worst <= 1e-7 * xs, "%s, %s, %s: CG off the direct solve by %.3g of %.3g (%d iterations, %s)",
@@ -958,7 +958,7 @@ static void test_cg_iterations_agree_across_kernels(int preconditioner)
             if (tc_simd_select(l) < 0) continue;
             memset(v, 0, (size_t)N * sizeof *v);
             int it = 0;
-            const int ok = tc_solve_dv(c, v, v0, b, 1e-3, &it);
+            const int ok = tc_solve_dv(c, v, v0, b, 1e-3, c->solver.cg_tolerance, &it);
             CHECK(!ok && it == caps[ci], "%s: %d iterations (cap %d), %s", tc_simd_name(l), it, caps[ci],
                   ok ? "converged" : "not converged");
             if (l == TC_SIMD_SCALAR) {
