@@ -643,7 +643,7 @@ class CollisionDetector:
         self_times = np.zeros(4)
         for plan in plans:
             rows.append(self._detect_target(plan, pos, ws, step))
-            if paper_rule and self.clearance_cap > 1.0:
+            if self._credits:
                 self._credit(self._rel[plan.name], plan.full, ws["clearance"])
             st = ws["stats"]
             n_tracked += int(st[3])
@@ -690,6 +690,11 @@ class CollisionDetector:
             **{f"swept_{k}": v for k, v in (self._swept.counts if self._swept is not None else {}).items()},
         }
         return contacts
+
+    @property
+    def _credits(self):
+        """Whether full detections measure the pairs' clearance and the paper's rule credits it."""
+        return self.measure == "relative" and self.trip_rule == "paper" and self.clearance_cap > 1.0
 
     def _credit(self, rel, full, clearance):
         """The pairs fully detected this step (``full``, lost walks included) restart their relative
@@ -779,7 +784,7 @@ class CollisionDetector:
             args["target_velocity"] = target.velocities
         args["box_lo"], args["box_hi"], args["step"] = plan.lo, plan.hi, int(step)
         args["pair_i"], args["pair_j"], args["full"] = plan.i, plan.j, plan.full
-        if self.measure == "relative" and self.trip_rule == "paper" and self.clearance_cap > 1.0:
+        if self._credits:
             buf = ws.get("clearance_buf")
             if buf is None or buf.shape[0] < plan.i.size:
                 buf = ws["clearance_buf"] = np.empty(max(64, 2 * plan.i.size))
