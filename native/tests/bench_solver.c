@@ -1,15 +1,23 @@
 /* bench_solver.c - the solver's costs on one mesh, in CPU time of this thread (a machine shared with
  * other jobs stretches wall time far more): the product of every kernel the CPU has, interleaved
  * (kernel after kernel within each round) against the bytes of the matrix at the L2 rate the
- * project's notes measured (120 GB/s), then whole 1 ms steps of the cloth hung by its 40 highest
- * vertices: median step and CG iterations. Not part of any build. The mesh is a raw file as for
- * bench_fem.c (int32 n, m, then n x 3 float64 positions, m x 3 int32 triangles):
+ * project's notes measured (120 GB/s) and against the time this core takes to stream the same bytes
+ * (a plain sum over a buffer of the matrix's size: the bandwidth the product could use), then the
+ * other passes of one block-Jacobi CG iteration (the fused update / preconditioner / dots pass, the
+ * new direction, a constraint filter) and of one sub-step (the fused element pass and assembly, the
+ * preconditioner's build), interleaved the same way, then whole 1 ms steps of the cloth hung by its
+ * 40 highest vertices: median step and CG iterations. The CG's passes are solver.c's own static
+ * functions, so this file includes solver.c (left out of the command's file list). Not part of any
+ * build. The mesh is a raw file as for bench_fem.c (int32 n, m, then n x 3 float64 positions,
+ * m x 3 int32 triangles):
  *   cd native && cc -std=c17 -ffp-contract=fast -O3 -fno-math-errno -fno-trapping-math -I. \
- *       $(ls *.c | grep -v '^pymodule\.c$') tests/bench_solver.c -lm -o /tmp/bench_solver && /tmp/bench_solver tshirt.bin
+ *       $(ls *.c | grep -v -e '^pymodule\.c$' -e '^solver\.c$') tests/bench_solver.c -lm -o /tmp/bench_solver && \
+ *       /tmp/bench_solver tshirt.bin
  */
 #define _POSIX_C_SOURCE 199309L
 #include "tearcloth.h"
 #include "core.h"
+#include "solver.c"  /* its static passes (update_precondition, dotn), timed one by one below */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,6 +31,22 @@ static double cpu_seconds(void)
 }
 static int cmpd(const void *a, const void *b) { double x = *(const double *)a, y = *(const double *)b; return x < y ? -1 : x > y; }
 static double med(double *v, int n) { qsort(v, n, sizeof *v, cmpd); return v[n / 2]; }
+
+/* a sum over n doubles in 32 accumulators (eight 4-lane ones once vectorised: one would serialise on
+   the add latency, 4 cycles a 64-byte line): the time to stream the matrix's bytes through this core,
+   no index, no gather. noipa: a pure function of unchanged memory would be called once, not reps times */
+#if defined(__GNUC__) && defined(__x86_64__)
+__attribute__((target("avx2,fma")))
+#endif
+__attribute__((noinline, noipa)) static double stream_sum(const double *a, size_t n)
+{
+    double s[32] = {0};
+    for (size_t i = 0; i + 32 <= n; i += 32)
+        for (int k = 0; k < 32; k++) s[k] += a[i + k];
+    double t = 0.0;
+    for (int k = 0; k < 32; k++) t += s[k];
+    return t;
+}
 
 int main(int argc, char **argv)
 {
@@ -68,6 +92,57 @@ int main(int argc, char **argv)
     printf("%d vertices, %d triangles; matrix %.0f bytes, roofline %.2f us at 120 GB/s\n", c->nv, c->nt, bytes, 1e6 * bytes / 120e9);
     for (int l = TC_SIMD_SCALAR; l <= TC_SIMD_LAST; l++)
         if (t[l]) { printf("  product %-6s %8.2f us (CPU, median of %d rounds)\n", tc_simd_name(l), 1e6 * med(t[l], ROUNDS), ROUNDS); free(t[l]); }
+
+    /* the other passes of an iteration and of a sub-step, in the kernel the CPU picks (level) */
+    const size_t nb = (size_t)bytes / sizeof(double);
+    double *big = malloc(8 * (nb + 8)), *v = malloc(8 * n3), *r = malloc(8 * n3), *z = malloc(8 * n3);
+    for (size_t k = 0; k < nb + 8; k++) big[k] = 1e-9 * (double)k;
+    for (size_t k = 0; k < n3; k++) { v[k] = 0.0; r[k] = (double)rand() / RAND_MAX - 0.5; }
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    enum { PASSES = 7 };
+    static const char *const pass_name[PASSES] = {"product (CG's p.Ap fused)", "update + precondition + dots",
+                                                  "new direction p = z + beta p", "constraint filter (contacts only)",
+                                                  "stream the matrix's bytes", "element pass + assembly (a sub-step)",
+                                                  "preconditioner build (a sub-step)"};
+    double *tp[PASSES];
+    for (int k = 0; k < PASSES; k++) tp[k] = malloc(ROUNDS * sizeof(double));
+    double sink = 0.0, worst;
+    for (int rr = 0; rr < ROUNDS; rr++) {
+        double t0 = cpu_seconds();
+        for (int k = 0; k < reps; k++) sink += tc_matvec(c, p, y);
+        tp[0][rr] = (cpu_seconds() - t0) / reps;
+        t0 = cpu_seconds();
+        for (int k = 0; k < reps; k++) {
+            double rz, rr2;
+            update_precondition(c, 1e-12, p, y, v, r, z, fl, &rz, &rr2);
+            sink += rz;
+        }
+        tp[1][rr] = (cpu_seconds() - t0) / reps;
+        t0 = cpu_seconds();
+        for (int k = 0; k < reps; k++)
+            for (size_t j = 0; j < n3; j++) p[j] = z[j] + 0.5 * p[j];
+        tp[2][rr] = (cpu_seconds() - t0) / reps;
+        t0 = cpu_seconds();
+        for (int k = 0; k < reps; k++) tc_constraint_filter(c, y);
+        tp[3][rr] = (cpu_seconds() - t0) / reps;
+        t0 = cpu_seconds();
+        for (int k = 0; k < reps; k++) sink += stream_sum(big, nb);
+        tp[4][rr] = (cpu_seconds() - t0) / reps;
+        t0 = cpu_seconds();
+        tc_element_assemble(c, tc_vec_ptr(&c->x), 1e-3, &worst);
+        tp[5][rr] = cpu_seconds() - t0;
+        t0 = cpu_seconds();
+        tc_precondition_build(c);
+        tp[6][rr] = cpu_seconds() - t0;
+        for (size_t k = 0; k < n3; k++) p[k] = (double)rand() / RAND_MAX - 0.5;  /* keep p bounded */
+    }
+    printf("  one CG iteration's passes and one sub-step's (%s, CPU, medians of %d interleaved rounds):\n", tc_simd_name(level), ROUNDS);
+    for (int k = 0; k < PASSES; k++) {
+        printf("    %-38s %8.2f us\n", pass_name[k], 1e6 * med(tp[k], ROUNDS));
+        free(tp[k]);
+    }
+    free(big); free(v); free(r); free(z);
+    if (sink == 1234.5) printf(" ");  /* keeps the timed calls */
     double *ts = malloc(sizeof(double) * (size_t)steps);
     long its = 0;
     for (int i = 0; i < steps; i++) {
