@@ -756,6 +756,15 @@ class CollisionDetector:
         trees = target.scenes
         if not trees.built:
             trees.build(target.vertices, target.triangles)
+        if not tracks.key.size and not plan.full.any():
+            # nothing to walk and nothing to cast (the cloth against itself, most steps): the C step
+            # would only merge nothing - no tracks, no vertex inside, no contact - so it is not called
+            ws["stats"][:] = 0
+            ws["times"][:] = 0.0
+            tracks.key, tracks.tri, tracks.side = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int8)
+            if target.kind == "volume" and not is_self:
+                tracks.inside = np.zeros(0, np.int64)
+            return (np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), target.friction)
         args = self._target_args(plan, ws)
         args["positions"], args["previous"], args["velocity"] = pos, self._cloth_prev, cloth.velocities
         args["done"] = ws["done"]
