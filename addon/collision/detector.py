@@ -11,7 +11,8 @@ numpy arrays in and out and no Python per pair, ray or triangle:
               the paper's relative measure marking pairs for full detection (one call,
               ``measure.py``; the absolute measure and the motion-bound trip rule add to that
               verdict in numpy).
-2-4. per collider, one call (detect.c):
+2-4. per collider, one call (detect.c; none for a collider with no tracked ray and no pair marked full:
+   it would merge nothing):
    incremental – every ray tracked from the previous step is walked to its current hit on the
               current geometry (``incremental.py``). A lost walk sends its pair to full
               detection in this same step (not the next one: the step's contact set would
