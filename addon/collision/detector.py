@@ -11,7 +11,8 @@ numpy arrays in and out and no Python per pair, ray or triangle:
               the paper's relative measure marking pairs for full detection (one call,
               ``measure.py``; the absolute measure and the motion-bound trip rule add to that
               verdict in numpy).
-2-4. per collider, one call (detect.c):
+2-4. per collider, one call (detect.c; none for a collider with no tracked ray and no pair marked full:
+   it would merge nothing):
    incremental – every ray tracked from the previous step is walked to its current hit on the
               current geometry (``incremental.py``). A lost walk sends its pair to full
               detection in this same step (not the next one: the step's contact set would
@@ -56,7 +57,7 @@ searched, and its nearest hit either lies within the track range (tracked: the w
 farther. detect.c reports per pair fully detected that clearance - the nearest untracked hit over its
 vertices' lines, no less than the track range, searched up to ``probe_length`` for the cloth and thin
 surfaces (a closed body's rays reach across it anyway) - and the pair's relative measure restarts
-with the extra margin as a credit (``_credit``): it trips at the threshold times
+with the extra margin as a credit (detect.c ``credit_pairs``): it trips at the threshold times
 (clearance - thickness) / (track_range - thickness), at most ``clearance_cap`` times it. The argument
 is the paper's own (an untracked vertex must move by its margin relative to the other cluster before
 it can touch), with the margin measured instead of assumed. Measured on the T-shirt simulated on the
@@ -642,9 +643,7 @@ class CollisionDetector:
         times = np.zeros(4)  # walk, cast, refine, merge (s, from the C calls)
         self_times = np.zeros(4)
         for plan in plans:
-            rows.append(self._detect_target(plan, pos, ws, step))
-            if self._credits:
-                self._credit(self._rel[plan.name], plan.full, ws["clearance"])
+            rows.append(self._detect_target(plan, pos, ws, step))  # the clearance credit included (C)
             st = ws["stats"]
             n_tracked += int(st[3])
             n_lost += int(st[4])
@@ -695,21 +694,6 @@ class CollisionDetector:
     def _credits(self):
         """Whether full detections measure the pairs' clearance and the paper's rule credits it."""
         return self.measure == "relative" and self.trip_rule == "paper" and self.clearance_cap > 1.0
-
-    def _credit(self, rel, full, clearance):
-        """The pairs fully detected this step (``full``, lost walks included) restart their relative
-        measure with the clearance their full detection measured (``clearance``, m, detect.c) as a
-        credit: the measure trips when it passes the threshold scaled by (clearance - thickness) /
-        (track_range - thickness), at most ``clearance_cap`` times it. Kept as a negative start of the
-        deviation accumulator (eq. 4's amplitude is a sum), so the C measure needs no per-pair threshold."""
-        if not full.any():
-            return
-        c = clearance[full]
-        margin = self.track_range - self.thickness
-        credit = self.displacement_threshold * np.clip((c - self.thickness) / margin - 1.0, 0.0,
-                                                       self.clearance_cap - 1.0)
-        rel.rel_avg[full] = 0.0
-        rel.rel_dev[full] = -np.where(np.isfinite(credit), credit, 0.0)
 
     def _cluster_state(self, collider, positions, previous, ws, key):
         """dis_avg, dis_dev and the inflated boxes of a collider's clusters (C: one call), in arrays
@@ -773,6 +757,15 @@ class CollisionDetector:
         trees = target.scenes
         if not trees.built:
             trees.build(target.vertices, target.triangles)
+        if not tracks.key.size and not plan.full.any():
+            # nothing to walk and nothing to cast (the cloth against itself, most steps): the C step
+            # would only merge nothing - no tracks, no vertex inside, no contact - so it is not called
+            ws["stats"][:] = 0
+            ws["times"][:] = 0.0
+            tracks.key, tracks.tri, tracks.side = np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int8)
+            if target.kind == "volume" and not is_self:
+                tracks.inside = np.zeros(0, np.int64)
+            return (np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3)), target.friction)
         args = self._target_args(plan, ws)
         args["positions"], args["previous"], args["velocity"] = pos, self._cloth_prev, cloth.velocities
         args["done"] = ws["done"]
@@ -785,10 +778,17 @@ class CollisionDetector:
         args["box_lo"], args["box_hi"], args["step"] = plan.lo, plan.hi, int(step)
         args["pair_i"], args["pair_j"], args["full"] = plan.i, plan.j, plan.full
         if self._credits:
+            # the pairs fully detected (lost walks included) restart their relative measure with the
+            # clearance their full detection measured as a credit (C, detect.c credit_pairs): the measure
+            # trips when it passes the threshold scaled by (clearance - thickness) / (track_range -
+            # thickness), at most clearance_cap times it; kept as a negative start of the deviation
+            # accumulator (eq. 4's amplitude is a sum), so the C measure needs no per-pair threshold
             buf = ws.get("clearance_buf")
             if buf is None or buf.shape[0] < plan.i.size:
                 buf = ws["clearance_buf"] = np.empty(max(64, 2 * plan.i.size))
             args["clearance"] = ws["clearance"] = buf[:plan.i.size]
+            rel = self._rel[name]
+            args["rel_avg"], args["rel_dev"] = rel.rel_avg, rel.rel_dev
         args["track_key"], args["track_tri"], args["track_side"] = tracks.key, tracks.tri, tracks.side
         args["inside"], args["first"] = tracks.inside, bool(self._first)
         _collide.detect(**args)
@@ -832,7 +832,8 @@ class CollisionDetector:
             first=False, out_key=ws["out_key"], out_tri=ws["out_tri"], out_side=ws["out_side"],
             out_inside=ws["out_inside"], contact_vertex=ws["contact_vertex"], depth=ws["depth"],
             normal=ws["normal"], contact_velocity=ws["contact_velocity"], stats=ws["stats"], times=ws["times"],
-            clearance=None, probe_length=self.probe_length,
+            clearance=None, probe_length=self.probe_length, rel_avg=None, rel_dev=None,
+            credit_unit=self.displacement_threshold, clearance_cap=self.clearance_cap,
         )
         cache[name] = (key, args)
         return args

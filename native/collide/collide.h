@@ -671,6 +671,14 @@ typedef struct {
      * (only hits within ray_length become tracks, so the contacts do not depend on it). */
     double *clearance;
     double probe_length;
+    /* the clearance credit of the paper's rule (optional: rel_dev NULL, or clearance NULL: none;
+     * collision/detector.py's module docs, "Clearance"): each pair fully detected (lost walks
+     * included) restarts its relative measure - rel_avg (np, 3) set to 0 - with the credit as a
+     * negative start of its deviation: rel_dev = -credit_unit * clamp((clearance - thickness) /
+     * (track_range - thickness) - 1, 0, clearance_cap - 1) (0 when that is not finite). Here rather
+     * than in numpy after the call: the step's per-pair work stays in this one call. */
+    double *rel_avg, *rel_dev;
+    double credit_unit, clearance_cap;
 } tcc_detect_in;
 
 typedef struct {

@@ -304,6 +304,23 @@ static double body_extent(const tcc_detect_in *in)
     return nan ? NAN : sqrt(dot3(e, e));
 }
 
+/* The clearance credit of the pairs fully detected this step (tcc_detect_in.rel_dev): the formula of
+ * detector.py's former numpy step, term for term (a NaN clearance gives no credit, as numpy's clip
+ * propagates it and the non-finite credit is dropped). */
+static void credit_pairs(const tcc_detect_in *in)
+{
+    const double margin = in->track_range - in->thickness, top = in->clearance_cap - 1.0;
+    for (tcc_idx p = 0; p < in->np; p++) {
+        if (!in->full[p]) continue;
+        double r = (in->clearance[p] - in->thickness) / margin - 1.0;
+        double m = r > 0.0 ? r : 0.0; /* numpy's clip in its order (max, then min): -0.0 gives +0.0 */
+        double credit = isnan(r) ? NAN : in->credit_unit * (m < top ? m : top);
+        if (!isfinite(credit)) credit = 0.0;
+        in->rel_avg[3 * p] = in->rel_avg[3 * p + 1] = in->rel_avg[3 * p + 2] = 0.0;
+        in->rel_dev[p] = -credit;
+    }
+}
+
 int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, tcc_error *err)
 {
     const tcc_idx n = in->n;
@@ -524,6 +541,7 @@ int tcc_detect(tcc_detect_in *in, tcc_merge_out *out, tcc_detect_stats *stats, t
         if ((rc = tcc_merge_classify(&mi, out, err))) goto done;
     }
     stats->seconds[3] = now_s() - t3;
+    if (in->clearance && in->rel_dev) credit_pairs(in);
     rc = TCC_OK;
 done:
     free(block);

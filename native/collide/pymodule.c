@@ -1512,12 +1512,16 @@ static const pyarg_spec DETECT[] = {
     ARR("times", PA_F64, OUT | OPT, 1, 0, 0),
     ARR("clearance", PA_F64, OUT | OPT, 1, 0, 0),
     {"probe_length", PA_DOUBLE, OPT, 0, {0, 0, 0}},
+    ARR("rel_avg", PA_F64, OUT | OPT, 2, 3, 0),
+    ARR("rel_dev", PA_F64, OUT | OPT, 1, 0, 0),
+    {"credit_unit", PA_DOUBLE, OPT, 0, {0, 0, 0}},
+    {"clearance_cap", PA_DOUBLE, OPT, 0, {0, 0, 0}},
 };
 enum { DT_X, DT_PREV, DT_VEL, DT_TRI, DT_VTP, DT_VTT, DT_ORDER, DT_PTR, DT_LABELS, DT_NRM, DT_HAS, DT_DONE, DT_KIND,
        DT_TX, DT_TT, DT_ADJ, DT_FLIP, DT_TPREV, DT_TVEL, DT_TLAB, DT_LO, DT_HI, DT_RING, DT_NPTR,
        DT_NODE, DT_BOX, DT_PRIM, DT_CORNER, DT_REFIT, DT_STEP, DT_PI, DT_PJ, DT_FULL, DT_KEY, DT_KTRI, DT_KSIDE, DT_INSIDE, DT_TH,
        DT_TR, DT_LEN, DT_INFL, DT_BACK, DT_FIRST, DT_OKEY, DT_OTRI, DT_OSIDE, DT_OIN, DT_CV, DT_DEPTH, DT_CN, DT_CVEL,
-       DT_STATS, DT_TIMES, DT_CLEAR, DT_PROBE, DT_N };
+       DT_STATS, DT_TIMES, DT_CLEAR, DT_PROBE, DT_RAVG, DT_RDEV, DT_CUNIT, DT_CCAP, DT_N };
 
 static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
 {
@@ -1560,6 +1564,18 @@ static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
     CHECK_ROWS(DT_STATS, 8);
     CHECK_ROWS(DT_TIMES, 4);
     CHECK_ROWS(DT_CLEAR, np);
+    CHECK_ROWS(DT_RAVG, np);
+    CHECK_ROWS(DT_RDEV, np);
+    if (!D(DT_RAVG) != !D(DT_RDEV) || (D(DT_RDEV) && !D(DT_CLEAR))) {
+        PyErr_SetString(PyExc_ValueError, "detect: rel_avg and rel_dev go together, with clearance");
+        goto fail;
+    }
+    if (D(DT_RDEV) && (finite_param(s.v[DT_CUNIT].d, "credit_unit", 1) || finite_param(s.v[DT_CCAP].d, "clearance_cap", 1)))
+        goto fail;
+    if (D(DT_RDEV) && s.v[DT_CCAP].d < 1.0) {
+        PyErr_SetString(PyExc_ValueError, "detect: clearance_cap must be a factor >= 1");
+        goto fail;
+    }
     int kind = s.v[DT_KIND].i;
     if (!kind_ok(kind)) goto fail;
     if (finite_param(s.v[DT_TH].d, "thickness", 1) || finite_param(s.v[DT_TR].d, "track_range", 1) ||
@@ -1603,6 +1619,7 @@ static PyObject *py_detect(PyObject *self, PyObject *args, PyObject *kw)
     in.thickness = s.v[DT_TH].d; in.track_range = s.v[DT_TR].d; in.ray_length = s.v[DT_LEN].d;
     in.inflate = s.v[DT_INFL].d; in.backoff = s.v[DT_BACK].d; in.first = s.v[DT_FIRST].i;
     in.clearance = D(DT_CLEAR); in.probe_length = probe;
+    in.rel_avg = D(DT_RAVG); in.rel_dev = D(DT_RDEV); in.credit_unit = s.v[DT_CUNIT].d; in.clearance_cap = s.v[DT_CCAP].d;
     tcc_merge_out out = {D(DT_OKEY), D(DT_OTRI), D(DT_OSIDE), 0, D(DT_OIN), 0, D(DT_CV), D(DT_DEPTH), D(DT_CN),
                          D(DT_CVEL), 0};
     tcc_detect_stats st;
@@ -2109,11 +2126,14 @@ static PyMethodDef methods[] = {
            "pair_i, "
            "pair_j, full, track_key, track_tri, track_side, inside, thickness, track_range, ray_length, inflate, "
            "backoff, first, out_key, out_tri, out_side, out_inside, contact_vertex, depth, normal, contact_velocity, "
-           "stats, times=None, clearance=None, probe_length=0): one collider's step (detect.c): walks, full "
+           "stats, times=None, clearance=None, probe_length=0, rel_avg=None, rel_dev=None, credit_unit=0, "
+           "clearance_cap=0): one collider's step (detect.c): walks, full "
            "detection of the marked pairs in the collider's trees, refinement, merge; stats (8,): tracks, inside, "
            "contacts, tracked, lost, full pairs, rays, hits; times (4,): seconds of the walks, casts, refinement, "
            "merge; clearance (pairs,): per pair fully detected the distance along its vertices' lines to the "
-           "nearest untracked hit (at most probe_length, >= ray_length; 0: ray_length), NaN for the others."),
+           "nearest untracked hit (at most probe_length, >= ray_length; 0: ray_length), NaN for the others; "
+           "rel_avg (pairs, 3) and rel_dev (pairs,) with clearance: the relative measure of the pairs fully detected "
+           "restarted with their clearance credit (credit_unit, clearance_cap; collide.h tcc_detect_in)."),
     KERNEL(swept_pairs,
            "swept_pairs(triangles, ring, n, edges, vt, ee) -> (edges, vt pairs, ee pairs): the swept stage's pairs of a "
            "topology (swept.c tcc_swept_pairs), each list ascending; a list is written only when it fits: call again "

@@ -1021,7 +1021,7 @@ static void test_detect_pipeline(mesh *m)
     tcc_idx *cv = malloc(sizeof(tcc_idx) * n);
     double *depth = malloc(sizeof(double) * n), *cn = malloc(sizeof(double) * 3 * n), *cvel = malloc(sizeof(double) * 3 * n);
     int inside_seen = 0, contacts_seen = 0, bad_contacts = 0, unsorted = 0, full_seen = 0, nearest_bad = 0, hits_seen = 0;
-    int clear_bad = 0, clear_credit = 0;
+    int clear_bad = 0, clear_credit = 0, credit_bad = 0, credited = 0;
     tcc_error err = {0};
     for (int step = 0; step < 30; step++) {
         box_at(bx, 0.0, 0.0, -0.2 + 0.008 * step); /* rises through the cloth at 8 mm per step */
@@ -1071,10 +1071,18 @@ static void test_detect_pipeline(mesh *m)
             in.thickness = th; in.track_range = tr; in.ray_length = tr; in.inflate = inflate; in.backoff = bo;
             in.first = step == 0;
             /* the pairs' clearance, on odd steps (even ones run without it, as a detector with no credit) */
-            double clr[K * K];
+            double clr[K * K], avg0[3 * K * K], dev0[K * K];
             if (step & 1) {
                 in.clearance = clr;
                 in.probe_length = 4.0 * tr;
+                /* the clearance credit restarts the pairs fully detected in the measure carried to the
+                 * next step (detector.py's paper rule, clearance_cap 3) */
+                in.rel_avg = st[k].ravg;
+                in.rel_dev = st[k].rdev;
+                in.credit_unit = 0.0015;
+                in.clearance_cap = 3.0;
+                memcpy(avg0, st[k].ravg, sizeof(double) * 3 * np_);
+                memcpy(dev0, st[k].rdev, sizeof(double) * np_);
             }
             tcc_merge_out out = {st[k].okey, st[k].otri, st[k].oside, 0, st[k].oin, 0, cv, depth, cn, cvel, 0};
             tcc_detect_stats ds;
@@ -1088,7 +1096,19 @@ static void test_detect_pipeline(mesh *m)
             for (tcc_idx p = 0; p < np_ && (step & 1); p++) {
                 if (!full[p]) {
                     clear_bad += !isnan(clr[p]);
+                    /* untouched measure */
+                    credit_bad += memcmp(avg0 + 3 * p, st[k].ravg + 3 * p, 3 * sizeof(double)) != 0 ||
+                                  memcmp(dev0 + p, st[k].rdev + p, sizeof(double)) != 0;
                     continue;
+                }
+                {
+                    /* restarted: no mean motion, the deviation starts at minus the credit, the clearance
+                     * beyond the track range in units of its margin, at most 2 (cap 3) thresholds */
+                    double r = (clr[p] - th) / (tr - th) - 1.0, want = -0.0015 * (r < 0 ? 0 : (r > 2.0 ? 2.0 : r));
+                    credit_bad += !(st[k].ravg[3 * p] == 0.0 && st[k].ravg[3 * p + 1] == 0.0 &&
+                                    st[k].ravg[3 * p + 2] == 0.0 && fabs(st[k].rdev[p] - want) <= 1e-15 &&
+                                    st[k].rdev[p] <= 0.0 && st[k].rdev[p] >= -2.0 * 0.0015);
+                    credited += st[k].rdev[p] < 0.0;
                 }
                 clear_bad += !(clr[p] >= tr && (self ? clr[p] <= 4.0 * tr : isfinite(clr[p])));
                 clear_credit += clr[p] > tr;
@@ -1155,6 +1175,7 @@ static void test_detect_pipeline(mesh *m)
     CHECK(inside_seen > 0, "the rising box swallowed cloth vertices");
     CHECK(clear_bad == 0 && clear_credit > 0, "pair clearances: %d wrong, %d beyond the track range", clear_bad,
           clear_credit);
+    CHECK(credit_bad == 0 && credited > 0, "clearance credits: %d wrong, %d pairs credited", credit_bad, credited);
     CHECK(bad_contacts == 0 && unsorted == 0 && nearest_bad == 0, "contacts %d bad, tracks %d unsorted, %d tracks off their triangles",
           bad_contacts, unsorted, nearest_bad);
     /* bad input: errors, never reads out of bounds */
