@@ -58,10 +58,11 @@
  * each is due. Between refreshes the finest level is still the current matrix; only the coarse
  * correction is that of a slightly older one.
  *
- * The cycle: a forward Gauss-Seidel sweep from zero, the residual by fem.c's product
- * (tc_matvec), its restriction, the coarse levels (forward Gauss-Seidel, correction, backward
- * Gauss-Seidel on 6x6 blocks; the coarsest factored), the prolongation filtered by S, a backward
- * sweep that also takes r . z for CG. No allocation in the cycle.
+ * The cycle: a forward Gauss-Seidel sweep from zero that makes its residual as it goes
+ * (first_residual: no product of its own), its restriction, the coarse levels (the same forward
+ * sweep with its residual, correction, backward Gauss-Seidel on 6x6 blocks; the coarsest
+ * factored), the prolongation filtered by S, a backward sweep that also takes r . z for CG. No
+ * allocation in the cycle.
  */
 #include "core.h"
 #include "matvec.h"
