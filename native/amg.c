@@ -58,10 +58,11 @@
  * each is due. Between refreshes the finest level is still the current matrix; only the coarse
  * correction is that of a slightly older one.
  *
- * The cycle: a forward Gauss-Seidel sweep from zero, the residual by fem.c's product
- * (tc_matvec), its restriction, the coarse levels (forward Gauss-Seidel, correction, backward
- * Gauss-Seidel on 6x6 blocks; the coarsest factored), the prolongation filtered by S, a backward
- * sweep that also takes r . z for CG. No allocation in the cycle.
+ * The cycle: a forward Gauss-Seidel sweep from zero that makes its residual as it goes
+ * (first_residual: no product of its own), its restriction, the coarse levels (the same forward
+ * sweep with its residual, correction, backward Gauss-Seidel on 6x6 blocks; the coarsest
+ * factored), the prolongation filtered by S, a backward sweep that also takes r . z for CG. No
+ * allocation in the cycle.
  */
 #include "core.h"
 #include "matvec.h"
@@ -676,13 +677,35 @@ static void bsr_apply_transposed(const bsr *M, const double *x, double *y)
     (M->br == 3 ? axpy_t_3 : axpy_t_6)(M, x, y);
 }
 
+/* A coarse level's first sweep's residual res = b - A x as the sweep goes (as the finest level's,
+ * first_residual): row I's own part, s - A_II x_I (s = b_I - sum_{J<I} A_IJ x_J), and
+ * -A_JI x_I into each lower neighbour's res_J. A lower slot of row I names its mirror's block, which
+ * is A_JI itself (the upper block of row J), so it is read as stored. */
+static inline void coarse_first_residual(const bsr *A, int32_t I, const double s[NS], const double *xi, double *restrict res)
+{
+    double *oi = res + (size_t)I * NS;
+    for (int r = 0; r < NS; r++) oi[r] += s[r];
+    for (int32_t a = A->ptr[I]; a < A->ptr[I + 1]; a++) {
+        const int32_t J = A->col[a];
+        if (J > I) break;
+        const float *v = bsr_block(A, a);  /* A_JI (J < I), A_II */
+        double *o = res + (size_t)J * NS;
+        for (int r = 0; r < NS; r++) {
+            double t = 0.0;
+            for (int q = 0; q < NS; q++) t += (double)v[r * NS + q] * xi[q];
+            o[r] -= t;
+        }
+    }
+}
+
 /* One Gauss-Seidel sweep over a coarse level (6x6 float blocks, inverse diagonal blocks dinv in
  * double): x_I = D_I^-1 (b_I - sum_{J != I} A_IJ x_J), rows in order (forward) or reversed, each
  * with the newest x. The coarse levels' smoother: a forward sweep before the coarse correction and
  * a backward one after make a symmetric cycle, and Gauss-Seidel converges on any SPD matrix, so
  * no damping estimate is needed (a damped Jacobi step's, from power iterations, went stale when a
  * contact update moved rho(D^-1 A_1) by 2x: the cycle lost positivity and CG broke down). */
-static void gs_sweep(const bsr *A, const double *dinv, const double *restrict b, double *restrict x, bool forward)
+static void gs_sweep(const bsr *A, const double *dinv, const double *restrict b, double *restrict x, bool forward,
+                     double *restrict res)
 {
     for (int32_t k = 0; k < A->n; k++) {
         const int32_t I = forward ? k : A->n - 1 - k;
@@ -691,6 +714,7 @@ static void gs_sweep(const bsr *A, const double *dinv, const double *restrict b,
         for (int32_t a = A->ptr[I]; a < A->ptr[I + 1]; a++) {
             const int32_t J = A->col[a];
             if (J == I) continue;
+            if (res && J > I) break;  /* from zero: x_J = 0 above the diagonal (columns sorted) */
             const float *v = bsr_block(A, a);
             const double *xj = x + (size_t)J * NS;
             const int rs = bsr_lower(A, I, a) ? 1 : NS, cs = rs == 1 ? NS : 1;  /* A_IJ = A_JI^T */
@@ -707,12 +731,40 @@ static void gs_sweep(const bsr *A, const double *dinv, const double *restrict b,
             for (int q = 0; q < NS; q++) t += m[r * NS + q] * s[q];
             xi[r] = t;
         }
+        if (res) coarse_first_residual(A, I, s, xi, res);
     }
 }
 
 #ifdef TC_AMG_AVX2
+/* coarse_first_residual with AVX2: the six row sums of A_JI x_I (a block row as four and two
+ * floats, as the products above) folded by horizontal adds into one 4-lane and one 2-lane result */
+__attribute__((target("avx2,fma"))) static inline void coarse_first_residual_avx2(const bsr *A, int32_t I, const double s[NS],
+                                                                                  const double *xi, double *restrict res)
+{
+    double *oi = res + (size_t)I * NS;
+    for (int r = 0; r < NS; r++) oi[r] += s[r];
+    const __m256d x4 = _mm256_loadu_pd(xi);
+    const __m128d x2 = _mm_loadu_pd(xi + 4);
+    for (int32_t a = A->ptr[I]; a < A->ptr[I + 1]; a++) {
+        const int32_t J = A->col[a];
+        if (J > I) break;
+        const float *v = bsr_block(A, a);  /* A_JI (J < I), A_II */
+        __m256d p[NS];
+        for (int r = 0; r < NS; r++)
+            p[r] = _mm256_fmadd_pd(ld4f(v + r * NS), x4,
+                                   _mm256_insertf128_pd(_mm256_setzero_pd(), _mm_mul_pd(ld2f(v + r * NS + 4), x2), 0));
+        double *o = res + (size_t)J * NS;
+        const __m256d h01 = _mm256_hadd_pd(p[0], p[1]), h23 = _mm256_hadd_pd(p[2], p[3]), h45 = _mm256_hadd_pd(p[4], p[5]);
+        /* h01 = (p0a+p0b, p1a+p1b, p0c+p0d, p1c+p1d): lanes 0,1 + lanes 2,3 give rows 0, 1 */
+        const __m256d s0123 = _mm256_add_pd(_mm256_permute2f128_pd(h01, h23, 0x20), _mm256_permute2f128_pd(h01, h23, 0x31));
+        const __m128d s45 = _mm_add_pd(_mm256_castpd256_pd128(h45), _mm256_extractf128_pd(h45, 1));
+        _mm256_storeu_pd(o, _mm256_sub_pd(_mm256_loadu_pd(o), s0123));
+        _mm_storeu_pd(o + 4, _mm_sub_pd(_mm_loadu_pd(o + 4), s45));
+    }
+}
+
 __attribute__((target("avx2,fma"))) static void gs_sweep_avx2(const bsr *A, const double *dinv, const double *restrict b,
-                                                              double *restrict x, bool forward)
+                                                              double *restrict x, bool forward, double *restrict res)
 {
     for (int32_t k = 0; k < A->n; k++) {
         const int32_t I = forward ? k : A->n - 1 - k;
@@ -720,7 +772,7 @@ __attribute__((target("avx2,fma"))) static void gs_sweep_avx2(const bsr *A, cons
         __m128d a2[NS];
         int32_t a0 = A->ptr[I];
         lower_sum_avx2(A, I, &a0, x, a4, a2);  /* the lower blocks, stored as their mirrors */
-        for (int32_t a = a0; a < A->ptr[I + 1]; a++) {
+        for (int32_t a = a0; a < (res ? a0 : A->ptr[I + 1]); a++) {  /* from zero: x_J = 0 above */
             const int32_t J = A->col[a];
             if (J == I) continue;
             const float *v = bsr_block(A, a);
@@ -741,16 +793,18 @@ __attribute__((target("avx2,fma"))) static void gs_sweep_avx2(const bsr *A, cons
             for (int q = 0; q < NS; q++) t += m[r * NS + q] * s[q];
             xi[r] = t;
         }
+        if (res) coarse_first_residual_avx2(A, I, s, xi, res);
     }
 }
 #endif
 
-static void level_sweep(const level *L, const double *b, double *x, bool forward)
+/* a sweep; res non-NULL (zeroed): a forward sweep from x = 0 that leaves b - A x there */
+static void level_sweep(const level *L, const double *b, double *x, bool forward, double *res)
 {
 #ifdef TC_AMG_AVX2
-    if (avx2()) { gs_sweep_avx2(&L->A, L->dinv, b, x, forward); return; }
+    if (avx2()) { gs_sweep_avx2(&L->A, L->dinv, b, x, forward, res); return; }
 #endif
-    gs_sweep(&L->A, L->dinv, b, x, forward);
+    gs_sweep(&L->A, L->dinv, b, x, forward, res);
 }
 
 /* ---------------- prolongator and Galerkin product, from the rows ---------------- */
@@ -1774,24 +1828,24 @@ static void vcycle(const tc_cloth *c, tc_amg *h, int l, const double *b, double 
     double *r = L->res;
     if (l == h->nlev - 1 && h->nc) { cholesky_solve(h->chol, h->nc, b, x); return; }
     memset(x, 0, nb * sizeof(double));
-    level_sweep(L, b, x, true);
     if (l == h->nlev - 1) {
+        level_sweep(L, b, x, true, NULL);
         /* no factor (a level too big for one, or one coarsening stalled on): more symmetric
            sweeps, still a symmetric positive operator */
-        level_sweep(L, b, x, false);
+        level_sweep(L, b, x, false, NULL);
         for (int s = 1; s < TC_AMG_COARSE_SWEEPS; s++) {
-            level_sweep(L, b, x, true);
-            level_sweep(L, b, x, false);
+            level_sweep(L, b, x, true, NULL);
+            level_sweep(L, b, x, false, NULL);
         }
         return;
     }
-    bsr_apply(&L->A, x, r, false);
-    for (size_t k = 0; k < nb; k++) r[k] = b[k] - r[k];
+    memset(r, 0, nb * sizeof(double));
+    level_sweep(L, b, x, true, r);  /* and its residual b - A x in r */
     level *N = &h->lev[l + 1];
     bsr_apply_transposed(&L->P, r, N->rhs);
     vcycle(c, h, l + 1, N->rhs, N->x);
     bsr_apply(&L->P, N->x, x, true);
-    level_sweep(L, b, x, false);
+    level_sweep(L, b, x, false, NULL);
 }
 
 /* y = (S_i A_ii S_i + (I - S_i) d_i)^-1 S_i s for a constrained vertex i (pins and handles: 0): the
@@ -1822,6 +1876,38 @@ static void constrained_block_solve(const tc_cloth *c, int32_t i, const double *
     filter_vertex(f, ((const int8_t *)tc_vec_ptr(&c->scount))[i], (const double *)tc_vec_ptr(&c->snorm) + 9 * (size_t)i, y);
 }
 
+/* The first sweep's residual res = b - A x, made as the sweep goes (res zero before it), so it costs
+ * no pass over the matrix of its own (at 100K triangles the rows are 29 MB, streamed from memory by
+ * every pass; the separate residual product was a sixth of a cycle). A forward sweep from x = 0
+ * reads x_j = 0 for j > i, so when row i is done it knows b_i - sum_{j<i} A_ij x_j (its r before the
+ * update t = x_i): its own part of res_i is that minus A_ii x_i. The rest, -sum_{j>i} A_ij x_j, comes
+ * from the later rows: row i subtracts A_ji x_i = A_ij^T x_i from res_j for each lower neighbour
+ * j < i, its block read (from L1) just after x_i is made (an edge block is A_ij column by column, so
+ * (A_ij^T x_i)_q is column q . x_i; a flap is a multiple of I). A neighbour that is not lower adds a
+ * zero (a mask, not a branch: a row's columns come in pair order). Nothing assumes the block solve
+ * exact: res is b - A x of the x made, whatever the row did; the filter is applied afterwards
+ * (fine_residual_filter). */
+static inline void first_residual(const rows_view *m, int32_t i, const double r[3], const double *xi, double *restrict res)
+{
+    const double *d = m->D + 12 * (size_t)i;
+    double *oi = res + 3 * (size_t)i;
+    for (int q = 0; q < 3; q++) oi[q] += r[q] - (d[q] * xi[0] + d[4 + q] * xi[1] + d[8 + q] * xi[2]);
+    for (int32_t s = m->rp[i]; s < m->rp[i + 1]; s++) {
+        const int32_t j = m->rc[s];
+        const double *bl = m->RB + 9 * (size_t)s, w = j < i ? 1.0 : 0.0;
+        double *o = res + 3 * (size_t)j;
+        o[0] -= w * (bl[0] * xi[0] + bl[1] * xi[1] + bl[2] * xi[2]);
+        o[1] -= w * (bl[3] * xi[0] + bl[4] * xi[1] + bl[5] * xi[2]);
+        o[2] -= w * (bl[6] * xi[0] + bl[7] * xi[1] + bl[8] * xi[2]);
+    }
+    for (int32_t s = m->fp[i]; s < m->fp[i + 1]; s++) {
+        const int32_t j = m->fc[s];
+        const double f = j < i ? m->FV[s] : 0.0;
+        double *o = res + 3 * (size_t)j;
+        o[0] -= f * xi[0]; o[1] -= f * xi[1]; o[2] -= f * xi[2];
+    }
+}
+
 /* One block Gauss-Seidel sweep of the finest level on the filtered system A' (fem.c's rows, read in
  * place, matvec.h's view): x_i += A'_ii^-1 S_i (b_i - (A x)_i), rows in order (forward) or
  * reversed, each with the newest x (x on the range of S, so S_i (A x)_i is row i of A' x).
@@ -1831,7 +1917,7 @@ static void constrained_block_solve(const tc_cloth *c, int32_t i, const double *
  * whatever its coarse operator: the filter, contacts included, is handled exactly here.
  * Returns b . x, accumulated as each x_i is final (a sweep visits each row once). */
 static inline double gs_row(const rows_view *m, const tc_cloth *c, const double *Pv, const int8_t *fl, int32_t i,
-                            const double *restrict b, double *restrict x)
+                            const double *restrict b, double *restrict x, double *restrict res)
 {
     const double *d = m->D + 12 * (size_t)i, *xi = x + 3 * (size_t)i, *bi = b + 3 * (size_t)i;
     double y0 = d[0] * xi[0] + d[4] * xi[1] + d[8] * xi[2];
@@ -1859,6 +1945,7 @@ static inline double gs_row(const rows_view *m, const tc_cloth *c, const double 
     }
     double *o = x + 3 * (size_t)i;
     o[0] += t[0]; o[1] += t[1]; o[2] += t[2];
+    if (res) first_residual(m, i, r, o, res);
     return bi[0] * o[0] + bi[1] * o[1] + bi[2] * o[2];
 }
 
@@ -1869,14 +1956,14 @@ static rows_view fine_rows(const tc_cloth *c)
     return m;
 }
 
-static double fine_gs_c(const tc_cloth *c, const double *restrict b, double *restrict x, bool forward)
+static double fine_gs_c(const tc_cloth *c, const double *restrict b, double *restrict x, bool forward, double *restrict res)
 {
     const rows_view m = fine_rows(c);
     const double *Pv = tc_vec_ptr(&c->pinv);
     const int8_t *fl = tc_vec_ptr(&c->vflag);
     double d0 = 0.0, d1 = 0.0;
     for (int32_t k = 0; k < m.nv; k++) {
-        const double dd = gs_row(&m, c, Pv, fl, forward ? k : m.nv - 1 - k, b, x);
+        const double dd = gs_row(&m, c, Pv, fl, forward ? k : m.nv - 1 - k, b, x, res);
         if (k & 1) d1 += dd; else d0 += dd;
     }
     return d0 + d1;
@@ -1890,7 +1977,7 @@ static double fine_gs_c(const tc_cloth *c, const double *restrict b, double *res
  * of it are forwarded from one store. The last vertex (whose 4-lane loads would pass the arrays)
  * and the constrained ones take the scalar row. */
 __attribute__((target("avx2,fma"))) static double fine_gs_avx2(const tc_cloth *c, const double *restrict b,
-                                                               double *restrict x, bool forward)
+                                                               double *restrict x, bool forward, double *restrict res)
 {
     const rows_view m = fine_rows(c);
     const double *restrict D = m.D, *restrict RB = m.RB, *restrict FV = m.FV;
@@ -1904,7 +1991,7 @@ __attribute__((target("avx2,fma"))) static double fine_gs_avx2(const tc_cloth *c
     double dsc = 0.0;
     for (int32_t k = 0; k < m.nv; k++) {
         const int32_t i = forward ? k : last - k;
-        if (i == last || fl[i] != VC_FREE) { dsc += gs_row(&m, c, Pv, fl, i, b, x); continue; }
+        if (i == last || fl[i] != VC_FREE) { dsc += gs_row(&m, c, Pv, fl, i, b, x, res); continue; }
         double *xi = x + 3 * (size_t)i;
         const double *d = D + 12 * (size_t)i;
         __m256d a0 = _mm256_mul_pd(_mm256_loadu_pd(d), _mm256_broadcast_sd(xi));
@@ -1949,6 +2036,11 @@ __attribute__((target("avx2,fma"))) static double fine_gs_avx2(const tc_cloth *c
         t = _mm256_fmadd_pd(_mm256_loadu_pd(p + 6), _mm256_permute4x64_pd(r, 0xAA), t);
         const __m256d xn = _mm256_add_pd(_mm256_loadu_pd(xi), _mm256_and_pd(t, keep));
         _mm256_storeu_pd(xi, xn);
+        if (res) {
+            double rr[4];
+            _mm256_storeu_pd(rr, r);
+            first_residual(&m, i, rr, xi, res);
+        }
         const __m256d bx = _mm256_and_pd(_mm256_mul_pd(bi, xn), keep);
         if (k & 1) dot1 = _mm256_add_pd(dot1, bx); else dot0 = _mm256_add_pd(dot0, bx);
     }
@@ -1958,25 +2050,90 @@ __attribute__((target("avx2,fma"))) static double fine_gs_avx2(const tc_cloth *c
 }
 #endif
 
-static double fine_gs(const tc_cloth *c, const double *restrict b, double *restrict x, bool forward)
+#ifdef TC_AMG_AVX2
+/* The first sweep (forward, from x = 0) with its residual (first_residual), AVX2: only the lower
+ * neighbours (j < i) have an x_j to read, and only they take a part of the residual, so the row's
+ * slots are walked once for the sum over the lower ones and once for the scatter into them; the
+ * upper ones (about half) cost a compare. Constrained rows and the last one take the scalar row. */
+__attribute__((target("avx2,fma"))) static void fine_first_avx2(const tc_cloth *c, const double *restrict b,
+                                                                double *restrict x, double *restrict res)
+{
+    const rows_view m = fine_rows(c);
+    const double *restrict RB = m.RB, *restrict FV = m.FV;
+    const int32_t *restrict rp = m.rp, *restrict rc = m.rc, *restrict fp = m.fp, *restrict fc = m.fc;
+    const double *Pv = tc_vec_ptr(&c->pinv);
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    const __m256d keep = _mm256_castsi256_pd(_mm256_set_epi64x(0, -1, -1, -1));
+    const int32_t last = m.nv - 1;
+    for (int32_t i = 0; i < m.nv; i++) {
+        if (i == last || fl[i] != VC_FREE) { gs_row(&m, c, Pv, fl, i, b, x, res); continue; }
+        __m256d a0 = _mm256_setzero_pd(), a1 = _mm256_setzero_pd(), a2 = _mm256_setzero_pd(), a3 = _mm256_setzero_pd();
+        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
+            const int32_t j = rc[s];
+            if (j > i) continue;
+            const double *bl = RB + 9 * (size_t)s, *xj = x + 3 * (size_t)j;
+            a0 = _mm256_fmadd_pd(_mm256_loadu_pd(bl), _mm256_broadcast_sd(xj), a0);
+            a1 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 3), _mm256_broadcast_sd(xj + 1), a1);
+            a2 = _mm256_fmadd_pd(_mm256_loadu_pd(bl + 6), _mm256_broadcast_sd(xj + 2), a2);
+        }
+        for (int32_t f = fp[i]; f < fp[i + 1]; f++) {
+            const int32_t j = fc[f];
+            if (j > i) continue;
+            a3 = _mm256_fmadd_pd(_mm256_broadcast_sd(FV + f), _mm256_loadu_pd(x + 3 * (size_t)j), a3);  /* j < last */
+        }
+        const __m256d y = _mm256_add_pd(_mm256_add_pd(a0, a1), _mm256_add_pd(a2, a3));
+        const __m256d r = _mm256_sub_pd(_mm256_loadu_pd(b + 3 * (size_t)i), y);  /* i < last */
+        const double *p = Pv + 9 * (size_t)i;
+        __m256d t = _mm256_mul_pd(_mm256_loadu_pd(p), _mm256_permute4x64_pd(r, 0x00));
+        t = _mm256_fmadd_pd(_mm256_loadu_pd(p + 3), _mm256_permute4x64_pd(r, 0x55), t);
+        t = _mm256_fmadd_pd(_mm256_loadu_pd(p + 6), _mm256_permute4x64_pd(r, 0xAA), t);
+        t = _mm256_and_pd(t, keep);
+        double *xi = x + 3 * (size_t)i;
+        _mm256_storeu_pd(xi, t);  /* x_i was 0; its fourth lane is x_{i+1}'s first, still 0 */
+        /* res_i's own part r - A_ii x_i (its fourth lane, res_{i+1}'s first, gets 0) */
+        const double *d = m.D + 12 * (size_t)i;
+        __m256d ad = _mm256_mul_pd(_mm256_loadu_pd(d), _mm256_permute4x64_pd(t, 0x00));
+        ad = _mm256_fmadd_pd(_mm256_loadu_pd(d + 4), _mm256_permute4x64_pd(t, 0x55), ad);
+        ad = _mm256_fmadd_pd(_mm256_loadu_pd(d + 8), _mm256_permute4x64_pd(t, 0xAA), ad);
+        double *oi = res + 3 * (size_t)i;
+        _mm256_storeu_pd(oi, _mm256_add_pd(_mm256_loadu_pd(oi), _mm256_and_pd(_mm256_sub_pd(r, ad), keep)));
+        const double x0 = xi[0], x1 = xi[1], x2 = xi[2];
+        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
+            const int32_t j = rc[s];
+            if (j > i) continue;
+            const double *bl = RB + 9 * (size_t)s;
+            double *o = res + 3 * (size_t)j;
+            o[0] -= bl[0] * x0 + bl[1] * x1 + bl[2] * x2;
+            o[1] -= bl[3] * x0 + bl[4] * x1 + bl[5] * x2;
+            o[2] -= bl[6] * x0 + bl[7] * x1 + bl[8] * x2;
+        }
+        for (int32_t f = fp[i]; f < fp[i + 1]; f++) {
+            const int32_t j = fc[f];
+            if (j > i) continue;
+            double *o = res + 3 * (size_t)j;
+            o[0] -= FV[f] * x0; o[1] -= FV[f] * x1; o[2] -= FV[f] * x2;
+        }
+    }
+}
+#endif
+
+/* a sweep; res non-NULL (zeroed): a forward sweep from x = 0 that leaves b - A x there (first_residual) */
+static double fine_gs(const tc_cloth *c, const double *restrict b, double *restrict x, bool forward, double *restrict res)
 {
 #ifdef TC_AMG_AVX2
-    if (avx2()) return fine_gs_avx2(c, b, x, forward);
+    if (avx2() && res) { fine_first_avx2(c, b, x, res); return 0.0; }
+    if (avx2()) return fine_gs_avx2(c, b, x, forward, res);
 #endif
-    return fine_gs_c(c, b, x, forward);
+    return fine_gs_c(c, b, x, forward, res);
 }
 
-/* y_i = b_i - S_i y_i in place (the residual, y = A x on entry) */
-TC_HOT static void fine_residual(const tc_cloth *c, const double *restrict b, double *restrict y)
+/* the first sweep's residual filtered: S_i res_i on the rows that are not free */
+static void fine_residual_filter(const tc_cloth *c, double *restrict y)
 {
     const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
     const double *N = tc_vec_ptr(&c->snorm);
-    for (int32_t i = 0; i < c->nv; i++) {
-        double *o = y + 3 * (size_t)i;
-        if (fl[i] != VC_FREE) filter_vertex(fl[i], cnt[i], N + 9 * (size_t)i, o);
-        const double *bi = b + 3 * (size_t)i;
-        o[0] = bi[0] - o[0]; o[1] = bi[1] - o[1]; o[2] = bi[2] - o[2];
-    }
+    for (int32_t i = 0; i < c->nv; i++)
+        if (fl[i] != VC_FREE) filter_vertex(fl[i], cnt[i], N + 9 * (size_t)i, y + 3 * (size_t)i);
 }
 
 /* For the tests: the largest relative error of u . A_1 v against (P u) . A (P v) by the solver's
@@ -2018,6 +2175,45 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
     return worst;
 }
 
+/* For the tests: the largest relative difference between the residual the first sweep leaves
+ * (first_residual, its filter; coarse_first_residual on level 1) and b - A x by a product after the
+ * sweep, on the finest level and on level 1, for b = r (filtered by the caller) and a pseudo-random
+ * coarse b. -1 without a level 1. */
+double tc_amg_first_residual_error(const tc_cloth *c, tc_amg *h, const double *r)
+{
+    if (!h || h->nlev < 2) return -1.0;
+    const level *N = &h->lev[1];
+    const size_t nf = 3 * (size_t)c->nv, nc = (size_t)N->n * NS;
+    double *x = tc_mem_malloc(nf * sizeof(double)), *y = tc_mem_malloc(nf * sizeof(double)), *ax = tc_mem_malloc(nf * sizeof(double));
+    double *bc = tc_mem_malloc(nc * sizeof(double)), *xc = tc_mem_malloc(nc * sizeof(double));
+    double *yc = tc_mem_malloc(nc * sizeof(double)), *ac = tc_mem_malloc(nc * sizeof(double));
+    double worst = -1.0;
+    if (x && y && ax && bc && xc && yc && ac) {
+        memset(x, 0, nf * sizeof(double));
+        memset(y, 0, nf * sizeof(double));
+        fine_gs(c, r, x, true, y);
+        fine_residual_filter(c, y);
+        tc_matvec(c, x, ax);
+        tc_constraint_filter(c, ax);
+        double scale = 0.0, err = 0.0;
+        for (size_t k = 0; k < nf; k++) scale = fmax(scale, fabs(r[k]));
+        for (size_t k = 0; k < nf; k++) err = fmax(err, fabs(y[k] - (r[k] - ax[k])));
+        worst = err / (scale > 0 ? scale : 1.0);
+        if (h->nlev >= 3) {  /* level 1 is swept with a residual only when it is not the coarsest */
+            for (size_t k = 0; k < nc; k++) bc[k] = sin(0.29 * (double)k + 0.5);
+            memset(xc, 0, nc * sizeof(double));
+            memset(yc, 0, nc * sizeof(double));
+            level_sweep(N, bc, xc, true, yc);
+            bsr_apply(&N->A, xc, ac, false);
+            double cerr = 0.0;
+            for (size_t k = 0; k < nc; k++) cerr = fmax(cerr, fabs(yc[k] - (bc[k] - ac[k])));
+            worst = fmax(worst, cerr);  /* |bc| <= 1 */
+        }
+    }
+    tc_mem_free(x); tc_mem_free(y); tc_mem_free(ax); tc_mem_free(bc); tc_mem_free(xc); tc_mem_free(yc); tc_mem_free(ac);
+    return worst;
+}
+
 /* z = M^-1 r with M^-1 the V-cycle (r and z on the range of S); returns r . z */
 /* z = M^-1 r with M^-1 the V-cycle (r and z on the range of S); returns r . z. A forward Gauss-Seidel
  * sweep from zero, the coarse correction of its residual (prolonged by S P), a backward sweep. */
@@ -2026,14 +2222,16 @@ double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z)
     level *L = &h->lev[0], *N = &h->lev[1];
     double *y = tc_vec_ptr(&c->sq);  /* the fine residual in the solver's q (level_vectors) */
     memset(z, 0, 3 * (size_t)c->nv * sizeof(double));
-    fine_gs(c, r, z, true);
-    if (h->nlev >= 2) {
-        tc_matvec(c, z, y);
-        fine_residual(c, r, y);
+    if (h->nlev < 2) {
+        fine_gs(c, r, z, true, NULL);
+    } else {
+        memset(y, 0, 3 * (size_t)c->nv * sizeof(double));
+        fine_gs(c, r, z, true, y);  /* and its residual in y */
+        fine_residual_filter(c, y);
         bsr_apply_transposed(&L->P, y, N->rhs);
         vcycle(c, h, 1, N->rhs, N->x);
         bsr_apply(&L->P, N->x, z, true);
         tc_constraint_filter(c, z);
     }
-    return fine_gs(c, r, z, false);
+    return fine_gs(c, r, z, false, NULL);
 }

@@ -407,6 +407,7 @@ int tc_amg_levels(const tc_amg *h);
 bool tc_amg_valid(const tc_amg *h, const tc_cloth *c);  /* built for the current mesh */
 size_t tc_amg_bytes(const tc_amg *h);
 double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 against P^T A P */
+double tc_amg_first_residual_error(const tc_cloth *c, tc_amg *h, const double *r);  /* tests: the first sweep's residual */
 
 /* ---------------- solver.c ---------------- */
 void tc_precondition_build(tc_cloth *c);

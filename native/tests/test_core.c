@@ -676,6 +676,10 @@ static void test_amg(void)
     for (int32_t k = 0; k < 3 * nv; k++) { qy += q[k] * y[k]; pz += p[k] * z[k]; py += p[k] * y[k]; }
     CHECK(fabs(qy - pz) <= 1e-10 * sqrt(fabs(py) * fabs(pz)) + 1e-300, "V-cycle symmetric: %.17g vs %.17g", qy, pz);
     CHECK(py > 0, "V-cycle positive: %g", py);
+    /* the residual the first sweep leaves as it goes (no product of its own) is b - S A x of the x
+       it made, on the finest level (contacts, pins and a handle present) and on level 1 */
+    const double ferr = tc_amg_first_residual_error(c, c->amg, p);
+    CHECK(ferr >= 0 && ferr < 1e-10, "first sweep's residual = b - A x: relative error %g", ferr);
     CHECK(tc_amg_bytes(c->amg) > 0, "hierarchy bytes");
     /* the coarse operator, made from the rows without a stored fine matrix or A P, is P^T A P of
        the current matrix (a build for it, and a numeric refresh on the kept prolongators) and
@@ -919,7 +923,9 @@ static void test_solve_against_direct(int preconditioner)
 static void test_cg_iterations_agree_across_kernels(int preconditioner)
 {
     double *V; int32_t *T, n, m;
-    grid(7, 5, 0.06, 0.04, &V, &T, &n, &m);
+    /* the multigrid cycle on a grid with coarse levels (its sweeps, residual and transfers) */
+    if (preconditioner == TC_PRECOND_AMG) grid(25, 13, 0.24, 0.12, &V, &T, &n, &m);
+    else grid(7, 5, 0.06, 0.04, &V, &T, &n, &m);
     for (int32_t i = 0; i < n; i++) V[3 * i + 2] = 0.002 * sin(3.0 * V[3 * i] + 40.0 * V[3 * i + 1]);  /* not flat */
     char msg[512];
     tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
@@ -930,6 +936,7 @@ static void test_cg_iterations_agree_across_kernels(int preconditioner)
     s.preconditioner = preconditioner;
     CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
     for (int k = 0; k < 5; k++) CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+    CHECK(preconditioner != TC_PRECOND_AMG || tc_amg_levels(c->amg) >= 2, "a coarse level: %d levels", tc_amg_levels(c->amg));
     /* the assembled diagonal blocks are symmetric up to the assembly's rounding (w x r_i x r_l is
        evaluated in either order on the two sides), so tc_precondition_build's symmetrising them (for
        the AVX2 pass, which reads the inverse's rows as its columns) is a rounding-level change of
@@ -1446,6 +1453,7 @@ int main(void)
     test_solve_against_direct(TC_PRECOND_SGS);
     test_cg_iterations_agree_across_kernels(TC_PRECOND_JACOBI);
     test_cg_iterations_agree_across_kernels(TC_PRECOND_SGS);
+    test_cg_iterations_agree_across_kernels(TC_PRECOND_AMG);
     test_amg();
     test_fragment_removal();
     test_fragment_removal_keeps_pairs_ordered();
