@@ -24,7 +24,7 @@ sys.path.insert(0, os.path.dirname(__file__))  # tests/meshes.py
 # needs it meanwhile waits).
 SLOW_FIRST = [
     "test_platforms.py",              # 507 (with the build of the four zips)
-    "test_native_arm64.py",           # ~380 at load 4 (zig cross build, the C tests once under qemu)
+    "test_native_arm64.py",           # ~115 s of CPU (cold zig cross build ~57, test_core --kernels under qemu ~56)
     "test_collision_session.py",      # 549
     "test_tearing_physics.py",        # 406
     "test_blender_user_actions.py",   # 316
