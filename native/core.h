@@ -292,6 +292,15 @@ int tc_reserve_vertices(tc_cloth *c, int32_t n);
 int tc_reserve_triangles(tc_cloth *c, int32_t m);
 int32_t tc_tri_local(const tc_cloth *c, int32_t t, int32_t v);
 int tc_rows_update(tc_cloth *c);  /* the row pattern of the matrix, rebuilt when pairs changed */
+/* The symmetric Gauss-Seidel sweeps' order of the rows (constants.h TC_SGS_CHAINS): vertex i's rank
+ * in it. The pattern keeps each row's slots whose column ranks lower first (tc_rows_update), so a
+ * sweep reads its half of a row as one range; distinct vertices have distinct ranks. */
+static inline int32_t tc_sgs_chunk(int32_t nv) { return nv > 0 ? (nv + TC_SGS_CHAINS - 1) / TC_SGS_CHAINS : 1; }
+static inline int64_t tc_sgs_rank(int32_t i, int32_t chunk)
+{
+    return (int64_t)(i % chunk) * TC_SGS_CHAINS + i / chunk;
+}
+bool tc_rows_sweep_ordered(const tc_cloth *c);  /* every row lower slots first (an older snapshot's are not) */
 /* A pair is an edge (full block) while a triangle uses it, else a bending flap (multiple of I). */
 static inline bool tc_pair_is_edge(const tc_cloth *c, size_t p)
 {

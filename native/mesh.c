@@ -227,7 +227,8 @@ int32_t tc_tri_local(const tc_cloth *c, int32_t t, int32_t v)
 
 /* The row pattern (core.h) from the pairs: a counting sort of both ends of every pair, O(pairs),
  * done lazily before an assembly when a tear changed any pair (tens of microseconds for a T-shirt,
- * against a milliseconds-long step); slots keep pair order within a row, so the product is
+ * against a milliseconds-long step); within a row, the slots of lower neighbours in the sweeps'
+ * order (tc_sgs_rank) first, then the others, each part in pair order, so the product is
  * deterministic. */
 int tc_rows_update(tc_cloth *c)
 {
@@ -250,16 +251,21 @@ int tc_rows_update(tc_cloth *c)
         tc_vec_resize(&c->fval, nf))
         return TC_ERR_NOMEM;
     int32_t *rcol = tc_vec_ptr(&c->rcol), *fcol = tc_vec_ptr(&c->fcol);
-    /* fill: the running end of each row, then shift back */
-    for (size_t p = 0; p < np; p++) {
-        if (pi[p] < 0) { slot[2 * p] = slot[2 * p + 1] = -1; continue; }
-        const int32_t i = pi[p], j = pj[p];
-        if (tc_pair_is_edge(c, p)) {
-            slot[2 * p] = rp[i]; rcol[rp[i]++] = j;
-            slot[2 * p + 1] = rp[j]; rcol[rp[j]++] = i;
-        } else {
-            slot[2 * p] = fp[i]; fcol[fp[i]++] = j;
-            slot[2 * p + 1] = fp[j]; fcol[fp[j]++] = i;
+    /* fill: the running end of each row, then shift back. Two passes: first each pair's slot in the
+       row of its end that ranks higher in the Gauss-Seidel sweeps' order (there the other end is a
+       lower neighbour), then its slot in the other row, so every row holds its lower slots first
+       and the sweeps (solver.c) read either half as one range of the rows themselves; the product
+       reads a row whole, in any order. */
+    const int32_t chunk = tc_sgs_chunk(c->nv);
+    for (int pass = 0; pass < 2; pass++) {
+        for (size_t p = 0; p < np; p++) {
+            if (pi[p] < 0) { slot[2 * p] = slot[2 * p + 1] = -1; continue; }
+            const int32_t i = pi[p], j = pj[p];
+            /* end 0 (row i) or 1 (row j) whose slot goes in this pass */
+            const int e = (tc_sgs_rank(j, chunk) < tc_sgs_rank(i, chunk)) == (pass == 0) ? 0 : 1;
+            const int32_t row = e ? j : i, col = e ? i : j;
+            if (tc_pair_is_edge(c, p)) { slot[2 * p + e] = rp[row]; rcol[rp[row]++] = col; }
+            else { slot[2 * p + e] = fp[row]; fcol[fp[row]++] = col; }
         }
     }
     for (size_t i = nv; i > 0; i--) { rp[i] = rp[i - 1]; fp[i] = fp[i - 1]; }
@@ -270,6 +276,29 @@ int tc_rows_update(tc_cloth *c)
     c->rows_version = c->pair_version;
     c->rows_nv = c->nv;
     return TC_OK;
+}
+
+bool tc_rows_sweep_ordered(const tc_cloth *c)
+{
+    if (!c->rows_built) return true;
+    const int32_t nv = c->rows_nv, chunk = tc_sgs_chunk(nv);
+    const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
+    for (int32_t i = 0; i < nv; i++) {
+        const int64_t ri = tc_sgs_rank(i, chunk);
+        bool upper = false;
+        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
+            const bool u = tc_sgs_rank(rc[s], chunk) > ri;
+            if (upper && !u) return false;
+            upper = u;
+        }
+        upper = false;
+        for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
+            const bool u = tc_sgs_rank(fc[s], chunk) > ri;
+            if (upper && !u) return false;
+            upper = u;
+        }
+    }
+    return true;
 }
 
 /* Rest element of triangle t: shape gradients in the triangle's own rest frame and its area. */

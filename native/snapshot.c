@@ -409,6 +409,9 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
     if (bad) FAIL("snapshot is inconsistent (%s does not match the counts or points out of range)", bad);
     /* a sheet whose material reads the axes stores them (a blob written so always has them) */
     if (tc_material_general(&c->mat) && tc_axes_store(c)) FAIL("out of memory");
+    /* rows from the builds that kept pair order within a row (before the Gauss-Seidel sweeps read
+       each row's lower slots as one range, mesh.c): the next assembly builds the pattern again */
+    if (!tc_rows_sweep_ordered(c)) c->rows_built = false;
     return c;
 fail:
     free(keys);

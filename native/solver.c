@@ -1,8 +1,8 @@
 /* solver.c - the linear solve of one implicit Euler sub-step: conjugate gradients on the constraint
  * manifold (the filtered PCG of Baraff & Witkin 1998), preconditioned with symmetric block
- * Gauss-Seidel sweeps in Eisenstat's form (no contact), the inverse 3x3 diagonal blocks (block
- * Jacobi: with contacts, or asked for) or, on large cloths, a smoothed-aggregation multigrid
- * V-cycle (amg.c),
+ * Gauss-Seidel sweeps of the filtered matrix in Eisenstat's form (solves with contacts, or asked
+ * for), the inverse 3x3 diagonal blocks (block Jacobi: solves without contacts, or asked for) or, on
+ * large cloths, a smoothed-aggregation multigrid V-cycle (amg.c),
  * warm-started, solved for the velocity change rather than the velocity,
  * stopped by a residual force small against the forces the cloth carries, with the momentum balance
  * of a free cloth made exact by a correction along the translations.
@@ -20,13 +20,22 @@
  * tc_precondition_build (choose_amg), and read by the solves and the contact rounds after it. */
 static bool use_amg(const tc_cloth *c) { return c->amg_chosen; }
 
-/* Whether a solve without contacts uses the symmetric Gauss-Seidel sweeps (below) rather than block
- * Jacobi: only when asked for. AUTO keeps block Jacobi: the sweeps' copy of the matrix in their
- * order is ~330 bytes per triangle (a 3,600-triangle sheet went from under 1,000 to 1,328 bytes per
- * triangle, tests/test_memory.py) for 0.87-0.95x the T-shirt's step time (below). */
-static bool use_sgs(const tc_cloth *c)
+/* Whether a solve uses the symmetric Gauss-Seidel sweeps (below) rather than block Jacobi: when
+ * asked for, and under AUTO (below the multigrid cycle's bar) when the solve has contacts. Measured
+ * interleaved in one process (CPU time, this branch's sweeps; docs in the merge commit):
+ *   - the race's shirt on the walking body, dt 4.17 ms, contacts on most sub-steps: CG iterations
+ *     per sub-step 400 -> 109 (median), our CPU per frame 0.318 -> 0.219 s (0.69x), penetration 0
+ *     both, tears alike;
+ *   - the T-shirt hanging, no contact: dt 1 ms 48 -> 20 iterations for 1.06x the step's CPU time,
+ *     dt 4.17 ms 153 -> 64 iterations for 0.94x: a sweep costs about a whole product (it is bound
+ *     by the latency of the rows it chains, not by their bytes), so without contacts block Jacobi,
+ *     whose iterations the filter does not slow, stays.
+ * The sweeps' memory is two ints per vertex (the rows keep their own order, mesh.c), so the choice
+ * needs no memory rule. */
+static bool use_sgs(const tc_cloth *c, bool contact)
 {
-    return c->solver.preconditioner == TC_PRECOND_SGS;
+    const int pre = c->solver.preconditioner;
+    return pre == TC_PRECOND_SGS || (pre == TC_PRECOND_AUTO && contact && !c->amg_chosen);
 }
 
 /* k-th smallest of v[0..n) (quickselect; v is reordered) */
@@ -148,41 +157,45 @@ static void amg_prepare(tc_cloth *c)
     c->stats.amg_setup_seconds += tc_now() - t0;
 }
 
+/* The inverse of a diagonal block d (padded columns, core.h) into o (9, by rows). The block is
+ * symmetric up to the assembly's rounding: taken exactly symmetric, its inverse by cofactors is
+ * exactly symmetric too (the same products on both sides), so the AVX2 passes can read its rows as
+ * its columns. */
+static void block_inverse(const double *d, double *o)
+{
+    const double a01 = 0.5 * (d[4] + d[1]), a02 = 0.5 * (d[8] + d[2]), a12 = 0.5 * (d[9] + d[6]);
+    const double a[9] = {d[0], a01, a02, a01, d[5], a12, a02, a12, d[10]};
+    double c00 = a[4] * a[8] - a[5] * a[7], c01 = a[5] * a[6] - a[3] * a[8], c02 = a[3] * a[7] - a[4] * a[6];
+    double det = a[0] * c00 + a[1] * c01 + a[2] * c02;
+    if (!(fabs(det) > TC_SINGULAR_DET)) {  /* cannot happen with positive masses; stay safe */
+        memset(o, 0, 9 * sizeof(double));
+        return;
+    }
+    double id = 1.0 / det;
+    o[0] = c00 * id; o[1] = (a[2] * a[7] - a[1] * a[8]) * id; o[2] = (a[1] * a[5] - a[2] * a[4]) * id;
+    o[3] = c01 * id; o[4] = (a[0] * a[8] - a[2] * a[6]) * id; o[5] = (a[2] * a[3] - a[0] * a[5]) * id;
+    o[6] = c02 * id; o[7] = (a[1] * a[6] - a[0] * a[7]) * id; o[8] = (a[0] * a[4] - a[1] * a[3]) * id;
+}
+
 /* The preconditioner: the inverse of each vertex's 3x3 diagonal block of A (block Jacobi, and the
  * multigrid cycle's smoother), then the hierarchy when the multigrid cycle is in use. */
 void tc_precondition_build(tc_cloth *c)
 {
     const double *D = tc_vec_ptr(&c->diag);
     double *P = tc_vec_ptr(&c->pinv);
-    for (int32_t i = 0; i < c->nv; i++) {
-        /* padded columns (core.h). The block is symmetric up to the assembly's rounding: taken
-           exactly symmetric, its inverse by cofactors is exactly symmetric too (the same products
-           on both sides), so the AVX2 pass below can read P's rows as its columns. */
-        const double *d = D + 12 * i;
-        const double a01 = 0.5 * (d[4] + d[1]), a02 = 0.5 * (d[8] + d[2]), a12 = 0.5 * (d[9] + d[6]);
-        const double a[9] = {d[0], a01, a02, a01, d[5], a12, a02, a12, d[10]};
-        double *o = P + 9 * i;
-        double c00 = a[4] * a[8] - a[5] * a[7], c01 = a[5] * a[6] - a[3] * a[8], c02 = a[3] * a[7] - a[4] * a[6];
-        double det = a[0] * c00 + a[1] * c01 + a[2] * c02;
-        if (!(fabs(det) > TC_SINGULAR_DET)) {  /* cannot happen with positive masses; stay safe */
-            memset(o, 0, 9 * sizeof(double));
-            continue;
-        }
-        double id = 1.0 / det;
-        o[0] = c00 * id; o[1] = (a[2] * a[7] - a[1] * a[8]) * id; o[2] = (a[1] * a[5] - a[2] * a[4]) * id;
-        o[3] = c01 * id; o[4] = (a[0] * a[8] - a[2] * a[6]) * id; o[5] = (a[2] * a[3] - a[0] * a[5]) * id;
-        o[6] = c02 * id; o[7] = (a[1] * a[6] - a[0] * a[7]) * id; o[8] = (a[0] * a[4] - a[1] * a[3]) * id;
-    }
+    for (int32_t i = 0; i < c->nv; i++) block_inverse(D + 12 * (size_t)i, P + 9 * (size_t)i);
     c->amg_chosen = choose_amg(c);
-    if (!use_sgs(c)) {  /* the sweeps' schedule goes back with them (a return rebuilds it) */
+    if (c->solver.preconditioner != TC_PRECOND_SGS && (c->solver.preconditioner != TC_PRECOND_AUTO || c->amg_chosen)) {
+        /* the sweeps' split goes back with them (a return finds it again) */
         tc_sgs_free(c->sgs);
         c->sgs = NULL;
     }
     amg_prepare(c);
 }
 
-/* The constraints changed within a sub-step (contacts released or sliding, step.c). Neither
- * preconditioner needs anything: block Jacobi filters with the current S, and the multigrid cycle's
+/* The constraints changed within a sub-step (contacts released or sliding, step.c). No
+ * preconditioner needs anything: block Jacobi filters with the current S, the Gauss-Seidel sweeps
+ * make their contact rows' filtered inverses at each solve (sgs_constrain), and the multigrid cycle's
  * fine Gauss-Seidel sweeps solve the filtered system exactly while its coarse operators, made with
  * contact vertices free, stay a valid (symmetric positive) coarse correction whatever the contacts
  * (amg.c). Kept as the step's one hook for a preconditioner that would. */
@@ -400,11 +413,10 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
 /* ---------------- symmetric block Gauss-Seidel, by Eisenstat's trick ----------------
  *
  * The preconditioner M = (D + L) D^-1 (D + U) of the block splitting A = L + D + U (the symmetric
- * Gauss-Seidel sweep pair): on the T-shirt at dt = 1 ms its CG needs 21 iterations a step where
- * block Jacobi needs 51 (median of 200 steps of the bench's pull, the same stopping rule). Applied
- * as M^-1 r it would cost two sweeps over the matrix besides the product; Eisenstat (1981) runs CG
- * on the split system C^-1 A C^-T (C = D + L, C^T = D + U) preconditioned by D instead (M^-1 =
- * C^-T D C^-1), whose product is
+ * Gauss-Seidel sweep pair): on the T-shirt at dt = 1 ms its CG needs about 21 iterations a step
+ * where block Jacobi needs 51 (the same stopping rule). Applied as M^-1 r it would cost two sweeps
+ * over the matrix besides the product; Eisenstat (1981) runs CG on the split system C^-1 A C^-T
+ * (C = D + L, C^T = D + U) preconditioned by D instead (M^-1 = C^-T D C^-1), whose product is
  *   C^-1 A C^-T p = t + C^-1 (p - D t),  t = C^-T p,
  * one backward sweep over the upper blocks and one forward sweep over the lower ones: together the
  * bytes of one product. The velocity gains alpha t an iteration (v = C^-T v^, and t = C^-T p is at
@@ -412,160 +424,158 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
  * blocks), is taken when the split one scaled by the last ratio of the two says the stop is near,
  * so the physical stopping rule is tested on the true residual force, as for block Jacobi.
  *
- * A sweep is sequential (a row needs its lower neighbours' new values) and the mesh's numbering
- * makes row i - 1 a neighbour of row i on almost every row, so rows in order would chain through a
- * whole row's latency. The rows are taken by levels instead (a row's level: one more than its
- * lower neighbours' highest; 139 levels of ~12 rows on the T-shirt), which gives exactly the
- * natural order's values (a row reads only lower neighbours, all of lower levels) with independent
- * rows next to each other. Walking the rows by level through the natural storage cost 3.5x the
- * product's time for the same bytes (every row's data in another place), so the solve runs in the
- * levels' numbering: per row pattern (after a tear) the schedule, per solve a copy of the lower and
- * the upper blocks, flaps, diagonal blocks and their inverses in sweep order, which the sweeps then
- * stream (about one product's time, once a solve).
+ * The order: "lower" is by the rank tc_sgs_rank (core.h): the vertices in TC_SGS_CHAINS contiguous
+ * chunks, one row of each in turn. A sweep in the mesh's own numbering chains every row to the one
+ * before it (a row's whole latency); the chunks' rows are independent of each other but for the
+ * few pairs that join two chunks, and each chunk's rows are read in their storage order, so the
+ * sweeps stream the rows as the product does. The pattern keeps every row's lower slots first
+ * (mesh.c), so a sweep reads its half of a row as one range of the rows themselves: what the
+ * sweeps add to block Jacobi's memory is two ints per vertex (where each row's upper half starts).
+ * (The first version ran the rows by levels of the natural order, through a copy of the matrix in
+ * that order: +330 bytes per triangle.)
  *
- * Only without contacts: pins and handles (all three components held) are rows whose values stay
- * zero, so the sweeps skip them; a contact's partial filter would need its block's projection in
- * the sweeps, and those solves keep block Jacobi. */
+ * The constraints (Baraff-Witkin's filter S, S_i = I - sum n n^T over a contact's normals, 0 for a
+ * pin or handle): the sweeps are those of the filtered matrix A~ = S A S + (I - S), symmetric
+ * positive definite, whose block splitting gives a symmetric positive preconditioner that maps the
+ * range of S into itself; on that range A~ is the filtered operator CG solves. With every vector
+ * of the sweeps kept in the range of S, S_i A_ij S_j x_j = S_i A_ij x_j, so the off-diagonal
+ * blocks are read as stored and only the contact rows change: their inverse diagonal block is that
+ * of S_i A_ii S_i + (I - S_i) (written over pinv for the solve, sgs_constrain), and their results
+ * are filtered. Pins and handles (S_i = 0) are rows whose values stay zero, skipped. */
 struct tc_sgs {
-    uint64_t version;  /* the rows_version the schedule was built for, and the vertex count */
-    int32_t nv;
-    size_t bytes;
-    int32_t *order;              /* vertex at each position: rows by level, increasing within one */
-    int32_t *lp, *up, *lfp, *ufp;  /* per position, nv + 1: ranges of its lower / upper edges, flaps */
-    int32_t *ls, *us, *lfs, *ufs;  /* their slots in the rows (rblk / fval) ... */
-    int32_t *lc, *uc, *lfc, *ufc;  /* ... and their columns as positions */
-    /* the numbers of one solve, in position order (sgs_load) */
-    double *LB, *UB;             /* 9 doubles a block, column by column, + TC_ROW_SLACK zeros */
-    double *LF, *UF;             /* flaps */
-    double *D, *P;               /* diagonal blocks (12, columns padded) and inverses (9) */
-    int8_t *fl;                  /* vflag */
+    uint64_t version;  /* the rows_version the split was found for, the vertex and slot counts */
+    int32_t nv, ne, nf;
+    int32_t *lu, *lfu;  /* per vertex: the first slot of its row's upper part (edges, flaps) */
 };
 
 void tc_sgs_free(tc_sgs *g)
 {
     if (!g) return;
-    free(g->order); free(g->lp); free(g->up); free(g->lfp); free(g->ufp);
-    free(g->ls); free(g->us); free(g->lfs); free(g->ufs);
-    free(g->lc); free(g->uc); free(g->lfc); free(g->ufc);
-    free(g->LB); free(g->UB); free(g->LF); free(g->UF); free(g->D); free(g->P); free(g->fl);
+    free(g->lu); free(g->lfu);
     free(g);
 }
 
-size_t tc_sgs_bytes(const tc_sgs *g) { return g ? g->bytes : 0; }
+size_t tc_sgs_bytes(const tc_sgs *g) { return g ? sizeof *g + 2 * sizeof(int32_t) * (size_t)g->nv : 0; }
 
-/* The schedule for the current rows; -1 when out of memory (block Jacobi then) */
+/* The split of the current rows; -1 when out of memory, or when a row is not lower slots first
+ * (cannot happen: mesh.c builds them so and a snapshot's older rows are built again): block Jacobi */
 static int sgs_prepare(tc_cloth *c)
 {
     tc_sgs *g = c->sgs;
-    const int32_t *rp0 = tc_vec_ptr(&c->rptr), *fp0 = tc_vec_ptr(&c->fptr);
-    /* the slot counts too: a schedule must never index rows it was not built for */
-    if (g && g->version == c->rows_version && g->nv == c->nv && g->lp[g->nv] + g->up[g->nv] == rp0[c->nv] &&
-        g->lfp[g->nv] + g->ufp[g->nv] == fp0[c->nv])
-        return 0;
+    const int32_t nv = c->nv;
+    const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
+    /* the slot counts too: a split must never index rows it was not found for */
+    if (g && g->version == c->rows_version && g->nv == nv && g->ne == rp[nv] && g->nf == fp[nv]) return 0;
     tc_sgs_free(g);
     c->sgs = g = calloc(1, sizeof *g);
     if (!g) return -1;
-    const int32_t nv = c->nv;
-    const size_t n1 = (size_t)nv + 1;
-    const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
-    const size_t ne = (size_t)rp[nv], nf = (size_t)fp[nv];
-    /* a pair has one slot in each of its rows: as many lower slots as upper ones */
-    const size_t nh = ne / 2 + 1, nfh = nf / 2 + 1;
-    int32_t *lev = malloc(sizeof(int32_t) * n1), *cnt = calloc(n1 + 1, sizeof(int32_t)), *pos = malloc(sizeof(int32_t) * n1);
-#define TC_ALLOC(f, n) (g->f = malloc(sizeof *g->f * (n)))
-    const bool ok = lev && cnt && pos && TC_ALLOC(order, n1) && TC_ALLOC(lp, n1) && TC_ALLOC(up, n1) &&
-                    TC_ALLOC(lfp, n1) && TC_ALLOC(ufp, n1) && TC_ALLOC(ls, nh) && TC_ALLOC(us, nh) &&
-                    TC_ALLOC(lfs, nfh) && TC_ALLOC(ufs, nfh) && TC_ALLOC(lc, nh) && TC_ALLOC(uc, nh) &&
-                    TC_ALLOC(lfc, nfh) && TC_ALLOC(ufc, nfh) && TC_ALLOC(LB, 9 * nh + TC_ROW_SLACK) &&
-                    TC_ALLOC(UB, 9 * nh + TC_ROW_SLACK) && TC_ALLOC(LF, nfh) && TC_ALLOC(UF, nfh) &&
-                    TC_ALLOC(D, 12 * n1) && TC_ALLOC(P, 9 * n1 + TC_ROW_SLACK) && TC_ALLOC(fl, n1);
-#undef TC_ALLOC
-    if (!ok || ne % 2 || nf % 2) {
-        free(lev); free(cnt); free(pos);
+    g->lu = malloc(sizeof(int32_t) * ((size_t)nv + 1));
+    g->lfu = malloc(sizeof(int32_t) * ((size_t)nv + 1));
+    bool ok = g->lu && g->lfu;
+    const int32_t chunk = tc_sgs_chunk(nv);
+    for (int32_t i = 0; ok && i < nv; i++) {
+        const int64_t ri = tc_sgs_rank(i, chunk);
+        int32_t s = rp[i];
+        while (s < rp[i + 1] && tc_sgs_rank(rc[s], chunk) < ri) s++;
+        g->lu[i] = s;
+        for (; s < rp[i + 1]; s++) ok &= tc_sgs_rank(rc[s], chunk) > ri;
+        s = fp[i];
+        while (s < fp[i + 1] && tc_sgs_rank(fc[s], chunk) < ri) s++;
+        g->lfu[i] = s;
+        for (; s < fp[i + 1]; s++) ok &= tc_sgs_rank(fc[s], chunk) > ri;
+    }
+    if (!ok) {
         tc_sgs_free(g);
         c->sgs = NULL;
         return -1;
     }
-    int32_t levels = 0;
-    for (int32_t i = 0; i < nv; i++) {
-        int32_t l = 0;
-        for (int32_t s = rp[i]; s < rp[i + 1]; s++)
-            if (rc[s] < i && lev[rc[s]] + 1 > l) l = lev[rc[s]] + 1;
-        for (int32_t s = fp[i]; s < fp[i + 1]; s++)
-            if (fc[s] < i && lev[fc[s]] + 1 > l) l = lev[fc[s]] + 1;
-        lev[i] = l;
-        cnt[l + 1]++;
-        if (l + 1 > levels) levels = l + 1;
-    }
-    for (int32_t l = 0; l < levels; l++) cnt[l + 1] += cnt[l];
-    for (int32_t i = 0; i < nv; i++) { pos[i] = cnt[lev[i]]++; g->order[pos[i]] = i; }
-    int32_t nl = 0, nu = 0, nfl = 0, nfu = 0;
-    for (int32_t k = 0; k < nv; k++) {
-        const int32_t i = g->order[k];
-        g->lp[k] = nl; g->up[k] = nu; g->lfp[k] = nfl; g->ufp[k] = nfu;
-        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
-            if (rc[s] < i) { g->ls[nl] = s; g->lc[nl++] = pos[rc[s]]; }
-            else { g->us[nu] = s; g->uc[nu++] = pos[rc[s]]; }
-        }
-        for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
-            if (fc[s] < i) { g->lfs[nfl] = s; g->lfc[nfl++] = pos[fc[s]]; }
-            else { g->ufs[nfu] = s; g->ufc[nfu++] = pos[fc[s]]; }
-        }
-    }
-    g->lp[nv] = nl; g->up[nv] = nu; g->lfp[nv] = nfl; g->ufp[nv] = nfu;
-    free(lev); free(cnt); free(pos);
-    memset(g->LB + 9 * (size_t)nl, 0, TC_ROW_SLACK * sizeof(double));
-    memset(g->UB + 9 * (size_t)nu, 0, TC_ROW_SLACK * sizeof(double));
-    memset(g->P + 9 * (size_t)nv, 0, TC_ROW_SLACK * sizeof(double));
     g->version = c->rows_version;
-    g->nv = nv;
-    g->bytes = sizeof *g + sizeof(int32_t) * (5 * n1 + 4 * nh + 4 * nfh) + sizeof(double) * (18 * nh + 2 * TC_ROW_SLACK + 2 * nfh) +
-               sizeof(double) * (21 * n1 + TC_ROW_SLACK) + n1;
+    g->nv = nv; g->ne = rp[nv]; g->nf = fp[nv];
     return 0;
 }
 
-/* This solve's numbers into the schedule's order */
-static void sgs_load(const tc_cloth *c, tc_sgs *g)
+/* What the sweeps read: the rows, the upper parts' starts, the diagonal blocks and their inverses
+ * (the filtered ones at contact rows), the constraint kinds and contact normals */
+typedef struct sgs_rows {
+    const double *D, *P, *RB, *FV, *N;
+    const int32_t *rp, *rc, *fp, *fc, *lu, *lfu;
+    const int8_t *fl, *cnt;
+    int32_t nv, chunk;
+} sgs_rows;
+
+static sgs_rows sgs_view(const tc_cloth *c)
 {
-    const double *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval), *D = tc_vec_ptr(&c->diag), *P = tc_vec_ptr(&c->pinv);
-    const int8_t *fl = tc_vec_ptr(&c->vflag);
-    const int32_t nv = g->nv;
-    for (int32_t e = 0; e < g->lp[nv]; e++) memcpy(g->LB + 9 * (size_t)e, RB + 9 * (size_t)g->ls[e], 9 * sizeof(double));
-    for (int32_t e = 0; e < g->up[nv]; e++) memcpy(g->UB + 9 * (size_t)e, RB + 9 * (size_t)g->us[e], 9 * sizeof(double));
-    for (int32_t e = 0; e < g->lfp[nv]; e++) g->LF[e] = FV[g->lfs[e]];
-    for (int32_t e = 0; e < g->ufp[nv]; e++) g->UF[e] = FV[g->ufs[e]];
-    for (int32_t k = 0; k < nv; k++) {
-        const int32_t i = g->order[k];
-        memcpy(g->D + 12 * (size_t)k, D + 12 * (size_t)i, 12 * sizeof(double));
-        memcpy(g->P + 9 * (size_t)k, P + 9 * (size_t)i, 9 * sizeof(double));
-        g->fl[k] = fl[i];
+    const tc_sgs *g = c->sgs;
+    return (sgs_rows){tc_vec_ptr(&c->diag), tc_vec_ptr(&c->pinv), tc_vec_ptr(&c->rblk), tc_vec_ptr(&c->fval),
+                      tc_vec_ptr(&c->snorm), tc_vec_ptr(&c->rptr), tc_vec_ptr(&c->rcol), tc_vec_ptr(&c->fptr),
+                      tc_vec_ptr(&c->fcol), g->lu, g->lfu, tc_vec_ptr(&c->vflag), tc_vec_ptr(&c->scount), c->nv,
+                      tc_sgs_chunk(c->nv)};
+}
+
+/* x := S_i x at a contact row (the filter of constraints.c, one vertex) */
+static inline void sgs_filter(const sgs_rows *m, int32_t i, double *x)
+{
+    for (int k = 0; k < m->cnt[i]; k++) {
+        const double *e = m->N + 9 * (size_t)i + 3 * k;
+        const double d = x[0] * e[0] + x[1] * e[1] + x[2] * e[2];
+        x[0] -= d * e[0]; x[1] -= d * e[1]; x[2] -= d * e[2];
     }
 }
 
-/* One side of the matrix as the sweeps read it: ranges per position, blocks and flaps in that order */
-typedef struct sgs_side {
-    const int32_t *bp, *bc, *fp, *fc;
-    const double *B, *F;
-} sgs_side;
+/* The contact rows' inverse diagonal blocks for this solve (filtered = true: of S A_ii S + I - S,
+ * written over pinv), or back to block Jacobi's (false), computed as tc_precondition_build does */
+static void sgs_constrain(tc_cloth *c, bool filtered)
+{
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    const double *D = tc_vec_ptr(&c->diag), *N = tc_vec_ptr(&c->snorm);
+    double *P = tc_vec_ptr(&c->pinv);
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (fl[i] != VC_CONTACT) continue;
+        const double *d = D + 12 * (size_t)i;
+        if (!filtered) { block_inverse(d, P + 9 * (size_t)i); continue; }
+        double S[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+        for (int k = 0; k < cnt[i]; k++) {
+            const double *e = N + 9 * (size_t)i + 3 * k;
+            for (int a = 0; a < 3; a++)
+                for (int b = 0; b < 3; b++) S[3 * a + b] -= e[a] * e[b];
+        }
+        /* S A S + I - S, padded columns as diag's */
+        double AS[9], f[12] = {0};
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) AS[3 * a + b] = d[4 * 0 + a] * S[b] + d[4 * 1 + a] * S[3 + b] + d[4 * 2 + a] * S[6 + b];
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++)
+                f[4 * b + a] = S[3 * a] * AS[b] + S[3 * a + 1] * AS[3 + b] + S[3 * a + 2] * AS[6 + b] + (a == b) - S[3 * a + b];
+        block_inverse(f, P + 9 * (size_t)i);
+    }
+}
 
-static sgs_side sgs_lower(const tc_sgs *g) { return (sgs_side){g->lp, g->lc, g->lfp, g->lfc, g->LB, g->LF}; }
-static sgs_side sgs_upper(const tc_sgs *g) { return (sgs_side){g->up, g->uc, g->ufp, g->ufc, g->UB, g->UF}; }
-
-/* a[0..3) += position k's blocks of side s times x at their columns */
-static inline void sgs_row_sum(const sgs_side *s, int32_t k, const double *restrict x, double a[3])
+/* a[0..3) += the blocks of slots [e0, e1) and flaps [f0, f1) times x at their columns */
+static inline void sgs_row_sum(const sgs_rows *m, int32_t e0, int32_t e1, int32_t f0, int32_t f1, const double *restrict x,
+                               double a[3])
 {
     double a0 = 0.0, a1 = 0.0, a2 = 0.0, b0 = 0.0, b1 = 0.0, b2 = 0.0;
-    for (int32_t e = s->bp[k]; e < s->bp[k + 1]; e++) {
-        const double *b = s->B + 9 * (size_t)e, *xj = x + 3 * (size_t)s->bc[e];
+    for (int32_t e = e0; e < e1; e++) {
+        const double *b = m->RB + 9 * (size_t)e, *xj = x + 3 * (size_t)m->rc[e];
         a0 += b[0] * xj[0] + b[3] * xj[1] + b[6] * xj[2];
         a1 += b[1] * xj[0] + b[4] * xj[1] + b[7] * xj[2];
         a2 += b[2] * xj[0] + b[5] * xj[1] + b[8] * xj[2];
     }
-    for (int32_t e = s->fp[k]; e < s->fp[k + 1]; e++) {
-        const double f = s->F[e], *xj = x + 3 * (size_t)s->fc[e];
+    for (int32_t e = f0; e < f1; e++) {
+        const double f = m->FV[e], *xj = x + 3 * (size_t)m->fc[e];
         b0 += f * xj[0]; b1 += f * xj[1]; b2 += f * xj[2];
     }
     a[0] += a0 + b0; a[1] += a1 + b1; a[2] += a2 + b2;
+}
+
+static inline void sgs_lower_sum(const sgs_rows *m, int32_t i, const double *restrict x, double a[3])
+{
+    sgs_row_sum(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], x, a);
+}
+
+static inline void sgs_upper_sum(const sgs_rows *m, int32_t i, const double *restrict x, double a[3])
+{
+    sgs_row_sum(m, m->lu[i], m->rp[i + 1], m->lfu[i], m->fp[i + 1], x, a);
 }
 
 /* o = A_ii x from the diagonal block (columns padded to 4) */
@@ -583,102 +593,116 @@ static inline void apply_pinv(const double *p, const double r[3], double *o)
     o[2] = p[6] * r[0] + p[7] * r[1] + p[8] * r[2];
 }
 
-/* x = C^-1 x in place ((D + L) y = x), by position: a row reads only lower neighbours (earlier
- * positions, final by then) and its own value. Held rows are zero. */
-TC_HOT static void sgs_forward_inplace(const tc_sgs *g, double *restrict x)
+/* The sweeps' order: rank 0, 1, ... (forward) or the reverse, as vertex ids; a chunk's rows past
+ * the last vertex (the last chunk is short) are skipped */
+#define SGS_FORWARD(m, i, ...)                                                                      \
+    for (int32_t k_ = 0; k_ < (m)->chunk; k_++)                                                     \
+        for (int32_t i = k_; i < (m)->nv; i += (m)->chunk) { __VA_ARGS__ }
+#define SGS_BACKWARD(m, i, ...)                                                                     \
+    for (int32_t k_ = (m)->chunk - 1; k_ >= 0; k_--)                                                \
+        for (int32_t i = k_ + (TC_SGS_CHAINS - 1) * (m)->chunk; i >= k_; i -= (m)->chunk)            \
+            if (i < (m)->nv) { __VA_ARGS__ }
+
+/* x = C^-1 x in place ((D + L) y = x): a row reads only lower neighbours (final by then) and its
+ * own value. Held rows are zero. */
+TC_HOT static void sgs_forward_inplace(const sgs_rows *m, double *restrict x)
 {
-    const sgs_side L = sgs_lower(g);
-    for (int32_t k = 0; k < g->nv; k++) {
-        double *xk = x + 3 * (size_t)k;
-        if (g->fl[k] != VC_FREE) { xk[0] = xk[1] = xk[2] = 0.0; continue; }
+    SGS_FORWARD(m, i, {
+        double *xi = x + 3 * (size_t)i;
+        if (m->fl[i] == VC_PINNED || m->fl[i] == VC_HANDLE) { xi[0] = xi[1] = xi[2] = 0.0; continue; }
         double a[3] = {0.0, 0.0, 0.0};
-        sgs_row_sum(&L, k, x, a);
-        const double y[3] = {xk[0] - a[0], xk[1] - a[1], xk[2] - a[2]};
-        apply_pinv(g->P + 9 * (size_t)k, y, xk);
-    }
+        sgs_lower_sum(m, i, x, a);
+        const double y[3] = {xi[0] - a[0], xi[1] - a[1], xi[2] - a[2]};
+        apply_pinv(m->P + 9 * (size_t)i, y, xi);
+        if (m->fl[i] == VC_CONTACT) sgs_filter(m, i, xi);
+    })
 }
 
-/* Position k of the backward sweep of an iteration, with the new direction made just before it is
- * read: p_k = D_k r^_k + beta p_k (first: D_k r^_k), then t_k from (D + U) t = p. */
-static inline void sgs_backward_row(const tc_sgs *g, const sgs_side *U, int32_t k, const double *restrict rh,
-                                    double beta, bool first, double *restrict p, double *restrict t)
+/* Row i of the backward sweep of an iteration, with the new direction made just before it is
+ * read: p_i = S_i D_i r^_i + beta p_i (first: S_i D_i r^_i), then t_i from (D + U) t = p. */
+static inline void sgs_backward_row(const sgs_rows *m, int32_t i, const double *restrict rh, double beta, bool first,
+                                    double *restrict p, double *restrict t)
 {
-    const size_t o = 3 * (size_t)k;
-    if (g->fl[k] != VC_FREE) { p[o] = p[o + 1] = p[o + 2] = 0.0; t[o] = t[o + 1] = t[o + 2] = 0.0; return; }
+    const size_t o = 3 * (size_t)i;
+    const int8_t f = m->fl[i];
+    if (f == VC_PINNED || f == VC_HANDLE) { p[o] = p[o + 1] = p[o + 2] = 0.0; t[o] = t[o + 1] = t[o + 2] = 0.0; return; }
     double z[3];
-    apply_diag(g->D + 12 * (size_t)k, rh + o, z);
+    apply_diag(m->D + 12 * (size_t)i, rh + o, z);
+    if (f == VC_CONTACT) sgs_filter(m, i, z);
     if (first) { p[o] = z[0]; p[o + 1] = z[1]; p[o + 2] = z[2]; }
     else { p[o] = z[0] + beta * p[o]; p[o + 1] = z[1] + beta * p[o + 1]; p[o + 2] = z[2] + beta * p[o + 2]; }
     double a[3] = {0.0, 0.0, 0.0};
-    sgs_row_sum(U, k, t, a);
+    sgs_upper_sum(m, i, t, a);
     const double y[3] = {p[o] - a[0], p[o + 1] - a[1], p[o + 2] - a[2]};
-    apply_pinv(g->P + 9 * (size_t)k, y, t + o);
+    apply_pinv(m->P + 9 * (size_t)i, y, t + o);
+    if (f == VC_CONTACT) sgs_filter(m, i, t + o);
 }
 
-/* Position k of the forward sweep of an iteration: u_k from (D + L) u = p - D t; returns
- * p_k.(t_k + u_k) */
-static inline double sgs_forward_row(const tc_sgs *g, const sgs_side *L, int32_t k, const double *restrict p,
-                                     const double *restrict t, double *restrict u)
+/* Row i of the forward sweep of an iteration: u_i from (D + L) u = p - D t; returns
+ * p_i.(t_i + u_i) */
+static inline double sgs_forward_row(const sgs_rows *m, int32_t i, const double *restrict p, const double *restrict t,
+                                     double *restrict u)
 {
-    const size_t o = 3 * (size_t)k;
-    if (g->fl[k] != VC_FREE) { u[o] = u[o + 1] = u[o + 2] = 0.0; return 0.0; }
-    const double *tk = t + o;
+    const size_t o = 3 * (size_t)i;
+    const int8_t f = m->fl[i];
+    if (f == VC_PINNED || f == VC_HANDLE) { u[o] = u[o + 1] = u[o + 2] = 0.0; return 0.0; }
+    const double *ti = t + o;
     double a[3];
-    apply_diag(g->D + 12 * (size_t)k, tk, a);
-    sgs_row_sum(L, k, u, a);
+    apply_diag(m->D + 12 * (size_t)i, ti, a);
+    sgs_lower_sum(m, i, u, a);
     const double y[3] = {p[o] - a[0], p[o + 1] - a[1], p[o + 2] - a[2]};
-    apply_pinv(g->P + 9 * (size_t)k, y, u + o);
-    return p[o] * (tk[0] + u[o]) + p[o + 1] * (tk[1] + u[o + 1]) + p[o + 2] * (tk[2] + u[o + 2]);
+    apply_pinv(m->P + 9 * (size_t)i, y, u + o);
+    if (f == VC_CONTACT) sgs_filter(m, i, u + o);
+    return p[o] * (ti[0] + u[o]) + p[o + 1] * (ti[1] + u[o + 1]) + p[o + 2] * (ti[2] + u[o + 2]);
 }
 
-/* Position k of C r^ (C = D + L): returns its square, and with `store` it replaces r^_k */
-static inline double sgs_unsplit_row(const tc_sgs *g, const sgs_side *L, int32_t k, double *restrict rh, bool store)
+/* Row i of S C r^ (C = D + L): returns its square, and with `store` it replaces r^_i */
+static inline double sgs_unsplit_row(const sgs_rows *m, int32_t i, double *restrict rh, bool store)
 {
-    double *x = rh + 3 * (size_t)k;
-    if (g->fl[k] != VC_FREE) return 0.0;  /* zero */
+    double *x = rh + 3 * (size_t)i;
+    const int8_t f = m->fl[i];
+    if (f == VC_PINNED || f == VC_HANDLE) return 0.0;  /* zero */
     double a[3];
-    apply_diag(g->D + 12 * (size_t)k, x, a);
-    sgs_row_sum(L, k, rh, a);
+    apply_diag(m->D + 12 * (size_t)i, x, a);
+    sgs_lower_sum(m, i, rh, a);
+    if (f == VC_CONTACT) sgs_filter(m, i, a);
     if (store) { x[0] = a[0]; x[1] = a[1]; x[2] = a[2]; }
     return a[0] * a[0] + a[1] * a[1] + a[2] * a[2];
 }
 
-/* The backward sweep of an iteration, from the last position (a row's higher neighbours are later) */
-TC_HOT static void sgs_backward_c(const tc_sgs *g, const double *restrict rh, double beta, bool first,
+/* The backward sweep of an iteration, from the last rank (a row's higher neighbours are later) */
+TC_HOT static void sgs_backward_c(const sgs_rows *m, const double *restrict rh, double beta, bool first,
                                   double *restrict p, double *restrict t)
 {
-    const sgs_side U = sgs_upper(g);
-    for (int32_t k = g->nv - 1; k >= 0; k--) sgs_backward_row(g, &U, k, rh, beta, first, p, t);
+    SGS_BACKWARD(m, i, { sgs_backward_row(m, i, rh, beta, first, p, t); })
 }
 
 /* The forward sweep of an iteration; returns p.(t + u) = p^T (C^-1 A C^-T) p */
-TC_HOT static double sgs_forward_c(const tc_sgs *g, const double *restrict p, const double *restrict t,
+TC_HOT static double sgs_forward_c(const sgs_rows *m, const double *restrict p, const double *restrict t,
                                    double *restrict u)
 {
-    const sgs_side L = sgs_lower(g);
     double pq0 = 0.0, pq1 = 0.0;
-    for (int32_t k = 0; k < g->nv; k++) {
-        const double pq = sgs_forward_row(g, &L, k, p, t, u);
-        if (k & 1) pq1 += pq; else pq0 += pq;
-    }
+    SGS_FORWARD(m, i, {
+        const double pq = sgs_forward_row(m, i, p, t, u);
+        if (i & 1) pq1 += pq; else pq0 += pq;
+    })
     return pq0 + pq1;
 }
 
-/* |C r^|^2, the true residual's square from the split one; with `store`, C r^ replaces r^ (from the
- * last position: a row reads lower neighbours, not yet replaced) */
-TC_HOT static double sgs_unsplit_c(const tc_sgs *g, double *restrict rh, bool store)
+/* |S C r^|^2, the true residual's square from the split one; with `store`, S C r^ replaces r^ (from
+ * the last rank: a row reads lower neighbours, not yet replaced) */
+TC_HOT static double sgs_unsplit_c(const sgs_rows *m, double *restrict rh, bool store)
 {
-    const sgs_side L = sgs_lower(g);
     double s0 = 0.0, s1 = 0.0;
-    for (int32_t k = g->nv - 1; k >= 0; k--) {
-        const double q = sgs_unsplit_row(g, &L, k, rh, store);
-        if (k & 1) s1 += q; else s0 += q;
-    }
+    SGS_BACKWARD(m, i, {
+        const double q = sgs_unsplit_row(m, i, rh, store);
+        if (i & 1) s1 += q; else s0 += q;
+    })
     return s0 + s1;
 }
 
 #ifdef TC_HAVE_AVX2_PASS
-/* A position's three values as lanes 0-2 (lane 3 zero) by a 2-lane and a 1-lane load, and stored
+/* A vertex's three values as lanes 0-2 (lane 3 zero) by a 2-lane and a 1-lane load, and stored
  * the same way: a sweep reads values that rows just before it wrote, and a 4-lane access there
  * overlaps two of those stores (or part of one), which the CPU cannot forward: it waits for them to
  * retire (a 4-lane load-blend-store per row made the sweeps 2x slower per byte than the product). */
@@ -695,19 +719,16 @@ __attribute__((target("avx2,fma"))) static inline void store3_avx2(double *x, __
 
 /* The sweeps with AVX2 + FMA, a row as fem.c's product reads one: each block column (a 4-lane load;
  * its fourth lane, the next column's first value, is never kept) times the broadcast component of
- * the neighbour, two blocks and two flaps at a time into six accumulators. A row's result is stored
- * by one 4-lane load-blend-store whose fourth lane writes the next position's first value back
- * unchanged, so the later rows' 4-lane loads of it are forwarded from one store. The last position
- * (whose 4-lane loads would pass the vectors) and the held rows take the scalar rows. */
-__attribute__((target("avx2,fma"))) static inline __m256d sgs_row_avx2(const sgs_side *s, int32_t k,
-                                                                        const double *restrict x, __m256d a0)
+ * the neighbour, two blocks and two flaps at a time into six accumulators. The last vertex (whose
+ * 4-lane loads would pass the vectors) and the constrained rows take the scalar rows. */
+__attribute__((target("avx2,fma"))) static inline __m256d sgs_row_avx2(const sgs_rows *m, int32_t e, int32_t e1,
+                                                                        int32_t f, int32_t f1, const double *restrict x,
+                                                                        __m256d a0)
 {
     __m256d a1 = _mm256_setzero_pd(), a2 = _mm256_setzero_pd(), a3 = _mm256_setzero_pd();
     __m256d a4 = _mm256_setzero_pd(), a5 = _mm256_setzero_pd();
-    const int32_t *bc = s->bc, *fc = s->fc;
-    int32_t e = s->bp[k];
-    const int32_t e1 = s->bp[k + 1];
-    const double *b = s->B + 9 * (size_t)e;
+    const int32_t *bc = m->rc, *fc = m->fc;
+    const double *b = m->RB + 9 * (size_t)e;
     for (; e + 1 < e1; e += 2, b += 18) {
         const double *xj = x + 3 * (size_t)bc[e], *xk = x + 3 * (size_t)bc[e + 1];
         a0 = _mm256_fmadd_pd(_mm256_loadu_pd(b), _mm256_broadcast_sd(xj), a0);
@@ -723,18 +744,16 @@ __attribute__((target("avx2,fma"))) static inline __m256d sgs_row_avx2(const sgs
         a1 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 3), _mm256_broadcast_sd(xj + 1), a1);
         a2 = _mm256_fmadd_pd(_mm256_loadu_pd(b + 6), _mm256_broadcast_sd(xj + 2), a2);
     }
-    int32_t f = s->fp[k];
-    const int32_t f1 = s->fp[k + 1];
     for (; f + 1 < f1; f += 2) {
-        a3 = _mm256_fmadd_pd(_mm256_broadcast_sd(s->F + f), load3_avx2(x + 3 * (size_t)fc[f]), a3);
-        a4 = _mm256_fmadd_pd(_mm256_broadcast_sd(s->F + f + 1), load3_avx2(x + 3 * (size_t)fc[f + 1]), a4);
+        a3 = _mm256_fmadd_pd(_mm256_broadcast_sd(m->FV + f), load3_avx2(x + 3 * (size_t)fc[f]), a3);
+        a4 = _mm256_fmadd_pd(_mm256_broadcast_sd(m->FV + f + 1), load3_avx2(x + 3 * (size_t)fc[f + 1]), a4);
     }
-    if (f < f1) a5 = _mm256_fmadd_pd(_mm256_broadcast_sd(s->F + f), load3_avx2(x + 3 * (size_t)fc[f]), a5);
+    if (f < f1) a5 = _mm256_fmadd_pd(_mm256_broadcast_sd(m->FV + f), load3_avx2(x + 3 * (size_t)fc[f]), a5);
     return _mm256_add_pd(_mm256_add_pd(_mm256_add_pd(a0, a1), _mm256_add_pd(a2, a3)), _mm256_add_pd(a4, a5));
 }
 
-/* A_kk x (diagonal block, columns padded with zeros) and D_k^-1 y (symmetric: its rows are its
- * columns; the third one's load reads the next position's first value into lane 3, never kept) */
+/* A_ii x (diagonal block, columns padded with zeros) and D_i^-1 y (symmetric: its rows are its
+ * columns; the third one's load reads the next vertex's first value into lane 3, never kept) */
 __attribute__((target("avx2,fma"))) static inline __m256d diag_avx2(const double *d, __m256d x)
 {
     __m256d a = _mm256_mul_pd(_mm256_loadu_pd(d), _mm256_permute4x64_pd(x, 0x00));
@@ -749,112 +768,109 @@ __attribute__((target("avx2,fma"))) static inline __m256d pinv_avx2(const double
     return _mm256_fmadd_pd(_mm256_loadu_pd(P + 6), _mm256_permute4x64_pd(y, 0xAA), a);
 }
 
-__attribute__((target("avx2,fma"))) static void sgs_backward_avx2(const tc_sgs *g, const double *restrict rh,
+__attribute__((target("avx2,fma"))) static void sgs_backward_avx2(const sgs_rows *m, const double *restrict rh,
                                                                    double beta, bool first, double *restrict p,
                                                                    double *restrict t)
 {
-    const sgs_side U = sgs_upper(g);
-    const int32_t last = g->nv - 1;
+    const int32_t last = m->nv - 1;
     const __m256d bv = _mm256_set1_pd(beta);
-    for (int32_t k = last; k >= 0; k--) {
-        if (k == last || g->fl[k] != VC_FREE) { sgs_backward_row(g, &U, k, rh, beta, first, p, t); continue; }
-        const size_t o = 3 * (size_t)k;
-        __m256d pv = diag_avx2(g->D + 12 * (size_t)k, _mm256_loadu_pd(rh + o));
+    SGS_BACKWARD(m, i, {
+        if (i == last || m->fl[i] != VC_FREE) { sgs_backward_row(m, i, rh, beta, first, p, t); continue; }
+        const size_t o = 3 * (size_t)i;
+        __m256d pv = diag_avx2(m->D + 12 * (size_t)i, load3_avx2(rh + o));
         if (!first) pv = _mm256_fmadd_pd(bv, load3_avx2(p + o), pv);
         store3_avx2(p + o, pv);
-        const __m256d a = sgs_row_avx2(&U, k, t, _mm256_setzero_pd());
-        store3_avx2(t + o, pinv_avx2(g->P + 9 * (size_t)k, _mm256_sub_pd(pv, a)));
-    }
+        const __m256d a = sgs_row_avx2(m, m->lu[i], m->rp[i + 1], m->lfu[i], m->fp[i + 1], t, _mm256_setzero_pd());
+        store3_avx2(t + o, pinv_avx2(m->P + 9 * (size_t)i, _mm256_sub_pd(pv, a)));
+    })
 }
 
-__attribute__((target("avx2,fma"))) static double sgs_forward_avx2(const tc_sgs *g, const double *restrict p,
+__attribute__((target("avx2,fma"))) static double sgs_forward_avx2(const sgs_rows *m, const double *restrict p,
                                                                     const double *restrict t, double *restrict u)
 {
-    const sgs_side L = sgs_lower(g);
-    const int32_t last = g->nv - 1;
+    const int32_t last = m->nv - 1;
     const __m256d keep = _mm256_castsi256_pd(_mm256_set_epi64x(0, -1, -1, -1));
     __m256d pq0 = _mm256_setzero_pd(), pq1 = _mm256_setzero_pd();
     double pq = 0.0;
-    for (int32_t k = 0; k <= last; k++) {
-        if (k == last || g->fl[k] != VC_FREE) { pq += sgs_forward_row(g, &L, k, p, t, u); continue; }
-        const size_t o = 3 * (size_t)k;
+    SGS_FORWARD(m, i, {
+        if (i == last || m->fl[i] != VC_FREE) { pq += sgs_forward_row(m, i, p, t, u); continue; }
+        const size_t o = 3 * (size_t)i;
         const __m256d tv = load3_avx2(t + o), pv = load3_avx2(p + o);
-        const __m256d a = sgs_row_avx2(&L, k, u, diag_avx2(g->D + 12 * (size_t)k, tv));
-        const __m256d uv = pinv_avx2(g->P + 9 * (size_t)k, _mm256_sub_pd(pv, a));
+        const __m256d a = sgs_row_avx2(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], u, diag_avx2(m->D + 12 * (size_t)i, tv));
+        const __m256d uv = pinv_avx2(m->P + 9 * (size_t)i, _mm256_sub_pd(pv, a));
         store3_avx2(u + o, uv);
         const __m256d w = _mm256_and_pd(_mm256_mul_pd(pv, _mm256_add_pd(tv, uv)), keep);
-        if (k & 1) pq1 = _mm256_add_pd(pq1, w); else pq0 = _mm256_add_pd(pq0, w);
-    }
+        if (i & 1) pq1 = _mm256_add_pd(pq1, w); else pq0 = _mm256_add_pd(pq0, w);
+    })
     double s[4];
     _mm256_storeu_pd(s, _mm256_add_pd(pq0, pq1));
     return (s[0] + s[1]) + (s[2] + s[3]) + pq;
 }
 
-__attribute__((target("avx2,fma"))) static double sgs_unsplit_avx2(const tc_sgs *g, double *restrict rh, bool store)
+__attribute__((target("avx2,fma"))) static double sgs_unsplit_avx2(const sgs_rows *m, double *restrict rh, bool store)
 {
-    const sgs_side L = sgs_lower(g);
-    const int32_t last = g->nv - 1;
+    const int32_t last = m->nv - 1;
     const __m256d keep = _mm256_castsi256_pd(_mm256_set_epi64x(0, -1, -1, -1));
     __m256d s0 = _mm256_setzero_pd(), s1 = _mm256_setzero_pd();
     double q = 0.0;
-    for (int32_t k = last; k >= 0; k--) {
-        if (k == last || g->fl[k] != VC_FREE) { q += sgs_unsplit_row(g, &L, k, rh, store); continue; }
-        const size_t o = 3 * (size_t)k;
-        const __m256d a =
-            _mm256_and_pd(sgs_row_avx2(&L, k, rh, diag_avx2(g->D + 12 * (size_t)k, load3_avx2(rh + o))), keep);
+    SGS_BACKWARD(m, i, {
+        if (i == last || m->fl[i] != VC_FREE) { q += sgs_unsplit_row(m, i, rh, store); continue; }
+        const size_t o = 3 * (size_t)i;
+        const __m256d a = _mm256_and_pd(
+            sgs_row_avx2(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], rh, diag_avx2(m->D + 12 * (size_t)i, load3_avx2(rh + o))),
+            keep);
         if (store) store3_avx2(rh + o, a);
-        if (k & 1) s1 = _mm256_fmadd_pd(a, a, s1); else s0 = _mm256_fmadd_pd(a, a, s0);
-    }
+        if (i & 1) s1 = _mm256_fmadd_pd(a, a, s1); else s0 = _mm256_fmadd_pd(a, a, s0);
+    })
     double s[4];
     _mm256_storeu_pd(s, _mm256_add_pd(s0, s1));
     return (s[0] + s[1]) + (s[2] + s[3]) + q;
 }
 #endif
 
-static void sgs_backward(const tc_sgs *g, const double *restrict rh, double beta, bool first, double *restrict p,
+static void sgs_backward(const sgs_rows *m, const double *restrict rh, double beta, bool first, double *restrict p,
                          double *restrict t)
 {
 #ifdef TC_HAVE_AVX2_PASS
-    if (tc_simd_level() == TC_SIMD_AVX2) { sgs_backward_avx2(g, rh, beta, first, p, t); return; }
+    if (tc_simd_level() == TC_SIMD_AVX2) { sgs_backward_avx2(m, rh, beta, first, p, t); return; }
 #endif
-    sgs_backward_c(g, rh, beta, first, p, t);
+    sgs_backward_c(m, rh, beta, first, p, t);
 }
 
-static double sgs_forward(const tc_sgs *g, const double *restrict p, const double *restrict t, double *restrict u)
+static double sgs_forward(const sgs_rows *m, const double *restrict p, const double *restrict t, double *restrict u)
 {
 #ifdef TC_HAVE_AVX2_PASS
-    if (tc_simd_level() == TC_SIMD_AVX2) return sgs_forward_avx2(g, p, t, u);
+    if (tc_simd_level() == TC_SIMD_AVX2) return sgs_forward_avx2(m, p, t, u);
 #endif
-    return sgs_forward_c(g, p, t, u);
+    return sgs_forward_c(m, p, t, u);
 }
 
-static double sgs_unsplit(const tc_sgs *g, double *restrict rh, bool store)
+static double sgs_unsplit(const sgs_rows *m, double *restrict rh, bool store)
 {
 #ifdef TC_HAVE_AVX2_PASS
-    if (tc_simd_level() == TC_SIMD_AVX2) return sgs_unsplit_avx2(g, rh, store);
+    if (tc_simd_level() == TC_SIMD_AVX2) return sgs_unsplit_avx2(m, rh, store);
 #endif
-    return sgs_unsplit_c(g, rh, store);
+    return sgs_unsplit_c(m, rh, store);
 }
 
-/* v += alpha t (v by vertex, t by position), r^ -= alpha (t + u); returns r^ . D r^ and (in *rr)
- * r^ . r^ */
-TC_HOT static double sgs_update(const tc_sgs *g, double alpha, const double *restrict t, const double *restrict u,
+/* v += alpha t, r^ -= alpha (t + u); returns r^ . D r^ (= r^ . S D S r^: r^ is on the range of S)
+ * and (in *rr) r^ . r^ */
+TC_HOT static double sgs_update(const sgs_rows *m, double alpha, const double *restrict t, const double *restrict u,
                                 double *restrict v, double *restrict rh, double *rr)
 {
     double rz0 = 0.0, rz1 = 0.0, rr0 = 0.0, rr1 = 0.0;
-    for (int32_t k = 0; k < g->nv; k++) {
-        const size_t o = 3 * (size_t)k;
-        if (g->fl[k] != VC_FREE) continue;
-        double *vi = v + 3 * (size_t)g->order[k];
+    for (int32_t i = 0; i < m->nv; i++) {
+        const size_t o = 3 * (size_t)i;
+        if (m->fl[i] == VC_PINNED || m->fl[i] == VC_HANDLE) continue;
         double r[3], z[3];
         for (int q = 0; q < 3; q++) {
-            vi[q] += alpha * t[o + q];
+            v[o + q] += alpha * t[o + q];
             r[q] = rh[o + q] - alpha * (t[o + q] + u[o + q]);
             rh[o + q] = r[q];
         }
-        apply_diag(g->D + 12 * (size_t)k, r, z);
+        apply_diag(m->D + 12 * (size_t)i, r, z);
         const double a = r[0] * z[0] + r[1] * z[1] + r[2] * z[2], b = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
-        if (k & 1) { rz1 += a; rr1 += b; } else { rz0 += a; rr0 += b; }
+        if (i & 1) { rz1 += a; rr1 += b; } else { rz0 += a; rr0 += b; }
     }
     *rr = rr0 + rr1;
     return rz0 + rz1;
@@ -867,22 +883,23 @@ TC_HOT static double sgs_update(const tc_sgs *g, double alpha, const double *res
 
 /* PCG by Eisenstat's trick from v and r (the filtered residual of v, in sr) as pcg() set them up;
  * leaves the true residual of the final v in sr and its square in *rr_inout. Scratch: sb2 (the
- * right-hand side, read by then), sz, sp, sq. Returns the iterations. */
-static int pcg_sgs(tc_cloth *c, double *v, double stop2, double *rr_inout)
+ * right-hand side, read by then), sz, sp, sq; pinv's contact rows hold the filtered inverses
+ * during the solve. Returns the iterations. */
+static int pcg_sgs(tc_cloth *c, double *v, double stop2, double *rr_inout, bool contact)
 {
-    tc_sgs *g = c->sgs;
-    sgs_load(c, g);
-    const int32_t nv = c->nv;
+    const size_t n3 = 3 * (size_t)c->nv;
     double *r = tc_vec_ptr(&c->sr), *rh = tc_vec_ptr(&c->sb2), *u = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp);
     double *t = tc_vec_ptr(&c->sq);
-    for (int32_t k = 0; k < nv; k++) memcpy(rh + 3 * (size_t)k, r + 3 * (size_t)g->order[k], 3 * sizeof(double));
+    if (contact) sgs_constrain(c, true);
+    const sgs_rows m = sgs_view(c);
+    memcpy(rh, r, n3 * sizeof(double));
     double rr = *rr_inout;
-    sgs_forward_inplace(g, rh);  /* r^ = C^-1 r */
+    sgs_forward_inplace(&m, rh);  /* r^ = C^-1 r */
     double rhr = 0.0, rz = 0.0;
-    for (int32_t k = 0; k < nv; k++) {
-        const double *x = rh + 3 * (size_t)k;
+    for (int32_t i = 0; i < c->nv; i++) {
+        const double *x = rh + 3 * (size_t)i;
         double z[3];
-        apply_diag(g->D + 12 * (size_t)k, x, z);
+        apply_diag(m.D + 12 * (size_t)i, x, z);
         rz += x[0] * z[0] + x[1] * z[1] + x[2] * z[2];
         rhr += x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
     }
@@ -891,15 +908,15 @@ static int pcg_sgs(tc_cloth *c, double *v, double stop2, double *rr_inout)
     double beta = 0.0;
     while (it < c->solver.cg_max_iterations && rr > stop2) {
         if (!(rz > 0) || !isfinite(rz)) break;
-        sgs_backward(g, rh, beta, it == 0, p, t);
-        const double pq = sgs_forward(g, p, t, u);
+        sgs_backward(&m, rh, beta, it == 0, p, t);
+        const double pq = sgs_forward(&m, p, t, u);
         if (!(pq > 0)) break;  /* positive definite on the manifold; else round-off */
         const double alpha = rz / pq;
         double rhr2;
-        const double rz2 = sgs_update(g, alpha, t, u, v, rh, &rhr2);
+        const double rz2 = sgs_update(&m, alpha, t, u, v, rh, &rhr2);
         it++;
         if (rhr2 * ratio <= TC_SGS_CHECK_NEAR * stop2 || it - checked >= TC_SGS_CHECK_EVERY) {
-            rr = sgs_unsplit(g, rh, false);
+            rr = sgs_unsplit(&m, rh, false);
             ratio = rhr2 > 0 ? rr / rhr2 : ratio;
             checked = it;
         } else {
@@ -908,12 +925,12 @@ static int pcg_sgs(tc_cloth *c, double *v, double stop2, double *rr_inout)
         beta = rz2 / rz;
         rz = rz2;
     }
-    rr = sgs_unsplit(g, rh, true);  /* r = C r^ */
-    for (int32_t k = 0; k < nv; k++) memcpy(r + 3 * (size_t)g->order[k], rh + 3 * (size_t)k, 3 * sizeof(double));
+    rr = sgs_unsplit(&m, rh, true);  /* r = S C r^ */
+    memcpy(r, rh, n3 * sizeof(double));
+    if (contact) sgs_constrain(c, false);
     *rr_inout = rr;
     return it;
 }
-
 /* Solves A v = b on the constraint manifold {v_i = S_i v_i + fix_i}; v holds the warm start. Stops
  * when |S (b - A v)|^2 <= stop2 (an absolute bound in (N s)^2 set by tc_solve_dv); *rr gets the
  * final squared residual. Returns the iterations. */
@@ -956,8 +973,8 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     const int8_t *fl = tc_vec_ptr(&c->vflag);
     bool contact = false;
     for (int32_t i = 0; i < c->nv; i++) contact |= fl[i] == VC_CONTACT;
-    if (it == 0 && !contact && use_sgs(c) && sgs_prepare(c) == 0) {
-        it = pcg_sgs(c, v, stop2, &rr);
+    if (it == 0 && use_sgs(c, contact) && sgs_prepare(c) == 0) {
+        it = pcg_sgs(c, v, stop2, &rr, contact);
         *rr_out = rr;
         return it;
     }

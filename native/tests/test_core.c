@@ -852,7 +852,34 @@ static int dense_solve(double *A, double *b, int n)
  * vertices' rows and columns eliminated (the filter keeps them at their prescribed zero), then a
  * cloth with no constraint (its translation correction included). Every kernel; a tolerance tight
  * enough that the iterative answer must equal the direct one to 1e-7 of its size. */
-static void test_solve_against_direct(int preconditioner)
+/* Contacts on the solver's state as a sub-step leaves them (constraints.c's filter): every fifth
+ * free vertex held along one tilted normal, every seventh of them along a second one too, with no
+ * prescribed velocity along them (sfix 0), so the solve runs on the filtered system. Returns how
+ * many vertices it made contacts. */
+static int set_test_contacts(tc_cloth *c)
+{
+    int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    double *N = tc_vec_ptr(&c->snorm), *fix = tc_vec_ptr(&c->sfix);
+    int k = 0;
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (fl[i] != VC_FREE || i % 5 != 4) continue;
+        const double a = 0.3 + 0.1 * i, l = sqrt(0.09 + 0.04 + 1.0);
+        double *e = N + 9 * (size_t)i;
+        e[0] = 0.3 * cos(a) / l; e[1] = 0.3 * sin(a) / l; e[2] = sqrt(1.0 - 0.09 / (l * l));
+        cnt[i] = 1;
+        if (k % 7 == 3) {  /* a second direction, orthogonal to the first: (e x z) normalised */
+            const double x = e[1], y = -e[0], m = sqrt(x * x + y * y);
+            e[3] = x / m; e[4] = y / m; e[5] = 0.0;
+            cnt[i] = 2;
+        }
+        fl[i] = VC_CONTACT;
+        fix[3 * i] = fix[3 * i + 1] = fix[3 * i + 2] = 0.0;
+        k++;
+    }
+    return k;
+}
+
+static void test_solve_against_direct(int preconditioner, bool contacts)
 {
     for (int pinned = 1; pinned >= 0; pinned--) {
         double *V; int32_t *T, n, m;
@@ -867,6 +894,8 @@ static void test_solve_against_direct(int preconditioner)
         s.cg_max_iterations = 5000;
         CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
         CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+        const int ncontact = contacts ? set_test_contacts(c) : 0;
+        CHECK(!contacts || ncontact >= 4, "%d contacts", ncontact);
         const int N = 3 * n;
         double *A = calloc((size_t)N * N, sizeof *A), *e = calloc((size_t)N, sizeof *e), *col = malloc((size_t)N * sizeof *col);
         double *b = malloc((size_t)N * sizeof *b), *v = calloc((size_t)N, sizeof *v), *v0 = calloc((size_t)N, sizeof *v0);
@@ -878,19 +907,60 @@ static void test_solve_against_direct(int preconditioner)
             for (int i = 0; i < N; i++) A[i * N + k] = col[i];
         }
         for (int k = 0; k < N; k++) b[k] = 1e-4 * sin(0.7 * k + 0.3) + (k % 3 == 2 ? -2e-4 : 0.0);
-        /* the reduced system: pinned components are 0 (sfix of a pin), so their columns drop out */
+        /* the reduced system in an orthonormal basis Q of the free directions: pinned components
+           are 0 (sfix of a pin), so their columns drop out; a contact vertex keeps the directions
+           its filter leaves (the columns of S_i that Gram-Schmidt keeps). x = Q (Q^T A Q)^-1 Q^T b */
         const int8_t *fl = tc_vec_ptr(&c->vflag);
-        int nf = 0, *map = malloc((size_t)N * sizeof *map);
-        for (int k = 0; k < N; k++) if (fl[k / 3] == VC_FREE) map[nf++] = k;
-        CHECK(nf == (pinned ? N - 12 : N), "free components %d of %d", nf, N);
-        double *Ar = malloc((size_t)nf * nf * sizeof *Ar), *br = malloc((size_t)nf * sizeof *br);
-        for (int i = 0; i < nf; i++) {
-            br[i] = b[map[i]];
-            for (int j = 0; j < nf; j++) Ar[i * nf + j] = A[map[i] * N + map[j]];
+        double *Q = calloc((size_t)N * N, sizeof *Q);
+        int nf = 0;
+        for (int32_t i = 0; i < n; i++) {
+            if (fl[i] == VC_PINNED || fl[i] == VC_HANDLE) continue;
+            int kept = 0;
+            double got[3][3];
+            for (int d = 0; d < 3; d++) {
+                double q[3] = {d == 0, d == 1, d == 2};
+                if (fl[i] == VC_CONTACT)
+                    for (int k = 0; k < ((const int8_t *)tc_vec_ptr(&c->scount))[i]; k++) {
+                        const double *e = (const double *)tc_vec_ptr(&c->snorm) + 9 * (size_t)i + 3 * k;
+                        const double w = q[0] * e[0] + q[1] * e[1] + q[2] * e[2];
+                        for (int a = 0; a < 3; a++) q[a] -= w * e[a];
+                    }
+                for (int g = 0; g < kept; g++) {
+                    const double w = q[0] * got[g][0] + q[1] * got[g][1] + q[2] * got[g][2];
+                    for (int a = 0; a < 3; a++) q[a] -= w * got[g][a];
+                }
+                const double l = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+                if (l < 1e-6) continue;
+                for (int a = 0; a < 3; a++) got[kept][a] = q[a] / l;
+                for (int a = 0; a < 3; a++) Q[(3 * (size_t)i + a) * N + nf] = got[kept][a];
+                kept++;
+                nf++;
+            }
         }
+        int held = 0;
+        for (int32_t i = 0; i < n; i++) held += fl[i] == VC_CONTACT ? ((const int8_t *)tc_vec_ptr(&c->scount))[i] : 0;
+        CHECK(nf == (pinned ? N - 12 : N) - held, "free components %d of %d (%d held by contacts)", nf, N, held);
+        double *Ar = calloc((size_t)nf * nf, sizeof *Ar), *br = calloc((size_t)nf, sizeof *br);
+        double *AQ = calloc((size_t)N * nf, sizeof *AQ);
+        for (int r = 0; r < N; r++)
+            for (int k = 0; k < N; k++) {
+                const double a = A[r * N + k];
+                if (a != 0.0) for (int j = 0; j < nf; j++) AQ[(size_t)r * nf + j] += a * Q[(size_t)k * N + j];
+            }
+        for (int r = 0; r < N; r++)
+            for (int i = 0; i < nf; i++) {
+                const double q = Q[(size_t)r * N + i];
+                if (q == 0.0) continue;
+                br[i] += q * b[r];
+                for (int j = 0; j < nf; j++) Ar[(size_t)i * nf + j] += q * AQ[(size_t)r * nf + j];
+            }
         CHECK(dense_solve(Ar, br, nf) == 0, "direct solve");
-        memset(x, 0, (size_t)N * sizeof *x);
-        for (int i = 0; i < nf; i++) x[map[i]] = br[i];
+        for (int r = 0; r < N; r++) {
+            x[r] = 0.0;
+            for (int i = 0; i < nf; i++) x[r] += Q[(size_t)r * N + i] * br[i];
+        }
+        free(Q); free(AQ);
+        int *map = NULL;
         double xs = 0.0;
         for (int k = 0; k < N; k++) xs = fmax(xs, fabs(x[k]));
         const int level = tc_simd_level();
@@ -901,12 +971,12 @@ static void test_solve_against_direct(int preconditioner)
             const int ok = tc_solve_dv(c, v, v0, b, 1e-3, c->solver.cg_tolerance, &it);
             double worst = 0.0;
             for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - x[k]));
-            CHECK(ok && it > 0 && worst <= 1e-7 * xs, "%s, %s, %s: CG off the direct solve by %.3g of %.3g (%d iterations, %s)",
-                  tc_precond_name(preconditioner), pinned ? "pinned" : "free", tc_simd_name(l), worst, xs, it,
-                  ok ? "converged" : "not converged");
+            CHECK(ok && it > 0 && worst <= 1e-7 * xs, "%s, %s%s, %s: CG off the direct solve by %.3g of %.3g (%d iterations, %s)",
+                  tc_precond_name(preconditioner), pinned ? "pinned" : "free", contacts ? " + contacts" : "", tc_simd_name(l),
+                  worst, xs, it, ok ? "converged" : "not converged");
             if (l == level)
-                printf("solve vs direct (%s, %s): %d iterations, off by %.3g of %.3g\n", tc_precond_name(preconditioner),
-                       pinned ? "pinned" : "free", it, worst, xs);
+                printf("solve vs direct (%s, %s%s): %d iterations, off by %.3g of %.3g\n", tc_precond_name(preconditioner),
+                       pinned ? "pinned" : "free", contacts ? " + contacts" : "", it, worst, xs);
         }
         tc_simd_select(level);
         free(A); free(e); free(col); free(b); free(v); free(v0); free(x); free(map); free(Ar); free(br); free(V); free(T);
@@ -920,7 +990,7 @@ static void test_solve_against_direct(int preconditioner)
  * arithmetic up to rounding, so the iterates after 1, 2, 3 and 10 iterations (stopped at the cap,
  * counted as not converged) must agree to 1e-12 of their size: a kernel that read a wrong entry
  * or a neighbour's lane is off by far more at the first or second iteration. An odd vertex count exercises the last-vertex and odd-row paths. */
-static void test_cg_iterations_agree_across_kernels(int preconditioner)
+static void test_cg_iterations_agree_across_kernels(int preconditioner, bool contacts)
 {
     double *V; int32_t *T, n, m;
     /* the multigrid cycle on a grid with coarse levels (its sweeps, residual and transfers) */
@@ -937,6 +1007,7 @@ static void test_cg_iterations_agree_across_kernels(int preconditioner)
     CHECK(tc_cloth_set_solver(c, &s) == TC_OK, "solver settings: %s", tc_cloth_error(c));
     for (int k = 0; k < 5; k++) CHECK(tc_cloth_step(c, 1e-3, 1) == TC_OK, "step: %s", tc_cloth_error(c));
     CHECK(preconditioner != TC_PRECOND_AMG || tc_amg_levels(c->amg) >= 2, "a coarse level: %d levels", tc_amg_levels(c->amg));
+    if (contacts) CHECK(set_test_contacts(c) >= 4, "contacts");
     /* the assembled diagonal blocks are symmetric up to the assembly's rounding (w x r_i x r_l is
        evaluated in either order on the two sides), so tc_precondition_build's symmetrising them (for
        the AVX2 pass, which reads the inverse's rows as its columns) is a rounding-level change of
@@ -975,10 +1046,10 @@ static void test_cg_iterations_agree_across_kernels(int preconditioner)
             }
             double worst = 0.0;
             for (int k = 0; k < N; k++) worst = fmax(worst, fabs(v[k] - ref[k]));
-            CHECK(vs > 0 && worst <= 1e-12 * vs, "%s, %s after %d CG iterations: off the scalar kernel by %.3g of %.3g",
-                  tc_precond_name(preconditioner), tc_simd_name(l), caps[ci], worst, vs);
+            CHECK(vs > 0 && worst <= 1e-12 * vs, "%s%s, %s after %d CG iterations: off the scalar kernel by %.3g of %.3g",
+                  tc_precond_name(preconditioner), contacts ? " + contacts" : "", tc_simd_name(l), caps[ci], worst, vs);
             if (ci == 3)
-                printf("%s, %s after %d CG iterations: off the scalar kernel by %.3g of %.3g\n", tc_precond_name(preconditioner),
+                printf("%s%s, %s after %d CG iterations: off the scalar kernel by %.3g of %.3g\n", tc_precond_name(preconditioner), contacts ? " + contacts" : "",
                        tc_simd_name(l), caps[ci], worst, vs);
         }
     }
@@ -1512,11 +1583,14 @@ int main(int argc, char **argv)
     test_contacts_and_arrays();
     test_contact_squeeze_and_friction();
     test_solver();
-    test_solve_against_direct(TC_PRECOND_JACOBI);
-    test_solve_against_direct(TC_PRECOND_SGS);
-    test_cg_iterations_agree_across_kernels(TC_PRECOND_JACOBI);
-    test_cg_iterations_agree_across_kernels(TC_PRECOND_SGS);
-    test_cg_iterations_agree_across_kernels(TC_PRECOND_AMG);
+    test_solve_against_direct(TC_PRECOND_JACOBI, false);
+    test_solve_against_direct(TC_PRECOND_SGS, false);
+    test_solve_against_direct(TC_PRECOND_JACOBI, true);
+    test_solve_against_direct(TC_PRECOND_SGS, true);
+    test_cg_iterations_agree_across_kernels(TC_PRECOND_JACOBI, false);
+    test_cg_iterations_agree_across_kernels(TC_PRECOND_SGS, false);
+    test_cg_iterations_agree_across_kernels(TC_PRECOND_SGS, true);
+    test_cg_iterations_agree_across_kernels(TC_PRECOND_AMG, false);
     test_amg();
     test_fragment_removal();
     test_fragment_removal_keeps_pairs_ordered();
