@@ -64,9 +64,10 @@ def test_the_core_tests_pass_on_arm64_with_neon(arm64_tests):
     diff = re.search(r"^neon vs scalar: largest difference (\S+) of (\S+)$", out, re.M)
     assert diff and float(diff.group(1)) <= 1e-12 * float(diff.group(2)), out[-500:]
     # and its CG iterates, update pass included (test_core.c's test_cg_iterations_agree_across_kernels)
-    # one line per preconditioner whose iterations have SIMD kernels (block Jacobi, symmetric Gauss-Seidel)
+    # one line per preconditioner whose iterations have SIMD kernels (block Jacobi, symmetric Gauss-Seidel
+    # with and without contact rows, the multigrid's cycle)
     cg = {m.group(1): (float(m.group(2)), float(m.group(3))) for m in
-          re.finditer(r"^(\w+), neon after 10 CG iterations: off the scalar kernel by (\S+) of (\S+)$", out, re.M)}
-    assert {"jacobi", "sgs"} <= set(cg), out[-500:]
+          re.finditer(r"^(\w+(?: \+ contacts)?), neon after 10 CG iterations: off the scalar kernel by (\S+) of (\S+)$", out, re.M)}
+    assert {"jacobi", "sgs", "sgs + contacts", "amg"} <= set(cg), out[-500:]
     for name, (off, scale) in cg.items():
         assert off <= 1e-12 * scale, (name, off, scale)
