@@ -161,6 +161,9 @@ class Progress:
         self.unconverged_substeps = 0
         self.unconverged_steps = 0
         self.cg_max_iterations: int | None = None
+        # solves so far whose multigrid or Gauss-Seidel preconditioner could not be had (out of
+        # memory, a broken-down cycle) and block Jacobi took over: same answer, slower, said at the end
+        self.preconditioner_fallbacks = 0
         self._clock = clock
         self.started = clock()
         self.state = "running"              # running, done, cancelled, error
@@ -208,6 +211,16 @@ class Progress:
         elif eta is not None:
             parts.append(f"ETA {duration(eta)}")
         return ", ".join(parts)
+
+    def fallback_text(self) -> str | None:
+        """The sentence for the end of a bake when some solves fell back to block Jacobi (None when
+        none did): the motion is as accurate, the bake was slower than it should have been."""
+        n = self.preconditioner_fallbacks
+        if not n:
+            return None
+        return (f"{n} solve{'s' if n != 1 else ''} fell back from the chosen preconditioner to block Jacobi "
+                "(out of memory, or the multigrid cycle broke down): same result, slower; free memory or "
+                "set the preconditioner to Jacobi")
 
     def convergence_text(self) -> str | None:
         """The sentence for the end of a bake when some solves stopped at the iteration cap even
@@ -385,6 +398,8 @@ class BakeJob:
             if report.unconverged_substeps:
                 self.progress.unconverged_substeps += report.unconverged_substeps
                 self.progress.unconverged_steps += 1
+        st = session.cloth.stats()
+        self.progress.preconditioner_fallbacks = int(st["amg_fallbacks"]) + int(st["sgs_fallbacks"])
         self._write(inputs)
         self.next_frame += 1
         return True

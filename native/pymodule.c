@@ -485,7 +485,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:i,s:i,s:i,s:i,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:i}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:L,s:i,s:i,s:i,s:i,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:i}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
@@ -496,7 +496,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
                          (int)s.tips_retired, "grips_released", (int)s.grips_released, "plastic_triangles",
                          (int)s.plastic_triangles, "plastic_unconverged", (int)s.plastic_unconverged, "amg_levels",
                          (int)s.amg_levels, "amg_setup_seconds", s.amg_setup_seconds, "amg_fallbacks",
-                         (long long)s.amg_fallbacks, "fragments_removed",
+                         (long long)s.amg_fallbacks, "sgs_fallbacks", (long long)s.sgs_fallbacks, "fragments_removed",
                          (int)s.fragments_removed, "fragment_triangles_removed", (int)s.fragment_triangles_removed,
                          "fragment_vertices_removed", (int)s.fragment_vertices_removed, "fragments_kept",
                          (int)s.fragments_kept, "amg_bytes", (long long)s.amg_bytes,

@@ -973,10 +973,13 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     const int8_t *fl = tc_vec_ptr(&c->vflag);
     bool contact = false;
     for (int32_t i = 0; i < c->nv; i++) contact |= fl[i] == VC_CONTACT;
-    if (it == 0 && use_sgs(c, contact) && sgs_prepare(c) == 0) {
-        it = pcg_sgs(c, v, stop2, &rr, contact);
-        *rr_out = rr;
-        return it;
+    if (it == 0 && use_sgs(c, contact)) {
+        if (sgs_prepare(c) == 0) {
+            it = pcg_sgs(c, v, stop2, &rr, contact);
+            *rr_out = rr;
+            return it;
+        }
+        c->stats.sgs_fallbacks++;  /* block Jacobi below solves the same system, counted */
     }
     precondition(c, r, z);
     tc_constraint_filter(c, z);

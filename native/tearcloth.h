@@ -222,6 +222,9 @@ typedef struct tc_stats {
                                           tolerance) after TC_CONTACT_ROUNDS re-solves: kept as solved */
     int32_t solves;                    /* linear solves of the last step, summed over its sub-steps:
                                           one each, more when its contacts changed state (rounds) */
+    int64_t sgs_fallbacks;    /* solves so far that asked for symmetric Gauss-Seidel (forced, or auto
+                                 with contacts) but got block Jacobi: its row split could not be
+                                 made (out of memory) */
 } tc_stats;
 /* the smallest tc_stats a snapshot may carry: the layout before contact_directions_merged (older
  * states read with the counters after it at 0; snapshot.c) */

@@ -117,6 +117,8 @@ def test_resume_continues_where_the_first_run_stopped(tmp_path):
     for name in ("positions", "velocities", "triangles", "rest_positions"):
         assert np.array_equal(getattr(straight.session.cloth, name), getattr(resumed.session.cloth, name)), name
     assert straight.session.time == resumed.session.time
+    # the bake reads the core's fallback counters after each frame's steps: none here
+    assert straight.progress.preconditioner_fallbacks == 0 and straight.progress.fallback_text() is None
 
 
 def test_progress_line_prints_every_tenth_to_a_pipe():
@@ -131,6 +133,9 @@ def test_progress_line_prints_every_tenth_to_a_pipe():
     assert len(lines) == 11 and lines[0].startswith("[------------------------] 1/2 Sheet: frame 1/11")
     assert lines[-1].startswith("[########################] 1/2 Sheet: frame 11/11") and "ETA" in lines[-1]
     assert p.text().startswith("Sheet: frame 11/11, 0 steps/s, 0 tears")
+    assert p.fallback_text() is None
+    p.preconditioner_fallbacks = 3
+    assert p.fallback_text().startswith("3 solves fell back from the chosen preconditioner to block Jacobi")
     assert [duration(s) for s in (None, float("inf"), 42.4, 187, 3900)] == ["?", "?", "42 s", "3 min 07 s",
                                                                            "1 h 05 min"]
 

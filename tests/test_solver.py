@@ -67,6 +67,8 @@ def test_sliver_mesh_in_free_flight_keeps_momentum_and_never_gains_energy(precon
     p = (m[:, None] * c.velocities).sum(0)
     assert np.linalg.norm(p - p0) <= 1e-6 * np.linalg.norm(p0)
     assert c.stats()["unconverged_steps"] == 0 and unconverged == 0
+    # and the preconditioner asked for was the one used, every solve (a fallback is counted)
+    assert c.stats()["amg_fallbacks"] == 0 and c.stats()["sgs_fallbacks"] == 0
 
 
 def test_a_solve_stopped_at_its_cap_is_split_then_counted_never_silent():

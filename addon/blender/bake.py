@@ -230,6 +230,8 @@ class BakeRun:
             record_convergence(obj, p)
             if p.convergence_text():
                 self.reports.warning(f"{self.object_name}: {p.convergence_text()}")
+            if p.fallback_text():
+                self.reports.warning(f"{self.object_name}: {p.fallback_text()}")
         kept = f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"
         if previous:
             kept += "; the previous bake is kept as it was"
