@@ -189,17 +189,27 @@ def targets_markdown(r: dict) -> list:
     tshirt = t1.get("tshirt", {})
     roof = (f"{tshirt['product_vs_roofline']:.1f}x its memory roofline on the T-shirt"
             if tshirt.get("product_vs_roofline") else "several times its memory roofline")
+    its = {k: t1.get(k, {}).get("cg_iterations_median") for k in ("cloth", "tshirt")}
+    its_text = (f"{its['cloth']:.0f} for the square cloth, {its['tshirt']:.0f} for the T-shirt"
+                if None not in its.values() else "see Table I")
+    race = r.get("blender_cloth", {}).get("detail", {})
+    contact_text = (f" Solves with contacts (a shirt on a body) take symmetric Gauss-Seidel sweeps of the "
+                    f"filtered system instead: {race['ours_cg_iterations_median']:.0f} CG iterations per race "
+                    f"sub-step in this run (median); there the "
+                    f"collision is {race['ours_collision_share_of_substep']:.2f} of the sub-step."
+                    if race.get("ours_cg_iterations_median") is not None
+                    and race.get("ours_collision_share_of_substep") is not None else "")
     return ["## Targets", "", "| figure | this run | target | |", "|---|---|---|---|", *rows, "",
             "Where the time goes when a target is missed: the FEM solve. One step is an element pass "
             "(co-rotation, stress, forces), an assembly of 3x3 blocks into rows, and a conjugate-gradient "
             "solve. On soft, coarse or small sheets at short steps (stiffness ratio dt^2 k / m, weighted "
             "by the size, below TC_AMG_AUTO_STIFFNESS) it is preconditioned by the inverse diagonal blocks: "
             "a cotton sheet is stiff (E h = 2e4 N/m) against its areal mass, so that takes tens of "
-            "iterations at 1 ms steps (17 for the square cloth, 51 for the T-shirt), each a matrix product "
+            f"iterations at 1 ms steps ({its_text}), each a matrix product "
             f"at {roof}. Above it the smoothed-aggregation multigrid of amg.c keeps the "
             "iterations near ten from 10K to 100K triangles (1.4-4x faster than Jacobi at 10K, 2-30x at 30K), "
             "but each of its iterations costs about eight Jacobi ones plus a refresh of its coarse "
             "operators every few sub-steps; on the T-shirt in cotton it is slower than Jacobi, and auto "
-            "keeps Jacobi there. After 50 cuts the per-iteration "
+            "keeps Jacobi there." + contact_text + " After 50 cuts the per-iteration "
             "cost moves little; the step grows because a torn cloth moves more and the solver iterates "
             "more.", ""]
