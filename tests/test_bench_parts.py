@@ -211,6 +211,10 @@ def test_scaling_fits_converged_points_only_and_reports_memory_precisely(monkeyp
     assert [row["triangles"] for row in r["per_size"]] == tris
     for p in r["points"]:
         assert len(p["cg_iterations"]) == p["steps"] == 2 and p["preconditioner"] == "jacobi"
+        # the short window was replayed from its snapshot, the same steps (same CG iterations), and
+        # the medians are over every replay: ~1 ms of steps is too few to time on its own
+        assert p["replays"] >= 1 and p["replay_exact"] is True
+        assert p["timed_steps"] == p["steps"] * (1 + p["replays"])
         assert p["memory_method"] == "peak minus RSS before the cloth"
         # the peak over the RSS before the cloth, in the same process: below the absolute peak by
         # at least the interpreter, numpy and the core (tens of MB)

@@ -30,7 +30,13 @@ its wall time (collision + FEM + tearing + Python glue).
 
 Timing: median of ``steps`` steps after ``warmup`` steps (the first detection and allocations);
 fewer steps at large sizes (``default_steps``) so the whole default run stays around 3 minutes on
-two cores. Each point has the wall time (``step_ms``) and the child's CPU time (``step_cpu_ms``,
+two cores. Without collision, below 50K triangles and with block Jacobi (a snapshot rebuilds the
+multigrid's hierarchy, which the first window did not) the window is replayed from a snapshot of its
+first state until the point has ``REPLAY_CPU_S`` of steps (``replays``; ``timed_steps`` counts
+them all, the medians are over them; ``replay_exact`` says each replay made the window's CG
+iterations again): the same steps, timed more often, so a short window at 1K is not one clock
+ramp's worth of noise. The replays run in a second child (its memory figures are not used).
+Each point has the wall time (``step_ms``) and the child's CPU time (``step_cpu_ms``,
 all its threads): on a machine shared with other jobs the wall time stretches and the CPU time
 much less, so both get an exponent (``exponents`` / ``exponents_cpu``); the load average at the
 end of the run is recorded with the result.
@@ -78,6 +84,15 @@ BASE_RANGE = (1000, 4000)
 DEFAULT_TARGETS = (1e3, 3e3, 1e4, 3e4, 1e5)
 FAMILIES = ("square", "tshirt")
 MB = float(2**20)
+# A point's timed window is replayed from a snapshot of its first state until the point has this much
+# CPU time of steps (at most REPLAY_MAX times): a 1K window of 30 steps is ~20 ms, short enough that
+# the clock's ramp or one preemption moved its median by 50 % between runs and the fitted exponent by
+# +-0.05. Only without collision (the detector's state is not in the cloth's snapshot, so a replay
+# would not be the same steps), with block Jacobi, and below REPLAY_MAX_TRIANGLES (a 30K window
+# already takes ~0.2 s).
+REPLAY_CPU_S = 0.3
+REPLAY_MAX = 20
+REPLAY_MAX_TRIANGLES = 50000
 
 
 # ------------------------------------------------------------------------------------------------
@@ -277,7 +292,13 @@ def _child_point(spec: dict) -> dict:
     parts = {"collision": [], "fem": [], "tearing": []}
     error = None
     n = int(spec["warmup"]) + int(spec["steps"])
+    # in a child of its own (the parent's second one for the point): a snapshot's bytes, and the
+    # buffers its making leaves resident, must not reach the first child's memory figure
+    replay = bool(spec.get("replay")) and not spec["collision"]
+    blob = None
     for i in range(n):
+        if replay and i == int(spec["warmup"]):
+            blob = c.snapshot()  # the window's first state, replayed below
         off = PULL_SPEED * (i + 1) * DT
         c.move_handle(hands[0], (-off, 0.0, 0.0))
         c.move_handle(hands[1], (off, 0.0, 0.0))
@@ -305,8 +326,38 @@ def _child_point(spec: dict) -> dict:
             parts["collision"].append(rep.collision_s)
             parts["fem"].append(rep.fem_s)
             parts["tearing"].append(rep.tearing_s)
+    peak = _peak_rss_bytes()
     st = c.stats()
-    return {"step_s": times, "step_cpu_s": cpu,
+    replays, replay_exact = 0, None
+    first = list(iters)
+    replay_s, replay_cpu = [], []
+    while blob is not None and error is None and sum(cpu) + sum(replay_cpu) < REPLAY_CPU_S and replays < REPLAY_MAX:
+        c.restore(blob)
+        its, kept = [], len(replay_s)
+        for i in range(int(spec["warmup"]), n):
+            off = PULL_SPEED * (i + 1) * DT
+            c.move_handle(hands[0], (-off, 0.0, 0.0))
+            c.move_handle(hands[1], (off, 0.0, 0.0))
+            c0 = time.process_time()
+            t0 = time.perf_counter()
+            try:
+                s.step(DT)
+            except cloth_mod.SimulationError:  # cannot happen for the same steps: said by replay_exact
+                its = None
+                break
+            t1 = time.perf_counter()
+            c1 = time.process_time()
+            replay_s.append(t1 - t0)
+            replay_cpu.append(c1 - c0)
+            its.append(c.stats()["cg_iterations"])
+        replays += 1
+        # a replay is the same steps (the snapshot restores the warm start too): the same iterations
+        replay_exact = its == first
+        if not replay_exact:  # not the same steps: its times are left out, and the point says so
+            del replay_s[kept:], replay_cpu[kept:]
+            break
+    return {"step_s": times, "step_cpu_s": cpu, "replays": replays, "replay_exact": replay_exact,
+            "replay_step_s": replay_s, "replay_step_cpu_s": replay_cpu,
             "cg_iterations_median": statistics.median(iters) if iters else None,
             "cg_iterations": iters, "amg_levels": levels, "amg_bytes": amg_bytes,
             "amg_setup_ms_median": 1e3 * statistics.median(setup) if setup else None,
@@ -316,7 +367,7 @@ def _child_point(spec: dict) -> dict:
             "contacts_median": statistics.median(contacts) if contacts else None, "cuts": int(st.get("cuts", 0)),
             "triangles_end": int(c.num_triangles), "error": error, "unconverged_steps": int(unconverged),
             "parts_ms": {k: 1e3 * statistics.median(v) if v else None for k, v in parts.items()},
-            "peak_rss_bytes": _peak_rss_bytes()}
+            "peak_rss_bytes": peak}
 
 
 def _run_child(args: list[str], timeout: float) -> dict:
@@ -392,6 +443,19 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                                 "steps": max(1, n_steps), "warmup": max(0, n_warm)}
                         t0 = time.perf_counter()
                         res = _run_child(["--point", json.dumps(spec)], timeout)
+                        res["replays"], res["replay_exact"] = 0, None
+                        # block Jacobi points only: a snapshot makes the multigrid build its hierarchy
+                        # afresh (amg.c), so a replayed window would time a build the first one did not
+                        if (not collision and tri < REPLAY_MAX_TRIANGLES and not res["error"]
+                                and res["amg_levels"] < 2):
+                            again = _run_child(["--point", json.dumps({**spec, "replay": True})], timeout)
+                            res["replays"], res["replay_exact"] = again["replays"], again["replay_exact"]
+                            if again["cg_iterations"] != res["cg_iterations"]:
+                                res["replay_exact"] = False  # the second child's window differed from the first's
+                            if res["replay_exact"]:
+                                # the replays' times join the first window's: the same steps, more samples
+                                res["step_s"] = res["step_s"] + again["replay_step_s"]
+                                res["step_cpu_s"] = res["step_cpu_s"] + again["replay_step_cpu_s"]
                         vs_idle = max(0, int(res["peak_rss_bytes"]) - baseline)
                         # the target's figure: this process's peak over its own resident set just
                         # before the cloth was built (the idle child's where the peak cannot be reset)
@@ -409,7 +473,10 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                                             else float("nan")),
                             "step_ms_min": 1e3 * min(res["step_s"], default=float("nan")),
                             "step_ms_max": 1e3 * max(res["step_s"], default=float("nan")),
-                            "steps": len(res["step_s"]), "warmup": n_warm,
+                            # the window's steps; timed_steps counts its replays' too (the medians are over those)
+                            "steps": len(res["cg_iterations"]), "warmup": n_warm,
+                            "timed_steps": len(res["step_s"]), "replays": int(res.get("replays", 0)),
+                            "replay_exact": res.get("replay_exact"),
                             "peak_mb": peak / MB, "bytes_per_triangle": peak / tri,
                             "peak_rss_mb": int(res["peak_rss_bytes"]) / MB,
                             "peak_mb_vs_idle": vs_idle / MB,
