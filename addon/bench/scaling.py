@@ -296,27 +296,31 @@ def _child_point(spec: dict) -> dict:
     # buffers its making leaves resident, must not reach the first child's memory figure
     replay = bool(spec.get("replay")) and not spec["collision"]
     blob = None
-    for i in range(n):
-        if replay and i == int(spec["warmup"]):
-            blob = c.snapshot()  # the window's first state, replayed below
+
+    def timed_step(i):
+        """Step i of the pull (the hands moved to where step i puts them): its report, wall and CPU seconds."""
         off = PULL_SPEED * (i + 1) * DT
         c.move_handle(hands[0], (-off, 0.0, 0.0))
         c.move_handle(hands[1], (off, 0.0, 0.0))
         c0 = time.process_time()
         t0 = time.perf_counter()
+        rep = s.step(DT)
+        return rep, time.perf_counter() - t0, time.process_time() - c0
+
+    for i in range(n):
+        if replay and i == int(spec["warmup"]):
+            blob = c.snapshot()  # the window's first state, replayed below
         try:
-            rep = s.step(DT)
+            rep, wall, used = timed_step(i)
         except cloth_mod.SimulationError as e:  # reported with the point; the steps so far stand
             error = f"step {i + 1}: {e}"
             break
-        t1 = time.perf_counter()
-        c1 = time.process_time()
         st = c.stats()
         if i < int(spec["warmup"]):
             unconverged_warmup += rep.unconverged_substeps > 0
         else:
-            times.append(t1 - t0)
-            cpu.append(c1 - c0)
+            times.append(wall)
+            cpu.append(used)
             iters.append(st["cg_iterations"])
             setup.append(st["amg_setup_seconds"])
             levels = max(levels, int(st["amg_levels"]))
@@ -335,20 +339,13 @@ def _child_point(spec: dict) -> dict:
         c.restore(blob)
         its, kept = [], len(replay_s)
         for i in range(int(spec["warmup"]), n):
-            off = PULL_SPEED * (i + 1) * DT
-            c.move_handle(hands[0], (-off, 0.0, 0.0))
-            c.move_handle(hands[1], (off, 0.0, 0.0))
-            c0 = time.process_time()
-            t0 = time.perf_counter()
             try:
-                s.step(DT)
+                _, wall, used = timed_step(i)
             except cloth_mod.SimulationError:  # cannot happen for the same steps: said by replay_exact
                 its = None
                 break
-            t1 = time.perf_counter()
-            c1 = time.process_time()
-            replay_s.append(t1 - t0)
-            replay_cpu.append(c1 - c0)
+            replay_s.append(wall)
+            replay_cpu.append(used)
             its.append(c.stats()["cg_iterations"])
         replays += 1
         # a replay is the same steps (the snapshot restores the warm start too): the same iterations
