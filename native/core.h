@@ -300,6 +300,17 @@ static inline int64_t tc_sgs_rank(int32_t i, int32_t chunk)
 {
     return (int64_t)(i % chunk) * TC_SGS_CHAINS + i / chunk;
 }
+/* Where the upper part of a row's slots cols[lo, hi) starts (the first column ranking above ri, the
+ * row's own rank); -1 when a lower slot follows an upper one: the row is not lower slots first. */
+static inline int32_t tc_row_upper_start(const int32_t *cols, int32_t lo, int32_t hi, int64_t ri, int32_t chunk)
+{
+    int32_t s = lo;
+    while (s < hi && tc_sgs_rank(cols[s], chunk) < ri) s++;
+    const int32_t start = s;
+    for (; s < hi; s++)
+        if (tc_sgs_rank(cols[s], chunk) < ri) return -1;
+    return start;
+}
 bool tc_rows_sweep_ordered(const tc_cloth *c);  /* every row lower slots first (an older snapshot's are not) */
 /* A pair is an edge (full block) while a triangle uses it, else a bending flap (multiple of I). */
 static inline bool tc_pair_is_edge(const tc_cloth *c, size_t p)

@@ -285,18 +285,8 @@ bool tc_rows_sweep_ordered(const tc_cloth *c)
     const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
     for (int32_t i = 0; i < nv; i++) {
         const int64_t ri = tc_sgs_rank(i, chunk);
-        bool upper = false;
-        for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
-            const bool u = tc_sgs_rank(rc[s], chunk) > ri;
-            if (upper && !u) return false;
-            upper = u;
-        }
-        upper = false;
-        for (int32_t s = fp[i]; s < fp[i + 1]; s++) {
-            const bool u = tc_sgs_rank(fc[s], chunk) > ri;
-            if (upper && !u) return false;
-            upper = u;
-        }
+        if (tc_row_upper_start(rc, rp[i], rp[i + 1], ri, chunk) < 0 || tc_row_upper_start(fc, fp[i], fp[i + 1], ri, chunk) < 0)
+            return false;
     }
     return true;
 }

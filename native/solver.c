@@ -475,14 +475,9 @@ static int sgs_prepare(tc_cloth *c)
     const int32_t chunk = tc_sgs_chunk(nv);
     for (int32_t i = 0; ok && i < nv; i++) {
         const int64_t ri = tc_sgs_rank(i, chunk);
-        int32_t s = rp[i];
-        while (s < rp[i + 1] && tc_sgs_rank(rc[s], chunk) < ri) s++;
-        g->lu[i] = s;
-        for (; s < rp[i + 1]; s++) ok &= tc_sgs_rank(rc[s], chunk) > ri;
-        s = fp[i];
-        while (s < fp[i + 1] && tc_sgs_rank(fc[s], chunk) < ri) s++;
-        g->lfu[i] = s;
-        for (; s < fp[i + 1]; s++) ok &= tc_sgs_rank(fc[s], chunk) > ri;
+        g->lu[i] = tc_row_upper_start(rc, rp[i], rp[i + 1], ri, chunk);
+        g->lfu[i] = tc_row_upper_start(fc, fp[i], fp[i + 1], ri, chunk);
+        ok = g->lu[i] >= 0 && g->lfu[i] >= 0;
     }
     if (!ok) {
         tc_sgs_free(g);
