@@ -248,6 +248,34 @@ def test_lost_device_zeroes_force_and_ends_its_tick_loop():
     assert loop._hands["right"].alive is False
 
 
+def test_a_cable_pulled_during_a_tick_logs_its_zero_force_after_the_pull():
+    # The race CI met once: the tick takes its stamp, the cable is pulled (another thread), then
+    # the tick's poll sees the loss. Its zero-force entry must not be dated before the pull.
+    clock = Clock(1.0)
+    dev = virtual(clock)
+    log = ForceLog()
+    loop = loop_for(dev, clock, force_log=log)
+    loop.publish("right", (1.0, 0, 0), (0, 0, 0))
+    loop.tick("right")
+    t_stamp = clock.t = 1.001
+    real_poll = dev.poll
+
+    def poll_after_the_pull():
+        clock.t = t_pull = 1.0013  # pulled 0.3 ms into the tick
+        dev.unplug()
+        dev.poll = real_poll
+        real_poll()
+        clock.t = t_pull + 1e-5  # the poll's USB error takes a little time too
+        return None
+
+    dev.poll = poll_after_the_pull
+    p = loop.tick("right", t_stamp)
+    assert p.state is DeviceState.LOST and loop._hands["right"].alive is False
+    t, f = log.series("right")
+    assert t[-1] > 1.0013 and not np.abs(f[-1]).any()
+    assert np.all(np.diff(t) > 0)
+
+
 def test_threads_one_hand_lost_other_keeps_running_and_stop_zeroes():
     emu_l = FalconEmulator("L", firmware_loaded=True, homed=True, hand=spring_hand((0, 0, 0.13), 300, 5))
     emu_r = FalconEmulator("R", firmware_loaded=True, homed=True, hand=spring_hand((0, 0, 0.13), 300, 5), unplug_at=0.15)

@@ -420,7 +420,10 @@ class ServoLoop:
         if dev.state is DeviceState.LOST:
             h.force = dev.set_force(_ZERO)
             h.alive = False
-            return self._publish_proxy(h, c.proxy(dev.position), np.zeros(3), dev, now)
+            # Stamped when the loss was seen, not when the tick began: a cable pulled between the
+            # two must not log its zero-force tick before the pull (the log's promise is that
+            # every tick after the loss rendered zero, and this one is that tick).
+            return self._publish_proxy(h, c.proxy(dev.position), np.zeros(3), dev, max(now, self.clock()))
         x_proxy = c.proxy(dev.position)
         v_proxy = c.vector_to_scene(dev.velocity)
         dt = self.period_s if h.last_now is None else min(max(now - h.last_now, 0.0), 4.0 * self.period_s)

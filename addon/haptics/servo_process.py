@@ -722,8 +722,12 @@ def _child_main(conn, shm_name: str, hands: List[str], specs: List[DeviceSpec], 
                 elif what == "get":
                     send("emu", getattr(emu, value))
                 else:
+                    # The time just before the command is applied (CLOCK_MONOTONIC, the servo's
+                    # clock): a servo tick that sees its effect (an unplug) started its I/O after it,
+                    # whereas a time taken after the call could follow that tick's stamp.
+                    t = time.perf_counter()
                     getattr(emu, what)(*value)
-                    send("emu", time.perf_counter())  # when it took effect (CLOCK_MONOTONIC)
+                    send("emu", t)
             elif cmd == "stop":
                 if loop is not None:
                     try:
@@ -888,8 +892,8 @@ class RemoteEmulator:
         self._servo, self._hand = servo, hand
 
     def unplug(self) -> Optional[float]:
-        """Pull the cable; returns when it was pulled (``time.perf_counter``; None if the servo
-        process has not started yet: then it is pulled as it starts)."""
+        """Pull the cable; returns the servo clock just before it was pulled (``time.perf_counter``;
+        None if the servo process has not started yet: then it is pulled as it starts)."""
         return self._servo._emu(self._hand, "unplug", ())
 
     def replug(self) -> None:
@@ -901,7 +905,7 @@ class RemoteEmulator:
     def call(self, method: str, *args):
         """Call ``method`` of the object behind this hand in the servo process: the emulator, or
         for a device over an injected transport or HID object (tests) that object, e.g.
-        ``call("feed", report)``, ``call("unplug")``; returns when it took effect
+        ``call("feed", report)``, ``call("unplug")``; returns the servo clock just before it took effect
         (``time.perf_counter``)."""
         return self._servo._emu(self._hand, method, tuple(args))
 
