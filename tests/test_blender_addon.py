@@ -343,6 +343,10 @@ def test_bad_inputs_are_reported_and_the_scene_is_intact(tmp_path):
     assert e["state"].startswith("error")
     _one(e, "ERROR", "vertex group 'gone' (pins) does not exist")
     _one(e, "ERROR", "vertex group 'hand' (handle 1) does not exist")
+    # the message says what the user can pick instead: the likely rename, and every group there is
+    _one(e, "ERROR", "'hand' (handle 1)", "did you mean 'hand_renamed'?", "(its vertex groups: 'pins', 'hand_renamed')")
+    assert not any("'gone'" in m and "did you mean" in m for _, m in e["log"])  # nothing close to 'gone'
+    _one(e, "ERROR", "'gone' (pins)", "(its vertex groups: 'pins', 'hand_renamed')")
     assert out["missing_groups_intact"] and out["no_cache_folder_made"]
 
     assert out["creates_folder"]["state"] == ["FINISHED"]

@@ -9,6 +9,7 @@ and ``gather_inputs`` (move the scene to a frame and copy out what the job needs
 """
 from __future__ import annotations
 
+import difflib
 import os
 import re
 import tempfile
@@ -36,6 +37,22 @@ class Sources:
 
 # ---------------------------------------------------------------------------------------------
 # Validation: Blender scene -> BakePlan
+
+
+def _group_hint(name: str, groups) -> str:
+    """What to pick instead of a missing vertex group: the settings keep the group's name as text,
+    so a group renamed in the Object Data panel leaves them pointing at a name that is gone. The
+    message names the likely rename (closest name) and every group the object has."""
+    if not groups:
+        return "; the object has no vertex groups"
+    # A rename usually keeps the old name inside the new one ('pins' -> 'Pins.001', 'hand' ->
+    # 'hand_left'), which difflib's ratio alone scores low; otherwise the closest spelling.
+    low = name.lower()
+    close = [g for g in groups if len(low) >= 3 and (low in g.lower() or g.lower() in low)]
+    close = close or [g for g in groups
+                      if g.lower() in difflib.get_close_matches(low, [h.lower() for h in groups], n=1, cutoff=0.6)]
+    listed = ", ".join(repr(g) for g in groups[:12]) + (", ..." if len(groups) > 12 else "")
+    return (f"; did you mean {close[0]!r}?" if close else "") + f" (its vertex groups: {listed})"
 
 
 def _collider_objects(obj, settings, reports: Reports) -> list:
@@ -161,7 +178,8 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
             reports.error(f"{obj.name}: {role} grasps no vertex group; choose its Handle Group "
                           "(Physics > Tear Cloth > Haptics)")
         elif name and name not in obj.vertex_groups:
-            reports.error(f"{obj.name}: vertex group {name!r} ({role}) does not exist (renamed or deleted?)")
+            reports.error(f"{obj.name}: vertex group {name!r} ({role}) does not exist (renamed or deleted?)"
+                          f"{_group_hint(name, [g.name for g in obj.vertex_groups])}")
         elif name and name not in wanted:
             wanted.append(name)
     follow = []
