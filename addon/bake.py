@@ -164,6 +164,13 @@ class Progress:
         # solves so far whose multigrid or Gauss-Seidel preconditioner could not be had (out of
         # memory, a broken-down cycle) and block Jacobi took over: same answer, slower, said at the end
         self.preconditioner_fallbacks = 0
+        # pieces a tear set free with less rest area than Min Fragment, removed with their
+        # triangles (the core's count, carried through a resume); start_triangles: the user's mesh
+        # triangulated, to say when removal took much of the cloth (a cloth small against Min Fragment)
+        self.fragments_removed = 0
+        self.fragment_triangles_removed = 0
+        self.start_triangles = 0
+        self.min_fragment_area = 0.0
         self._clock = clock
         self.started = clock()
         self.state = "running"              # running, done, cancelled, error
@@ -221,6 +228,22 @@ class Progress:
         return (f"{n} solve{'s' if n != 1 else ''} fell back from the chosen preconditioner to block Jacobi "
                 "(out of memory, or the multigrid cycle broke down): same result, slower; free memory or "
                 "set the preconditioner to Jacobi")
+
+    def fragment_text(self) -> tuple[str, bool] | None:
+        """(sentence, is_warning) for the end of a bake that removed small pieces (None when none
+        was): a warning when they took a quarter or more of the starting triangles, since then the
+        cloth itself is small against Min Fragment and the user likely wants it lower."""
+        n, m = self.fragments_removed, self.fragment_triangles_removed
+        if not n:
+            return None
+        text = (f"{n} small piece{'s' if n != 1 else ''} set free by tears ({m} triangle{'s' if m != 1 else ''}) "
+                f"removed, each below Min Fragment ({self.min_fragment_area * 1e4:.3g} cm^2)")
+        heavy = self.start_triangles > 0 and m >= 0.25 * self.start_triangles
+        if heavy:
+            # a count, not a percentage: tears add triangles, so the removed ones can outnumber the start
+            text += (f", against {self.start_triangles} triangles the cloth started with: the cloth is small "
+                     "against Min Fragment; lower it (0 keeps every piece)")
+        return text, heavy
 
     def convergence_text(self) -> str | None:
         """The sentence for the end of a bake when some solves stopped at the iteration cap even
@@ -335,6 +358,8 @@ class BakeJob:
         self.session = session
         self._tracker = self._attribute_tracker()
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
+        self.progress.start_triangles = len(plan.triangles)
+        self.progress.min_fragment_area = float(plan.tearing.get("min_fragment_area", 0.0))
         if self.on_event is not None:
             session.add_step_listener(self._stepped)
             self.on_event(BakeEvent("begin", self, self.start_frame))
@@ -406,7 +431,8 @@ class BakeJob:
 
     def _write(self, inputs: FrameInputs, save_state: bool = True) -> None:
         plan, cloth, writer = self.plan, self.session.cloth, self.writer
-        tears = self._tears_before + int(cloth.stats()["tears_started"])
+        st = cloth.stats()
+        tears = self._tears_before + int(st["tears_started"])
         # the state follows the cache it belongs to: beside the staged root until it is promoted
         state_path = state_path_for(writer.path)
         if save_state:
@@ -427,6 +453,8 @@ class BakeJob:
         self.progress.frame_done(inputs.frame)
         self.progress.tears = tears
         self.progress.vertices = cloth.num_vertices
+        self.progress.fragments_removed = int(st["fragments_removed"])
+        self.progress.fragment_triangles_removed = int(st["fragment_triangles_removed"])
         if self.on_event is not None:
             self.on_event(BakeEvent("frame", self, inputs.frame))
 

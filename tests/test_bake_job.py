@@ -136,6 +136,15 @@ def test_progress_line_prints_every_tenth_to_a_pipe():
     assert p.fallback_text() is None
     p.preconditioner_fallbacks = 3
     assert p.fallback_text().startswith("3 solves fell back from the chosen preconditioner to block Jacobi")
+    # removed small pieces: said at the end; a warning once they took a quarter of the cloth
+    assert p.fragment_text() is None
+    p.fragments_removed, p.fragment_triangles_removed, p.start_triangles, p.min_fragment_area = 2, 3, 100, 1e-4
+    assert p.fragment_text() == ("2 small pieces set free by tears (3 triangles) removed, each below Min Fragment "
+                                 "(1 cm^2)", False)
+    p.fragment_triangles_removed = 25
+    text, warn = p.fragment_text()
+    assert warn and text.endswith("(25 triangles) removed, each below Min Fragment (1 cm^2), against 100 triangles the "
+                                  "cloth started with: the cloth is small against Min Fragment; lower it (0 keeps every piece)")
     assert [duration(s) for s in (None, float("inf"), 42.4, 187, 3900)] == ["?", "?", "42 s", "3 min 07 s",
                                                                            "1 h 05 min"]
 

@@ -21,8 +21,9 @@ BAKE = '''
     obj = build_scene(folder, save=False)
     obj.tearcloth.min_fragment_area = limit
     bpy.ops.wm.save_as_mainfile(filepath=os.path.join(folder, "scene.blend"))
+    log = collect_log()
     state = op("bake", obj)
-    result(dict(state=sorted(state), limit=obj.tearcloth.min_fragment_area))
+    result(dict(state=sorted(state), limit=obj.tearcloth.min_fragment_area, log=log))
 '''
 
 
@@ -53,11 +54,12 @@ def pieces(positions, triangles, corner_uv):
 
 def test_a_bake_drops_a_freed_speck_from_the_cache(tmp_path):
     limit = 0.005
-    frames = {}
+    frames, logs = {}, {}
     for label, value in (("keep", 0.0), ("drop", limit)):
         folder = tmp_path / label
         folder.mkdir()
         got = run_blender(folder, BAKE, folder, value, name=f"{label}.py", timeout=240.0)
+        logs[label] = [m for _, m in got["log"] if "small piece" in m]
         assert got["state"] == ["FINISHED"] and got["limit"] == pytest.approx(value)
         path = cache_root(folder)
         assert cache.cache_info(path)["complete"]
@@ -75,6 +77,10 @@ def test_a_bake_drops_a_freed_speck_from_the_cache(tmp_path):
     small = sum(k for k, a in pieces(pk, tk, uk) if a < limit)
     assert len(td) == len(tk) - small, (len(td), len(tk), small)
     assert len(pd) < len(pk)
+    # the bake says what it removed (the core's count, the user's object name); nothing when keeping
+    assert logs["keep"] == []
+    assert len(logs["drop"]) == 1 and logs["drop"][0].startswith("Sheet: ")
+    assert "removed, each below Min Fragment (50 cm^2)" in logs["drop"][0], logs["drop"]
 
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "example_blends" / "banknote.blend"

@@ -232,6 +232,9 @@ class BakeRun:
                 self.reports.warning(f"{self.object_name}: {p.convergence_text()}")
             if p.fallback_text():
                 self.reports.warning(f"{self.object_name}: {p.fallback_text()}")
+            removed = p.fragment_text()
+            if removed is not None:
+                (self.reports.warning if removed[1] else self.reports.info)(f"{self.object_name}: {removed[0]}")
         kept = f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"
         if previous:
             kept += "; the previous bake is kept as it was"
