@@ -115,7 +115,7 @@ def collision_experiment(
         # median would hide them; the median is reported beside it
         result[f"{measure}_ms"] = float(np.mean(r["totals"]))
         result[f"{measure}_median_ms"] = float(np.median(r["totals"]))
-        # CPU time of the same calls (the process's, the detector runs on one thread): what a
+        # CPU time of the same calls (the process's, all threads: the swept stage's worker too): what a
         # loaded machine's wall clock does not add to it
         result[f"{measure}_cpu_ms"] = float(np.mean(r["cpu"]))
         result[f"{measure}_phases"] = {p: float(np.mean(v)) for p, v in r["phases"].items()}

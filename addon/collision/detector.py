@@ -27,7 +27,11 @@ numpy arrays in and out and no Python per pair, ray or triangle:
               vertex (``detect``'s result) and every one (``all_contacts``).
 5. swept    – self-collision of the pairs the rays skip (the two-ring), by swept vertex-triangle
               and edge-edge tests over the step (``swept.py``, two calls); its contacts join
-              ``all_contacts``.
+              ``all_contacts``. Its first call, the larger (the cull and the tests: ~2-3 ms a
+              sub-step of the race's shirt, as much as steps 1-4), depends on nothing steps 1-4
+              make, so it starts first, on a worker thread when the process may use a second CPU
+              (``swept_thread``), and runs beside them; its rows are merged after them. The
+              contacts are the same bit for bit with or without the thread (test_collision_detect).
 
 The previous release ran steps 2-4 in Python over per-stage kernels, bodies in Embree scenes in
 each cluster's rigid frame; tests/collision_reference.py keeps that step (``ReferenceDetector``)
@@ -76,8 +80,11 @@ Units: SI throughout (metres, m/s).
 """
 from __future__ import annotations
 
+import os
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import wait as _wait_for
 
 import numpy as np
 
@@ -136,6 +143,21 @@ def is_closed(triangles):
 def signed_volume(vertices, triangles):
     a, b, c = (vertices[triangles[:, k]] for k in range(3))
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
+
+
+def usable_cpus():
+    """CPUs this process may run on (its affinity where the OS says it, else the machine's)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        return os.cpu_count() or 1
+
+
+def _timed_swept_step(sweptself, previous, positions, velocities, dt):
+    """SweptSelf.step, timed: (seconds, pairs giving contacts)."""
+    t0 = time.perf_counter()
+    live = sweptself.step(previous, positions, velocities, dt)
+    return time.perf_counter() - t0, live
 
 
 class _Tracks:
@@ -277,7 +299,10 @@ class CollisionDetector:
     2.5-3x more pairs (1.7-2x the ms), and full detection at nearly every step - like measure='full' - lets a
     body that starts inside the cloth blow it up, test_collision_session); ``clearance_cap`` (>= 1)
     the paper's rule's threshold per pair raised by the clearance its last full detection measured,
-    up to this factor (module docs, "Clearance"; 1: off).
+    up to this factor (module docs, "Clearance"; 1: off); ``swept_thread`` runs the swept stage on a
+    worker thread while the colliders are detected (default: when this process may use more than one
+    CPU; the two read the same positions and write nothing the other reads, so the contacts are the
+    same either way, bit for bit).
     """
 
     def __init__(
@@ -291,6 +316,7 @@ class CollisionDetector:
         swept=True,
         trip_rule="paper",
         clearance_cap=4.0,
+        swept_thread=None,
     ):
         if not np.isfinite(thickness) or thickness <= 0:
             raise ValueError(f"thickness must be a positive distance in metres, got {thickness!r}")
@@ -316,6 +342,7 @@ class CollisionDetector:
         self.self_collision = bool(self_collision)
         self.swept = bool(swept)  # stage 5 (swept.py); off only to measure what it costs and saves
         self._swept = None
+        self.swept_thread = usable_cpus() > 1 if swept_thread is None else bool(swept_thread)
         self.trip_rule = trip_rule
         self.inflate = 0.5 * (self.displacement_threshold + self.thickness)
         # Relative motion between two full detections of a pair stays under the threshold (twice
@@ -358,7 +385,7 @@ class CollisionDetector:
     # positions, step counter, trees): pickled whole by ``tearcloth.resume``. The trees are plain
     # arrays, pickled as they are (their shape depends on the pose they were built in).
     def __getstate__(self):
-        return {k: v for k, v in self.__dict__.items() if k != "_ws"}  # the step's scratch
+        return {k: v for k, v in self.__dict__.items() if k not in ("_ws", "_pool")}  # the step's scratch, the thread
 
     def __setstate__(self, state):
         state.setdefault("trip_rule", "paper")  # saved before trip rules existed: the paper's measures
@@ -366,6 +393,7 @@ class CollisionDetector:
         # a detector saved before the swept stage existed: it starts with the stage on, pairs rebuilt
         self.__dict__.setdefault("swept", True)
         self.__dict__.setdefault("_swept", None)
+        self.__dict__.setdefault("swept_thread", usable_cpus() > 1)  # the machine that resumes decides
         # saved before the trip rule's bound: its budget and reach as __init__ sets them
         self.__dict__.setdefault("trip_budget", self.displacement_threshold)
         self.__dict__.setdefault("trip_reach", 2.0 * self.track_range)
@@ -594,6 +622,64 @@ class CollisionDetector:
         pos, step = self._begin_step(positions, triangles, velocities)
         cloth = self.cloth
         ws = self._workspace(pos.shape[0])
+        # 5 (started first). the swept stage of the two-ring: on a worker thread when there is a
+        # second CPU, while steps 1-4 run here (its C call releases the GIL); it reads the step's
+        # positions, the previous ones and the velocities, and writes only its own state
+        swept = self._swept_start(pos, dt)
+        try:
+            contacts, every, n_close, counts, times, self_times, t_phase = self._colliders_step(pos, ws, step)
+        except BaseException:
+            if swept is not None and not isinstance(swept, tuple):
+                _wait_for([swept])  # nothing may still run on the detector's state once this raises
+            raise
+        t_join = time.perf_counter()
+        swept_s, n_live = swept.result() if swept is not None and not isinstance(swept, tuple) else (swept or (0.0, 0))
+        t_rows = time.perf_counter()
+        self.all_contacts = self._swept_rows(every, n_live)
+        t_swept = time.perf_counter()
+        t_measure, t_detect, t_end = t_phase
+        n_tracked, n_lost, n_full, n_rays = counts
+
+        self._cloth_prev = pos.copy()
+        for body in self.bodies.values():
+            body.measured = body.vertices  # update_body replaces, never mutates, the array
+        self._first = False
+        builds = sum(t.scenes.builds for _, t in self._targets())
+        # the C calls' own phases; what is left of their wall time (argument passing) goes to "contacts"
+        detect_s = t_detect - t_measure
+        self.stats = {
+            "close_pairs": n_close,
+            "full_pairs": n_full,
+            "full_share": (n_full / n_close) if n_close else 0.0,
+            "tracked_rays": n_tracked,
+            "lost": n_lost,
+            "full_rays": n_rays,
+            "contacts": len(contacts),
+            "scene_builds_total": builds,
+            "ms": {
+                # less the swept step when it ran here, before the measure
+                "measure": 1e3 * (t_measure - t_start - (swept_s if isinstance(swept, tuple) else 0.0)),
+                "incremental": 1e3 * times[0],
+                "full": 1e3 * (times[1] + times[2]),
+                "contacts": 1e3 * (detect_s - times[:3].sum() + t_end - t_detect),
+                "total": 1e3 * (t_swept - t_start),
+                "full_self": 1e3 * (self_times[1] + self_times[2]),  # of "full": the cloth against itself
+                # the stage's own time (its step, wherever it ran, and the merge of its rows); of it
+                # "swept_wait" is what this thread waited for the worker after steps 1-4
+                "swept": 1e3 * (swept_s + t_swept - t_rows),
+                "swept_wait": 1e3 * (t_rows - t_join),
+            },
+            "swept_pairs": 0 if self._swept is None else self._swept.n_pairs,
+            **{f"swept_{k}": v for k, v in (self._swept.counts if self._swept is not None else {}).items()},
+        }
+        return contacts
+
+    def _colliders_step(self, pos, ws, step):
+        """Steps 1-4 of ``detect``: the measure and every collider's C call. Returns (deepest
+        contacts, every collider's contacts, close pairs, (tracked, lost, full pairs, full rays), the
+        C calls' phase times, those of the cloth against itself, (t after the measure, after the
+        calls, after the merge))."""
+        cloth = self.cloth
 
         # 1. measure ---------------------------------------------------------------
         bound_rule = self.measure == "relative" and self.trip_rule == "bound"
@@ -657,38 +743,8 @@ class CollisionDetector:
         # Every collider's contact per vertex, for the solver: a vertex touching a body and another
         # layer of cloth at once must respect both (the solver combines their normals).
         t_end = time.perf_counter()
-        self.all_contacts = self._swept_stage(every, pos, dt)
-        t_swept = time.perf_counter()
-
-        self._cloth_prev = pos.copy()
-        for body in self.bodies.values():
-            body.measured = body.vertices  # update_body replaces, never mutates, the array
-        self._first = False
-        builds = sum(t.scenes.builds for _, t in self._targets())
-        # the C calls' own phases; what is left of their wall time (argument passing) goes to "contacts"
-        detect_s = t_detect - t_measure
-        self.stats = {
-            "close_pairs": n_close,
-            "full_pairs": n_full,
-            "full_share": (n_full / n_close) if n_close else 0.0,
-            "tracked_rays": n_tracked,
-            "lost": n_lost,
-            "full_rays": n_rays,
-            "contacts": len(contacts),
-            "scene_builds_total": builds,
-            "ms": {
-                "measure": 1e3 * (t_measure - t_start),
-                "incremental": 1e3 * times[0],
-                "full": 1e3 * (times[1] + times[2]),
-                "contacts": 1e3 * (detect_s - times[:3].sum() + t_end - t_detect),
-                "total": 1e3 * (t_swept - t_start),
-                "full_self": 1e3 * (self_times[1] + self_times[2]),  # of "full": the cloth against itself
-                "swept": 1e3 * (t_swept - t_end),
-            },
-            "swept_pairs": 0 if self._swept is None else self._swept.n_pairs,
-            **{f"swept_{k}": v for k, v in (self._swept.counts if self._swept is not None else {}).items()},
-        }
-        return contacts
+        return (contacts, every, n_close, (n_tracked, n_lost, n_full, n_rays), times, self_times,
+                (t_measure, t_detect, t_end))
 
     @property
     def _credits(self):
@@ -855,18 +911,38 @@ class CollisionDetector:
         self._rest = rest[:n]
 
     def _swept_stage(self, every, pos, dt):
-        """Stage 5: the swept contacts of the cloth's two-ring, merged into ``every`` (per vertex,
-        sorted by vertex; a vertex's collider contacts first): swept.py, two C calls."""
+        """Stage 5 whole, on this thread: ``every`` with the swept rows merged in (the tests'
+        reference detector runs it so, after its steps 1-4)."""
+        done = self._swept_start(pos, dt, thread=False)
+        return every if done is None else self._swept_rows(every, done[1])
+
+    def _swept_start(self, pos, dt, thread=None):
+        """Stage 5's step (swept.py, one C call) begun: None when the stage is off; else on the worker
+        thread (a Future of (seconds, pairs giving contacts)) or, with ``thread`` (default
+        ``swept_thread``) off, done here ((seconds, pairs)). A new topology's pairs are made here
+        first, on this thread."""
         if not (self.swept and self.self_collision):
-            return every
+            return None
         cloth = self.cloth
         if self._swept is None:
             self._swept_topology(pos)
             self._swept = SweptSelf(pos, cloth.triangles, cloth.ring, self._rest, self.thickness)
-        prev = None if self._first else self._cloth_prev
-        if self._swept.step(prev, pos, cloth.velocities, 0.0 if dt is None else float(dt)) == 0:
+        args = (self._swept, None if self._first else self._cloth_prev, pos, cloth.velocities,
+                0.0 if dt is None else float(dt))
+        if not (self.swept_thread if thread is None else thread):
+            return _timed_swept_step(*args)
+        pool = getattr(self, "_pool", None)
+        if pool is None:
+            # one worker per detector: two cloths baked on two threads never wait for each other's stage
+            pool = self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tearcloth-swept")
+        return pool.submit(_timed_swept_step, *args)
+
+    def _swept_rows(self, every, n_live):
+        """``every`` (the colliders' contacts, sorted by vertex) with the swept stage's contact rows
+        merged in (swept.py, the second C call)."""
+        if not n_live:
             return every
-        return self._swept.rows(every, cloth.velocities, cloth.friction)
+        return self._swept.rows(every, self.cloth.velocities, self.cloth.friction)
 
     @staticmethod
     def _assemble_rows(rows, n):
