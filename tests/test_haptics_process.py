@@ -31,6 +31,26 @@ def test_killing_the_simulating_process_zeroes_the_devices():
         f"zero force reached the devices {r['zero_s'] * 1e3:.1f} ms after SIGKILL: the stall watchdog, not the peer check")
 
 
+def test_a_servo_caught_mid_write_by_the_watcher_is_read_again(monkeypatch):
+    # The bench's watcher reads the devices' blocks with the servo's seqlock; a servo descheduled in
+    # the middle of a write leaves every try odd and the read gives None. The bench then crashed
+    # (TypeError: 'NoneType' object is not subscriptable) and lost the whole run; now such a read is
+    # no data, before the kill and after it. Here every third read is such a read.
+    from tearcloth.haptics import servo_process
+
+    real, calls = servo_process._read, [0]
+
+    def mid_write(block, tries=1000):
+        calls[0] += 1
+        return None if calls[0] % 3 == 0 else real(block, tries)
+
+    monkeypatch.setattr(servo_process, "_read", mid_write)
+    r = kill_simulating_process(stall_timeout_s=20.0)
+    assert calls[0] > 4
+    assert r["efforts"] == [[0, 0, 0], [0, 0, 0]] and not r["servo_alive"]
+    assert r["zero_s"] < 0.5 * r["stall_timeout_s"]
+
+
 def _specs():
     return {h: DeviceSpec(".haptics.live:emulated_falcon", dict(serial=f"EMU-{h}", hand=h, direction=(1.0, 0.0, 0.0))) for h in ("left", "right")}
 
