@@ -399,3 +399,18 @@ def test_measure_live_servo_reports_what_the_bench_needs():
     # Generous: a loaded machine may be slow, but not ten times slow.
     assert out["rate_hz"] > 100.0 and out["sim_steps_per_s"] > 5.0
     assert no_live_threads()
+
+
+@pytest.mark.parametrize("cpus, thread", [(2, False), (3, False), (8, True)])
+def test_a_live_session_leaves_the_collision_worker_a_core_only_when_there_is_one(monkeypatch, cpus, thread):
+    # the detector's swept stage runs on a worker thread when the process has a second CPU; a live
+    # session also has a simulation thread and two servo threads (or a servo process), so the worker
+    # is kept only from 4 CPUs on: a servo tick must not wait behind the collision
+    from tearcloth.collision import detector as det_mod
+
+    monkeypatch.setattr(det_mod, "usable_cpus", lambda: cpus)
+    live, _ = emulated_session("cloth", collision=True)
+    try:
+        assert live.session.detector.swept_thread is thread
+    finally:
+        live.stop()

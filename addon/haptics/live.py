@@ -250,6 +250,16 @@ class LiveSession:
         else:
             raise ConfigError(f"LiveSession needs a Session or a Cloth, got {type(session_or_cloth).__name__}")
         self.cloth = self.session.cloth
+        detector = getattr(self.session, "detector", None)
+        if detector is not None:
+            from ..collision.detector import usable_cpus  # lazily: see the module docstring
+
+            # The collision's worker thread (the swept stage beside the detection, detector.py) only
+            # where a core is left for it beside the simulation thread and the two servo threads (or
+            # the servo process): on fewer than 4 they already fill the machine, and a servo tick
+            # must not wait behind the collision (as for spin_s below).
+            if usable_cpus() < 4:
+                detector.swept_thread = False
 
         self.dt = float(dt)
         self.servo_period_s = float(servo_period_s)
