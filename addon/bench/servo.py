@@ -443,11 +443,15 @@ def kill_and_watch(sim: subprocess.Popen, shm_name: str, servo_pid: int, n_hands
         # with its handle, the ramp at the session's start): wait for a moment when every watched
         # device is being pushed, so the zero seen after the kill can only be the kill's.
         deadline = time.perf_counter() + wait_s
-        # _read gives None when the servo was in the middle of writing a block for all its tries (a
-        # writer descheduled mid-write on a loaded machine): that hand keeps its last complete read
+
+        def read(last):
+            # _read gives None when the servo was in the middle of writing a block for all its tries
+            # (a writer descheduled mid-write on a loaded machine): that hand keeps its last complete read
+            return [b if b is not None else old for b, old in zip((_read(shared.prox[i]) for i in watched), last)]
+
         before = [None] * len(watched)
         while True:
-            before = [b if b is not None else old for b, old in zip((_read(shared.prox[i]) for i in watched), before)]
+            before = read(before)
             if all(b is not None and np.any(b[_P_EFF : _P_EFF + 3]) and math.isnan(b[_P_ZERO]) for b in before):
                 break
             if time.perf_counter() > deadline or sim.poll() is not None:
@@ -457,9 +461,9 @@ def kill_and_watch(sim: subprocess.Popen, shm_name: str, servo_pid: int, n_hands
         os.kill(sim.pid, signal.SIGKILL)
         sim.wait(5.0)
         deadline = time.perf_counter() + wait_s
-        blocks = before  # each hand's last complete read
+        blocks = before
         while True:
-            blocks = [b if b is not None else old for b, old in zip((_read(shared.prox[i]) for i in watched), blocks)]
+            blocks = read(blocks)
             done = all(not math.isnan(b[_P_ZERO]) for b in blocks) and not _pid_alive(servo_pid)
             if done or time.perf_counter() > deadline:
                 break

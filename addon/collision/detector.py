@@ -620,20 +620,26 @@ class CollisionDetector:
         """
         t_start = time.perf_counter()
         pos, step = self._begin_step(positions, triangles, velocities)
-        cloth = self.cloth
         ws = self._workspace(pos.shape[0])
         # 5 (started first). the swept stage of the two-ring: on a worker thread when there is a
         # second CPU, while steps 1-4 run here (its C call releases the GIL); it reads the step's
-        # positions, the previous ones and the velocities, and writes only its own state
-        swept = self._swept_start(pos, dt)
+        # positions, the previous ones and the velocities, and writes only its own state. Without
+        # the thread it runs here after steps 1-4.
+        t_begin = time.perf_counter()
+        swept = self._swept_begin(pos, dt)  # a new topology's pairs: the stage's time, not the measure's
+        begin_s = time.perf_counter() - t_begin
+        job = self._swept_pool().submit(_timed_swept_step, *swept) if swept and self.swept_thread else None
         try:
             contacts, every, n_close, counts, times, self_times, t_phase = self._colliders_step(pos, ws, step)
         except BaseException:
-            if swept is not None and not isinstance(swept, tuple):
-                _wait_for([swept])  # nothing may still run on the detector's state once this raises
+            if job is not None:
+                _wait_for([job])  # nothing may still run on the detector's state once this raises
             raise
         t_join = time.perf_counter()
-        swept_s, n_live = swept.result() if swept is not None and not isinstance(swept, tuple) else (swept or (0.0, 0))
+        if job is not None:
+            swept_s, n_live = job.result()
+        else:  # off, or on this thread
+            swept_s, n_live = _timed_swept_step(*swept) if swept else (0.0, 0)
         t_rows = time.perf_counter()
         self.all_contacts = self._swept_rows(every, n_live)
         t_swept = time.perf_counter()
@@ -657,8 +663,7 @@ class CollisionDetector:
             "contacts": len(contacts),
             "scene_builds_total": builds,
             "ms": {
-                # less the swept step when it ran here, before the measure
-                "measure": 1e3 * (t_measure - t_start - (swept_s if isinstance(swept, tuple) else 0.0)),
+                "measure": 1e3 * (t_measure - t_start - begin_s),
                 "incremental": 1e3 * times[0],
                 "full": 1e3 * (times[1] + times[2]),
                 "contacts": 1e3 * (detect_s - times[:3].sum() + t_end - t_detect),
@@ -666,8 +671,8 @@ class CollisionDetector:
                 "full_self": 1e3 * (self_times[1] + self_times[2]),  # of "full": the cloth against itself
                 # the stage's own time (its step, wherever it ran, and the merge of its rows); of it
                 # "swept_wait" is what this thread waited for the worker after steps 1-4
-                "swept": 1e3 * (swept_s + t_swept - t_rows),
-                "swept_wait": 1e3 * (t_rows - t_join),
+                "swept": 1e3 * (begin_s + swept_s + t_swept - t_rows),
+                "swept_wait": 1e3 * (t_rows - t_join) if job is not None else 0.0,
             },
             "swept_pairs": 0 if self._swept is None else self._swept.n_pairs,
             **{f"swept_{k}": v for k, v in (self._swept.counts if self._swept is not None else {}).items()},
@@ -913,29 +918,28 @@ class CollisionDetector:
     def _swept_stage(self, every, pos, dt):
         """Stage 5 whole, on this thread: ``every`` with the swept rows merged in (the tests'
         reference detector runs it so, after its steps 1-4)."""
-        done = self._swept_start(pos, dt, thread=False)
-        return every if done is None else self._swept_rows(every, done[1])
+        swept = self._swept_begin(pos, dt)
+        return every if swept is None else self._swept_rows(every, _timed_swept_step(*swept)[1])
 
-    def _swept_start(self, pos, dt, thread=None):
-        """Stage 5's step (swept.py, one C call) begun: None when the stage is off; else on the worker
-        thread (a Future of (seconds, pairs giving contacts)) or, with ``thread`` (default
-        ``swept_thread``) off, done here ((seconds, pairs)). A new topology's pairs are made here
-        first, on this thread."""
+    def _swept_begin(self, pos, dt):
+        """Stage 5's step (swept.py, one C call) made ready: its arguments for ``_timed_swept_step``,
+        None when the stage is off. A new topology's pairs are made here, on this thread."""
         if not (self.swept and self.self_collision):
             return None
         cloth = self.cloth
         if self._swept is None:
             self._swept_topology(pos)
             self._swept = SweptSelf(pos, cloth.triangles, cloth.ring, self._rest, self.thickness)
-        args = (self._swept, None if self._first else self._cloth_prev, pos, cloth.velocities,
+        return (self._swept, None if self._first else self._cloth_prev, pos, cloth.velocities,
                 0.0 if dt is None else float(dt))
-        if not (self.swept_thread if thread is None else thread):
-            return _timed_swept_step(*args)
+
+    def _swept_pool(self):
+        """The stage's worker thread, made when first needed (not pickled). One per detector: two
+        cloths baked on two threads never wait for each other's stage."""
         pool = getattr(self, "_pool", None)
         if pool is None:
-            # one worker per detector: two cloths baked on two threads never wait for each other's stage
             pool = self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tearcloth-swept")
-        return pool.submit(_timed_swept_step, *args)
+        return pool
 
     def _swept_rows(self, every, n_live):
         """``every`` (the colliders' contacts, sorted by vertex) with the swept stage's contact rows
