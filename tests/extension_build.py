@@ -38,12 +38,11 @@ def load_tool(name: str = "build_extension", path: str = "tools/build_extension.
 def _wheels_build(tool, out_dir: Path) -> dict:
     """tool.build into ``out_dir``, sharing the wheels between the pytest runs of one tools/run.sh
     test (its halves on bpy 5.0.1, 4.2 and 5.3): TEARCLOTH_TEST_WHEELS names a folder; the first
-    run fills it with the wheels it built, cross-compiled and downloaded, later runs take the
-    cross-compiled and downloaded ones from there (``--wheels-from``). Those are the same bytes
-    whichever interpreter builds them (zig cross builds of the same sources, fixed downloads:
-    Blender 5.1+ installs the very cp311-abi3 wheels 4.2 does); what depends on the session still
-    happens in each: our host wheel by its pip, packaging and validation by its Blender's own
-    extension tool."""
+    run fills it with the wheels it built, cross-compiled and downloaded, later runs take them
+    from there (``--wheels-from``). Those are the same bytes whichever interpreter builds them
+    (our abi3 wheel and zig cross builds of the same sources, fixed downloads: Blender 5.1+
+    installs the very cp311-abi3 wheels 4.2 does); what depends on the session still happens in
+    each: packaging and validation by its Blender's own extension tool."""
     shared = os.environ.get("TEARCLOTH_TEST_WHEELS")  # tools/run.sh empties it when a run starts
     if not shared:
         return tool.build(out_dir=out_dir)

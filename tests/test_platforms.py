@@ -267,3 +267,25 @@ def test_arm64_binaries_carry_the_neon_product(platform, tmp_path):
     m = re.search(r"^[0-9a-f]+ <_?tc_matvec_neon>:\n(.*?)(?=^[0-9a-f]+ <|\Z)", text, re.S | re.M)
     assert m, "no NEON product (tc_matvec_neon) in the build"
     assert len(NEON_FMLA.findall(m.group(1))) >= 12, f"{len(NEON_FMLA.findall(m.group(1)))} vector fmla in the product"
+
+
+def test_our_host_wheel_is_taken_from_wheels_from_when_it_is_there(tmp_path):
+    """tools/run.sh's pytest runs share one build (tests/extension_build.py): the second and third take
+    our host wheel from the shared folder instead of compiling the same abi3 wheel again. A folder
+    without it still builds it (here with an interpreter that cannot run: the build is attempted)."""
+    tool = load_tool()
+    expected = next(w for w in MANIFEST["wheels"] if Path(w).name.startswith("tearcloth-")
+                    and tool.parse_wheel(w)["platform"] == "linux_x86_64")
+    name = Path(expected).name
+    shared, wheels = tmp_path / "shared", tmp_path / "wheels"
+    shared.mkdir()
+    wheels.mkdir()
+    (shared / name).write_bytes(b"the shared build")
+    no_python = str(tmp_path / "no-python")  # taking the wheel must not run pip
+    got = tool.build_own_wheel(tmp_path / "src", wheels, name, no_python, shared)
+    assert got == wheels / name and got.read_bytes() == b"the shared build"
+    (shared / name).unlink()
+    (wheels / name).unlink()
+    with pytest.raises(Exception) as raised:  # no wheel there: pip is run (and cannot be here)
+        tool.build_own_wheel(tmp_path / "src", wheels, name, no_python, shared)
+    assert not (wheels / name).exists(), raised.value

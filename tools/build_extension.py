@@ -41,8 +41,9 @@ only the wheels for its platform (Blender picks them by the wheel file names):
 
 * Our wheel for the machine this runs on is built by pip (step 1, Linux x86-64 here). The others
   are cross-compiled by ``tools/cross/native.py`` (``zig cc`` from the ``ziglang`` package; the
-  Python files come from the wheel pip built), unless ``--wheels-from`` holds them (e.g. wheels
-  built natively by the release workflow's cibuildwheel jobs).
+  Python files come from the wheel pip built). Any of them that ``--wheels-from`` holds, under the
+  manifest's file name, is taken from there instead (e.g. wheels built natively by the release
+  workflow's cibuildwheel jobs, or those an earlier build of the same sources made).
 * Blender 4.2-5.0 embed Python 3.11, 5.1+ Python 3.13: the embreex and hidapi wheels (built per
   Python version) are listed for both, and Blender installs the ones for its own Python; our abi3
   wheel and the pure-Python ones serve both.
@@ -231,7 +232,14 @@ def copy_sources(build: Path) -> Path:
     return src
 
 
-def build_own_wheel(src: Path, wheels: Path, expected: str, python: str) -> Path:
+def build_own_wheel(src: Path, wheels: Path, expected: str, python: str, source: Path | None = None) -> Path:
+    """Our wheel for this machine: taken from ``source`` when it has it (the same abi3 bytes from the
+    same sources whichever pip built it: tests/extension_build.py shares one build between the
+    pytest runs of tools/run.sh), else built by pip from the copied sources."""
+    if source is not None and (source / expected).is_file():
+        say(f"taking {expected} from {source}")
+        shutil.copy2(source / expected, wheels / expected)
+        return wheels / expected
     say(f"building {expected} (pip wheel --no-deps)")
     cmd = [python, "-m", "pip", "wheel", str(src), "--no-deps", "--wheel-dir", str(wheels), "--quiet"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
@@ -438,7 +446,7 @@ def build(out_dir: Path = REPO / "dist", build_dir: Path | None = None, wheels_f
         wheels.mkdir(exist_ok=True)
         src = copy_sources(build_dir)
         host = own[HOST_PLATFORM]
-        files = [build_own_wheel(src, wheels, host["file"], python)]
+        files = [build_own_wheel(src, wheels, host["file"], python, wheels_from)]
         for platform, info in sorted(own.items()):
             if platform != HOST_PLATFORM:
                 files.append(other_own_wheel(info, platform, files[0], wheels, wheels_from, src, build_dir))
@@ -463,7 +471,7 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=str(REPO / "dist"), help="output folder (default: dist/)")
     p.add_argument("--build-dir", help="build folder (default: a temporary folder, removed afterwards)")
     p.add_argument("--keep-build", action="store_true", help="keep the temporary build folder")
-    p.add_argument("--wheels-from", help="take the wheels this folder has (ours for other platforms, dependencies) "
+    p.add_argument("--wheels-from", help="take the wheels this folder has (ours, dependencies) "
                                          "from it instead of building or downloading them")
     p.add_argument("--blender", help="Blender executable for packaging and validation (default: blender on PATH)")
     p.add_argument("--split-platforms", action="store_true", help="one zip per platform (Blender's --split-platforms)")
