@@ -210,6 +210,46 @@ def test_unplugged_falcon_can_leave_the_other_hand_running(servo):
     assert live.end_reason == "stopped" and no_live_threads()
 
 
+def test_a_servo_thread_that_stops_answering_is_a_lost_device():
+    # The rule these tests otherwise relax (square_session's proxy_timeout_s): a servo thread whose
+    # device I/O hangs publishes no proxy; after proxy_timeout_s the hand counts as lost and the
+    # session ends with zero force on the other hand. The hung thread cannot be joined while its I/O
+    # blocks: that is said in shutdown_errors, and the thread ends once the I/O returns.
+    live, emus = square_session(proxy_timeout_s=0.3)
+    hang, release = threading.Event(), threading.Event()
+    dev = live.device("right")
+    poll = dev.poll
+
+    def hanging_poll():
+        if hang.is_set():
+            release.wait(30.0)
+        return poll()
+
+    dev.poll = hanging_poll
+    try:
+        live.run_for(0.4)
+        assert not live.ended, live.end_reason
+        assert device_force_norms(live, "left")[-50:].max() > 0.0  # the hands feel the cloth
+        hang.set()
+        t_hang = time.perf_counter()
+        live.run_for(10.0)  # returns once the session has noticed
+        noticed = time.perf_counter() - t_hang
+        assert live.ended and live.error is None
+        assert live.lost_hands == ["right"], live.lost_hands
+        assert "device lost on the right hand" in live.end_reason and "has not answered" in live.end_reason, live.end_reason
+        # within the timeout plus a step or two (and the servo stop's 1 s join of the hung thread)
+        assert 0.3 <= noticed < 5.0, noticed
+        assert emus["left"].efforts == (0, 0, 0)  # the answering hand was sent zero force
+        assert any("right" in str(e) and "did not stop" in str(e) for e in live.shutdown_errors), live.shutdown_errors
+    finally:
+        release.set()
+        live.stop()
+    deadline = time.perf_counter() + 10.0
+    while not no_live_threads() and time.perf_counter() < deadline:
+        time.sleep(0.05)
+    assert no_live_threads()
+
+
 @SERVOS
 def test_simulation_stall_zeroes_the_force_within_the_stall_timeout(servo):
     live, _ = square_session(servo=servo)
