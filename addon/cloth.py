@@ -357,7 +357,8 @@ class Cloth:
         began a sub-step released, their vertex still lifting off), contact_rounds_capped
         (sub-steps whose contacts still changed state after the last round, kept as solved). solves
         (last step): linear solves summed over its sub-steps, one each and more when contacts
-        changed state."""
+        changed state; sgs_solves (last step): those of them preconditioned by the Gauss-Seidel
+        sweeps."""
         return self._c.stats()
 
     def energy(self) -> dict:

@@ -331,10 +331,9 @@ SETTINGS: tuple[Setting, ...] = (
        "(dt^2 k / m per vertex, median) times (vertices / TC_AMG_AUTO_VERTICES)^TC_AMG_AUTO_SIZE_EXPONENT "
        "reaches TC_AMG_AUTO_STIFFNESS on a cloth of at least TC_AMG_AUTO_MIN_VERTICES vertices, and keeps "
        "it down to 1/TC_AMG_AUTO_HYSTERESIS of that (native/constants.h: fitted to a measured table of "
-       "both solvers' time); below that bar, solves with contacts take the symmetric Gauss-Seidel sweeps",
-       [("auto", "Auto", "Block Jacobi on soft or coarse sheets and short steps, multigrid on stiff or "
-                         "fine ones and long steps (by the work each is predicted to need); below "
-                         "multigrid's bar, Gauss-Seidel sweeps for solves with contacts"),
+       "both solvers' time); below that bar, the symmetric Gauss-Seidel sweeps",
+       [("auto", "Auto", "Gauss-Seidel sweeps on soft or coarse sheets and short steps, multigrid on "
+                         "stiff or fine ones and long steps (by the work each is predicted to need)"),
         ("jacobi", "Block Jacobi", "The inverse 3x3 diagonal blocks: cheap iterations, more of them as "
                                    "the mesh grows"),
         ("amg", "Multigrid", "Smoothed-aggregation multigrid with the rigid-body modes: about ten "
@@ -342,7 +341,8 @@ SETTINGS: tuple[Setting, ...] = (
                              "set-up per sub-step"),
         ("sgs", "Symmetric Gauss-Seidel", "Forward and backward block sweeps of the filtered system "
                                           "(Eisenstat's form): 0.3-0.4x the iterations of block Jacobi at about "
-                                          "twice the cost each; what auto picks for solves with contacts")],
+                                          "twice the cost each (0.84-1.0x its time); what auto picks below "
+                                          "multigrid's bar")],
        native="preconditioner", block="solver.cg"),
 
     # -- tearing --------------------------------------------------------------------------------

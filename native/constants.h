@@ -120,13 +120,6 @@
 /* ---- the matrix by rows (mesh.c, fem.c) ---- */
 /* Zeros after the last edge block: the AVX2 product loads a block's last column 4 wide. (doubles) */
 #define TC_ROW_SLACK 4
-/* The symmetric Gauss-Seidel sweeps' order (solver.c, and the split of each row that mesh.c's
- * pattern keeps for them): the vertices in this many contiguous chunks, taken one row of each chunk
- * in turn. Within a chunk the mesh's numbering chains every row to the one before (a row's latency
- * apart), so interleaved chunks give the CPU independent rows side by side while the sweep still
- * streams the rows' storage (this many streams, in the rows' own order: no copy of the matrix in
- * the sweeps' order). */
-#define TC_SGS_CHAINS 8
 
 /* ---- woven sheets: axes and plasticity (ortho.c) ---- */
 /* UVs whose Jacobian determinant is below this fraction of |grad u|^2 + |grad v|^2 carry no

@@ -292,23 +292,18 @@ int tc_reserve_vertices(tc_cloth *c, int32_t n);
 int tc_reserve_triangles(tc_cloth *c, int32_t m);
 int32_t tc_tri_local(const tc_cloth *c, int32_t t, int32_t v);
 int tc_rows_update(tc_cloth *c);  /* the row pattern of the matrix, rebuilt when pairs changed */
-/* The symmetric Gauss-Seidel sweeps' order of the rows (constants.h TC_SGS_CHAINS): vertex i's rank
- * in it. The pattern keeps each row's slots whose column ranks lower first (tc_rows_update), so a
- * sweep reads its half of a row as one range; distinct vertices have distinct ranks. */
-static inline int32_t tc_sgs_chunk(int32_t nv) { return nv > 0 ? (nv + TC_SGS_CHAINS - 1) / TC_SGS_CHAINS : 1; }
-static inline int64_t tc_sgs_rank(int32_t i, int32_t chunk)
-{
-    return (int64_t)(i % chunk) * TC_SGS_CHAINS + i / chunk;
-}
-/* Where the upper part of a row's slots cols[lo, hi) starts (the first column ranking above ri, the
- * row's own rank); -1 when a lower slot follows an upper one: the row is not lower slots first. */
-static inline int32_t tc_row_upper_start(const int32_t *cols, int32_t lo, int32_t hi, int64_t ri, int32_t chunk)
+/* The symmetric Gauss-Seidel sweeps run the rows in the vertices' own order (solver.c says why), and
+ * the pattern keeps each row's slots of lower-numbered columns first (tc_rows_update), so a sweep
+ * reads its half of a row as one range. Where the upper part of row i's slots cols[lo, hi) starts
+ * (the first column above i); -1 when a lower slot follows an upper one: the row is not lower slots
+ * first. */
+static inline int32_t tc_row_upper_start(const int32_t *cols, int32_t lo, int32_t hi, int32_t i)
 {
     int32_t s = lo;
-    while (s < hi && tc_sgs_rank(cols[s], chunk) < ri) s++;
+    while (s < hi && cols[s] < i) s++;
     const int32_t start = s;
     for (; s < hi; s++)
-        if (tc_sgs_rank(cols[s], chunk) < ri) return -1;
+        if (cols[s] < i) return -1;
     return start;
 }
 bool tc_rows_sweep_ordered(const tc_cloth *c);  /* every row lower slots first (an older snapshot's are not) */

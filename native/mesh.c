@@ -227,8 +227,8 @@ int32_t tc_tri_local(const tc_cloth *c, int32_t t, int32_t v)
 
 /* The row pattern (core.h) from the pairs: a counting sort of both ends of every pair, O(pairs),
  * done lazily before an assembly when a tear changed any pair (tens of microseconds for a T-shirt,
- * against a milliseconds-long step); within a row, the slots of lower neighbours in the sweeps'
- * order (tc_sgs_rank) first, then the others, each part in pair order, so the product is
+ * against a milliseconds-long step); within a row, the slots of lower-numbered neighbours (the
+ * Gauss-Seidel sweeps' order) first, then the others, each part in pair order, so the product is
  * deterministic. */
 int tc_rows_update(tc_cloth *c)
 {
@@ -252,17 +252,15 @@ int tc_rows_update(tc_cloth *c)
         return TC_ERR_NOMEM;
     int32_t *rcol = tc_vec_ptr(&c->rcol), *fcol = tc_vec_ptr(&c->fcol);
     /* fill: the running end of each row, then shift back. Two passes: first each pair's slot in the
-       row of its end that ranks higher in the Gauss-Seidel sweeps' order (there the other end is a
-       lower neighbour), then its slot in the other row, so every row holds its lower slots first
-       and the sweeps (solver.c) read either half as one range of the rows themselves; the product
-       reads a row whole, in any order. */
-    const int32_t chunk = tc_sgs_chunk(c->nv);
+       row of its higher-numbered end (there the other end is a lower neighbour), then its slot in
+       the other row, so every row holds its lower slots first and the sweeps (solver.c) read either
+       half as one range of the rows themselves; the product reads a row whole, in any order. */
     for (int pass = 0; pass < 2; pass++) {
         for (size_t p = 0; p < np; p++) {
             if (pi[p] < 0) { slot[2 * p] = slot[2 * p + 1] = -1; continue; }
             const int32_t i = pi[p], j = pj[p];
             /* end 0 (row i) or 1 (row j) whose slot goes in this pass */
-            const int e = (tc_sgs_rank(j, chunk) < tc_sgs_rank(i, chunk)) == (pass == 0) ? 0 : 1;
+            const int e = (j < i) == (pass == 0) ? 0 : 1;
             const int32_t row = e ? j : i, col = e ? i : j;
             if (tc_pair_is_edge(c, p)) { slot[2 * p + e] = rp[row]; rcol[rp[row]++] = col; }
             else { slot[2 * p + e] = fp[row]; fcol[fp[row]++] = col; }
@@ -281,11 +279,10 @@ int tc_rows_update(tc_cloth *c)
 bool tc_rows_sweep_ordered(const tc_cloth *c)
 {
     if (!c->rows_built) return true;
-    const int32_t nv = c->rows_nv, chunk = tc_sgs_chunk(nv);
+    const int32_t nv = c->rows_nv;
     const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
     for (int32_t i = 0; i < nv; i++) {
-        const int64_t ri = tc_sgs_rank(i, chunk);
-        if (tc_row_upper_start(rc, rp[i], rp[i + 1], ri, chunk) < 0 || tc_row_upper_start(fc, fp[i], fp[i + 1], ri, chunk) < 0)
+        if (tc_row_upper_start(rc, rp[i], rp[i + 1], i) < 0 || tc_row_upper_start(fc, fp[i], fp[i + 1], i) < 0)
             return false;
     }
     return true;

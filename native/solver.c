@@ -1,8 +1,9 @@
 /* solver.c - the linear solve of one implicit Euler sub-step: conjugate gradients on the constraint
  * manifold (the filtered PCG of Baraff & Witkin 1998), preconditioned with symmetric block
- * Gauss-Seidel sweeps of the filtered matrix in Eisenstat's form (solves with contacts, or asked
- * for), the inverse 3x3 diagonal blocks (block Jacobi: solves without contacts, or asked for) or, on
- * large cloths, a smoothed-aggregation multigrid V-cycle (amg.c),
+ * Gauss-Seidel sweeps of the filtered matrix in Eisenstat's form (below the multigrid cycle's bar,
+ * or asked for), the inverse 3x3 diagonal blocks (block Jacobi: asked for, or where the sweeps' row
+ * split could not be made) or, on stiff or large cloths, a smoothed-aggregation multigrid V-cycle
+ * (amg.c),
  * warm-started, solved for the velocity change rather than the velocity,
  * stopped by a residual force small against the forces the cloth carries, with the momentum balance
  * of a free cloth made exact by a correction along the translations.
@@ -21,21 +22,25 @@
 static bool use_amg(const tc_cloth *c) { return c->amg_chosen; }
 
 /* Whether a solve uses the symmetric Gauss-Seidel sweeps (below) rather than block Jacobi: when
- * asked for, and under AUTO (below the multigrid cycle's bar) when the solve has contacts. Measured
- * interleaved in one process (CPU time, this branch's sweeps; docs in the merge commit):
+ * asked for, and under AUTO below the multigrid cycle's bar. Measured interleaved in one process
+ * (the FEM part of the step, medians over 180 steps, the sweeps in the vertices' own order):
  *   - the race's shirt on the walking body, dt 4.17 ms, contacts on most sub-steps: CG iterations
- *     per sub-step 400 -> 109 (median), our CPU per frame 0.318 -> 0.219 s (0.69x), penetration 0
- *     both, tears alike;
- *   - the T-shirt hanging, no contact: dt 1 ms 48 -> 20 iterations for 1.06x the step's CPU time,
- *     dt 4.17 ms 153 -> 64 iterations for 0.94x: a sweep costs about a whole product (it is bound
- *     by the latency of the rows it chains, not by their bytes), so without contacts block Jacobi,
- *     whose iterations the filter does not slow, stays.
- * The sweeps' memory is two ints per vertex (the rows keep their own order, mesh.c), so the choice
- * needs no memory rule. */
-static bool use_sgs(const tc_cloth *c, bool contact)
+ *     per sub-step 400 -> 109 (median), our CPU per frame 0.318 -> 0.219 s (0.69x) with the
+ *     sweeps of that time; the present ones take 0.78x the FEM time per frame of the 8-chunk
+ *     order before them (0.085-0.096 s against 0.110-0.130 s, three runs each, 99 -> 102
+ *     iterations);
+ *   - no contact (Table 1's scenes pulled by their hands, the shirt hung by its shoulders),
+ *     Gauss-Seidel / Jacobi step time at dt 1 ms and 4.17 ms: square cloth 1.00 and 0.84 (16 -> 6,
+ *     42 -> 14 iterations), banknote 0.84 and 0.85, T-shirt 0.92 and 0.91 (50 -> 20, 137 -> 57).
+ *     Block Jacobi kept these solves until the sweeps dropped the chunks and half the diagonal
+ *     reads (1.06x at the shirt's 1 ms then).
+ * The multigrid bar was fitted against block Jacobi's time (constants.h); the sweeps' 0.85-0.92x
+ * would move it up a little, not refitted. The sweeps' memory is two ints per vertex (the rows
+ * keep their own order, mesh.c), so the choice needs no memory rule. */
+static bool use_sgs(const tc_cloth *c)
 {
     const int pre = c->solver.preconditioner;
-    return pre == TC_PRECOND_SGS || (pre == TC_PRECOND_AUTO && contact && !c->amg_chosen);
+    return pre == TC_PRECOND_SGS || (pre == TC_PRECOND_AUTO && !c->amg_chosen);
 }
 
 /* k-th smallest of v[0..n) (quickselect; v is reordered) */
@@ -115,7 +120,7 @@ static int env_count(const char *name, int fallback)
 static void amg_prepare(tc_cloth *c)
 {
     if (!use_amg(c)) {
-        /* block Jacobi: the hierarchy's memory goes back (a switch back rebuilds it); "auto" keeps
+        /* block Jacobi or the sweeps: the hierarchy's memory goes back (a switch back rebuilds it); "auto" keeps
            the empty object for its history */
         if (c->solver.preconditioner == TC_PRECOND_AUTO) {
             tc_amg_drop(c->amg);
@@ -424,15 +429,18 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
  * blocks), is taken when the split one scaled by the last ratio of the two says the stop is near,
  * so the physical stopping rule is tested on the true residual force, as for block Jacobi.
  *
- * The order: "lower" is by the rank tc_sgs_rank (core.h): the vertices in TC_SGS_CHAINS contiguous
- * chunks, one row of each in turn. A sweep in the mesh's own numbering chains every row to the one
- * before it (a row's whole latency); the chunks' rows are independent of each other but for the
- * few pairs that join two chunks, and each chunk's rows are read in their storage order, so the
- * sweeps stream the rows as the product does. The pattern keeps every row's lower slots first
- * (mesh.c), so a sweep reads its half of a row as one range of the rows themselves: what the
- * sweeps add to block Jacobi's memory is two ints per vertex (where each row's upper half starts).
- * (The first version ran the rows by levels of the natural order, through a copy of the matrix in
- * that order: +330 bytes per triangle.)
+ * The order: the vertices' own numbering, one stream over the rows as the product reads them. The
+ * pattern keeps every row's lower slots first (mesh.c), so a sweep reads its half of a row as one
+ * range of the rows themselves: what the sweeps add to block Jacobi's memory is two ints per vertex
+ * (where each row's upper half starts). (The first version ran the rows by levels of the natural
+ * order, through a copy of the matrix in that order: +330 bytes per triangle. The next one took the
+ * vertices in 8 contiguous chunks, one row of each in turn, so that rows side by side in the sweep
+ * were independent and the CPU could overlap their latencies; measured on the 2-core AMD EPYC
+ * machines, 1 MB of L2 a core, the sweeps are bound by streaming the ~1.4 MB the rows, diagonal
+ * blocks and inverses take from L3, not by the chain of rows, and eight streams cost more than they
+ * hid: the race's shirt (dt 4.17 ms, contacts, same build otherwise, three runs each) 0.097-0.100 s
+ * of FEM per frame with 8 chunks against 0.075-0.084 s in the natural order, 99 and 102 median CG
+ * iterations per sub-step.)
  *
  * The constraints (Baraff-Witkin's filter S, S_i = I - sum n n^T over a contact's normals, 0 for a
  * pin or handle): the sweeps are those of the filtered matrix A~ = S A S + (I - S), symmetric
@@ -472,11 +480,9 @@ static int sgs_prepare(tc_cloth *c)
     g->lu = malloc(sizeof(int32_t) * ((size_t)nv + 1));
     g->lfu = malloc(sizeof(int32_t) * ((size_t)nv + 1));
     bool ok = g->lu && g->lfu;
-    const int32_t chunk = tc_sgs_chunk(nv);
     for (int32_t i = 0; ok && i < nv; i++) {
-        const int64_t ri = tc_sgs_rank(i, chunk);
-        g->lu[i] = tc_row_upper_start(rc, rp[i], rp[i + 1], ri, chunk);
-        g->lfu[i] = tc_row_upper_start(fc, fp[i], fp[i + 1], ri, chunk);
+        g->lu[i] = tc_row_upper_start(rc, rp[i], rp[i + 1], i);
+        g->lfu[i] = tc_row_upper_start(fc, fp[i], fp[i + 1], i);
         ok = g->lu[i] >= 0 && g->lfu[i] >= 0;
     }
     if (!ok) {
@@ -495,7 +501,7 @@ typedef struct sgs_rows {
     const double *D, *P, *RB, *FV, *N;
     const int32_t *rp, *rc, *fp, *fc, *lu, *lfu;
     const int8_t *fl, *cnt;
-    int32_t nv, chunk;
+    int32_t nv;
 } sgs_rows;
 
 static sgs_rows sgs_view(const tc_cloth *c)
@@ -503,8 +509,7 @@ static sgs_rows sgs_view(const tc_cloth *c)
     const tc_sgs *g = c->sgs;
     return (sgs_rows){tc_vec_ptr(&c->diag), tc_vec_ptr(&c->pinv), tc_vec_ptr(&c->rblk), tc_vec_ptr(&c->fval),
                       tc_vec_ptr(&c->snorm), tc_vec_ptr(&c->rptr), tc_vec_ptr(&c->rcol), tc_vec_ptr(&c->fptr),
-                      tc_vec_ptr(&c->fcol), g->lu, g->lfu, tc_vec_ptr(&c->vflag), tc_vec_ptr(&c->scount), c->nv,
-                      tc_sgs_chunk(c->nv)};
+                      tc_vec_ptr(&c->fcol), g->lu, g->lfu, tc_vec_ptr(&c->vflag), tc_vec_ptr(&c->scount), c->nv};
 }
 
 /* x := S_i x at a contact row (the filter of constraints.c, one vertex) */
@@ -588,15 +593,9 @@ static inline void apply_pinv(const double *p, const double r[3], double *o)
     o[2] = p[6] * r[0] + p[7] * r[1] + p[8] * r[2];
 }
 
-/* The sweeps' order: rank 0, 1, ... (forward) or the reverse, as vertex ids; a chunk's rows past
- * the last vertex (the last chunk is short) are skipped */
-#define SGS_FORWARD(m, i, ...)                                                                      \
-    for (int32_t k_ = 0; k_ < (m)->chunk; k_++)                                                     \
-        for (int32_t i = k_; i < (m)->nv; i += (m)->chunk) { __VA_ARGS__ }
-#define SGS_BACKWARD(m, i, ...)                                                                     \
-    for (int32_t k_ = (m)->chunk - 1; k_ >= 0; k_--)                                                \
-        for (int32_t i = k_ + (TC_SGS_CHAINS - 1) * (m)->chunk; i >= k_; i -= (m)->chunk)            \
-            if (i < (m)->nv) { __VA_ARGS__ }
+/* The sweeps' order: vertex 0, 1, ... (forward) or the reverse */
+#define SGS_FORWARD(m, i, ...) for (int32_t i = 0; i < (m)->nv; i++) { __VA_ARGS__ }
+#define SGS_BACKWARD(m, i, ...) for (int32_t i = (m)->nv - 1; i >= 0; i--) { __VA_ARGS__ }
 
 /* x = C^-1 x in place ((D + L) y = x): a row reads only lower neighbours (final by then) and its
  * own value. Held rows are zero. */
@@ -614,15 +613,16 @@ TC_HOT static void sgs_forward_inplace(const sgs_rows *m, double *restrict x)
 }
 
 /* Row i of the backward sweep of an iteration, with the new direction made just before it is
- * read: p_i = S_i D_i r^_i + beta p_i (first: S_i D_i r^_i), then t_i from (D + U) t = p. */
-static inline void sgs_backward_row(const sgs_rows *m, int32_t i, const double *restrict rh, double beta, bool first,
+ * read: p_i = S_i D_i r^_i + beta p_i (first: S_i D_i r^_i), then t_i from (D + U) t = p. D r^ is
+ * read from dr, where the update pass that made r^ left it (it needs it for r^.D r^): the sweep
+ * then streams 24 bytes a vertex instead of the 96 of the diagonal block. */
+static inline void sgs_backward_row(const sgs_rows *m, int32_t i, const double *restrict dr, double beta, bool first,
                                     double *restrict p, double *restrict t)
 {
     const size_t o = 3 * (size_t)i;
     const int8_t f = m->fl[i];
     if (f == VC_PINNED || f == VC_HANDLE) { p[o] = p[o + 1] = p[o + 2] = 0.0; t[o] = t[o + 1] = t[o + 2] = 0.0; return; }
-    double z[3];
-    apply_diag(m->D + 12 * (size_t)i, rh + o, z);
+    double z[3] = {dr[o], dr[o + 1], dr[o + 2]};
     if (f == VC_CONTACT) sgs_filter(m, i, z);
     if (first) { p[o] = z[0]; p[o + 1] = z[1]; p[o + 2] = z[2]; }
     else { p[o] = z[0] + beta * p[o]; p[o + 1] = z[1] + beta * p[o + 1]; p[o + 2] = z[2] + beta * p[o + 2]; }
@@ -634,7 +634,10 @@ static inline void sgs_backward_row(const sgs_rows *m, int32_t i, const double *
 }
 
 /* Row i of the forward sweep of an iteration: u_i from (D + L) u = p - D t; returns
- * p_i.(t_i + u_i) */
+ * p_i.(t_i + u_i). At a free row the inverse block is D_i's own, so
+ * u_i = D_i^-1 (p_i - D_i t_i - (L u)_i) = D_i^-1 (p_i - (L u)_i) - t_i: the diagonal block is not
+ * read (96 bytes a vertex of the sweep's stream); a contact row's inverse is that of the filtered
+ * block, so there D_i t_i is applied as written. */
 static inline double sgs_forward_row(const sgs_rows *m, int32_t i, const double *restrict p, const double *restrict t,
                                      double *restrict u)
 {
@@ -642,7 +645,15 @@ static inline double sgs_forward_row(const sgs_rows *m, int32_t i, const double 
     const int8_t f = m->fl[i];
     if (f == VC_PINNED || f == VC_HANDLE) { u[o] = u[o + 1] = u[o + 2] = 0.0; return 0.0; }
     const double *ti = t + o;
-    double a[3];
+    double a[3] = {0.0, 0.0, 0.0};
+    if (f == VC_FREE) {
+        sgs_lower_sum(m, i, u, a);
+        const double y[3] = {p[o] - a[0], p[o + 1] - a[1], p[o + 2] - a[2]};
+        double s[3];
+        apply_pinv(m->P + 9 * (size_t)i, y, s);
+        for (int k = 0; k < 3; k++) u[o + k] = s[k] - ti[k];
+        return p[o] * s[0] + p[o + 1] * s[1] + p[o + 2] * s[2];
+    }
     apply_diag(m->D + 12 * (size_t)i, ti, a);
     sgs_lower_sum(m, i, u, a);
     const double y[3] = {p[o] - a[0], p[o + 1] - a[1], p[o + 2] - a[2]};
@@ -666,10 +677,10 @@ static inline double sgs_unsplit_row(const sgs_rows *m, int32_t i, double *restr
 }
 
 /* The backward sweep of an iteration, from the last rank (a row's higher neighbours are later) */
-TC_HOT static void sgs_backward_c(const sgs_rows *m, const double *restrict rh, double beta, bool first,
+TC_HOT static void sgs_backward_c(const sgs_rows *m, const double *restrict dr, double beta, bool first,
                                   double *restrict p, double *restrict t)
 {
-    SGS_BACKWARD(m, i, { sgs_backward_row(m, i, rh, beta, first, p, t); })
+    SGS_BACKWARD(m, i, { sgs_backward_row(m, i, dr, beta, first, p, t); })
 }
 
 /* The forward sweep of an iteration; returns p.(t + u) = p^T (C^-1 A C^-T) p */
@@ -763,16 +774,16 @@ __attribute__((target("avx2,fma"))) static inline __m256d pinv_avx2(const double
     return _mm256_fmadd_pd(_mm256_loadu_pd(P + 6), _mm256_permute4x64_pd(y, 0xAA), a);
 }
 
-__attribute__((target("avx2,fma"))) static void sgs_backward_avx2(const sgs_rows *m, const double *restrict rh,
+__attribute__((target("avx2,fma"))) static void sgs_backward_avx2(const sgs_rows *m, const double *restrict dr,
                                                                    double beta, bool first, double *restrict p,
                                                                    double *restrict t)
 {
     const int32_t last = m->nv - 1;
     const __m256d bv = _mm256_set1_pd(beta);
     SGS_BACKWARD(m, i, {
-        if (i == last || m->fl[i] != VC_FREE) { sgs_backward_row(m, i, rh, beta, first, p, t); continue; }
+        if (i == last || m->fl[i] != VC_FREE) { sgs_backward_row(m, i, dr, beta, first, p, t); continue; }
         const size_t o = 3 * (size_t)i;
-        __m256d pv = diag_avx2(m->D + 12 * (size_t)i, load3_avx2(rh + o));
+        __m256d pv = load3_avx2(dr + o);
         if (!first) pv = _mm256_fmadd_pd(bv, load3_avx2(p + o), pv);
         store3_avx2(p + o, pv);
         const __m256d a = sgs_row_avx2(m, m->lu[i], m->rp[i + 1], m->lfu[i], m->fp[i + 1], t, _mm256_setzero_pd());
@@ -791,10 +802,12 @@ __attribute__((target("avx2,fma"))) static double sgs_forward_avx2(const sgs_row
         if (i == last || m->fl[i] != VC_FREE) { pq += sgs_forward_row(m, i, p, t, u); continue; }
         const size_t o = 3 * (size_t)i;
         const __m256d tv = load3_avx2(t + o), pv = load3_avx2(p + o);
-        const __m256d a = sgs_row_avx2(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], u, diag_avx2(m->D + 12 * (size_t)i, tv));
-        const __m256d uv = pinv_avx2(m->P + 9 * (size_t)i, _mm256_sub_pd(pv, a));
-        store3_avx2(u + o, uv);
-        const __m256d w = _mm256_and_pd(_mm256_mul_pd(pv, _mm256_add_pd(tv, uv)), keep);
+        /* sgs_forward_row's free row: u_i = D_i^-1 (p_i - (L u)_i) - t_i, t_i + u_i = that inverse's
+           result */
+        const __m256d a = sgs_row_avx2(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], u, _mm256_setzero_pd());
+        const __m256d sv = pinv_avx2(m->P + 9 * (size_t)i, _mm256_sub_pd(pv, a));
+        store3_avx2(u + o, _mm256_sub_pd(sv, tv));
+        const __m256d w = _mm256_and_pd(_mm256_mul_pd(pv, sv), keep);
         if (i & 1) pq1 = _mm256_add_pd(pq1, w); else pq0 = _mm256_add_pd(pq0, w);
     })
     double s[4];
@@ -823,13 +836,13 @@ __attribute__((target("avx2,fma"))) static double sgs_unsplit_avx2(const sgs_row
 }
 #endif
 
-static void sgs_backward(const sgs_rows *m, const double *restrict rh, double beta, bool first, double *restrict p,
+static void sgs_backward(const sgs_rows *m, const double *restrict dr, double beta, bool first, double *restrict p,
                          double *restrict t)
 {
 #ifdef TC_HAVE_AVX2_PASS
-    if (tc_simd_level() == TC_SIMD_AVX2) { sgs_backward_avx2(m, rh, beta, first, p, t); return; }
+    if (tc_simd_level() == TC_SIMD_AVX2) { sgs_backward_avx2(m, dr, beta, first, p, t); return; }
 #endif
-    sgs_backward_c(m, rh, beta, first, p, t);
+    sgs_backward_c(m, dr, beta, first, p, t);
 }
 
 static double sgs_forward(const sgs_rows *m, const double *restrict p, const double *restrict t, double *restrict u)
@@ -848,10 +861,10 @@ static double sgs_unsplit(const sgs_rows *m, double *restrict rh, bool store)
     return sgs_unsplit_c(m, rh, store);
 }
 
-/* v += alpha t, r^ -= alpha (t + u); returns r^ . D r^ (= r^ . S D S r^: r^ is on the range of S)
- * and (in *rr) r^ . r^ */
+/* v += alpha t, r^ -= alpha (t + u), dr = D r^ (for the next backward sweep); returns r^ . D r^
+ * (= r^ . S D S r^: r^ is on the range of S) and (in *rr) r^ . r^ */
 TC_HOT static double sgs_update(const sgs_rows *m, double alpha, const double *restrict t, const double *restrict u,
-                                double *restrict v, double *restrict rh, double *rr)
+                                double *restrict v, double *restrict rh, double *restrict dr, double *rr)
 {
     double rz0 = 0.0, rz1 = 0.0, rr0 = 0.0, rr1 = 0.0;
     for (int32_t i = 0; i < m->nv; i++) {
@@ -864,6 +877,7 @@ TC_HOT static double sgs_update(const sgs_rows *m, double alpha, const double *r
             rh[o + q] = r[q];
         }
         apply_diag(m->D + 12 * (size_t)i, r, z);
+        dr[o] = z[0]; dr[o + 1] = z[1]; dr[o + 2] = z[2];
         const double a = r[0] * z[0] + r[1] * z[1] + r[2] * z[2], b = r[0] * r[0] + r[1] * r[1] + r[2] * r[2];
         if (i & 1) { rz1 += a; rr1 += b; } else { rz0 += a; rr0 += b; }
     }
@@ -878,13 +892,14 @@ TC_HOT static double sgs_update(const sgs_rows *m, double alpha, const double *r
 
 /* PCG by Eisenstat's trick from v and r (the filtered residual of v, in sr) as pcg() set them up;
  * leaves the true residual of the final v in sr and its square in *rr_inout. Scratch: sb2 (the
- * right-hand side, read by then), sz, sp, sq; pinv's contact rows hold the filtered inverses
- * during the solve. Returns the iterations. */
+ * right-hand side, read by then), sz, sp, sq, and sr itself between the first lines and the last
+ * (it holds D r^ then); pinv's contact rows hold the filtered inverses during the solve. Returns the
+ * iterations. */
 static int pcg_sgs(tc_cloth *c, double *v, double stop2, double *rr_inout, bool contact)
 {
     const size_t n3 = 3 * (size_t)c->nv;
     double *r = tc_vec_ptr(&c->sr), *rh = tc_vec_ptr(&c->sb2), *u = tc_vec_ptr(&c->sz), *p = tc_vec_ptr(&c->sp);
-    double *t = tc_vec_ptr(&c->sq);
+    double *t = tc_vec_ptr(&c->sq), *dr = r;  /* r is copied to r^ below and made again at the end */
     if (contact) sgs_constrain(c, true);
     const sgs_rows m = sgs_view(c);
     memcpy(rh, r, n3 * sizeof(double));
@@ -893,7 +908,7 @@ static int pcg_sgs(tc_cloth *c, double *v, double stop2, double *rr_inout, bool 
     double rhr = 0.0, rz = 0.0;
     for (int32_t i = 0; i < c->nv; i++) {
         const double *x = rh + 3 * (size_t)i;
-        double z[3];
+        double *z = dr + 3 * (size_t)i;
         apply_diag(m.D + 12 * (size_t)i, x, z);
         rz += x[0] * z[0] + x[1] * z[1] + x[2] * z[2];
         rhr += x[0] * x[0] + x[1] * x[1] + x[2] * x[2];
@@ -903,12 +918,12 @@ static int pcg_sgs(tc_cloth *c, double *v, double stop2, double *rr_inout, bool 
     double beta = 0.0;
     while (it < c->solver.cg_max_iterations && rr > stop2) {
         if (!(rz > 0) || !isfinite(rz)) break;
-        sgs_backward(&m, rh, beta, it == 0, p, t);
+        sgs_backward(&m, dr, beta, it == 0, p, t);
         const double pq = sgs_forward(&m, p, t, u);
         if (!(pq > 0)) break;  /* positive definite on the manifold; else round-off */
         const double alpha = rz / pq;
         double rhr2;
-        const double rz2 = sgs_update(&m, alpha, t, u, v, rh, &rhr2);
+        const double rz2 = sgs_update(&m, alpha, t, u, v, rh, dr, &rhr2);
         it++;
         if (rhr2 * ratio <= TC_SGS_CHECK_NEAR * stop2 || it - checked >= TC_SGS_CHECK_EVERY) {
             rr = sgs_unsplit(&m, rh, false);
@@ -968,9 +983,10 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     const int8_t *fl = tc_vec_ptr(&c->vflag);
     bool contact = false;
     for (int32_t i = 0; i < c->nv; i++) contact |= fl[i] == VC_CONTACT;
-    if (it == 0 && use_sgs(c, contact)) {
+    if (it == 0 && use_sgs(c)) {
         if (sgs_prepare(c) == 0) {
             it = pcg_sgs(c, v, stop2, &rr, contact);
+            c->stats.sgs_solves++;
             *rr_out = rr;
             return it;
         }

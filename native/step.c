@@ -206,6 +206,7 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     tc_events_clear(c);
     c->stats.cg_iterations = 0;
     c->stats.solves = 0;
+    c->stats.sgs_solves = 0;
     c->stats.cg_residual = 0.0;
     c->stats.cg_residual_force = 0.0;
     c->stats.cg_force_scale = 0.0;

@@ -223,8 +223,10 @@ typedef struct tc_stats {
     int32_t solves;                    /* linear solves of the last step, summed over its sub-steps:
                                           one each, more when its contacts changed state (rounds) */
     int64_t sgs_fallbacks;    /* solves so far that asked for symmetric Gauss-Seidel (forced, or auto
-                                 with contacts) but got block Jacobi: its row split could not be
+                                 below the multigrid bar) but got block Jacobi: its row split could not be
                                  made (out of memory) */
+    int32_t sgs_solves;       /* linear solves of the last step preconditioned by the Gauss-Seidel
+                                 sweeps (of `solves`; the others block Jacobi or the multigrid cycle) */
 } tc_stats;
 /* the smallest tc_stats a snapshot may carry: the layout before contact_directions_merged (older
  * states read with the counters after it at 0; snapshot.c) */

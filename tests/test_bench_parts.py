@@ -210,7 +210,7 @@ def test_scaling_fits_converged_points_only_and_reports_memory_precisely(monkeyp
     assert r["exponent"] == pytest.approx(bs.fit_exponent([p["triangles"] for p in kept], [p["step_ms"] for p in kept]))
     assert [row["triangles"] for row in r["per_size"]] == tris
     for p in r["points"]:
-        assert len(p["cg_iterations"]) == p["steps"] == 2 and p["preconditioner"] == "jacobi"
+        assert len(p["cg_iterations"]) == p["steps"] == 2 and p["preconditioner"] == "sgs"
         # the short window was replayed from its snapshot, the same steps (same CG iterations), and
         # the medians are over every replay: ~1 ms of steps is too few to time on its own
         assert p["replays"] >= 1 and p["replay_exact"] is True

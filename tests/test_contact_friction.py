@@ -205,6 +205,16 @@ def test_a_vertex_squeezed_between_near_opposite_contacts_is_not_flung():
     cloth2.set_contacts([i, i], [n1, n3], [0.0, 0.0], [z * n1, z * n3], 0.0)
     cloth2.step(DT)
     v2 = cloth2.velocities[i]
-    assert np.linalg.norm(v2) == pytest.approx(np.sqrt(2) * z, rel=1e-6), v2
+    # the clamp acts on the contacts' plane (x, z); y is the vertex's free direction, solved like
+    # any free velocity to the tolerance: the residual's scale here is the contacts' ~84 N, so the
+    # default tolerance (1e-5 of it) leaves up to ~0.03 m/s in this soft mode, and the order of the
+    # Gauss-Seidel sweeps decides where in that band it stops
+    assert np.hypot(v2[0], v2[2]) == pytest.approx(np.sqrt(2) * z, rel=1e-6), v2
+    assert abs(v2[1]) < 0.1 * z, v2
+    tight = Cloth(V, T, material("cotton"), gravity=(0.0, 0.0, 0.0))  # and it is that band: solved
+    tight.set_solver(cg_tolerance=1e-10)                                # tighter, y goes to rest
+    tight.set_contacts([i, i], [n1, n3], [0.0, 0.0], [z * n1, z * n3], 0.0)
+    tight.step(DT)
+    assert np.linalg.norm(tight.velocities[i]) == pytest.approx(np.sqrt(2) * z, rel=1e-9), tight.velocities[i]
     assert v2 @ n1 == pytest.approx(v2 @ n3, abs=1e-9)  # shared equally, below what each asks
     assert cloth2.stats()["contact_speed_clamps"] == 1

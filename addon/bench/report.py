@@ -193,8 +193,8 @@ def targets_markdown(r: dict) -> list:
     its_text = (f"{its['cloth']:.0f} for the square cloth, {its['tshirt']:.0f} for the T-shirt"
                 if None not in its.values() else "see Table I")
     race = r.get("blender_cloth", {}).get("detail", {})
-    contact_text = (f" Solves with contacts (a shirt on a body) take symmetric Gauss-Seidel sweeps of the "
-                    f"filtered system instead: {race['ours_cg_iterations_median']:.0f} CG iterations per race "
+    contact_text = (f" Solves with contacts (a shirt on a body) take the same sweeps, the contact rows "
+                    f"filtered: {race['ours_cg_iterations_median']:.0f} CG iterations per race "
                     f"sub-step in this run (median); there the "
                     f"collision is {race['ours_collision_share_of_substep']:.2f} of the sub-step."
                     if race.get("ours_cg_iterations_median") is not None
@@ -203,13 +203,14 @@ def targets_markdown(r: dict) -> list:
             "Where the time goes when a target is missed: the FEM solve. One step is an element pass "
             "(co-rotation, stress, forces), an assembly of 3x3 blocks into rows, and a conjugate-gradient "
             "solve. On soft, coarse or small sheets at short steps (stiffness ratio dt^2 k / m, weighted "
-            "by the size, below TC_AMG_AUTO_STIFFNESS) it is preconditioned by the inverse diagonal blocks: "
-            "a cotton sheet is stiff (E h = 2e4 N/m) against its areal mass, so that takes tens of "
-            f"iterations at 1 ms steps ({its_text}), each a matrix product "
-            f"at {roof}. Above it the smoothed-aggregation multigrid of amg.c keeps the "
-            "iterations near ten from 10K to 100K triangles (1.4-4x faster than Jacobi at 10K, 2-30x at 30K), "
-            "but each of its iterations costs about eight Jacobi ones plus a refresh of its coarse "
-            "operators every few sub-steps; on the T-shirt in cotton it is slower than Jacobi, and auto "
-            "keeps Jacobi there." + contact_text + " After 50 cuts the per-iteration "
+            "by the size, below TC_AMG_AUTO_STIFFNESS) it is preconditioned by symmetric block Gauss-Seidel "
+            "sweeps of the filtered system (Eisenstat's form): a cotton sheet is stiff (E h = 2e4 N/m) against "
+            f"its areal mass, so that takes ten or more iterations at 1 ms steps ({its_text}), each a "
+            f"forward and a backward sweep that cost about two matrix products (a product runs at {roof}; "
+            "block Jacobi needs 2.5x the iterations at half the cost each). Above it the smoothed-aggregation "
+            "multigrid of amg.c keeps the iterations near ten from 10K to 100K triangles (1.4-4x faster than "
+            "block Jacobi at 10K, 2-30x at 30K), but each of its iterations costs about eight Jacobi ones plus "
+            "a refresh of its coarse operators every few sub-steps; on the T-shirt in cotton it is slower, and "
+            "auto keeps the sweeps there." + contact_text + " After 50 cuts the per-iteration "
             "cost moves little; the step grows because a torn cloth moves more and the solver iterates "
             "more.", ""]

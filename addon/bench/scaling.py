@@ -288,7 +288,7 @@ def _child_point(spec: dict) -> dict:
         s = session_mod.Session(c, None)
     times, cpu, iters, contacts, setup = [], [], [], [], []
     unconverged = unconverged_warmup = 0
-    levels = amg_bytes = 0
+    levels = amg_bytes = sgs_solves = 0
     parts = {"collision": [], "fem": [], "tearing": []}
     error = None
     n = int(spec["warmup"]) + int(spec["steps"])
@@ -324,6 +324,7 @@ def _child_point(spec: dict) -> dict:
             iters.append(st["cg_iterations"])
             setup.append(st["amg_setup_seconds"])
             levels = max(levels, int(st["amg_levels"]))
+            sgs_solves += int(st.get("sgs_solves", 0))
             amg_bytes = max(amg_bytes, int(st.get("amg_bytes", 0)))
             contacts.append(rep.contacts)
             unconverged += rep.unconverged_substeps > 0
@@ -356,7 +357,7 @@ def _child_point(spec: dict) -> dict:
     return {"step_s": times, "step_cpu_s": cpu, "replays": replays, "replay_exact": replay_exact,
             "replay_step_s": replay_s, "replay_step_cpu_s": replay_cpu,
             "cg_iterations_median": statistics.median(iters) if iters else None,
-            "cg_iterations": iters, "amg_levels": levels, "amg_bytes": amg_bytes,
+            "cg_iterations": iters, "amg_levels": levels, "amg_bytes": amg_bytes, "sgs_solves": sgs_solves,
             "amg_setup_ms_median": 1e3 * statistics.median(setup) if setup else None,
             "amg_setup_ms_mean": 1e3 * statistics.fmean(setup) if setup else None,
             "unconverged_warmup_steps": int(unconverged_warmup),
@@ -441,7 +442,7 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                         t0 = time.perf_counter()
                         res = _run_child(["--point", json.dumps(spec)], timeout)
                         res["replays"], res["replay_exact"] = 0, None
-                        # block Jacobi points only: a snapshot makes the multigrid build its hierarchy
+                        # points without the multigrid only: a snapshot makes the multigrid build its hierarchy
                         # afresh (amg.c), so a replayed window would time a build the first one did not
                         if (not collision and tri < REPLAY_MAX_TRIANGLES and not res["error"]
                                 and res["amg_levels"] < 2):
@@ -481,7 +482,9 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                             "memory_method": "peak minus RSS before the cloth" if before is not None else "peak minus idle child",
                             "cg_iterations_median": res["cg_iterations_median"],
                             "cg_iterations": res["cg_iterations"],
-                            "preconditioner": "amg" if res["amg_levels"] >= 2 else "jacobi",
+                            # what the timed steps' solves ran (auto: the sweeps below the multigrid bar)
+                            "preconditioner": ("amg" if res["amg_levels"] >= 2
+                                               else "sgs" if res.get("sgs_solves", 0) > 0 else "jacobi"),
                             "amg_levels": res["amg_levels"],
                             # what the hierarchy holds after its builds (the core's own count): part of peak_mb
                             "amg_mb": res.get("amg_bytes", 0) / MB,

@@ -1228,8 +1228,10 @@ static void test_lift_and_touch(void)
         if (!pass) {
             CHECK(st.contacts == 0 && lo > 0.05, "thrown up: released, rising at %g..%g m/s", lo, hi);
         } else {
-            /* released (a guess), touched and guessed again, then solved to the tolerance */
-            CHECK(st.lifts_carried == n && st.contacts == n && st.solves == 3, "thrown down: %lld started released, %d "
+            /* released (a guess), touched and solved again; a third solve to the tolerance unless
+               that one already reached it (step.c: the Gauss-Seidel sweeps often do here) */
+            CHECK(st.lifts_carried == n && st.contacts == n && st.solves >= 2 && st.solves <= 3,
+                  "thrown down: %lld started released, %d "
                   "active after, %d solves", (long long)st.lifts_carried, (int)st.contacts, (int)st.solves);
             CHECK(fabs(lo) < 1e-9 && fabs(hi) < 1e-9, "at rest on the plane: %g..%g m/s", lo, hi);
         }
