@@ -262,7 +262,15 @@ def test_simulation_stall_zeroes_the_force_within_the_stall_timeout(servo):
         stamps = {h: live.servo.mailbox(h).latest.stamp for h in live.hands}
         time.sleep(timeout + 0.1)  # the caller stops stepping
         for hand, stamp in stamps.items():
-            t, f = live.force_log.series(hand)
+            # at least 20 servo ticks past the guarantee: a loaded machine may give the servo only
+            # part of a 1 kHz clock (18 ticks in 0.2 s once under CI), so wait for them (up to 5 s)
+            # rather than for a fixed time; every one of them must be zero force
+            deadline = time.perf_counter() + 5.0
+            while True:
+                t, f = live.force_log.series(hand)
+                if (t >= stamp + timeout - period).sum() >= 20 or time.perf_counter() > deadline:
+                    break
+                time.sleep(0.02)
             # force was on while the caller stepped (a window of the whole pull, not only the last
             # 50 ms: on a loaded machine one late step may already have stalled the servo there)
             assert np.abs(f[(t > stamp - 0.4) & (t < stamp)]).max() > 0.0
