@@ -645,20 +645,17 @@ static inline double sgs_forward_row(const sgs_rows *m, int32_t i, const double 
     const int8_t f = m->fl[i];
     if (f == VC_PINNED || f == VC_HANDLE) { u[o] = u[o + 1] = u[o + 2] = 0.0; return 0.0; }
     const double *ti = t + o;
-    double a[3] = {0.0, 0.0, 0.0};
-    if (f == VC_FREE) {
-        sgs_lower_sum(m, i, u, a);
-        const double y[3] = {p[o] - a[0], p[o + 1] - a[1], p[o + 2] - a[2]};
-        double s[3];
-        apply_pinv(m->P + 9 * (size_t)i, y, s);
+    double a[3] = {0.0, 0.0, 0.0}, s[3];
+    if (f != VC_FREE) apply_diag(m->D + 12 * (size_t)i, ti, a);
+    sgs_lower_sum(m, i, u, a);
+    const double y[3] = {p[o] - a[0], p[o + 1] - a[1], p[o + 2] - a[2]};
+    apply_pinv(m->P + 9 * (size_t)i, y, s);
+    if (f == VC_FREE) {  /* s = t_i + u_i */
         for (int k = 0; k < 3; k++) u[o + k] = s[k] - ti[k];
         return p[o] * s[0] + p[o + 1] * s[1] + p[o + 2] * s[2];
     }
-    apply_diag(m->D + 12 * (size_t)i, ti, a);
-    sgs_lower_sum(m, i, u, a);
-    const double y[3] = {p[o] - a[0], p[o + 1] - a[1], p[o + 2] - a[2]};
-    apply_pinv(m->P + 9 * (size_t)i, y, u + o);
-    if (f == VC_CONTACT) sgs_filter(m, i, u + o);
+    for (int k = 0; k < 3; k++) u[o + k] = s[k];
+    sgs_filter(m, i, u + o);  /* a contact row (held rows returned above) */
     return p[o] * (ti[0] + u[o]) + p[o + 1] * (ti[1] + u[o + 1]) + p[o + 2] * (ti[2] + u[o + 2]);
 }
 

@@ -324,7 +324,7 @@ def _child_point(spec: dict) -> dict:
             iters.append(st["cg_iterations"])
             setup.append(st["amg_setup_seconds"])
             levels = max(levels, int(st["amg_levels"]))
-            sgs_solves += int(st.get("sgs_solves", 0))
+            sgs_solves += int(st["sgs_solves"])
             amg_bytes = max(amg_bytes, int(st.get("amg_bytes", 0)))
             contacts.append(rep.contacts)
             unconverged += rep.unconverged_substeps > 0
@@ -484,7 +484,7 @@ def scaling(triangle_targets=DEFAULT_TARGETS, with_tearing=(False, True), with_c
                             "cg_iterations": res["cg_iterations"],
                             # what the timed steps' solves ran (auto: the sweeps below the multigrid bar)
                             "preconditioner": ("amg" if res["amg_levels"] >= 2
-                                               else "sgs" if res.get("sgs_solves", 0) > 0 else "jacobi"),
+                                               else "sgs" if res["sgs_solves"] > 0 else "jacobi"),
                             "amg_levels": res["amg_levels"],
                             # what the hierarchy holds after its builds (the core's own count): part of peak_mb
                             "amg_mb": res.get("amg_bytes", 0) / MB,
