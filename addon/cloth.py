@@ -358,7 +358,10 @@ class Cloth:
         (sub-steps whose contacts still changed state after the last round, kept as solved). solves
         (last step): linear solves summed over its sub-steps, one each and more when contacts
         changed state; sgs_solves (last step): those of them preconditioned by the Gauss-Seidel
-        sweeps."""
+        sweeps; stiff_groups (last step, the most of any sub-step): groups of sliver corners that
+        block Jacobi inverted together (auto takes block Jacobi over the sweeps when there are
+        any); stiff_group_failures (so far): groups whose factor failed, their vertices left to
+        their own blocks."""
         return self._c.stats()
 
     def energy(self) -> dict:

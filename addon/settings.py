@@ -331,11 +331,14 @@ SETTINGS: tuple[Setting, ...] = (
        "(dt^2 k / m per vertex, median) times (vertices / TC_AMG_AUTO_VERTICES)^TC_AMG_AUTO_SIZE_EXPONENT "
        "reaches TC_AMG_AUTO_STIFFNESS on a cloth of at least TC_AMG_AUTO_MIN_VERTICES vertices, and keeps "
        "it down to 1/TC_AMG_AUTO_HYSTERESIS of that (native/constants.h: fitted to a measured table of "
-       "both solvers' time); below that bar, the symmetric Gauss-Seidel sweeps",
+       "both solvers' time); below that bar, the symmetric Gauss-Seidel sweeps, or block Jacobi with "
+       "stiff groups (native/stiff.c) where the mesh has slivers: the sweeps cannot take out a "
+       "sliver's stiff mode",
        [("auto", "Auto", "Gauss-Seidel sweeps on soft or coarse sheets and short steps, multigrid on "
-                         "stiff or fine ones and long steps (by the work each is predicted to need)"),
-        ("jacobi", "Block Jacobi", "The inverse 3x3 diagonal blocks: cheap iterations, more of them as "
-                                   "the mesh grows"),
+                         "stiff or fine ones and long steps (by the work each is predicted to need); "
+                         "block Jacobi with a sliver's corners inverted together on meshes with slivers"),
+        ("jacobi", "Block Jacobi", "The inverse 3x3 diagonal blocks (a sliver's corners inverted "
+                                   "together): cheap iterations, more of them as the mesh grows"),
         ("amg", "Multigrid", "Smoothed-aggregation multigrid with the rigid-body modes: about ten "
                              "iterations whatever the mesh, each costing several products, plus a "
                              "set-up per sub-step"),

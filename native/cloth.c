@@ -47,6 +47,7 @@ void tc_cloth_destroy(tc_cloth *c)
     free(c->handles);
     tc_amg_free(c->amg);
     tc_sgs_free(c->sgs);
+    tc_stiff_free(c->stiff);
     free(c);
 }
 
@@ -159,7 +160,7 @@ int tc_cloth_num_groups(const tc_cloth *c) { return c->ng; }
 tc_stats tc_cloth_stats(const tc_cloth *c) { return c->stats; }
 
 /* The FOR_EACH_VEC arrays, then the storage outside them: one table is the whole account. */
-enum { MEMORY_EXTRA = 3 };
+enum { MEMORY_EXTRA = 4 };
 size_t tc_cloth_memory_count(void) { return tc_vec_table_len + MEMORY_EXTRA; }
 const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *held)
 {
@@ -174,6 +175,7 @@ const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *h
     case 0: *used = (c->hcount + c->htomb) * sizeof(int32_t); *held = c->hcap * sizeof(int32_t); return "pair_hash";
     case 1: *used = *held = tc_amg_bytes(c->amg); return "amg";
     case 2: *used = *held = tc_sgs_bytes(c->sgs); return "sgs";
+    case 3: *used = *held = tc_stiff_bytes(c->stiff); return "stiff";
     default: return NULL;
     }
 }

@@ -117,6 +117,19 @@
  * that the cap is too low for the mesh: the sub-step is accepted and counted in tc_stats. */
 #define TC_SPLIT_DEPTH 3
 
+/* ---- stiff groups (stiff.c) ---- */
+/* An edge's block is strong when its Frobenius norm is at least this times the geometric mean of
+ * its vertices' diagonal blocks': then most of both vertices' stiffness and mass is this one
+ * coupling (a sliver's near-coincident corners: 0.9-1.0). An interior edge of a well-shaped mesh
+ * shares its vertices with five or six others and their masses. Measured (TEARCLOTH_STIFF_STRENGTH
+ * overrides it, for that measurement): see stiff.c's table. */
+#define TC_STIFF_STRENGTH 0.3
+#define TC_STIFF_SLIVER 0.85
+/* vertices of one group at most: its factor is (3k)^2 doubles, a solve 2 (3k)^2 multiply-adds */
+#define TC_STIFF_GROUP_MAX 8
+/* sub-steps between two looks for a sliver where the last found none (stiff.c) */
+#define TC_STIFF_RESCAN 16
+
 /* ---- the matrix by rows (mesh.c, fem.c) ---- */
 /* Zeros after the last edge block: the AVX2 product loads a block's last column 4 wide. (doubles) */
 #define TC_ROW_SLACK 4

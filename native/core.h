@@ -95,6 +95,7 @@ typedef struct tc_handle {
 
 typedef struct tc_amg tc_amg;
 typedef struct tc_sgs tc_sgs;
+typedef struct tc_stiff tc_stiff;
 
 typedef struct tc_stencil {
     int32_t v[4];            /* shared edge v0-v1, opposite vertices v2, v3 */
@@ -234,6 +235,9 @@ struct tc_cloth {
     /* the symmetric Gauss-Seidel sweeps' schedule (solver.c): derived from the row pattern, never
        part of a snapshot; NULL until a solve uses it */
     tc_sgs *sgs;
+    /* the stiff groups block Jacobi inverts together (stiff.c): found from each sub-step's matrix,
+       never part of a snapshot; NULL until a block-Jacobi solve looks for them */
+    tc_stiff *stiff;
 };
 
 /* Every array of a cloth (cloth.c's FOR_EACH_VEC as a table): its name, where it sits in the struct
@@ -425,10 +429,19 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h);  /* tests: A_1 again
 double tc_amg_first_residual_error(const tc_cloth *c, tc_amg *h, const double *r);  /* tests: the first sweep's residual */
 
 /* ---------------- solver.c ---------------- */
-void tc_precondition_build(tc_cloth *c);
+void tc_precondition_build(tc_cloth *c, double dt);
 void tc_sgs_free(tc_sgs *g);
 size_t tc_sgs_bytes(const tc_sgs *g);
-void tc_precondition_constraints_changed(tc_cloth *c);  /* after a re-built contact basis (step.c) */
+void tc_precondition_constraints_changed(tc_cloth *c);
+/* ---------------- stiff.c ---------------- */
+int tc_stiff_build(tc_cloth *c, double dt);  /* the groups of this sub-step's matrix and their factors */
+void tc_stiff_forget(tc_stiff *g);     /* a snapshot: look for slivers at the next sub-step */
+void tc_stiff_refactor(tc_cloth *c);   /* the factors again, under changed constraints */
+void tc_stiff_clear(tc_stiff *g);      /* no group this sub-step (not block Jacobi) */
+double tc_stiff_apply(const tc_cloth *c, const double *r, double *z);  /* z_g = A~_g^-1 r_g; returns the change of r.z */
+int32_t tc_stiff_groups(const tc_stiff *g);
+void tc_stiff_free(tc_stiff *g);
+size_t tc_stiff_bytes(const tc_stiff *g);  /* after a re-built contact basis (step.c) */
 /* a snapshot is being taken: the next sub-step builds the hierarchy from scratch, as a run resumed
  * from it does (snapshot.c), so the two step alike to the bit */
 void tc_precondition_snapshot(const tc_cloth *c);

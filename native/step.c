@@ -66,7 +66,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
         for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * b[3 * i + q];
     if (nc) tc_contacts_kinetic_start(c, b, dt);
 
-    tc_precondition_build(c);
+    tc_precondition_build(c, dt);
     /* warm start: the velocity change of the last step (constant acceleration), exact for a
        falling cloth and close for any smooth motion; pcg projects it onto this step's constraints */
     const double *dv_prev = tc_vec_ptr(&c->sdv);
@@ -207,6 +207,7 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     c->stats.cg_iterations = 0;
     c->stats.solves = 0;
     c->stats.sgs_solves = 0;
+    c->stats.stiff_groups = 0;
     c->stats.cg_residual = 0.0;
     c->stats.cg_residual_force = 0.0;
     c->stats.cg_force_scale = 0.0;

@@ -227,6 +227,10 @@ typedef struct tc_stats {
                                  made (out of memory) */
     int32_t sgs_solves;       /* linear solves of the last step preconditioned by the Gauss-Seidel
                                  sweeps (of `solves`; the others block Jacobi or the multigrid cycle) */
+    int32_t stiff_groups;     /* the most stiff groups (stiff.c: sliver corners inverted together by
+                                 block Jacobi) any sub-step of the last step had */
+    int64_t stiff_group_failures; /* so far: stiff groups whose factor failed (round-off): their
+                                 vertices kept their own 3x3 blocks */
 } tc_stats;
 /* the smallest tc_stats a snapshot may carry: the layout before contact_directions_merged (older
  * states read with the counters after it at 0; snapshot.c) */

@@ -132,7 +132,7 @@ int main(int argc, char **argv)
         tc_element_assemble(c, tc_vec_ptr(&c->x), 1e-3, &worst);
         tp[5][rr] = cpu_seconds() - t0;
         t0 = cpu_seconds();
-        tc_precondition_build(c);
+        tc_precondition_build(c, 1e-3);
         tp[6][rr] = cpu_seconds() - t0;
         for (size_t k = 0; k < n3; k++) p[k] = (double)rand() / RAND_MAX - 0.5;  /* keep p bounded */
     }
