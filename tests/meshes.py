@@ -34,17 +34,9 @@ def sheet(width=0.2, height=0.05, nx=41, ny=11, jitter=0.0, seed=0, z=0.0):
     return V, np.array(T, dtype=np.int32)
 
 
-def sliver_sheet(width=0.2, height=0.1, nx=41, ny=11, gap=4e-5, every=3, seed=0):
-    """A jittered sheet with slivers: after every `every`-th lattice row (and column) a copy of it
-    `gap` away, so the cells between them are split into triangles whose smallest angle is about
-    gap / spacing (0.5 degrees for 4e-5 m on 5 mm): the long thin triangles of a careless mesher."""
-    rng = np.random.default_rng(seed)
-    xs = np.linspace(0, width, nx)
-    ys = np.linspace(0, height, ny)
-    xs = np.sort(np.concatenate([xs, xs[1:-1:every] + gap]))
-    ys = np.sort(np.concatenate([ys, ys[1:-1:every] + gap]))
-    from tearcloth.bench.table1 import lattice_triangles
+def sliver_sheet(**kw):
+    """The bench's sheet with 0.23-0.46-degree slivers (tearcloth.bench.slivers.sliver_sheet: rows and
+    columns doubled 40 um apart): the long thin triangles of a careless mesher."""
+    from tearcloth.bench.slivers import sliver_sheet as sheet
 
-    X, Y = np.meshgrid(xs, ys, indexing="ij")
-    V = np.stack([X.ravel(), Y.ravel(), np.zeros(X.size)], 1)
-    return V, lattice_triangles(len(xs), len(ys), rng)
+    return sheet(**kw)

@@ -51,3 +51,22 @@ def test_an_empty_run_has_no_table_and_the_roofline_sentence_reads_the_run():
     table = targets_markdown({"table1": {"tshirt": tshirt}})
     assert rows(table)["FEM step, T-shirt (3.3K triangles)"] == ("3.17 ms", "**missed**")
     assert "4.8x its memory roofline" in table[-2]
+
+
+def test_sliver_rows_say_unconverged_and_halved_sub_steps_and_the_section_lists_both_solvers():
+    from tearcloth.bench.report import benchmarks_markdown
+
+    def run(unconverged, halvings):
+        return {"steps": 30, "step_ms": 9.0, "cg_iterations_per_step": 109, "halvings": halvings,
+                "unconverged_substeps": unconverged, "stiff_groups": 331, "worst_residual": 1e-4, "tolerance": 1e-4}
+
+    sl = {"vertices": 756, "triangles": 1378, "min_angle_deg": 0.23, "simulated_s": 0.06,
+          "dt2ms": {"auto": run(0, 0), "sweeps": run(0, 90), "time_ratio": 30.0},
+          "dt10ms": {"auto": run(2, 5), "sweeps": run(36, 42), "time_ratio": 42.0}}
+    r = rows(targets_markdown({"slivers": sl}))
+    assert r["sliver sheet at 2ms, auto: sub-steps unconverged / halved"] == ("0 / 0", "met")
+    assert r["sliver sheet at 10ms, auto: sub-steps unconverged / halved"] == ("2 / 5", "**missed**")
+    md = benchmarks_markdown({"machine": {"platform": "p", "cpus": 2, "python": "3.11", "load_1min_at_start": 0.1},
+                              "slivers": sl})
+    assert "## Slivers (issue 14)" in md and "756 vertices, smallest angle 0.23 degrees" in md
+    assert "| 10 ms | sweeps | 9.00 | 109 | 42 | 36 | 331 |" in md

@@ -6,17 +6,8 @@ import pytest
 
 from meshes import sheet
 from tearcloth import Cloth, material
+from tearcloth.bench.slivers import min_angle_deg
 from tearcloth.session import Session
-
-
-def min_angle_deg(V, T):
-    worst = 180.0
-    for k in range(3):
-        u = V[T[:, (k + 1) % 3]] - V[T[:, k]]
-        v = V[T[:, (k + 2) % 3]] - V[T[:, k]]
-        ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(u, v), axis=1), (u * v).sum(1)))
-        worst = min(worst, ang.min())
-    return worst
 
 
 def sliver_sheet(n=15, squeeze=0.99, every=4, seed=0):

@@ -124,7 +124,7 @@ print("\n".join(r for r in t["project"]["optional-dependencies"]["test"] if not 
 
 # The test files the 3.13 half leaves to the 3.11 half: the native core driven through numpy (the
 # same C sources, the same abi3 build), heavy and blind to the interpreter: physics studies, the
-# long scenes, the cross and arm64 builds, the FEM, solver, SIMD-kernel, snapshot and tearing
+# long scenes, the cross and arm64 builds, the FEM, solver, stiff-group, SIMD-kernel, snapshot and tearing
 # tests, the collision kernels, CCD and clustering (C and numpy/scipy only). Everything that
 # touches bpy, the add-on, the extension, caches, haptics, the farm or the CLI runs on both, and so
 # do test_native_defaults.py (the C modules' messages through 3.13's C API) and the two collision
@@ -134,7 +134,7 @@ print("\n".join(r for r in t["project"]["optional-dependencies"]["test"] if not 
 CORE_ONLY=(test_native_arm64.py test_platforms.py test_bake_resume_tshirt.py test_tearing_physics.py
            test_collision_session.py test_collision_recall.py test_solver_amg.py test_scenes.py
            test_orthotropic.py test_plasticity.py test_fragments.py
-           test_fem.py test_solver.py test_solver_simd.py test_snapshot.py test_tearing.py
+           test_fem.py test_solver.py test_solver_simd.py test_stiff_groups.py test_snapshot.py test_tearing.py
            test_collision_kernels.py test_collision_ccd.py test_collision_clusters.py
            test_collision_impact.py test_contact_friction.py)
 # pytest workers (pytest-xdist): one per core, at most 4; files stay whole on one worker

@@ -93,6 +93,14 @@ def benchmarks_markdown(r: dict) -> str:
         lines += ["## Against Blender's cloth (T-shirt, same body, 10 sub-steps per frame)", "",
                   f"Ours {b['ours_s_per_frame']:.3f} s per frame (tearing), Blender {b['blender_s_per_frame']:.3f} s "
                   f"per frame; ratio ours / Blender {b['ratio']:.2f}. Settings: `addon/bench/race.py`.", ""]
+    if "slivers" in r:
+        from .slivers import format_slivers
+
+        text = format_slivers(r["slivers"]).split("\n")
+        lines += ["## Slivers (issue 14)", "", "The sheet: " + text[0][len("slivers: "):] + ". Each step solved by auto "
+                  "(block Jacobi with the slivers' corners inverted together, `native/stiff.c`) and by the "
+                  "Gauss-Seidel sweeps alone (auto's pick on this sheet before the stiff groups). "
+                  "Scenario: `addon/bench/slivers.py`.", ""] + text[1:] + [""]
     if "scaling" in r:
         sc = r["scaling"]
         lines += ["## Scaling", "", f"Fitted time exponent (square, no tearing, no collision): {sc['exponent']:.2f}; "
@@ -179,6 +187,12 @@ def targets_markdown(r: dict) -> list:
             add("peak memory per triangle at 100K", f"{bpt:.0f} B", "<= 1000 B", bpt <= 1000)
         if "unconverged_steps" in sc:
             add("unconverged steps in the scaling run", f"{sc['unconverged_steps']}", "0", sc["unconverged_steps"] == 0)
+    if "slivers" in r:
+        for key, x in r["slivers"].items():
+            if isinstance(x, dict) and "auto" in x:
+                a = x["auto"]
+                add(f"sliver sheet at {key[2:]}, auto: sub-steps unconverged / halved", f"{a['unconverged_substeps']} / {a['halvings']}",
+                    "0 / 0", a["unconverged_substeps"] == 0 and a["halvings"] == 0)
     if "materials" in r:
         x = r["materials"]
         err = x["denim_bias"]["tear_angle_error_deg"]
