@@ -192,12 +192,13 @@ void tc_precondition_build(tc_cloth *c, double dt)
     /* Stiff groups (stiff.c) for block Jacobi, asked for or auto's: where a mesh has slivers, auto
        takes block Jacobi with the groups over both the sweeps (which cannot take a sliver's stiff
        mode out) and the multigrid cycle (its aggregates and Gauss-Seidel smoothing do not either).
-       Measured, a sheet with 0.46-degree slivers hung by one edge (tests/meshes.sliver_sheet), per
-       step: 756 vertices at dt 2 ms, the sweeps 4522 CG iterations (239 halvings in 100 steps)
-       against 141 (none), 26 s against 1.1 s for the 100 steps, and at 10 ms 80 sub-steps stopped
-       at the cap in 20 steps against none; 5,832 vertices, where auto took the cycle: 9.05 s a 2 ms
-       step (5745 iterations) against 0.139 s (229), and at 10 ms 20.5 s with 12 sub-steps at the
-       cap in 5 steps against 0.21 s with none. */
+       Measured against the build before the groups (auto then took the sweeps or the cycle), a
+       sheet with 0.23-0.46-degree slivers hung by one edge (tearcloth.bench.slivers), per step:
+       756 vertices at dt 2 ms 5595 CG iterations and 300 halvings in 100 steps against 141 and
+       none, 28.3 s against 1.1 s for the 100 steps; at 10 ms 103 sub-steps stopped at the cap in 20
+       steps against none; 5,832 vertices, where auto took the cycle: 9.05 s a 2 ms step (5745
+       iterations) against 0.133 s (229), and at 10 ms 20.5 s with 12 sub-steps at the cap in 5
+       steps against 0.19 s with none. */
     const int pre = c->solver.preconditioner;
     if (pre == TC_PRECOND_JACOBI || pre == TC_PRECOND_AUTO) {
         if (tc_stiff_build(c, dt)) tc_stiff_clear(c->stiff);  /* out of memory: vertex blocks alone */
@@ -466,8 +467,8 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
  * range of S into itself; on that range A~ is the filtered operator CG solves. With every vector
  * of the sweeps kept in the range of S, S_i A_ij S_j x_j = S_i A_ij x_j, so the off-diagonal
  * blocks are read as stored and only the contact rows change: their inverse diagonal block is that
- * of S_i A_ii S_i + (I - S_i) (written over pinv for the solve, sgs_constrain), and their results
- * are filtered. Pins and handles (S_i = 0) are rows whose values stay zero, skipped. */
+ * of S_i A_ii S_i + w_i (I - S_i) (written over pinv for the solve, sgs_constrain; w_i > 0 scales
+ * the held directions, which the filter keeps apart), and their results are filtered. Pins and handles (S_i = 0) are rows whose values stay zero, skipped. */
 struct tc_sgs {
     uint64_t version;  /* the rows_version the split was found for, the vertex and slot counts */
     int32_t nv, ne, nf;
