@@ -225,6 +225,9 @@ def targets_markdown(r: dict) -> list:
             "multigrid of amg.c keeps the iterations near ten from 10K to 100K triangles (1.4-4x faster than "
             "block Jacobi at 10K, 2-30x at 30K), but each of its iterations costs about eight Jacobi ones plus "
             "a refresh of its coarse operators every few sub-steps; on the T-shirt in cotton it is slower, and "
-            "auto keeps the sweeps there." + contact_text + " After 50 cuts the per-iteration "
+            "auto keeps the sweeps there. On meshes with slivers (an edge block of strength 0.94 or more, "
+            "`native/stiff.c`) auto takes block Jacobi with the slivers' corners inverted together instead "
+            "of either: the sweeps cannot take a sliver's stiff mode out (the Slivers section)."
+            + contact_text + " After 50 cuts the per-iteration "
             "cost moves little; the step grows because a torn cloth moves more and the solver iterates "
             "more.", ""]
