@@ -51,7 +51,7 @@ import numpy as np
 from . import attributes as attrs
 from . import spaces
 from .cache import CacheWriter, _remove_quietly, read_primvars, staging_path_for
-from .cloth import Cloth, SimulationError
+from .cloth import Cloth, SimulationError, smallest_angles_deg
 from .materials import Material
 from .session import CollisionSettings, Session, StepReport
 
@@ -164,6 +164,12 @@ class Progress:
         # solves so far whose multigrid or Gauss-Seidel preconditioner could not be had (out of
         # memory, a broken-down cycle) and block Jacobi took over: same answer, slower, said at the end
         self.preconditioner_fallbacks = 0
+        # the most stiff groups a step of this run had (the core's stats: sliver triangles' corners
+        # solved together, native/stiff.c), and the thinnest triangle of the mesh the bake began
+        # with (degrees, the user's polygon): said at the end, as remeshing them speeds the bake
+        self.stiff_groups = 0
+        self.thinnest_angle_deg: float | None = None
+        self.thinnest_polygon: int | None = None
         # pieces a tear set free with less rest area than Min Fragment, removed with their
         # triangles (the core's count, carried through a resume); start_triangles: the user's mesh
         # triangulated, to say when removal took much of the cloth (a cloth small against Min Fragment)
@@ -228,6 +234,20 @@ class Progress:
         return (f"{n} solve{'s' if n != 1 else ''} fell back from the chosen preconditioner to block Jacobi "
                 "(out of memory, or the multigrid cycle broke down): same result, slower; free memory or "
                 "set the preconditioner to Jacobi")
+
+    def sliver_text(self) -> str | None:
+        """The sentence for the end of a bake whose mesh had sliver triangles that the solver
+        treated as such (stiff groups), or None: converged, only slower than it could be."""
+        n = self.stiff_groups
+        if not n:
+            return None
+        where = ""
+        if self.thinnest_angle_deg is not None:
+            where = f" (the thinnest has a {self.thinnest_angle_deg:.2g} degree corner"
+            where += f", in polygon {self.thinnest_polygon})" if self.thinnest_polygon is not None else ")"
+        return (f"the mesh has sliver triangles{where}: the solver took {n} group{'s' if n != 1 else ''} of their "
+                "corners together and converged, more slowly than on a well-shaped mesh; remeshing the slivers "
+                "(e.g. Remesh, or Triangulate with Beauty) makes the bake faster")
 
     def fragment_text(self) -> tuple[str, bool] | None:
         """(sentence, is_warning) for the end of a bake that removed small pieces (None when none
@@ -296,6 +316,12 @@ class BakeJob:
     def __init__(self, plan: BakePlan, progress: Progress | None = None, on_event=None):
         self.plan = plan
         self.progress = progress or Progress(plan.object_name, plan.frame_start, plan.frame_end)
+        if len(plan.triangles):  # the thinnest triangle, named at the end if the solver met slivers
+            angles = smallest_angles_deg(plan.vertices, plan.triangles)
+            k = int(np.argmin(angles))
+            self.progress.thinnest_angle_deg = float(angles[k])
+            if plan.triangle_polygons is not None and k < len(plan.triangle_polygons):
+                self.progress.thinnest_polygon = int(plan.triangle_polygons[k])
         self.on_event = on_event
         self.cancel = threading.Event()
         self.session: Session | None = None
@@ -425,6 +451,7 @@ class BakeJob:
                 self.progress.unconverged_steps += 1
         st = session.cloth.stats()
         self.progress.preconditioner_fallbacks = int(st["amg_fallbacks"]) + int(st["sgs_fallbacks"])
+        self.progress.stiff_groups = max(self.progress.stiff_groups, int(st["stiff_groups"]))
         self._write(inputs)
         self.next_frame += 1
         return True

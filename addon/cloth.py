@@ -85,6 +85,19 @@ def _i32(a, name: str) -> np.ndarray:
     return np.ascontiguousarray(arr, dtype=np.int32)
 
 
+def smallest_angles_deg(vertices, triangles) -> np.ndarray:
+    """Each triangle's smallest corner angle (degrees): atan2 of the cross and dot products, exact
+    for the thinnest slivers where an arccos of the cosine loses them. (m,) for (m, 3) triangles."""
+    V = np.asarray(vertices, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    worst = np.full(len(T), 180.0)
+    for k in range(3):
+        u = V[T[:, (k + 1) % 3]] - V[T[:, k]]
+        w = V[T[:, (k + 2) % 3]] - V[T[:, k]]
+        worst = np.minimum(worst, np.degrees(np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), (u * w).sum(1))))
+    return worst
+
+
 class Cloth:
     """A triangle-mesh sheet simulated by the native core (co-rotational FEM, implicit Euler)."""
 

@@ -221,3 +221,35 @@ def test_the_saved_state_rebuilds_the_cloth_exactly(tmp_path, groups):
     # the user's groups, then the columns the cache's attributes ride in (tearcloth.attributes)
     from tearcloth.attributes import REST_GROUPS
     assert again.cloth.group_names == cloth.group_names == groups + list(REST_GROUPS)
+
+
+def test_a_bake_of_a_mesh_with_slivers_says_so_naming_the_thinnest_polygon(tmp_path):
+    """The solver converges on slivers (stiff groups) but more slowly than on a well-shaped mesh:
+    the end of the bake says so, with the thinnest corner and the user's polygon holding it; a
+    well-shaped sheet's bake says nothing."""
+    from meshes import sliver_sheet
+
+    from tearcloth.cloth import smallest_angles_deg
+
+    v, t = sliver_sheet()
+    top = (v[:, 1] > v[:, 1].max() - 1e-9).astype(np.float64)
+    polygons = np.arange(len(t), dtype=np.int32) // 2 + 100  # two triangles a quad, numbered from 100
+    plan = BakePlan(
+        object_name="Slivers", prim_name="Slivers", cache_path=str(tmp_path / "Slivers.usda"), fps=24.0,
+        frame_start=1, frame_end=2, steps_per_frame=4, scale=1.0, material=material("cotton"),
+        solver={"gravity": (0.0, 0.0, -9.81)}, tearing={"enabled": False}, collision=None, vertices=v,
+        triangles=t, corner_uv=None, groups={"top": top}, fingerprint="test", pin_group="top",
+        triangle_polygons=polygons)
+    job = BakeJob(plan)
+    job.begin(FrameInputs(1, np.eye(4), [], {}))
+    while not job.done:
+        assert job.advance(FrameInputs(job.next_frame, np.eye(4), [], {}))
+    job.close()
+    p = job.progress
+    assert p.stiff_groups > 0 and p.convergence_text() is None
+    k = int(np.argmin(smallest_angles_deg(v, t)))
+    text = p.sliver_text()
+    assert text.startswith("the mesh has sliver triangles (the thinnest has a 0.23 degree corner, in polygon "
+                           f"{polygons[k]}): the solver took {p.stiff_groups} groups of their corners together")
+    (tmp_path / "w").mkdir()
+    assert bake(plan_for(tmp_path / "w")).progress.sliver_text() is None

@@ -18,7 +18,7 @@ import statistics
 
 import numpy as np
 
-from ..cloth import Cloth
+from ..cloth import Cloth, smallest_angles_deg
 from ..materials import material
 from .table1 import lattice_triangles
 
@@ -44,15 +44,8 @@ def sliver_sheet(width=0.2, height=0.1, nx=41, ny=11, gap=4e-5, every=3, seed=0)
 
 
 def min_angle_deg(V, T) -> float:
-    """The smallest corner angle of the triangles (degrees; atan2 of the cross and dot products,
-    exact for the smallest angles where an arccos of the cosine loses them)."""
-    worst = 180.0
-    for k in range(3):
-        u = V[T[:, (k + 1) % 3]] - V[T[:, k]]
-        w = V[T[:, (k + 2) % 3]] - V[T[:, k]]
-        ang = np.degrees(np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), (u * w).sum(1)))
-        worst = min(worst, float(ang.min()))
-    return worst
+    """The smallest corner angle of the triangles (degrees)."""
+    return float(smallest_angles_deg(V, T).min())
 
 
 def hung_sliver_sheet(preconditioner: str = "auto") -> Cloth:

@@ -232,6 +232,8 @@ class BakeRun:
                 self.reports.warning(f"{self.object_name}: {p.convergence_text()}")
             if p.fallback_text():
                 self.reports.warning(f"{self.object_name}: {p.fallback_text()}")
+            if p.sliver_text():
+                self.reports.info(f"{self.object_name}: {p.sliver_text()}")
             removed = p.fragment_text()
             if removed is not None:
                 (self.reports.warning if removed[1] else self.reports.info)(f"{self.object_name}: {removed[0]}")
