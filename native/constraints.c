@@ -196,6 +196,38 @@ void tc_handle_forces(tc_cloth *c)
     }
 }
 
+/* The filter S_i of vertex i as a matrix (row-major): 0 at a pin or handle, I minus the outer
+ * products of its contact normals at a contact, I when free. */
+void tc_constraint_matrix(const tc_cloth *c, int32_t i, double S[9])
+{
+    const int8_t f = ((const int8_t *)tc_vec_ptr(&c->vflag))[i];
+    memset(S, 0, 9 * sizeof(double));
+    if (f == VC_PINNED || f == VC_HANDLE) return;
+    S[0] = S[4] = S[8] = 1.0;
+    if (f != VC_CONTACT) return;
+    const int8_t cnt = ((const int8_t *)tc_vec_ptr(&c->scount))[i];
+    const double *N = (const double *)tc_vec_ptr(&c->snorm) + 9 * (size_t)i;
+    for (int k = 0; k < cnt; k++)
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < 3; b++) S[3 * a + b] -= N[3 * k + a] * N[3 * k + b];
+}
+
+/* F = S A S + w (I - S) for a vertex's diagonal block A and filter S (row-major): the diagonal block
+ * of the filtered matrix the sweeps' contact rows and the stiff groups invert. Any w > 0 gives the
+ * same filtered solve (the two ranges are decoupled); w = tr(A) / 3 keeps the block's own scale,
+ * where w = 1 (kg) beside masses of micrograms and a sliver's stiffness lost the inverse's
+ * accuracy. */
+void tc_filtered_diagonal(const double S[9], const double A[9], double F[9])
+{
+    const double w = (A[0] + A[4] + A[8]) / 3.0;
+    double AS[9];
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++) AS[3 * a + b] = A[3 * a] * S[b] + A[3 * a + 1] * S[3 + b] + A[3 * a + 2] * S[6 + b];
+    for (int a = 0; a < 3; a++)
+        for (int b = 0; b < 3; b++)
+            F[3 * a + b] = S[3 * a] * AS[b] + S[3 * a + 1] * AS[3 + b] + S[3 * a + 2] * AS[6 + b] + w * ((a == b) - S[3 * a + b]);
+}
+
 /* Removes the constrained components: all three for pins and handles, the span of the vertex's
  * contact normals (an orthonormal basis of up to three directions) for contacts. */
 void tc_constraint_filter(const tc_cloth *c, double *r)

@@ -392,6 +392,8 @@ void tc_constraints_begin(tc_cloth *c, double dt, double alpha);
 void tc_contact_basis(tc_cloth *c, double dt);
 void tc_contacts_kinetic_start(tc_cloth *c, double *b, double dt);  /* carried kinetic friction into b */
 void tc_constraint_filter(const tc_cloth *c, double *r);             /* r := S r */
+void tc_constraint_matrix(const tc_cloth *c, int32_t i, double S[9]);  /* S_i, row-major */
+void tc_filtered_diagonal(const double S[9], const double A[9], double F[9]);  /* S A S + w (I - S) */
 void tc_constraint_project(const tc_cloth *c, double *v, const double *fix);  /* v := S v + fix */
 void tc_constraint_offsets(const tc_cloth *c, const double *v0, double *fix);  /* fix -= (I - S) v0 */
 /* the contact rounds after a solve (J = A v): each returns how many contacts (release, touch) or
@@ -432,7 +434,7 @@ double tc_amg_first_residual_error(const tc_cloth *c, tc_amg *h, const double *r
 void tc_precondition_build(tc_cloth *c, double dt);
 void tc_sgs_free(tc_sgs *g);
 size_t tc_sgs_bytes(const tc_sgs *g);
-void tc_precondition_constraints_changed(tc_cloth *c);
+void tc_precondition_constraints_changed(tc_cloth *c);  /* after a re-built contact basis (step.c) */
 /* ---------------- stiff.c ---------------- */
 int tc_stiff_build(tc_cloth *c, double dt);  /* the groups of this sub-step's matrix and their factors */
 void tc_stiff_forget(tc_stiff *g);     /* a snapshot: look for slivers at the next sub-step */
@@ -441,7 +443,7 @@ void tc_stiff_clear(tc_stiff *g);      /* no group this sub-step (not block Jaco
 double tc_stiff_apply(const tc_cloth *c, const double *r, double *z);  /* z_g = A~_g^-1 r_g; returns the change of r.z */
 int32_t tc_stiff_groups(const tc_stiff *g);
 void tc_stiff_free(tc_stiff *g);
-size_t tc_stiff_bytes(const tc_stiff *g);  /* after a re-built contact basis (step.c) */
+size_t tc_stiff_bytes(const tc_stiff *g);
 /* a snapshot is being taken: the next sub-step builds the hierarchy from scratch, as a run resumed
  * from it does (snapshot.c), so the two step alike to the bit */
 void tc_precondition_snapshot(const tc_cloth *c);

@@ -208,7 +208,7 @@ void tc_precondition_build(tc_cloth *c, double dt)
         tc_stiff_clear(c->stiff);
     }
     c->amg_chosen = pre == TC_PRECOND_AUTO && tc_stiff_groups(c->stiff) ? false : choose_amg(c);
-    if (c->solver.preconditioner != TC_PRECOND_SGS && (c->solver.preconditioner != TC_PRECOND_AUTO || c->amg_chosen || tc_stiff_groups(c->stiff))) {
+    if (!use_sgs(c)) {
         /* the sweeps' split goes back with them (a return finds it again) */
         tc_sgs_free(c->sgs);
         c->sgs = NULL;
@@ -468,7 +468,8 @@ static int pcg_amg(tc_cloth *c, double *v, double stop2, double *rr_inout)
  * of the sweeps kept in the range of S, S_i A_ij S_j x_j = S_i A_ij x_j, so the off-diagonal
  * blocks are read as stored and only the contact rows change: their inverse diagonal block is that
  * of S_i A_ii S_i + w_i (I - S_i) (written over pinv for the solve, sgs_constrain; w_i > 0 scales
- * the held directions, which the filter keeps apart), and their results are filtered. Pins and handles (S_i = 0) are rows whose values stay zero, skipped. */
+ * the held directions, which the filter keeps apart: tc_filtered_diagonal), and their results are
+ * filtered. Pins and handles (S_i = 0) are rows whose values stay zero, skipped. */
 struct tc_sgs {
     uint64_t version;  /* the rows_version the split was found for, the vertex and slot counts */
     int32_t nv, ne, nf;
@@ -545,29 +546,20 @@ static inline void sgs_filter(const sgs_rows *m, int32_t i, double *x)
  * written over pinv), or back to block Jacobi's (false), computed as tc_precondition_build does */
 static void sgs_constrain(tc_cloth *c, bool filtered)
 {
-    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
-    const double *D = tc_vec_ptr(&c->diag), *N = tc_vec_ptr(&c->snorm);
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    const double *D = tc_vec_ptr(&c->diag);
     double *P = tc_vec_ptr(&c->pinv);
     for (int32_t i = 0; i < c->nv; i++) {
         if (fl[i] != VC_CONTACT) continue;
         const double *d = D + 12 * (size_t)i;
         if (!filtered) { block_inverse(d, P + 9 * (size_t)i); continue; }
-        double S[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};
-        for (int k = 0; k < cnt[i]; k++) {
-            const double *e = N + 9 * (size_t)i + 3 * k;
-            for (int a = 0; a < 3; a++)
-                for (int b = 0; b < 3; b++) S[3 * a + b] -= e[a] * e[b];
-        }
-        /* S A S + w (I - S), padded columns as diag's: any w > 0 gives the same filtered solve (the
-           two ranges are decoupled); w = tr(A_ii) / 3 keeps the block's scale, where w = 1 (kg)
-           against a mass of ~1e-6 kg and a sliver's stiffness lost the inverse's accuracy */
-        const double w = (d[0] + d[5] + d[10]) / 3.0;
-        double AS[9], f[12] = {0};
+        double S[9], A[9], F[9], f[12] = {0};
+        tc_constraint_matrix(c, i, S);
         for (int a = 0; a < 3; a++)
-            for (int b = 0; b < 3; b++) AS[3 * a + b] = d[4 * 0 + a] * S[b] + d[4 * 1 + a] * S[3 + b] + d[4 * 2 + a] * S[6 + b];
+            for (int b = 0; b < 3; b++) A[3 * a + b] = d[4 * b + a];  /* padded columns to rows */
+        tc_filtered_diagonal(S, A, F);
         for (int a = 0; a < 3; a++)
-            for (int b = 0; b < 3; b++)
-                f[4 * b + a] = S[3 * a] * AS[b] + S[3 * a + 1] * AS[3 + b] + S[3 * a + 2] * AS[6 + b] + w * ((a == b) - S[3 * a + b]);
+            for (int b = 0; b < 3; b++) f[4 * b + a] = F[3 * a + b];
         block_inverse(f, P + 9 * (size_t)i);
     }
 }

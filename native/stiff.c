@@ -131,21 +131,6 @@ static double norm2_block9(const double *b)
     return s;
 }
 
-/* the filter S_i of vertex i (row-major 3x3) */
-static void filter_of(const tc_cloth *c, int32_t i, double S[9])
-{
-    const int8_t f = ((const int8_t *)tc_vec_ptr(&c->vflag))[i];
-    memset(S, 0, 9 * sizeof(double));
-    if (f == VC_PINNED || f == VC_HANDLE) return;
-    S[0] = S[4] = S[8] = 1.0;
-    if (f != VC_CONTACT) return;
-    const int8_t cnt = ((const int8_t *)tc_vec_ptr(&c->scount))[i];
-    const double *N = (const double *)tc_vec_ptr(&c->snorm) + 9 * (size_t)i;
-    for (int k = 0; k < cnt; k++)
-        for (int r = 0; r < 3; r++)
-            for (int q = 0; q < 3; q++) S[3 * r + q] -= N[3 * k + r] * N[3 * k + q];
-}
-
 /* A_ab of the matrix (row-major 3x3): the diagonal block when a == b, else the edge block of row a
  * at column b plus the flap (a multiple of I) between them; zero when they are not coupled */
 static void block_of(const tc_cloth *c, int32_t a, int32_t b, double A[9])
@@ -182,18 +167,16 @@ static bool factor_group(const tc_cloth *c, const int32_t *vert, int k, double *
 {
     const int n = 3 * k;
     double S[TC_STIFF_GROUP_MAX][9];
-    for (int a = 0; a < k; a++) filter_of(c, vert[a], S[a]);
+    for (int a = 0; a < k; a++) tc_constraint_matrix(c, vert[a], S[a]);
     for (int a = 0; a < k; a++)
         for (int b = 0; b <= a; b++) {
             double A[9], T[9], F[9];
             block_of(c, vert[a], vert[b], A);
-            /* S_a A S_b (S symmetric) */
-            mul3(S[a], A, T);
-            mul3(T, S[b], F);
-            if (a == b) {  /* + w (I - S_a) */
-                const double w = (A[0] + A[4] + A[8]) / 3.0;
-                for (int r = 0; r < 3; r++)
-                    for (int q = 0; q < 3; q++) F[3 * r + q] += w * ((r == q) - S[a][3 * r + q]);
+            if (a == b) {
+                tc_filtered_diagonal(S[a], A, F);  /* S_a A S_a + w (I - S_a) */
+            } else {
+                mul3(S[a], A, T);  /* S_a A S_b (S symmetric) */
+                mul3(T, S[b], F);
             }
             for (int r = 0; r < 3; r++)
                 for (int q = 0; q < 3; q++) {

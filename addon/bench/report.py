@@ -94,13 +94,12 @@ def benchmarks_markdown(r: dict) -> str:
                   f"Ours {b['ours_s_per_frame']:.3f} s per frame (tearing), Blender {b['blender_s_per_frame']:.3f} s "
                   f"per frame; ratio ours / Blender {b['ratio']:.2f}. Settings: `addon/bench/race.py`.", ""]
     if "slivers" in r:
-        from .slivers import format_slivers
+        from .slivers import sheet_summary, table_lines
 
-        text = format_slivers(r["slivers"]).split("\n")
-        lines += ["## Slivers (issue 14)", "", "The sheet: " + text[0][len("slivers: "):] + ". Each step solved by auto "
+        lines += ["## Slivers (issue 14)", "", f"The sheet: {sheet_summary(r['slivers'])}. Each step solved by auto "
                   "(block Jacobi with the slivers' corners inverted together, `native/stiff.c`) and by the "
                   "Gauss-Seidel sweeps alone (auto's pick on this sheet before the stiff groups). "
-                  "Scenario: `addon/bench/slivers.py`.", ""] + text[1:] + [""]
+                  "Scenario: `addon/bench/slivers.py`.", ""] + table_lines(r["slivers"]) + [""]
     if "scaling" in r:
         sc = r["scaling"]
         lines += ["## Scaling", "", f"Fitted time exponent (square, no tearing, no collision): {sc['exponent']:.2f}; "

@@ -2,10 +2,10 @@
 
 A jittered sheet whose lattice rows and columns are doubled 40 um apart every third line (the long
 thin triangles of a careless mesher, angles of 0.23 and 0.46 degrees on its 10 mm and 5 mm cells)
-hangs from its top edge under gravity for 60 ms of simulated time at dt = 2 ms and 10 ms. Each step is solved by ``auto`` (block
-Jacobi with the slivers' corners inverted together, native/stiff.c) and by the Gauss-Seidel sweeps
-alone (``sgs``: what auto took on this sheet before the stiff groups), each on its own cloth:
-median FEM time and CG iterations per step, halvings (sub-steps rolled back because a solve
+hangs from its top edge under gravity for 60 ms of simulated time at dt = 2 ms and 10 ms. Each
+step is solved by ``auto`` (block Jacobi with the slivers' corners inverted together,
+native/stiff.c) and by the Gauss-Seidel sweeps alone (``sgs``: what auto took on this sheet before
+the stiff groups), each on its own cloth: median FEM time and CG iterations per step, halvings (sub-steps rolled back because a solve
 reached the cap), sub-steps accepted unconverged, and the worst residual against the tolerance.
 JSON: ``slivers.{dt2ms,dt10ms}.{auto,sweeps}.*`` and ``slivers.{dt2ms,dt10ms}.time_ratio``
 (sweeps / auto, per step). Dev-only (not in the extension zip).
@@ -85,10 +85,15 @@ def sliver_figures() -> dict:
     return r
 
 
-def format_slivers(r: dict) -> str:
-    lines = [f"slivers: {r['vertices']} vertices, smallest angle {r['min_angle_deg']:.2f} degrees, hung by one edge, "
-             f"{1e3 * r['simulated_s']:.0f} ms simulated",
-             "| dt | solver | step ms | CG it./step | halvings | unconverged sub-steps | stiff groups | worst residual |",
+def sheet_summary(r: dict) -> str:
+    """The sheet in one phrase (the bench's line and BENCHMARKS.md's section)."""
+    return (f"{r['vertices']} vertices, smallest angle {r['min_angle_deg']:.2f} degrees, hung by one edge, "
+            f"{1e3 * r['simulated_s']:.0f} ms simulated")
+
+
+def table_lines(r: dict) -> list:
+    """The markdown table: a row per step length and solver."""
+    lines = ["| dt | solver | step ms | CG it./step | halvings | unconverged sub-steps | stiff groups | worst residual |",
              "|---|---|---|---|---|---|---|---|"]
     for dt in DTS:
         key = f"dt{dt * 1e3:g}ms"
@@ -97,4 +102,8 @@ def format_slivers(r: dict) -> str:
             lines.append(f"| {dt * 1e3:g} ms | {name} | {x['step_ms']:.2f} | {x['cg_iterations_per_step']:.0f} | "
                          f"{x['halvings']} | {x['unconverged_substeps']} | {x['stiff_groups']} | "
                          f"{x['worst_residual']:.1e} (tolerance {x['tolerance']:g}) |")
-    return "\n".join(lines)
+    return lines
+
+
+def format_slivers(r: dict) -> str:
+    return "\n".join([f"slivers: {sheet_summary(r)}"] + table_lines(r))
