@@ -737,7 +737,10 @@ __attribute__((target("avx2,fma"))) static inline void store3_avx2(double *x, __
 /* The sweeps with AVX2 + FMA, a row as fem.c's product reads one: each block column (a 4-lane load;
  * its fourth lane, the next column's first value, is never kept) times the broadcast component of
  * the neighbour, two blocks and two flaps at a time into six accumulators. The last vertex (whose
- * 4-lane loads would pass the vectors) and the constrained rows take the scalar rows. */
+ * 4-lane loads would pass the vectors) takes the scalar row. Contact and held rows run here too, a
+ * contact's filter in the lanes (filter_avx2): in the race (shirt on the walking body) ~10 % of the
+ * rows are contacts, and as scalar rows they took 40 % of the sweeps' time, their scalar stores
+ * stalling the next rows' vector loads. */
 __attribute__((target("avx2,fma"))) static inline __m256d sgs_row_avx2(const sgs_rows *m, int32_t e, int32_t e1,
                                                                         int32_t f, int32_t f1, const double *restrict x,
                                                                         __m256d a0)
@@ -785,6 +788,21 @@ __attribute__((target("avx2,fma"))) static inline __m256d pinv_avx2(const double
     return _mm256_fmadd_pd(_mm256_loadu_pd(P + 6), _mm256_permute4x64_pd(y, 0xAA), a);
 }
 
+/* S_i x at a contact row (sgs_filter) in the lanes: its result stays in a register for the AVX2
+ * store, so the next rows' 2-lane loads of it are forwarded from one store, not from three scalar
+ * ones (which the CPU cannot forward: the load waits for them to retire) */
+__attribute__((target("avx2,fma"))) static inline __m256d filter_avx2(const sgs_rows *m, int32_t i, __m256d x)
+{
+    for (int k = 0; k < m->cnt[i]; k++) {
+        const __m256d e = load3_avx2(m->N + 9 * (size_t)i + 3 * k);
+        const __m256d pr = _mm256_mul_pd(x, e);
+        __m128d d = _mm_add_pd(_mm256_castpd256_pd128(pr), _mm256_extractf128_pd(pr, 1));
+        d = _mm_add_sd(d, _mm_unpackhi_pd(d, d));
+        x = _mm256_fnmadd_pd(_mm256_broadcastsd_pd(d), e, x);
+    }
+    return x;
+}
+
 __attribute__((target("avx2,fma"))) static void sgs_backward_avx2(const sgs_rows *m, const double *restrict dr,
                                                                    double beta, bool first, double *restrict p,
                                                                    double *restrict t)
@@ -792,13 +810,21 @@ __attribute__((target("avx2,fma"))) static void sgs_backward_avx2(const sgs_rows
     const int32_t last = m->nv - 1;
     const __m256d bv = _mm256_set1_pd(beta);
     SGS_BACKWARD(m, i, {
-        if (i == last || m->fl[i] != VC_FREE) { sgs_backward_row(m, i, dr, beta, first, p, t); continue; }
+        const int8_t f = m->fl[i];
+        if (i == last) { sgs_backward_row(m, i, dr, beta, first, p, t); continue; }
         const size_t o = 3 * (size_t)i;
+        if (f == VC_PINNED || f == VC_HANDLE) {  /* zero, stored as the lanes are read */
+            store3_avx2(p + o, _mm256_setzero_pd());
+            store3_avx2(t + o, _mm256_setzero_pd());
+            continue;
+        }
         __m256d pv = load3_avx2(dr + o);
+        if (f == VC_CONTACT) pv = filter_avx2(m, i, pv);  /* sgs_backward_row's contact row */
         if (!first) pv = _mm256_fmadd_pd(bv, load3_avx2(p + o), pv);
         store3_avx2(p + o, pv);
         const __m256d a = sgs_row_avx2(m, m->lu[i], m->rp[i + 1], m->lfu[i], m->fp[i + 1], t, _mm256_setzero_pd());
-        store3_avx2(t + o, pinv_avx2(m->P + 9 * (size_t)i, _mm256_sub_pd(pv, a)));
+        const __m256d ti = pinv_avx2(m->P + 9 * (size_t)i, _mm256_sub_pd(pv, a));
+        store3_avx2(t + o, f == VC_CONTACT ? filter_avx2(m, i, ti) : ti);
     })
 }
 
@@ -810,9 +836,20 @@ __attribute__((target("avx2,fma"))) static double sgs_forward_avx2(const sgs_row
     __m256d pq0 = _mm256_setzero_pd(), pq1 = _mm256_setzero_pd();
     double pq = 0.0;
     SGS_FORWARD(m, i, {
-        if (i == last || m->fl[i] != VC_FREE) { pq += sgs_forward_row(m, i, p, t, u); continue; }
+        const int8_t f = m->fl[i];
+        if (i == last) { pq += sgs_forward_row(m, i, p, t, u); continue; }
         const size_t o = 3 * (size_t)i;
+        if (f == VC_PINNED || f == VC_HANDLE) { store3_avx2(u + o, _mm256_setzero_pd()); continue; }
         const __m256d tv = load3_avx2(t + o), pv = load3_avx2(p + o);
+        if (f == VC_CONTACT) {
+            /* sgs_forward_row's contact row: u_i = S_i Dc_i^-1 (p_i - A_ii t_i - (L u)_i) */
+            const __m256d a = sgs_row_avx2(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], u, diag_avx2(m->D + 12 * (size_t)i, tv));
+            const __m256d uv = filter_avx2(m, i, pinv_avx2(m->P + 9 * (size_t)i, _mm256_sub_pd(pv, a)));
+            store3_avx2(u + o, uv);
+            const __m256d w = _mm256_and_pd(_mm256_mul_pd(pv, _mm256_add_pd(tv, uv)), keep);
+            if (i & 1) pq1 = _mm256_add_pd(pq1, w); else pq0 = _mm256_add_pd(pq0, w);
+            continue;
+        }
         /* sgs_forward_row's free row: u_i = D_i^-1 (p_i - (L u)_i) - t_i, t_i + u_i = that inverse's
            result */
         const __m256d a = sgs_row_avx2(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], u, _mm256_setzero_pd());
