@@ -870,11 +870,14 @@ __attribute__((target("avx2,fma"))) static double sgs_unsplit_avx2(const sgs_row
     __m256d s0 = _mm256_setzero_pd(), s1 = _mm256_setzero_pd();
     double q = 0.0;
     SGS_BACKWARD(m, i, {
-        if (i == last || m->fl[i] != VC_FREE) { q += sgs_unsplit_row(m, i, rh, store); continue; }
+        const int8_t f = m->fl[i];
+        if (f == VC_PINNED || f == VC_HANDLE) continue;  /* zero, as sgs_unsplit_row */
+        if (i == last) { q += sgs_unsplit_row(m, i, rh, store); continue; }
         const size_t o = 3 * (size_t)i;
-        const __m256d a = _mm256_and_pd(
+        __m256d a = _mm256_and_pd(
             sgs_row_avx2(m, m->rp[i], m->lu[i], m->fp[i], m->lfu[i], rh, diag_avx2(m->D + 12 * (size_t)i, load3_avx2(rh + o))),
             keep);
+        if (f == VC_CONTACT) a = filter_avx2(m, i, a);
         if (store) store3_avx2(rh + o, a);
         if (i & 1) s1 = _mm256_fmadd_pd(a, a, s1); else s0 = _mm256_fmadd_pd(a, a, s0);
     })
