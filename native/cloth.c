@@ -48,6 +48,7 @@ void tc_cloth_destroy(tc_cloth *c)
     tc_amg_free(c->amg);
     tc_sgs_free(c->sgs);
     tc_stiff_free(c->stiff);
+    tc_discs_free(c->discs);
     free(c);
 }
 
@@ -160,7 +161,7 @@ int tc_cloth_num_groups(const tc_cloth *c) { return c->ng; }
 tc_stats tc_cloth_stats(const tc_cloth *c) { return c->stats; }
 
 /* The FOR_EACH_VEC arrays, then the storage outside them: one table is the whole account. */
-enum { MEMORY_EXTRA = 4 };
+enum { MEMORY_EXTRA = 5 };
 size_t tc_cloth_memory_count(void) { return tc_vec_table_len + MEMORY_EXTRA; }
 const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *held)
 {
@@ -176,6 +177,7 @@ const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *h
     case 1: *used = *held = tc_amg_bytes(c->amg); return "amg";
     case 2: *used = *held = tc_sgs_bytes(c->sgs); return "sgs";
     case 3: *used = *held = tc_stiff_bytes(c->stiff); return "stiff";
+    case 4: *used = *held = tc_discs_bytes(c->discs); return "discs";
     default: return NULL;
     }
 }

@@ -82,6 +82,10 @@
 #define TC_FAN_MAX 256
 /* Regions over threshold that may start a tear in one step (the best ones first; the others start
  * in the next steps). */
+/* ints a triangle the cache of material discs (tear.c) may hold at most: a disc of radius r on a
+ * mesh of edge h holds ~2 pi r^2 / (0.43 h^2) triangles; 64 covers every vertex's disc up to
+ * r ~ 2.3 h (~100 triangles), and only vertices whose disc stress is asked for get one */
+#define TC_DISC_POOL_PER_TRIANGLE 64
 #define TC_TEAR_CANDIDATES 8
 /* Vertices of one region tried, best first, when the remesh cannot cut at the better ones. */
 #define TC_REGION_TRIES 4

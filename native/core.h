@@ -96,6 +96,7 @@ typedef struct tc_handle {
 typedef struct tc_amg tc_amg;
 typedef struct tc_sgs tc_sgs;
 typedef struct tc_stiff tc_stiff;
+typedef struct tc_discs tc_discs;
 
 typedef struct tc_stencil {
     int32_t v[4];            /* shared edge v0-v1, opposite vertices v2, v3 */
@@ -238,6 +239,9 @@ struct tc_cloth {
     /* the stiff groups block Jacobi inverts together (stiff.c): found from each sub-step's matrix,
        never part of a snapshot; NULL until a block-Jacobi solve looks for them */
     tc_stiff *stiff;
+    /* the vertices' material discs (tear.c), kept from one step to the next while the topology
+       stays: derived, never part of a snapshot; NULL until a disc stress is needed */
+    tc_discs *discs;
 };
 
 /* Every array of a cloth (cloth.c's FOR_EACH_VEC as a table): its name, where it sits in the struct
@@ -469,6 +473,8 @@ int tc_fragments_remove(tc_cloth *c);
 
 /* ---------------- tear.c ---------------- */
 int tc_tear_step(tc_cloth *c, double dt);  /* dt: the step just taken (s), for the tips' advance */
+void tc_discs_free(tc_discs *d);
+size_t tc_discs_bytes(const tc_discs *d);
 
 /* ---------------- step.c ---------------- */
 void tc_refresh(tc_cloth *c);  /* element state and forces of the current positions, if stale */

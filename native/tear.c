@@ -22,6 +22,7 @@
 #include "core.h"
 
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 
@@ -134,6 +135,119 @@ static int32_t disc_walk(tc_cloth *c, const double *P, double r, const int32_t *
     return n;
 }
 
+/* The discs kept (c->discs). A vertex's disc - its fan, then the triangles disc_walk adds, in the
+ * walk's order - depends on the topology, the rest positions and the radius only, so it is kept
+ * from one step to the next until one of them changes (a cut, a snapshot restored, a new
+ * tear_radius): the disc stress then sums a list instead of walking. Why: with a tip running
+ * through a sheet stressed near its threshold everywhere (a banknote pulled apart: Table I's
+ * "after" column), each step evaluates the disc stress of every vertex of the tip's region, and
+ * the walks took ~1 ms a step there. The result is the walk's, bit for bit (same triangles, same
+ * order). Lists are made only for vertices whose stress is asked for, into one pool of at most
+ * TC_DISC_POOL_PER_TRIANGLE ints a triangle; past that, the walk is used uncached. */
+struct tc_discs {
+    int32_t *off;        /* (nv) start of a vertex's list in pool, -1: none yet */
+    int32_t *pool;       /* per list: nf, m, the fan's nf triangles, the disc's m (the fan's again first) */
+    size_t used, cap, nv_cap;
+    uint64_t pair_version;  /* the key the lists hold for */
+    int32_t nv, nt;
+    double radius;
+};
+
+void tc_discs_free(tc_discs *d)
+{
+    if (!d) return;
+    free(d->off);
+    free(d->pool);
+    free(d);
+}
+
+size_t tc_discs_bytes(const tc_discs *d)
+{
+    return d ? sizeof *d + d->nv_cap * sizeof(int32_t) + d->cap * sizeof(int32_t) : 0;
+}
+
+/* The cache, emptied when its key no longer holds; NULL when it cannot be had (no memory: the
+ * walks then run uncached, as before) */
+static tc_discs *discs_ready(tc_cloth *c)
+{
+    tc_discs *d = c->discs;
+    if (!d && !(d = c->discs = calloc(1, sizeof *d))) return NULL;
+    if (d->off && d->pair_version == c->pair_version && d->nv == c->nv && d->nt == c->nt &&
+        d->radius == c->mat.tear_radius)
+        return d;
+    if (d->nv_cap < (size_t)c->nv) {
+        int32_t *o = realloc(d->off, (size_t)c->nv * sizeof *o);
+        if (!o) return NULL;
+        d->off = o;
+        d->nv_cap = (size_t)c->nv;
+    }
+    for (int32_t v = 0; v < c->nv; v++) d->off[v] = -1;
+    d->used = 0;
+    d->pair_version = c->pair_version;
+    d->nv = c->nv;
+    d->nt = c->nt;
+    d->radius = c->mat.tear_radius;
+    return d;
+}
+
+/* Vertex v's fan (*nf triangles, <= 0: none, nothing returned; into fan) and disc (*m triangles,
+ * *disc), from the cache or walked (then *disc is tqueue's, valid until the next walk). The fan is
+ * kept apart from the disc's first triangles: on a corrupted mesh it may name one twice, which the
+ * walk does not. */
+static const int32_t *disc_of(tc_cloth *c, int32_t v, int32_t fan[TC_FAN_MAX], int *nf, int32_t *m, const int32_t **disc)
+{
+    tc_discs *d = discs_ready(c);
+    if (d && d->off[v] >= 0) {
+        const int32_t *l = d->pool + d->off[v];
+        *nf = l[0];
+        *m = l[1];
+        *disc = l + 2 + l[0];
+        return l + 2;
+    }
+    bool closed;
+    *nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
+    *m = 0;
+    if (*nf <= 0) return NULL;
+    *m = disc_walk(c, (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)v, c->mat.tear_radius, fan, *nf, BY_CENTROID);
+    const int32_t *Q = tc_vec_ptr(&c->tqueue);
+    *disc = Q;
+    const size_t need = d ? d->used + 2 + (size_t)*nf + (size_t)*m : 0,
+                 limit = (size_t)TC_DISC_POOL_PER_TRIANGLE * (size_t)c->nt;
+    if (!d || need > limit) return fan;
+    if (need > d->cap) {
+        size_t cap = d->cap ? 2 * d->cap : 4096;
+        while (cap < need) cap *= 2;
+        if (cap > limit) cap = limit;
+        int32_t *p = realloc(d->pool, cap * sizeof *p);
+        if (!p) return fan;
+        d->pool = p;
+        d->cap = cap;
+    }
+    int32_t *l = d->pool + d->used;
+    l[0] = *nf;
+    l[1] = *m;
+    memcpy(l + 2, fan, (size_t)*nf * sizeof *fan);
+    memcpy(l + 2 + *nf, Q, (size_t)*m * sizeof *Q);
+    d->off[v] = (int32_t)d->used;
+    d->used = need;
+    *disc = l + 2 + *nf;
+    return l + 2;
+}
+
+/* Vertex v's fan: the cached one when its disc was asked for already, else walked into buf */
+static const int32_t *fan_of(tc_cloth *c, int32_t v, int32_t buf[TC_FAN_MAX], int *nf)
+{
+    tc_discs *d = discs_ready(c);
+    if (d && d->off[v] >= 0) {
+        const int32_t *l = d->pool + d->off[v];
+        *nf = l[0];
+        return l + 2;
+    }
+    bool closed;
+    *nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, buf, TC_FAN_MAX, &closed);
+    return buf;
+}
+
 /* The stress of vertex v over its material disc: area-weighted mean tensor S (9), the vertex
  * normal n (from its own fan, the local tangent plane), and the largest in-plane principal value
  * and direction. Why an average over a material radius rather than one vertex ring: a ring's
@@ -142,9 +256,10 @@ static int32_t disc_walk(tc_cloth *c, const double *P, double r, const int32_t *
  * at the same load and place on any mesh; with a radius below the ring it is the ring. */
 static double disc_stress(tc_cloth *c, int32_t v, double *dir, double *normal, double *Sout)
 {
-    int32_t fan[TC_FAN_MAX];
-    bool closed;
-    int nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
+    int nf;
+    int32_t m, fan_walked[TC_FAN_MAX];
+    const int32_t *Q;
+    const int32_t *fan = disc_of(c, v, fan_walked, &nf, &m, &Q);
     if (nf <= 0) return 0.0;
     double n[3] = {0};
     for (int i = 0; i < nf; i++) {
@@ -155,8 +270,6 @@ static double disc_stress(tc_cloth *c, int32_t v, double *dir, double *normal, d
     double ln = sqrt(dot3(n, n));
     if (!(ln > 0)) return 0.0;
     for (int q = 0; q < 3; q++) n[q] /= ln;
-    int32_t m = disc_walk(c, (const double *)tc_vec_ptr(&c->rest) + 3 * (size_t)v, c->mat.tear_radius, fan, nf, BY_CENTROID);
-    const int32_t *Q = tc_vec_ptr(&c->tqueue);
     const double *A = tc_vec_ptr(&c->area);
     double S[9] = {0}, wsum = 0.0;
     for (int32_t i = 0; i < m; i++) {
@@ -214,11 +327,11 @@ static double threshold(const tc_cloth *c, int32_t v)
  * current shape must follow it in the rest shape too); area-weighted means over v's fan,
  * sign-aligned to the first. w and f are not orthogonal in a sheared sheet. False when they
  * cancel out (the isotropic rule is then used at v). */
-static bool vertex_axes(const tc_cloth *c, int32_t v, const double *n, double *w, double *f)
+static bool vertex_axes(tc_cloth *c, int32_t v, const double *n, double *w, double *f)
 {
-    int32_t fan[TC_FAN_MAX];
-    bool closed;
-    int nf = tc_fan_walk(c, v, ((const int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, fan, TC_FAN_MAX, &closed);
+    int32_t buf[TC_FAN_MAX];
+    int nf;
+    const int32_t *fan = fan_of(c, v, buf, &nf);
     const double *x = tc_vec_ptr(&c->x), *G = tc_vec_ptr(&c->grad), *AX = tc_vec_ptr(&c->taxis), *A = tc_vec_ptr(&c->area);
     const int32_t *T = tc_vec_ptr(&c->tri);
     double aw[3] = {0}, af[3] = {0};
@@ -577,9 +690,9 @@ static int32_t flood(tc_cloth *c, int32_t v, int32_t emark, int32_t fmark)
     vs[3 * (size_t)v + MARK_FLOODED] = fmark;
     q[n++] = v;
     for (int32_t head = 0; head < n; head++) {
-        int32_t u = q[head], fan[TC_FAN_MAX];
-        bool closed;
-        int nf = tc_fan_walk(c, u, ((int32_t *)tc_vec_ptr(&c->vtri))[u], NULL, 0, fan, TC_FAN_MAX, &closed);
+        int32_t u = q[head], buf[TC_FAN_MAX];
+        int nf;
+        const int32_t *fan = fan_of(c, u, buf, &nf);
         for (int i = 0; i < nf; i++)
             for (int k = 0; k < 3; k++) {
                 int32_t w = ((const int32_t *)tc_vec_ptr(&c->tri))[3 * (size_t)fan[i] + k];
