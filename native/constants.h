@@ -175,6 +175,11 @@
  * iterations fresh, 27 at every 4th or 8th) every sub-step was 8-10 % cheaper than every 4th or 8th. */
 #define TC_AMG_REFRESH 4
 #define TC_AMG_REFRESH_ITERATIONS 16
+/* ... but not while the solves take this many iterations or fewer: a refresh cannot pay there (Table
+ * I's banknote, near static under its slow pull, converges in one iteration from its warm start;
+ * its refreshes every 4th sub-step were half its mean FEM time: 0.43 of 0.90 ms). A cycle that
+ * weakens still gets one from the staleness rule below. */
+#define TC_AMG_REFRESH_MIN_ITERATIONS 3
 /* numeric refreshes on one set of prolongators before they are made again (RESMOOTH) */
 #define TC_AMG_RESMOOTH 8
 /* blocks of a coarse operator summed in double at a time by a refresh (counted in slots, lower ones

@@ -147,7 +147,8 @@ static void amg_prepare(tc_cloth *c)
         c->amg_stale = false;
         c->amg_stale_refreshed = false;
         c->amg_fresh_rate = 0.0;
-    } else if (c->amg_stale || c->amg_age + 1 >= (c->amg_last_iterations >= TC_AMG_REFRESH_ITERATIONS ? 1 : every)) {
+    } else if (c->amg_stale || (c->amg_last_iterations > TC_AMG_REFRESH_MIN_ITERATIONS &&
+                                c->amg_age + 1 >= (c->amg_last_iterations >= TC_AMG_REFRESH_ITERATIONS ? 1 : every))) {
         /* a weak cycle is first refreshed (a third of a build: at 100K triangles a build after
            every slow solve of the first, accelerating sub-steps doubled their cost) */
         if (tc_amg_refresh(c->amg, c)) c->stats.amg_fallbacks++;
