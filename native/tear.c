@@ -234,14 +234,16 @@ static const int32_t *disc_of(tc_cloth *c, int32_t v, int32_t fan[TC_FAN_MAX], i
     return l + 2;
 }
 
-/* Vertex v's fan: the cached one when its disc was asked for already, else walked into buf */
+/* Vertex v's fan into buf: copied from the cache when its disc was asked for already (a copy: the
+ * callers ask for discs while they read it, which may move the pool), else walked */
 static const int32_t *fan_of(tc_cloth *c, int32_t v, int32_t buf[TC_FAN_MAX], int *nf)
 {
     tc_discs *d = discs_ready(c);
     if (d && d->off[v] >= 0) {
         const int32_t *l = d->pool + d->off[v];
         *nf = l[0];
-        return l + 2;
+        memcpy(buf, l + 2, (size_t)l[0] * sizeof *buf);
+        return buf;
     }
     bool closed;
     *nf = tc_fan_walk(c, v, ((int32_t *)tc_vec_ptr(&c->vtri))[v], NULL, 0, buf, TC_FAN_MAX, &closed);
