@@ -29,8 +29,8 @@ its wall time (collision + FEM + tearing + Python glue).
   cloth size, so the curve is the cloth's.
 
 Timing: median of ``steps`` steps after ``warmup`` steps (the first detection and allocations);
-fewer steps at large sizes (``default_steps``) so the whole default run stays around 3 minutes on
-two cores. Without collision, below 50K triangles and with block Jacobi (a snapshot rebuilds the
+fewer steps at large sizes (``default_steps``, at least 5) so the whole default run stays around
+3.5 minutes on two cores. Without collision, below 50K triangles and with block Jacobi (a snapshot rebuilds the
 multigrid's hierarchy, which the first window did not) the window is replayed from a snapshot of its
 first state until the point has ``REPLAY_CPU_S`` of steps (``replays``; ``timed_steps`` counts
 them all, the medians are over them; ``replay_exact`` says each replay made the window's CG
@@ -198,14 +198,19 @@ def make_scene(family: str, target: float, seed: int = 0) -> dict:
 
 
 def default_steps(triangles: int) -> int:
-    """Steps measured per point: 30 up to 3K triangles, ~10 at 10K, 4 at 30K, 2 at 100K (a 100K
-    step takes seconds; the default run of 40 points then stays near 3 minutes on two cores)."""
-    return int(np.clip(round(30.0 * (3000.0 / max(triangles, 1)) ** 0.9), 2, 30))
+    """Steps measured per point: 30 up to 3K triangles, ~10 at 10K, 5 from 30K on (a 100K step
+    takes a quarter to half a second; the default run of 40 points then stays near 3.5 minutes on
+    two cores). Not fewer than 5: with 2 timed steps at 100K (this rule before) the median was one
+    step's luck (a multigrid refresh of 37 or 58 ms in it), and the fitted exponent moved 1.22 ->
+    1.39 between two runs of the same build an hour apart."""
+    return int(np.clip(round(30.0 * (3000.0 / max(triangles, 1)) ** 0.9), 5, 30))
 
 
 def default_warmup(triangles: int) -> int:
-    """Unmeasured first steps (first full collision detection, first allocations)."""
-    return 3 if triangles < 20000 else 1
+    """Unmeasured first steps (first full collision detection, first allocations): 3 at every
+    size, so every point times the same phase of the pull (1 above 20K before: the large points
+    timed the first, lighter steps of the pull that the small ones skipped)."""
+    return 3
 
 
 # ------------------------------------------------------------------------------------------------
