@@ -1991,6 +1991,7 @@ __attribute__((target("avx2,fma"))) static double fine_gs_avx2(const tc_cloth *c
     double dsc = 0.0;
     for (int32_t k = 0; k < m.nv; k++) {
         const int32_t i = forward ? k : last - k;
+        if (fl[i] == VC_PINNED || fl[i] == VC_HANDLE) continue;  /* held: see fine_first_avx2 */
         if (i == last || fl[i] != VC_FREE) { dsc += gs_row(&m, c, Pv, fl, i, b, x, res); continue; }
         double *xi = x + 3 * (size_t)i;
         const double *d = D + 12 * (size_t)i;
@@ -2066,6 +2067,13 @@ __attribute__((target("avx2,fma"))) static void fine_first_avx2(const tc_cloth *
     const __m256d keep = _mm256_castsi256_pd(_mm256_set_epi64x(0, -1, -1, -1));
     const int32_t last = m.nv - 1;
     for (int32_t i = 0; i < m.nv; i++) {
+        /* A held row (pin, handle) is skipped, here and in fine_gs_avx2: its x_i is 0 and stays 0
+           (the cycle starts from zero and S P filters the coarse correction), so it changes no
+           x, adds A_ji x_i = 0 to no residual and b_i x_i = 0 to no dot, and its own residual is
+           zeroed by fine_residual_filter. The scalar row would read its whole row for nothing and
+           store x_i by three scalar stores that the next rows' 4-lane loads cannot be forwarded
+           from. Table I's banknote holds 342 of its 1017 vertices by its two handles. */
+        if (fl[i] == VC_PINNED || fl[i] == VC_HANDLE) continue;
         if (i == last || fl[i] != VC_FREE) { gs_row(&m, c, Pv, fl, i, b, x, res); continue; }
         __m256d a0 = _mm256_setzero_pd(), a1 = _mm256_setzero_pd(), a2 = _mm256_setzero_pd(), a3 = _mm256_setzero_pd();
         for (int32_t s = rp[i]; s < rp[i + 1]; s++) {
