@@ -137,8 +137,10 @@ def run_blender(tmp_path: Path, body: str, *args, timeout: float = 120.0, name: 
     """Run PRELUDE + body in a fresh Python with bpy; returns what it passed to result()."""
     script = tmp_path / name
     script.write_text(PRELUDE + textwrap.dedent(body))
-    proc = subprocess.run([sys.executable, str(script), *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, cwd=tmp_path)
+    # -X faulthandler: a child that dies of a signal prints every thread's Python stack first (one
+    # Blender child died of SIGSEGV once in a loaded CI run, with nothing on stderr to say where)
+    proc = subprocess.run([sys.executable, "-X", "faulthandler", str(script), *map(str, args)], capture_output=True,
+                          text=True, timeout=timeout, cwd=tmp_path)
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out[-4000:]
     lines = [line for line in proc.stdout.splitlines() if line.startswith("RESULT ")]
