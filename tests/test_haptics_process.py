@@ -129,3 +129,59 @@ def test_device_hooks_reach_the_servo_process_only_when_importable():
     for bad in ("fakes", "fakes:no_such_hook", "no_such_module:x"):
         with pytest.raises(ConfigError, match="hook"):
             device_specs.resolve(bad)
+
+
+def test_devices_read_while_the_session_stops_on_another_thread(monkeypatch):
+    # stop() runs on the session's thread when a device goes (or the servo dies) while Blender's
+    # thread still reads the devices; the shared block's close() dropped its views before it
+    # unmapped, and a read in between found `prox` gone (AttributeError: 'NoneType' object has no
+    # attribute 'prox', one unplug test in ~130 loaded runs). Here close() is slowed down between
+    # dropping the views and unmapping, so every read racing it lands in that window.
+    import threading
+    from tearcloth.haptics import servo_process
+
+    real_close = servo_process._Shared.close
+
+    def slow_close(self):
+        self.header = self.sim = self.prox = self.ring = self.ring_count = self.target = None
+        time.sleep(0.05)
+        real_close(self)
+
+    monkeypatch.setattr(servo_process._Shared, "close", slow_close)
+    sp = ServoProcess(_specs(), stall_timeout_s=20.0, priority=None)
+    errors, reads = [], [0]
+    halt = threading.Event()
+
+    def reader():
+        while not halt.is_set():
+            try:
+                for h in sp.hands:
+                    d = sp.device(h)
+                    d.state, d.message, d.force, d.position
+                    sp.proxy(h)
+                    sp.publish(h, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+                    sp.set_sim_time(1.0)
+                reads[0] += 1
+            except Exception as e:  # noqa: BLE001 - any exception here is the failure
+                errors.append(repr(e))
+                return
+
+    try:
+        sp.open()
+        sp.start({h: falcon_coupling(0.08, k_position=2000.0, k_velocity=0.0, force_scale=0.1) for h in sp.hands})
+        t = threading.Thread(target=reader, daemon=True)
+        t.start()
+        time.sleep(0.1)
+        before = reads[0]
+        sp.stop()
+        time.sleep(0.05)
+        halt.set()
+        t.join(5.0)
+    finally:
+        halt.set()
+        sp.stop()
+    assert not errors, errors
+    assert before > 0 and reads[0] > before, "the reader did not run across the stop"
+    for h in ("left", "right"):
+        assert sp.device(h).state.value == "closed"
+        assert np.all(sp.device(h).force == sp.device(h).force)  # the last force stays readable

@@ -970,6 +970,11 @@ class ServoProcess:
         self._msg_seen: Dict[str, float] = {}
         self._pending: List[tuple] = []
         self._shared: Optional[_Shared] = None
+        # held by every reader and writer of the shared block and by close(): stop() runs on the
+        # session's thread when a device goes (or the servo dies) while Blender's thread still reads
+        # the devices' state; without it a read found the block gone half-way (AttributeError on
+        # 'prox', seen once in ~130 runs of the unplug test). Short holds only: no I/O under it.
+        self._shared_lock = threading.Lock()
         self._conn: Optional[Connection] = None
         self._proc: Optional[subprocess.Popen] = None
         self._lock = threading.RLock()
@@ -985,6 +990,7 @@ class ServoProcess:
         self._sentinel_stop = threading.Event()
         self._sentinels: List[threading.Thread] = []
         self._last_prox: Dict[str, np.ndarray] = {}
+        self._last_msg: Dict[str, str] = {}
         self._good: Dict[str, np.ndarray] = {}
         self._opened = False
         self._open_deadline: Optional[float] = None
@@ -1032,13 +1038,15 @@ class ServoProcess:
     @stall_timeout_s.setter
     def stall_timeout_s(self, value: float) -> None:
         self._stall = float(value)
-        if self._shared is not None:
-            self._shared.header[_H_STALL] = self._stall  # one float the servo reads per tick
+        with self._shared_lock:
+            if self._shared is not None:
+                self._shared.header[_H_STALL] = self._stall  # one float the servo reads per tick
 
     def set_sim_time(self, t: float) -> None:
         """The simulated time (s), for emulated hands that follow it."""
-        if self._shared is not None:
-            self._shared.header[_H_SIM_TIME] = float(t)
+        with self._shared_lock:
+            if self._shared is not None:
+                self._shared.header[_H_SIM_TIME] = float(t)
 
     # ---- life cycle ------------------------------------------------------------------------------
     def _call(self, *msg, expect: str, timeout_s: Optional[float] = None):
@@ -1182,8 +1190,9 @@ class ServoProcess:
         return self._targets[self._check(hand)].copy()
 
     def _write_target(self, hand: str) -> None:
-        if self._shared is not None and hand in self._targets:
-            _write(self._shared.target[self._hands.index(hand)], ((_T_POS, self._targets[hand]), (_T_SET, 1.0)))
+        with self._shared_lock:
+            if self._shared is not None and hand in self._targets:
+                _write(self._shared.target[self._hands.index(hand)], ((_T_POS, self._targets[hand]), (_T_SET, 1.0)))
 
     def start(self, couplings: Mapping[str, HandCoupling]) -> None:
         """Start the servo threads with these couplings (the devices must have been opened)."""
@@ -1256,32 +1265,37 @@ class ServoProcess:
     def close(self) -> None:
         """Release the shared memory (``stop`` does; the last device blocks are kept: what each
         device was left with stays readable)."""
-        if self._shared is not None:
-            self._last_prox = {h: self._shared.prox[i].copy() for i, h in enumerate(self._hands)}
-            self._shared.close()
-            self._shared = None
+        with self._shared_lock:
+            if self._shared is not None:
+                self._last_prox = {h: self._shared.prox[i].copy() for i, h in enumerate(self._hands)}
+                self._last_msg = {h: _read_message(self._shared.msg[i]) for i, h in enumerate(self._hands)}
+                self._shared.close()
+                self._shared = None
 
     # ---- exchange --------------------------------------------------------------------------------
     def publish(self, hand: str, f_tear, handle_position, **linearisation) -> None:
         mb = self.mailbox(hand)
         mb.publish(f_tear, handle_position, **linearisation)  # validates in this thread
         s = mb.latest
-        if self._shared is None:
-            return
-        block = self._shared.sim[self._hands.index(hand)]
         lin = s.f0 is not None
         # one slice store of the contiguous fields _S_F.._S_NUM (per-field stores cost this
         # thread, which shares the GIL with Blender's Python, 30 us a hand a step)
-        block[0] += 1.0  # odd: writing (the seqlock of _write)
-        block[_S_F:_S_NUM + 1] = [*s.f_tear.tolist(), *s.handle_position.tolist(), 1.0 if lin else 0.0,
-                                  *(s.f0.tolist() if lin else _ZEROS3), *(s.stiffness.ravel().tolist() if lin else _ZEROS9),
-                                  *(s.x0.tolist() if lin else _ZEROS3), s.stamp, float(s.seq)]
-        block[0] += 1.0
+        values = [*s.f_tear.tolist(), *s.handle_position.tolist(), 1.0 if lin else 0.0,
+                  *(s.f0.tolist() if lin else _ZEROS3), *(s.stiffness.ravel().tolist() if lin else _ZEROS9),
+                  *(s.x0.tolist() if lin else _ZEROS3), s.stamp, float(s.seq)]
+        with self._shared_lock:
+            if self._shared is None:
+                return
+            block = self._shared.sim[self._hands.index(hand)]
+            block[0] += 1.0  # odd: writing (the seqlock of _write)
+            block[_S_F:_S_NUM + 1] = values
+            block[0] += 1.0
 
     def _read_proxy(self, hand: str) -> Optional[np.ndarray]:
-        if self._shared is None:
-            return self._last_prox.get(hand)
-        v = _read(self._shared.prox[self._hands.index(hand)])
+        with self._shared_lock:
+            if self._shared is None:
+                return self._last_prox.get(hand)
+            v = _read(self._shared.prox[self._hands.index(hand)])
         if v is None:  # the servo is mid-write (preempted): the last consistent copy
             return self._good.get(hand)
         self._good[hand] = v
@@ -1289,11 +1303,18 @@ class ServoProcess:
 
     def _message(self, hand: str, old: str) -> str:
         i = self._hands.index(hand)
-        seq = self._shared.prox[i][_P_MSG]
-        if self._msg_seen.get(hand) == seq:
-            return old
-        self._msg_seen[hand] = seq
-        return _read_message(self._shared.msg[i])
+        with self._shared_lock:
+            if self._shared is None:  # closed since the caller looked: what close() kept of the block
+                seq = self._last_prox[hand][_P_MSG] if hand in self._last_prox else None
+                if seq is None or self._msg_seen.get(hand) == seq:
+                    return old
+                self._msg_seen[hand] = seq
+                return self._last_msg.get(hand, old)
+            seq = self._shared.prox[i][_P_MSG]
+            if self._msg_seen.get(hand) == seq:
+                return old
+            self._msg_seen[hand] = seq
+            return _read_message(self._shared.msg[i])
 
     def proxy(self, hand: str) -> Optional[ProxySample]:
         v = self._read_proxy(self._check(hand))
@@ -1310,21 +1331,26 @@ class ServoProcess:
         """Move the rendered forces logged since the last call into ``force_log``; returns how
         many. Entries overwritten before being read (a drain more than 65 s late) are counted in
         ``force_log_lost``."""
-        sh = self._shared
-        if sh is None:
-            return 0
+        rows = []
+        with self._shared_lock:  # copied under the lock, recorded after it (close() may be waiting)
+            sh = self._shared
+            if sh is None:
+                return 0
+            for i, hand in enumerate(self._hands):
+                end = int(sh.ring_count[i])
+                start = self._ring_read[hand]
+                if end - start > _RING:
+                    self.force_log_lost += end - start - _RING
+                    start = end - _RING
+                if end > start:
+                    idx = np.arange(start, end) % _RING
+                    rows.append((hand, sh.ring[i][idx]))  # fancy indexing: a copy
+                self._ring_read[hand] = end
         n = 0
-        for i, hand in enumerate(self._hands):
-            end = int(sh.ring_count[i])
-            start = self._ring_read[hand]
-            if end - start > _RING:
-                self.force_log_lost += end - start - _RING
-                start = end - _RING
-            for k in range(start, end):
-                row = sh.ring[i][k % _RING]
+        for hand, block in rows:
+            for row in block:
                 force_log.record(hand, float(row[0]), row[1:4].copy())
-            self._ring_read[hand] = end
-            n += end - start
+            n += len(block)
         return n
 
     def stats(self, hand: Optional[str] = None) -> dict:
