@@ -48,6 +48,22 @@
  * rebuilt the hierarchy.) The race scene took 53 iterations a sub-step with the exact update and
  * 57 with contacts left to the sweeps.
  *
+ * The contact correction (tc_amg_contacts). Positive is not strong: the coarse correction runs
+ * through S P, whose Galerkin operator is P^T S A S P, and P^T A P counts the stiffness of the
+ * directions a contact takes away as free, so the cycle overshot there. On a grid with a fifth of
+ * its vertices touching (test_cg_iterations_agree_across_kernels) CG left a relative residual force
+ * of 1.6 after 10 iterations (8.4e-5 without the contacts) and was not at 1e-6 after 60; the same
+ * sensitivity made the AVX2 and scalar kernels part by 4.7e-12 of the solution there. So, while
+ * contacts last, A_1 = P^T (S A S + tau (I - S) d) P: the build's A_1 is kept (base1) and
+ * Delta = P^T (S A S - A + tau (I - S) d) P is added over the rows that touch a contact vertex
+ * (contact_delta: one pass like the Galerkin row's, in double, narrowed once), then the coarser
+ * levels and the coarsest factor are made again from it. tau (constants.h) keeps an aggregate whose
+ * vertices are all held (S = 0) definite. Made again after every refresh or build and when a
+ * fraction of the contacts changed (a correction for a nearby contact set is still a symmetric
+ * positive A_1): on the race's shirt with the multigrid forced, 55 -> 39 CG iterations a sub-step
+ * and FEM time 0.78x; on the same shirt at 10K vertices (the multigrid "auto" picks) 65 -> 48 and
+ * 0.75x.
+ *
  * The matrix changes every sub-step (co-rotation, damping, contacts) while the mesh rarely does, so
  * the hierarchy is kept in three layers: the aggregates (made again when vertices were removed or
  * renumbered, pins or handles changed, a snapshot was taken - tc_amg_forget: a resumed run must
@@ -128,6 +144,17 @@ struct tc_amg {
     int32_t *mark;
     double *acc;
     size_t cap_mark, cap_acc;
+    /* the contact correction of A_1 (tc_amg_contacts): A_1 as the build or refresh made it (contact
+       vertices free) while a correction is in A_1, and the contact set that correction is for */
+    float *base1;
+    size_t cap_base1;
+    bool base1_saved, corrected;
+    int8_t *used_cnt;      /* per vertex, the contact directions the correction was made with (0: none) */
+    float *used_n;         /* and its first direction */
+    size_t cap_used;
+    int32_t *slot_of;      /* a stored block of A_1 -> its accumulator in acc2, -1 none */
+    double *acc2;
+    size_t cap_slot_of, cap_acc2;
 };
 
 /* ---------------- memory ---------------- */
@@ -197,6 +224,7 @@ void tc_amg_free(tc_amg *h)
         tc_mem_free(L->dinv); tc_mem_free(L->agg); tc_mem_free(L->B); tc_mem_free(L->dead); tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
     }
     tc_mem_free(h->chol); tc_mem_free(h->mark); tc_mem_free(h->acc);
+    tc_mem_free(h->base1); tc_mem_free(h->slot_of); tc_mem_free(h->acc2); tc_mem_free(h->used_cnt); tc_mem_free(h->used_n);
     tc_mem_free(h);
 }
 
@@ -216,7 +244,7 @@ size_t tc_amg_bytes(const tc_amg *h)
         if (L->dead) s += n * NS;
         s += ((L->x != NULL) + (L->rhs != NULL) + (L->res != NULL)) * L->cap_vec * 8;
     }
-    return s + h->cap_chol * 8 + h->cap_mark * 4 + h->cap_acc * 8;
+    return s + h->cap_chol * 8 + h->cap_mark * 4 + h->cap_acc * 8 + h->cap_base1 * 4 + h->cap_slot_of * 4 + h->cap_acc2 * 8 + h->cap_used * 13;
 }
 
 /* ---------------- small dense algebra ---------------- */
@@ -1668,6 +1696,7 @@ void tc_amg_drop(tc_amg *h)
         tc_mem_free(L->dinv); tc_mem_free(L->agg); tc_mem_free(L->B); tc_mem_free(L->dead); tc_mem_free(L->x); tc_mem_free(L->rhs); tc_mem_free(L->res);
     }
     tc_mem_free(h->chol); tc_mem_free(h->mark); tc_mem_free(h->acc);
+    tc_mem_free(h->base1); tc_mem_free(h->slot_of); tc_mem_free(h->acc2); tc_mem_free(h->used_cnt); tc_mem_free(h->used_n);
     memset(h, 0, sizeof *h);
     h->choice = choice;
     h->forget = forget;
@@ -1698,6 +1727,7 @@ bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c)
  * coarsest level's factor. */
 static int numeric(tc_amg *h, const tc_cloth *c)
 {
+    h->base1_saved = h->corrected = false;  /* A_1 is made anew, with contact vertices free */
     for (int l = 0; l + 1 < h->nlev; l++) {
         level *N = &h->lev[l + 1];
         if (galerkin_numeric(h, c, l) || coarse_diagonal(N)) return -1;
@@ -1724,6 +1754,7 @@ int tc_amg_build(tc_amg *h, const tc_cloth *c, bool aggregate_again)
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) { bsr_free(&h->lev[l].A); bsr_free(&h->lev[l].P); }
     h->nlev = 0;
     h->agg_levels = 0;
+    h->base1_saved = h->corrected = false;
     L0->n = c->nv; L0->b = 3;
     if (level_vectors(L0, true)) goto out;
     int nlev = 1;
@@ -1811,6 +1842,211 @@ int tc_amg_refresh(tc_amg *h, const tc_cloth *c)
 }
 
 int tc_amg_refreshes(const tc_amg *h) { return h ? h->refreshes : 0; }
+
+/* ---------------- the contact correction of the first coarse operator ---------------- */
+
+/* How far the contacts moved from those the correction was made with: the vertices whose contact
+ * direction count differs, or whose first direction turned by more than TC_AMG_CONTACT_TURN;
+ * *count gets the contact vertices now. Without a correction (used_cnt NULL) every contact counts. */
+static int32_t contact_changes(const tc_amg *h, const tc_cloth *c, int32_t *count)
+{
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    const double *N = tc_vec_ptr(&c->snorm);
+    const bool have = h->corrected && h->cap_used >= (size_t)c->nv;
+    int32_t k = 0, changed = 0;
+    for (int32_t i = 0; i < c->nv; i++) {
+        const int8_t now = fl[i] == VC_CONTACT ? cnt[i] : 0;
+        k += now > 0;
+        if (!have) { changed += now > 0; continue; }
+        if (now != h->used_cnt[i]) { changed++; continue; }
+        if (now == 0) continue;
+        const double *e = N + 9 * (size_t)i;
+        const float *u = h->used_n + 3 * (size_t)i;
+        if (e[0] * u[0] + e[1] * u[1] + e[2] * u[2] < TC_AMG_CONTACT_TURN_COS) changed++;
+    }
+    *count = k;
+    return changed;
+}
+
+/* the contacts the correction is made with, for contact_changes */
+static int contacts_used(tc_amg *h, const tc_cloth *c)
+{
+    if ((size_t)c->nv > h->cap_used) {
+        int8_t *a = tc_mem_realloc(h->used_cnt, (size_t)c->nv);
+        if (a) h->used_cnt = a;
+        float *b = a ? tc_mem_realloc(h->used_n, 3 * (size_t)c->nv * sizeof(float)) : NULL;
+        if (b) h->used_n = b;
+        if (!a || !b) return -1;
+        h->cap_used = (size_t)c->nv;
+    }
+    const int8_t *fl = tc_vec_ptr(&c->vflag), *cnt = tc_vec_ptr(&c->scount);
+    const double *N = tc_vec_ptr(&c->snorm);
+    for (int32_t i = 0; i < c->nv; i++) {
+        h->used_cnt[i] = fl[i] == VC_CONTACT ? cnt[i] : 0;
+        for (int q = 0; q < 3; q++) h->used_n[3 * (size_t)i + q] = h->used_cnt[i] ? (float)N[9 * (size_t)i + q] : 0.0f;
+    }
+    return 0;
+}
+
+/* the accumulator of A_1's stored block v in acc2 (zeroed when new), NULL out of memory */
+static double *delta_slot(tc_amg *h, int32_t v, int32_t *used)
+{
+    if (h->slot_of[v] < 0) {
+        if (grow((void **)&h->acc2, &h->cap_acc2, ((size_t)*used + 1) * NS * NS, sizeof(double))) return NULL;
+        h->slot_of[v] = (*used)++;
+        memset(h->acc2 + (size_t)h->slot_of[v] * NS * NS, 0, NS * NS * sizeof(double));
+    }
+    return h->acc2 + (size_t)h->slot_of[v] * NS * NS;
+}
+
+/* Delta = P^T (S A S - A) P, the rows of A that touch a contact vertex, into acc2 (slot_of maps
+ * A_1's stored upper blocks to it; *used of them). Row i adds P_iI^T (sum_j B_ij P_j)_J to the
+ * upper blocks (J >= I), B_ij = S_i A_ij S_j - A_ij, nonzero only when i or j is a contact, as
+ * galerkin_numeric adds P_iI^T (A P)_iJ: the lower blocks are the mirrors, Delta is symmetric. */
+static int contact_delta(tc_amg *h, const tc_cloth *c, int32_t *used)
+{
+    const level *L = &h->lev[0];
+    const bsr *P = &L->P, *C = &h->lev[1].A;
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
+    const double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
+    int32_t *cols = tc_mem_malloc(((size_t)C->n + 1) * sizeof(int32_t));
+    if (!cols || scratch(h, C->n, 0)) { tc_mem_free(cols); return -1; }
+    aprow w = {h->mark, cols, NULL, 0};
+    int rcode = -1;
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (P->ptr[i] == P->ptr[i + 1]) continue;  /* P_i = 0 (a pin, a handle): nothing to add */
+        bool touch = fl[i] == VC_CONTACT;
+        for (int32_t s = rp[i]; s < rp[i + 1] && !touch; s++) touch = fl[rc[s]] == VC_CONTACT;
+        for (int32_t s = fp[i]; s < fp[i + 1] && !touch; s++) touch = fl[fc[s]] == VC_CONTACT;
+        if (!touch) continue;
+        size_t reach = (size_t)(P->ptr[i + 1] - P->ptr[i]);
+        for (int32_t s = rp[i]; s < rp[i + 1]; s++) reach += (size_t)(P->ptr[rc[s] + 1] - P->ptr[rc[s]]);
+        for (int32_t s = fp[i]; s < fp[i + 1]; s++) reach += (size_t)(P->ptr[fc[s] + 1] - P->ptr[fc[s]]);
+        if (grow((void **)&h->acc, &h->cap_acc, reach * 3 * NS + 1, sizeof(double))) goto out;
+        w.acc = h->acc;
+        double Si[9];
+        filter_matrix(c, i, Si, false);
+        const int32_t nj = 1 + (rp[i + 1] - rp[i]) + (fp[i + 1] - fp[i]);
+        for (int32_t t = 0; t < nj; t++) {
+            int32_t j;
+            double a[9];
+            if (t == 0) { j = i; from_columns(D + 12 * (size_t)i, 4, a); }
+            else if (t <= rp[i + 1] - rp[i]) { const int32_t s = rp[i] + t - 1; j = rc[s]; from_columns(RB + 9 * (size_t)s, 3, a); }
+            else {
+                const int32_t s = fp[i] + t - 1 - (rp[i + 1] - rp[i]);
+                j = fc[s];
+                for (int k = 0; k < 9; k++) a[k] = k % 4 == 0 ? FV[s] : 0.0;
+            }
+            if (fl[i] != VC_CONTACT && fl[j] != VC_CONTACT) continue;
+            if (P->ptr[j] == P->ptr[j + 1]) continue;
+            double Sj[9], u[9] = {0}, b[9] = {0};
+            filter_matrix(c, j, Sj, false);
+            gemm_acc(u, Si, a, 3, 3, 3);
+            gemm_acc(b, u, Sj, 3, 3, 3);
+            for (int k = 0; k < 9; k++) b[k] -= a[k];
+            if (t == 0) {  /* tau (I - S) d: see TC_AMG_CONTACT_OFF_RANGE */
+                const double sc = TC_AMG_CONTACT_OFF_RANGE * off_range_scale(a);
+                for (int k = 0; k < 9; k++) b[k] += sc * ((k % 4 == 0 ? 1.0 : 0.0) - Si[k]);
+            }
+            /* blk3 reads its block column by column: b's transpose in row-major order */
+            double bt[9];
+            for (int r = 0; r < 3; r++)
+                for (int q = 0; q < 3; q++) bt[3 * q + r] = b[3 * r + q];
+            for (int32_t q = P->ptr[j]; q < P->ptr[j + 1]; q++)
+                blk3(ap_slot(&w, P->col[q], 3), bt, 3, P->val + (size_t)q * 3 * NS);
+        }
+        for (int32_t q = P->ptr[i]; q < P->ptr[i + 1]; q++) {
+            const int32_t I = P->col[q];
+            double pb[3 * NS];
+            for (int k = 0; k < 3 * NS; k++) pb[k] = P->val[(size_t)q * 3 * NS + k];
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
+                const int32_t J = C->col[a];
+                const int32_t m = J >= I ? w.mark[J] : -1;
+                if (m < 0) continue;
+                double *o = delta_slot(h, C->vix[a], used);
+                if (!o) goto out;
+                pta3(o, pb, w.acc + (size_t)m * 3 * NS);
+            }
+        }
+        for (int32_t q = 0; q < w.m; q++) w.mark[w.cols[q]] = -1;
+        w.m = 0;
+    }
+    rcode = 0;
+out:
+    for (int32_t q = 0; q < w.m; q++) w.mark[w.cols[q]] = -1;
+    tc_mem_free(cols);
+    return rcode;
+}
+
+/* the levels below the first again, from A_1 as it is now */
+static int coarse_again(tc_amg *h, const tc_cloth *c)
+{
+    if (coarse_diagonal(&h->lev[1])) return -1;
+    for (int l = 1; l + 1 < h->nlev; l++)
+        if (galerkin_numeric(h, c, l) || coarse_diagonal(&h->lev[l + 1])) return -1;
+    return coarsest_factor(h);
+}
+
+int tc_amg_contacts(tc_amg *h, const tc_cloth *c)
+{
+    if (!h || h->nlev < 2) return 0;
+    bsr *C = &h->lev[1].A;
+    const size_t nup = (size_t)upper_slots(C, 0, C->n), nval = nup * NS * NS;
+    int32_t count;
+    const int32_t changed = contact_changes(h, c, &count);
+    if (count == 0) {
+        if (!h->corrected) return 0;
+        /* the contacts are gone: A_1 as it was made */
+        memcpy(C->val, h->base1, nval * sizeof(float));
+        h->corrected = false;
+        if (coarse_again(h, c)) { h->nlev = 0; h->agg_levels = 0; return -1; }
+        return 0;
+    }
+    /* a correction made for a slightly different contact set still serves (any symmetric positive
+       A_1 does, only the cycle's strength is at stake): made again when enough changed */
+    if (h->corrected && changed <= TC_AMG_CONTACT_CHANGE * count) return 0;
+    if (!h->base1_saved) {
+        if (grow((void **)&h->base1, &h->cap_base1, nval + 1, sizeof(float))) return -1;
+        memcpy(h->base1, C->val, nval * sizeof(float));
+        h->base1_saved = true;
+    }
+    if (grow((void **)&h->slot_of, &h->cap_slot_of, nup + 1, sizeof(int32_t))) return -1;
+    for (size_t v = 0; v < nup; v++) h->slot_of[v] = -1;
+    int32_t used = 0;
+    memcpy(C->val, h->base1, nval * sizeof(float));
+    h->corrected = false;
+    int rc = contact_delta(h, c, &used);
+    if (rc == 0) {
+        /* A_1 = base + Delta in double, narrowed once; a diagonal block made exactly symmetric as
+           galerkin_numeric makes it */
+        for (int32_t I = 0; I < C->n; I++)
+            for (int32_t a = C->ptr[I]; a < C->ptr[I + 1]; a++) {
+                if (C->col[a] < I || h->slot_of[C->vix[a]] < 0) continue;
+                const double *d = h->acc2 + (size_t)h->slot_of[C->vix[a]] * NS * NS;
+                float *f = C->val + (size_t)C->vix[a] * NS * NS;
+                double u[NS * NS];
+                for (int k = 0; k < NS * NS; k++) u[k] = (double)f[k] + d[k];
+                if (C->col[a] == I)
+                    for (int r = 0; r < NS; r++)
+                        for (int q = r + 1; q < NS; q++) u[r * NS + q] = u[q * NS + r] = 0.5 * (u[r * NS + q] + u[q * NS + r]);
+                for (int k = 0; k < NS * NS; k++) f[k] = (float)u[k];
+            }
+        rc = coarse_again(h, c);
+    }
+    if (rc) {
+        memcpy(C->val, h->base1, nval * sizeof(float));
+        if (coarse_again(h, c)) { h->nlev = 0; h->agg_levels = 0; }  /* no hierarchy: block Jacobi */
+        return -1;
+    }
+    if (contacts_used(h, c)) {  /* out of memory: the correction stays, made again at the next call */
+        h->corrected = false;
+        return 0;
+    }
+    h->corrected = true;
+    return 0;
+}
+
 
 void tc_amg_set_run_blocks(tc_amg *h, int32_t blocks)
 {
@@ -2166,8 +2402,24 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
             }
             bsr_apply(&L->P, u, pu, false);
             bsr_apply(&L->P, v, pv, false);
-            tc_matvec(c, pv, apv);
             double fine = 0.0, scale = 0.0;
+            if (h->corrected) {
+                /* with the contact correction: u^T P^T (S A S + tau (I - S) d) P v */
+                double *spv = tc_mem_malloc(nf * sizeof(double));
+                if (!spv) { worst = -1.0; break; }
+                memcpy(spv, pv, nf * sizeof(double));
+                tc_constraint_filter(c, spv);
+                tc_matvec(c, spv, apv);
+                tc_constraint_filter(c, apv);
+                const double *D = tc_vec_ptr(&c->diag);
+                for (size_t k = 0; k < nf; k++) {
+                    const double *Dk = D + 12 * (k / 3);
+                    apv[k] += TC_AMG_CONTACT_OFF_RANGE * (Dk[0] + Dk[5] + Dk[10]) / 3.0 * (pv[k] - spv[k]);
+                }
+                tc_mem_free(spv);
+            } else {
+                tc_matvec(c, pv, apv);
+            }
             for (size_t k = 0; k < nf; k++) { fine += pu[k] * apv[k]; scale += fabs(pu[k] * apv[k]); }
             bsr_apply(&N->A, v, w, false);
             double coarse = 0.0;

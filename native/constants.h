@@ -165,6 +165,28 @@
 #define TC_AMG_DENSE_MAX 1500       /* the coarsest level is factored when at most this big */
 #define TC_AMG_COARSE_SWEEPS 4      /* else: this many symmetric Gauss-Seidel sweep pairs there */
 #define TC_AMG_MIN_COARSENING 0.8   /* stop when a level keeps more than this fraction of rows */
+/* The contact correction of the first coarse operator (amg.c, tc_amg_contacts): A_1 = P^T (S A S +
+ * tau (I - S) d) P, tau this. tau = 0 is the Galerkin product of the coarse correction's own
+ * prolongator S P, but a contact held in all three directions (S = 0) zeroes every mode of an
+ * aggregate made of such vertices, and A_1's refresh-old base against the current rows leaves those
+ * modes indefinite by the mismatch: the cycle broke down (test_amg's held contacts) at tau = 1e-3 and
+ * 1e-4, not at 1e-2. tau = 1 is P^T A' P of the fine sweeps' operator, and damps the coarse
+ * correction of the directions a contact takes away. Measured on test_cg_iterations_agree_across_
+ * kernels's grid (325 vertices, a fifth of them contacts): relative residual force after 10 CG
+ * iterations 1.6 uncorrected, 0.0094 at tau = 0, 0.0104 at 1e-2, 0.022 at 0.1, 0.056 at 1;
+ * iterations to 1e-14: 38 / 38 / 41 / 49 (uncorrected: 1.4e-6 after 60). 0.1 keeps a 100x margin
+ * over the breakdown for 3 more iterations than the optimum. */
+#define TC_AMG_CONTACT_OFF_RANGE 0.1
+/* The correction is made again when more than this fraction of the contact vertices changed since
+ * it was made (a direction count, or the first direction turned by more than acos of
+ * TC_AMG_CONTACT_TURN_COS), and after every refresh or build; the contacts' release, touch and slide
+ * rounds (5 solves a sub-step) and the next sub-steps change a few each. Measured on the race's
+ * T-shirt with the multigrid forced (1703 vertices, 24 frames of 10 sub-steps, two runs), CG
+ * iterations and FEM ms per sub-step: uncorrected 55.4, 28.4 / 30.0 ms; corrected at every change
+ * 36.4, 30.0 / 34.2; fraction 0.1: 37.1, 24.7 / 28.2; 0.25: 38.9, 22.1 / 25.9; 0.5: 43.5, 23.5 /
+ * 25.2 (a correction there costs ~2 ms, two thirds of it the coarser levels' products again). */
+#define TC_AMG_CONTACT_CHANGE 0.25
+#define TC_AMG_CONTACT_TURN_COS 0.9
 #define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the prolongator's smoothing step */
 #define TC_AMG_REAGGREGATE 100      /* builds (new prolongators) before the aggregates are made again */
 /* Sub-steps between numeric refreshes of the coarse operators (solver.c): every TC_AMG_REFRESH

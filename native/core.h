@@ -422,6 +422,11 @@ double tc_amg_apply(const tc_cloth *c, tc_amg *h, const double *r, double *z);
 /* the Galerkin operators of the current matrix on the kept prolongators (0; -1: not valid for this
  * mesh, or out of memory: the hierarchy is dropped), and how many since the prolongators were made */
 int tc_amg_refresh(tc_amg *h, const tc_cloth *c);
+/* A_1 = P^T (S A S + tau (I - S) d) P for the current contacts (the build and refresh make it with
+   contact vertices free) and the coarser levels from it, when enough changed since the last one
+   (constants.h); 0 also when nothing was due; -1 (counted by the caller) leaves the uncorrected
+   hierarchy, or none (block Jacobi then) */
+int tc_amg_contacts(tc_amg *h, const tc_cloth *c);
 int tc_amg_refreshes(const tc_amg *h);
 void tc_amg_set_run_blocks(tc_amg *h, int32_t blocks);  /* tests: the refresh's double buffer (0: default) */
 void tc_amg_forget(tc_amg *h);  /* aggregate again at the next build, no choice history (a snapshot was taken) */

@@ -1007,6 +1007,12 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     int it = 0;
     double rr = dotn(r, r, n3);
     if (use_amg(c) && tc_amg_valid(c->amg, c)) {
+        /* the first coarse operator follows the contacts (amg.c: the contact correction) */
+        const double t0 = tc_now();
+        if (tc_amg_contacts(c->amg, c)) c->stats.amg_fallbacks++;
+        c->stats.amg_setup_seconds += tc_now() - t0;
+    }
+    if (use_amg(c) && tc_amg_valid(c->amg, c)) {
         const double rr0 = rr;
         it = pcg_amg(c, v, stop2, &rr);
         if (it >= 0) {
