@@ -185,3 +185,20 @@ def test_devices_read_while_the_session_stops_on_another_thread(monkeypatch):
     for h in ("left", "right"):
         assert sp.device(h).state.value == "closed"
         assert np.all(sp.device(h).force == sp.device(h).force)  # the last force stays readable
+
+
+def test_a_view_of_the_shared_block_outlives_its_close():
+    # numpy's ndarray(buffer=...) keeps no export of the buffer: the block was unmapped under a view
+    # still held, and reading it killed the process (SIGSEGV). Now the views pin the mapping. In a
+    # child process, as the old failure was a signal, not an exception.
+    import subprocess
+    code = ("from tearcloth.haptics.servo_process import _Shared, _P_MSG\n"
+            "s = _Shared(2)\n"
+            "v = s.prox[1]\n"
+            "v[_P_MSG] = 7.0\n"
+            "s.close()\n"
+            "print(float(v[_P_MSG]))\n")
+    r = subprocess.run([sys.executable, "-X", "faulthandler", "-c", code], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "7.0", r.stdout
+    assert "Exception ignored" not in r.stderr, r.stderr

@@ -248,7 +248,11 @@ class _Shared:
             except Exception:
                 pass
         self._buf = buf
-        a = np.ndarray((floats,), dtype=np.float64, buffer=buf)
+        # frombuffer, not ndarray(buffer=...): numpy's ndarray releases the buffer export at once and
+        # keeps only a reference, so a view alive in any thread did not stop close() from unmapping
+        # the block under it (a read through it then dies of SIGSEGV; a Blender child of the tests
+        # did, once); frombuffer's views hold the export, and close() leaves the mapping to them
+        a = np.frombuffer(buf, dtype=np.float64, count=floats)
         if self.owner:
             a[:] = 0.0
         self.header = a[:_H_SIZE]
@@ -273,7 +277,8 @@ class _Shared:
         return self._name
 
     def close(self) -> None:
-        # numpy views hold exports of the buffer: drop them before closing the mapping
+        # our views go first; one still held elsewhere holds the buffer's export (frombuffer above),
+        # so the unmapping below fails with BufferError and the mapping goes with that view
         self.header = self.sim = self.prox = self.ring = self.ring_count = self.target = None
         for m in self.msg or ():
             m.release()
@@ -285,12 +290,17 @@ class _Shared:
             else:
                 self.shm.close()
         except BufferError:
-            pass  # a view is still held somewhere: the mapping goes with the process
+            # a view is still held somewhere: the mapping stays for it (kept referenced, so no
+            # later __del__ tries the close again) and goes with the process
+            _STILL_VIEWED.append(self.mm if self.mm is not None else self.shm)
         if self.owner:
             try:
                 self.shm.unlink()
             except FileNotFoundError:
                 pass
+
+
+_STILL_VIEWED: list = []  # mappings a view outlived at close(): see _Shared.close
 
 
 def _write(block: np.ndarray, values: Sequence[Tuple[int, Any]]) -> None:
