@@ -357,7 +357,7 @@ class Cloth:
         fragments_kept (below min_fragment_area but hanging on the rest by a vertex), amg_bytes
         (bytes the multigrid hierarchy holds, 0 with block Jacobi). Preconditioner fallbacks (so
         far; the solve itself is unchanged, only slower): amg_fallbacks (the multigrid cycle broke
-        down or could not be built), sgs_fallbacks (symmetric Gauss-Seidel was asked for but its
+        down or could not be built, or its contact correction could not be made), sgs_fallbacks (symmetric Gauss-Seidel was asked for but its
         row split could not be made): block Jacobi took over. Contacts (so far):
         contact_directions_merged (directions of a vertex's contact normals left free because two
         of its contacts were nearly parallel or opposite, a squeeze: they share the others),

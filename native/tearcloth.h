@@ -193,9 +193,10 @@ typedef struct tc_stats {
     int32_t plastic_triangles;    /* yield events of the last step: triangles that yielded, summed over its sub-steps (ortho.c) */
     int32_t plastic_unconverged;  /* return mappings stopped at their iteration cap, so far (ortho.c) */
     int32_t amg_levels;       /* levels of the multigrid hierarchy in the last step's solves (0: block Jacobi) */
-    double amg_setup_seconds; /* wall time of the last step spent building or refreshing it */
+    double amg_setup_seconds; /* wall time of the last step spent building, refreshing or contact-correcting it */
     int64_t amg_fallbacks;    /* solves so far where the multigrid cycle broke down or could not be
-                                 built (out of memory) and block Jacobi took over */
+                                 built (out of memory) and block Jacobi took over, or its contact
+                                 correction could not be made (the uncorrected cycle ran) */
     int32_t fragments_removed;          /* pieces removed so far for being below min_fragment_area */
     int32_t fragment_triangles_removed; /* their triangles, so far */
     int32_t fragment_vertices_removed;  /* their vertices, so far */
