@@ -131,8 +131,8 @@ def parser() -> _Parser:
     b.add_argument("--steps", type=int, default=200, help="steps per measurement (default 200)")
     b.add_argument("--scenarios", default="cloth,banknote,tshirt", help="comma-separated: cloth,banknote,tshirt")
     b.add_argument("--no-collision", action="store_true", help="skip the collision experiment")
-    b.add_argument("--parts", default="table1,slivers,collision,servo,blender,scaling,materials",
-                   help="comma-separated parts to run (default: all): table1,slivers,collision,servo,blender,scaling,materials")
+    b.add_argument("--parts", default="table1,slivers,collision,servo,blender,multigrid,scaling,materials",
+                   help="comma-separated parts to run (default: all): table1,slivers,collision,servo,blender,multigrid,scaling,materials")
     b.add_argument("--markdown", metavar="PATH", help="also write a BENCHMARKS.md-style report here")
     b.add_argument("--plots", metavar="DIR", help="write plots (scaling) into this folder")
     c = sub.add_parser("clusters", help="picture of the cluster decomposition (the paper's Fig. 2)")

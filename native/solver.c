@@ -1006,8 +1006,9 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     tc_constraint_filter(c, r);
     int it = 0;
     double rr = dotn(r, r, n3);
-    if (use_amg(c) && tc_amg_valid(c->amg, c)) {
-        /* the first coarse operator follows the contacts (amg.c: the contact correction) */
+    if (use_amg(c) && tc_amg_valid(c->amg, c) && env_count("TEARCLOTH_AMG_CONTACTS", 1)) {
+        /* the first coarse operator follows the contacts (amg.c: the contact correction;
+           TEARCLOTH_AMG_CONTACTS=0 leaves it as made, for the bench's comparison) */
         const double t0 = tc_now();
         if (tc_amg_contacts(c->amg, c)) c->stats.amg_fallbacks++;
         c->stats.amg_setup_seconds += tc_now() - t0;

@@ -70,3 +70,18 @@ def test_sliver_rows_say_unconverged_and_halved_sub_steps_and_the_section_lists_
                               "slivers": sl})
     assert "## Slivers (issue 14)" in md and "756 vertices, smallest angle 0.23 degrees" in md
     assert "| 10 ms | sweeps | 9.00 | 109 | 42 | 36 | 331 |" in md
+
+
+def test_the_multigrid_contacts_section_shows_both_sides_and_skips_a_stopped_run():
+    from tearcloth.bench.report import benchmarks_markdown
+
+    side = lambda it, fem, setup: {"cg_iterations": it, "fem_ms": fem, "setup_ms": setup, "contacts": 310.0, "amg_fallbacks": 0}
+    m = {"triangles": 20010, "vertices": 10045, "frames": 3, "substeps": 10, "dt_s": 1 / 240, "amg_levels": {"corrected": 3},
+         "corrected": side(47.9, 212.6, 53.4), "uncorrected": side(65.1, 245.7, 36.6),
+         "cg_iterations_ratio": 47.9 / 65.1, "fem_ms_ratio": 212.6 / 245.7}
+    machine = {"platform": "p", "cpus": 2, "python": "3.11", "load_1min_at_start": 0.1}
+    text = benchmarks_markdown({"machine": machine, "multigrid_contacts": m})
+    assert "## Multigrid with contacts" in text
+    assert "| CG iterations | 47.9 | 65.1 | 0.74 |" in text
+    assert "| FEM ms | 212.6 | 245.7 | 0.87 |" in text
+    assert "Multigrid with contacts" not in benchmarks_markdown({"machine": machine, "multigrid_contacts": {"error": "stopped"}})

@@ -93,6 +93,18 @@ def benchmarks_markdown(r: dict) -> str:
         lines += ["## Against Blender's cloth (T-shirt, same body, 10 sub-steps per frame)", "",
                   f"Ours {b['ours_s_per_frame']:.3f} s per frame (tearing), Blender {b['blender_s_per_frame']:.3f} s "
                   f"per frame; ratio ours / Blender {b['ratio']:.2f}. Settings: `addon/bench/race.py`.", ""]
+    if "multigrid_contacts" in r and "error" not in r["multigrid_contacts"]:
+        m = r["multigrid_contacts"]
+        c, u = m["corrected"], m["uncorrected"]
+        lines += ["## Multigrid with contacts (issue 14)", "",
+                  f"The race's T-shirt at {m['triangles']} triangles on the walking body (the solver's auto picks the "
+                  f"multigrid), {m['frames']} frames of {m['substeps']} sub-steps, {c['contacts']:.0f} contacts, the two "
+                  "stepped in turn. Per sub-step (medians), with amg.c's contact correction / without:", "",
+                  "| | corrected | uncorrected | ratio |", "|---|---|---|---|",
+                  f"| CG iterations | {c['cg_iterations']:.1f} | {u['cg_iterations']:.1f} | {m['cg_iterations_ratio']:.2f} |",
+                  f"| FEM ms | {c['fem_ms']:.1f} | {u['fem_ms']:.1f} | {m['fem_ms_ratio']:.2f} |",
+                  f"| of it multigrid setup ms | {c['setup_ms']:.1f} | {u['setup_ms']:.1f} | |", "",
+                  "Scenario: `multigrid_contacts` in `addon/bench/race.py`.", ""]
     if "slivers" in r:
         from .slivers import sheet_summary, table_lines
 

@@ -1,9 +1,9 @@
 """`tearcloth bench`: the speed of every part, measured on this machine, as medians and ratios.
 
 This file owns ``run``: one run of the parts ``PARTS`` picks (Table I, the collision experiment,
-the servo loop, the race against Blender's cloth, scaling, woven materials), printed as tables, merged into a JSON
+the servo loop, the race against Blender's cloth, the multigrid with contacts, scaling, woven materials), printed as tables, merged into a JSON
 file keyed as the issues ask (``table1.<scenario>.<figure>``, ``slivers``, ``collision``, ``servo``,
-``blender_cloth``, ``scaling``, ``materials``, ``machine``) and optionally written as BENCHMARKS.md. Each figure
+``blender_cloth``, ``multigrid_contacts``, ``scaling``, ``materials``, ``machine``) and optionally written as BENCHMARKS.md. Each figure
 is a median over many steps of that run; nothing here asserts a speed. Dev-only (not in the
 extension zip).
 """
@@ -17,7 +17,7 @@ from pathlib import Path
 from .collision import collision_figures, format_collision
 from .machine import loadavg
 from .materials import format_materials, materials_figures
-from .race import race_blender_cloth
+from .race import format_multigrid_contacts, multigrid_contacts, race_blender_cloth
 from .report import benchmarks_markdown
 from .scaling import format_scaling, plot_scaling, scaling
 from .slivers import format_slivers, sliver_figures
@@ -26,7 +26,7 @@ from .table1 import DT, format_table, measure_scenario, tearing_convergence
 
 __all__ = ["PARTS", "run"]
 
-PARTS = ("table1", "slivers", "collision", "servo", "blender", "scaling", "materials")
+PARTS = ("table1", "slivers", "collision", "servo", "blender", "multigrid", "scaling", "materials")
 
 
 def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"), steps: int = 200,
@@ -93,6 +93,10 @@ def run(json_path: str | None = None, scenarios=("cloth", "banknote", "tshirt"),
         results["blender_cloth"]["detail"] = {k: v for k, v in race.items() if k not in results["blender_cloth"]}
         out(f"per frame: ours {race['ours_s_per_frame']:.3f} s, Blender {race['blender_s_per_frame']:.3f} s, "
             f"ratio {race['ratio']:.2f}" + (f" ({race['ours_error']})" if race.get("ours_error") else ""))
+    if "multigrid" in parts:
+        out("... multigrid with contacts (the race's T-shirt at 20K triangles: amg.c's contact correction on and off)")
+        results["multigrid_contacts"] = multigrid_contacts()
+        out(format_multigrid_contacts(results["multigrid_contacts"]))
     if "scaling" in parts:
         out("... scaling 1K-100K triangles (fresh process per point)")
         sc = scaling()
