@@ -58,11 +58,11 @@
  * Delta = P^T (S A S - A + tau (I - S) d) P is added over the rows that touch a contact vertex
  * (contact_delta: one pass like the Galerkin row's, in double, narrowed once), then the coarser
  * levels and the coarsest factor are made again from it. tau (constants.h) keeps an aggregate whose
- * vertices are all held (S = 0) definite. Made again after every refresh or build and when a
- * fraction of the contacts changed (a correction for a nearby contact set is still a symmetric
- * positive A_1): on the race's shirt with the multigrid forced, 55 -> 39 CG iterations a sub-step
- * and FEM time 0.78x; on the same shirt at 10K vertices (the multigrid "auto" picks) 65 -> 48 and
- * 0.75x.
+ * vertices are all held (S = 0) definite. Made at every refresh (in numeric, between A_1 and the
+ * coarser levels, so those are made once), when there is none (a build, the first contacts), and
+ * between refreshes only when the contact set was replaced (constants.h, TC_AMG_CONTACT_CHANGE: a
+ * correction for a nearby set is still a symmetric positive A_1). Bench part "multigrid": the
+ * race's shirt at 20K triangles on the walking body, where "auto" picks the multigrid.
  *
  * The matrix changes every sub-step (co-rotation, damping, contacts) while the mesh rarely does, so
  * the hierarchy is kept in three layers: the aggregates (made again when vertices were removed or
@@ -149,6 +149,7 @@ struct tc_amg {
     float *base1;
     size_t cap_base1;
     bool base1_saved, corrected;
+    bool follow;           /* tc_amg_follow_contacts (the bench's comparison: off) */
     int8_t *used_cnt;      /* per vertex, the contact directions the correction was made with (0: none) */
     float *used_n;         /* and its first direction */
     size_t cap_used;
@@ -1660,7 +1661,7 @@ static void fine_modes(const tc_cloth *c, const level *L, double *B)
 tc_amg *tc_amg_new(void)
 {
     tc_amg *h = tc_mem_calloc(1, sizeof(tc_amg));
-    if (h) h->choice = -1;
+    if (h) { h->choice = -1; h->follow = true; }
     return h;
 }
 
@@ -1688,6 +1689,7 @@ void tc_amg_drop(tc_amg *h)
 {
     if (!h) return;
     const int8_t choice = h->choice;
+    const bool follow = h->follow;
     const bool forget = h->forget;
     const int32_t run = h->run_blocks;
     for (int l = 0; l < TC_AMG_MAX_LEVELS; l++) {
@@ -1699,6 +1701,7 @@ void tc_amg_drop(tc_amg *h)
     tc_mem_free(h->base1); tc_mem_free(h->slot_of); tc_mem_free(h->acc2); tc_mem_free(h->used_cnt); tc_mem_free(h->used_n);
     memset(h, 0, sizeof *h);
     h->choice = choice;
+    h->follow = follow;
     h->forget = forget;
     h->run_blocks = run;
 }
@@ -1725,12 +1728,19 @@ bool tc_amg_needs_aggregation(const tc_amg *h, const tc_cloth *c)
 /* The numeric part of a hierarchy, on its kept aggregates, prolongators and patterns: the Galerkin
  * operators of the current matrix level by level, their smoothers' inverse diagonal blocks, the
  * coarsest level's factor. */
+static int correct_first(tc_amg *h, const tc_cloth *c);
+static int32_t contact_changes(const tc_amg *h, const tc_cloth *c, int32_t *count);
+
 static int numeric(tc_amg *h, const tc_cloth *c)
 {
     h->base1_saved = h->corrected = false;  /* A_1 is made anew, with contact vertices free */
     for (int l = 0; l + 1 < h->nlev; l++) {
         level *N = &h->lev[l + 1];
         if (galerkin_numeric(h, c, l) || coarse_diagonal(N)) return -1;
+        int32_t count;
+        /* with contacts, A_1 corrected (tc_amg_contacts) before the coarser levels are made from it,
+           so a refresh makes them once (a failed correction is tried again by tc_amg_contacts) */
+        if (l == 0 && h->follow && contact_changes(h, c, &count) > 0) correct_first(h, c);
     }
     return coarsest_factor(h);
 }
@@ -1988,35 +1998,26 @@ static int coarse_again(tc_amg *h, const tc_cloth *c)
     return coarsest_factor(h);
 }
 
-int tc_amg_contacts(tc_amg *h, const tc_cloth *c)
+/* A_1 = base + Delta for the current contacts (the base saved first when it is not yet; the
+ * diagonal inverses of level 1 made again; the coarser levels are the caller's): 0, or -1 with A_1
+ * back to the base (out of memory). */
+static int correct_first(tc_amg *h, const tc_cloth *c)
 {
-    if (!h || h->nlev < 2) return 0;
     bsr *C = &h->lev[1].A;
     const size_t nup = (size_t)upper_slots(C, 0, C->n), nval = nup * NS * NS;
-    int32_t count;
-    const int32_t changed = contact_changes(h, c, &count);
-    if (count == 0) {
-        if (!h->corrected) return 0;
-        /* the contacts are gone: A_1 as it was made */
-        memcpy(C->val, h->base1, nval * sizeof(float));
-        h->corrected = false;
-        if (coarse_again(h, c)) { h->nlev = 0; h->agg_levels = 0; return -1; }
-        return 0;
-    }
-    /* a correction made for a slightly different contact set still serves (any symmetric positive
-       A_1 does, only the cycle's strength is at stake): made again when enough changed */
-    if (h->corrected && changed <= TC_AMG_CONTACT_CHANGE * count) return 0;
     if (!h->base1_saved) {
         if (grow((void **)&h->base1, &h->cap_base1, nval + 1, sizeof(float))) return -1;
         memcpy(h->base1, C->val, nval * sizeof(float));
         h->base1_saved = true;
     }
-    if (grow((void **)&h->slot_of, &h->cap_slot_of, nup + 1, sizeof(int32_t))) return -1;
-    for (size_t v = 0; v < nup; v++) h->slot_of[v] = -1;
-    int32_t used = 0;
-    memcpy(C->val, h->base1, nval * sizeof(float));
     h->corrected = false;
-    int rc = contact_delta(h, c, &used);
+    memcpy(C->val, h->base1, nval * sizeof(float));
+    int32_t used = 0;
+    int rc = grow((void **)&h->slot_of, &h->cap_slot_of, nup + 1, sizeof(int32_t));
+    if (rc == 0) {
+        for (size_t v = 0; v < nup; v++) h->slot_of[v] = -1;
+        rc = contact_delta(h, c, &used);
+    }
     if (rc == 0) {
         /* A_1 = base + Delta in double, narrowed once; a diagonal block made exactly symmetric as
            galerkin_numeric makes it */
@@ -2032,21 +2033,43 @@ int tc_amg_contacts(tc_amg *h, const tc_cloth *c)
                         for (int q = r + 1; q < NS; q++) u[r * NS + q] = u[q * NS + r] = 0.5 * (u[r * NS + q] + u[q * NS + r]);
                 for (int k = 0; k < NS * NS; k++) f[k] = (float)u[k];
             }
-        rc = coarse_again(h, c);
+        rc = contacts_used(h, c);
     }
-    if (rc) {
-        memcpy(C->val, h->base1, nval * sizeof(float));
-        if (coarse_again(h, c)) { h->nlev = 0; h->agg_levels = 0; }  /* no hierarchy: block Jacobi */
-        return -1;
-    }
-    if (contacts_used(h, c)) {  /* out of memory: the correction stays, made again at the next call */
-        h->corrected = false;
-        return 0;
-    }
-    h->corrected = true;
-    return 0;
+    if (rc) memcpy(C->val, h->base1, nval * sizeof(float));
+    else h->corrected = true;
+    if (coarse_diagonal(&h->lev[1])) return -1;
+    return rc ? -1 : 0;
 }
 
+int tc_amg_contacts(tc_amg *h, const tc_cloth *c)
+{
+    if (!h || h->nlev < 2) return 0;
+    int32_t count;
+    const int32_t changed = contact_changes(h, c, &count);
+    if (count == 0) {
+        if (!h->corrected) return 0;
+        /* the contacts are gone: A_1 as it was made */
+        bsr *C = &h->lev[1].A;
+        memcpy(C->val, h->base1, (size_t)upper_slots(C, 0, C->n) * NS * NS * sizeof(float));
+        h->corrected = false;
+        if (coarse_again(h, c)) { h->nlev = 0; h->agg_levels = 0; return -1; }
+        return 0;
+    }
+    /* made at every refresh (numeric, before the coarser levels) and here when there is none yet (a
+       build, the first contacts); between refreshes only when the contact set was replaced: a
+       correction for a nearby set still serves (any symmetric positive A_1 does, only the cycle's
+       strength is at stake), as the coarse operators of an older matrix do (constants.h) */
+    if (!h->follow || (h->corrected && changed <= TC_AMG_CONTACT_CHANGE * count)) return 0;
+    const int rc = correct_first(h, c);
+    if (coarse_again(h, c)) { h->nlev = 0; h->agg_levels = 0; return -1; }  /* no hierarchy: block Jacobi */
+    return rc;
+}
+
+
+void tc_amg_follow_contacts(tc_amg *h, bool on)
+{
+    if (h) h->follow = on;
+}
 
 void tc_amg_set_run_blocks(tc_amg *h, int32_t blocks)
 {

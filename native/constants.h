@@ -177,15 +177,18 @@
  * iterations to 1e-14: 38 / 38 / 41 / 49 (uncorrected: 1.4e-6 after 60). 0.1 keeps a 100x margin
  * over the breakdown for 3 more iterations than the optimum. */
 #define TC_AMG_CONTACT_OFF_RANGE 0.1
-/* The correction is made again when more than this fraction of the contact vertices changed since
- * it was made (a direction count, or the first direction turned by more than acos of
- * TC_AMG_CONTACT_TURN_COS), and after every refresh or build; the contacts' release, touch and slide
- * rounds (5 solves a sub-step) and the next sub-steps change a few each. Measured on the race's
- * T-shirt with the multigrid forced (1703 vertices, 24 frames of 10 sub-steps, two runs), CG
- * iterations and FEM ms per sub-step: uncorrected 55.4, 28.4 / 30.0 ms; corrected at every change
- * 36.4, 30.0 / 34.2; fraction 0.1: 37.1, 24.7 / 28.2; 0.25: 38.9, 22.1 / 25.9; 0.5: 43.5, 23.5 /
- * 25.2 (a correction there costs ~2 ms, two thirds of it the coarser levels' products again). */
-#define TC_AMG_CONTACT_CHANGE 0.25
+/* The correction is made at every refresh of the coarse operators (before the coarser levels are
+ * made from A_1, so once), when there is none (after a build, at the first contacts) and between
+ * refreshes only when more contact vertices changed than there are contacts now (a direction count,
+ * or the first direction turned by more than acos of TC_AMG_CONTACT_TURN_COS): the set was replaced.
+ * Measured on the race's T-shirt at 20K triangles on the walking body (multigrid, 4 frames of 10
+ * sub-steps, 168 contacts, four cloths stepped in turn), CG iterations and FEM ms per sub-step
+ * (medians; means): uncorrected 67 / 65.1, 188 / 193 ms; again when a quarter of the contacts
+ * changed 45 / 47.9, 166 / 166 ms (setup 35 ms); a half 48.5 / 50.8, 163 / 167; only at refreshes
+ * and when none 43 / 48.7, 156 / 157 ms (setup 27 ms). The refreshes come every sub-step there
+ * (solves of 16 iterations or more), every fourth at most: the correction is no older than the
+ * coarse operators it corrects. */
+#define TC_AMG_CONTACT_CHANGE 1.0
 #define TC_AMG_CONTACT_TURN_COS 0.9
 #define TC_AMG_POWER_ITERATIONS 8   /* for rho(D^-1 A), the prolongator's smoothing step */
 #define TC_AMG_REAGGREGATE 100      /* builds (new prolongators) before the aggregates are made again */

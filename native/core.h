@@ -427,6 +427,7 @@ int tc_amg_refresh(tc_amg *h, const tc_cloth *c);
    (constants.h); 0 also when nothing was due; -1 (counted by the caller) leaves the uncorrected
    hierarchy, or none (block Jacobi then) */
 int tc_amg_contacts(tc_amg *h, const tc_cloth *c);
+void tc_amg_follow_contacts(tc_amg *h, bool on);  /* the contact correction on (default) or off (the bench's comparison) */
 int tc_amg_refreshes(const tc_amg *h);
 void tc_amg_set_run_blocks(tc_amg *h, int32_t blocks);  /* tests: the refresh's double buffer (0: default) */
 void tc_amg_forget(tc_amg *h);  /* aggregate again at the next build, no choice history (a snapshot was taken) */

@@ -135,6 +135,8 @@ static void amg_prepare(tc_cloth *c)
     const double t0 = tc_now();
     if (!c->amg) c->amg = tc_amg_new();
     if (!c->amg) { c->stats.amg_fallbacks++; return; }
+    /* TEARCLOTH_AMG_CONTACTS: the bench's comparison of amg.c's contact correction (0 off) */
+    tc_amg_follow_contacts(c->amg, env_count("TEARCLOTH_AMG_CONTACTS", 1) != 0);
     const int every = env_count("TEARCLOTH_AMG_REFRESH", TC_AMG_REFRESH);
     const int resmooth = env_count("TEARCLOTH_AMG_RESMOOTH", TC_AMG_RESMOOTH);
     if (tc_amg_levels(c->amg) == 0 || !tc_amg_valid(c->amg, c) || tc_amg_needs_aggregation(c->amg, c) || every == 0 ||
@@ -1006,9 +1008,8 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
     tc_constraint_filter(c, r);
     int it = 0;
     double rr = dotn(r, r, n3);
-    if (use_amg(c) && tc_amg_valid(c->amg, c) && env_count("TEARCLOTH_AMG_CONTACTS", 1)) {
-        /* the first coarse operator follows the contacts (amg.c: the contact correction;
-           TEARCLOTH_AMG_CONTACTS=0 leaves it as made, for the bench's comparison) */
+    if (use_amg(c) && tc_amg_valid(c->amg, c)) {
+        /* the first coarse operator follows the contacts (amg.c: the contact correction) */
         const double t0 = tc_now();
         if (tc_amg_contacts(c->amg, c)) c->stats.amg_fallbacks++;
         c->stats.amg_setup_seconds += tc_now() - t0;
