@@ -1918,46 +1918,40 @@ static int contact_delta(tc_amg *h, const tc_cloth *c, int32_t *used)
     const level *L = &h->lev[0];
     const bsr *P = &L->P, *C = &h->lev[1].A;
     const int8_t *fl = tc_vec_ptr(&c->vflag);
-    const int32_t *rp = tc_vec_ptr(&c->rptr), *rc = tc_vec_ptr(&c->rcol), *fp = tc_vec_ptr(&c->fptr), *fc = tc_vec_ptr(&c->fcol);
-    const double *D = tc_vec_ptr(&c->diag), *RB = tc_vec_ptr(&c->rblk), *FV = tc_vec_ptr(&c->fval);
+    rowsrc src = {0};  /* only its buffers, sized for the longest fine row: raw_row fills them */
     int32_t *cols = tc_mem_malloc(((size_t)C->n + 1) * sizeof(int32_t));
-    if (!cols || scratch(h, C->n, 0)) { tc_mem_free(cols); return -1; }
     aprow w = {h->mark, cols, NULL, 0};
     int rcode = -1;
+    if (!cols || scratch(h, C->n, 0) || rowsrc_init(&src, c, L, 0, false)) goto out;
     for (int32_t i = 0; i < c->nv; i++) {
         if (P->ptr[i] == P->ptr[i + 1]) continue;  /* P_i = 0 (a pin, a handle): nothing to add */
-        bool touch = fl[i] == VC_CONTACT;
-        for (int32_t s = rp[i]; s < rp[i + 1] && !touch; s++) touch = fl[rc[s]] == VC_CONTACT;
-        for (int32_t s = fp[i]; s < fp[i + 1] && !touch; s++) touch = fl[fc[s]] == VC_CONTACT;
+        const int32_t len = raw_row(c, i, src.col, NULL);
+        bool touch = false;
+        size_t reach = 0;
+        for (int32_t k = 0; k < len; k++) {
+            const int32_t j = src.col[k];
+            touch |= fl[j] == VC_CONTACT;  /* col[0] is i itself */
+            reach += (size_t)(P->ptr[j + 1] - P->ptr[j]);
+        }
         if (!touch) continue;
-        size_t reach = (size_t)(P->ptr[i + 1] - P->ptr[i]);
-        for (int32_t s = rp[i]; s < rp[i + 1]; s++) reach += (size_t)(P->ptr[rc[s] + 1] - P->ptr[rc[s]]);
-        for (int32_t s = fp[i]; s < fp[i + 1]; s++) reach += (size_t)(P->ptr[fc[s] + 1] - P->ptr[fc[s]]);
+        raw_row(c, i, src.col, src.val);
         if (grow((void **)&h->acc, &h->cap_acc, reach * 3 * NS + 1, sizeof(double))) goto out;
         w.acc = h->acc;
         double Si[9];
         filter_matrix(c, i, Si, false);
-        const int32_t nj = 1 + (rp[i + 1] - rp[i]) + (fp[i + 1] - fp[i]);
-        for (int32_t t = 0; t < nj; t++) {
-            int32_t j;
-            double a[9];
-            if (t == 0) { j = i; from_columns(D + 12 * (size_t)i, 4, a); }
-            else if (t <= rp[i + 1] - rp[i]) { const int32_t s = rp[i] + t - 1; j = rc[s]; from_columns(RB + 9 * (size_t)s, 3, a); }
-            else {
-                const int32_t s = fp[i] + t - 1 - (rp[i + 1] - rp[i]);
-                j = fc[s];
-                for (int k = 0; k < 9; k++) a[k] = k % 4 == 0 ? FV[s] : 0.0;
-            }
+        for (int32_t k = 0; k < len; k++) {
+            const int32_t j = src.col[k];
+            const double *a = src.val + 9 * (size_t)k;
             if (fl[i] != VC_CONTACT && fl[j] != VC_CONTACT) continue;
             if (P->ptr[j] == P->ptr[j + 1]) continue;
             double Sj[9], u[9] = {0}, b[9] = {0};
             filter_matrix(c, j, Sj, false);
             gemm_acc(u, Si, a, 3, 3, 3);
             gemm_acc(b, u, Sj, 3, 3, 3);
-            for (int k = 0; k < 9; k++) b[k] -= a[k];
-            if (t == 0) {  /* tau (I - S) d: see TC_AMG_CONTACT_OFF_RANGE */
+            for (int q = 0; q < 9; q++) b[q] -= a[q];
+            if (k == 0) {  /* tau (I - S) d: see TC_AMG_CONTACT_OFF_RANGE */
                 const double sc = TC_AMG_CONTACT_OFF_RANGE * off_range_scale(a);
-                for (int k = 0; k < 9; k++) b[k] += sc * ((k % 4 == 0 ? 1.0 : 0.0) - Si[k]);
+                for (int q = 0; q < 9; q++) b[q] += sc * ((q % 4 == 0 ? 1.0 : 0.0) - Si[q]);
             }
             /* blk3 reads its block column by column: b's transpose in row-major order */
             double bt[9];
@@ -1985,6 +1979,7 @@ static int contact_delta(tc_amg *h, const tc_cloth *c, int32_t *used)
     rcode = 0;
 out:
     for (int32_t q = 0; q < w.m; q++) w.mark[w.cols[q]] = -1;
+    rowsrc_free(&src);
     tc_mem_free(cols);
     return rcode;
 }
@@ -2436,8 +2431,9 @@ double tc_amg_galerkin_error(const tc_cloth *c, tc_amg *h)
                 tc_constraint_filter(c, apv);
                 const double *D = tc_vec_ptr(&c->diag);
                 for (size_t k = 0; k < nf; k++) {
-                    const double *Dk = D + 12 * (k / 3);
-                    apv[k] += TC_AMG_CONTACT_OFF_RANGE * (Dk[0] + Dk[5] + Dk[10]) / 3.0 * (pv[k] - spv[k]);
+                    double dk[9];
+                    from_columns(D + 12 * (k / 3), 4, dk);
+                    apv[k] += TC_AMG_CONTACT_OFF_RANGE * off_range_scale(dk) * (pv[k] - spv[k]);
                 }
                 tc_mem_free(spv);
             } else {

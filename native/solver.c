@@ -1014,7 +1014,7 @@ TC_HOT static int pcg(tc_cloth *c, double *v, const double *b, const double *fix
         if (tc_amg_contacts(c->amg, c)) c->stats.amg_fallbacks++;
         c->stats.amg_setup_seconds += tc_now() - t0;
     }
-    if (use_amg(c) && tc_amg_valid(c->amg, c)) {
+    if (use_amg(c) && tc_amg_valid(c->amg, c)) {  /* again: a failed correction may have dropped it */
         const double rr0 = rr;
         it = pcg_amg(c, v, stop2, &rr);
         if (it >= 0) {

@@ -427,7 +427,7 @@ def format_race(r: dict) -> str:
 # The multigrid with contacts (issue 14: the contact correction of amg.c)
 # ------------------------------------------------------------------------------------------------
 
-CORRECTION_ENV = "TEARCLOTH_AMG_CONTACTS"  # 0: amg.c's contact correction off (solver.c reads it per solve)
+CORRECTION_ENV = "TEARCLOTH_AMG_CONTACTS"  # 0: amg.c's contact correction off (solver.c reads it each sub-step)
 
 
 def multigrid_contacts(target_triangles: int = 20000, frames: int = 3, substeps: int = 10, *, fps: int = FPS,
@@ -467,17 +467,15 @@ def multigrid_contacts(target_triangles: int = 20000, frames: int = 3, substeps:
     try:
         for f in range(2, frames + 2):
             for name, side in sides.items():
-                if name == "uncorrected":
-                    os.environ[CORRECTION_ENV] = "0"
-                try:
-                    side.frame(f)
-                finally:
-                    if before is None:
-                        os.environ.pop(CORRECTION_ENV, None)
-                    else:
-                        os.environ[CORRECTION_ENV] = before
+                os.environ[CORRECTION_ENV] = "1" if name == "corrected" else "0"
+                side.frame(f)
     except SimulationError as e:
         return {"error": str(e)}
+    finally:
+        if before is None:
+            os.environ.pop(CORRECTION_ENV, None)
+        else:
+            os.environ[CORRECTION_ENV] = before
     out = {"triangles": int(shirt.triangles.shape[0]), "vertices": int(shirt.vertices.shape[0]), "frames": frames,
            "substeps": substeps, "dt_s": 1.0 / fps / substeps, "amg_levels": levels}
     for name in sides:

@@ -1314,17 +1314,17 @@ class ServoProcess:
     def _message(self, hand: str, old: str) -> str:
         i = self._hands.index(hand)
         with self._shared_lock:
-            if self._shared is None:  # closed since the caller looked: what close() kept of the block
-                seq = self._last_prox[hand][_P_MSG] if hand in self._last_prox else None
-                if seq is None or self._msg_seen.get(hand) == seq:
+            sh = self._shared
+            if sh is None:  # closed since the caller looked: what close() kept of the block
+                if hand not in self._last_prox:
                     return old
-                self._msg_seen[hand] = seq
-                return self._last_msg.get(hand, old)
-            seq = self._shared.prox[i][_P_MSG]
+                seq, text = self._last_prox[hand][_P_MSG], lambda: self._last_msg.get(hand, old)
+            else:
+                seq, text = sh.prox[i][_P_MSG], lambda: _read_message(sh.msg[i])
             if self._msg_seen.get(hand) == seq:
                 return old
             self._msg_seen[hand] = seq
-            return _read_message(self._shared.msg[i])
+            return text()
 
     def proxy(self, hand: str) -> Optional[ProxySample]:
         v = self._read_proxy(self._check(hand))
