@@ -55,8 +55,9 @@ def pytest_configure(config):
         config.option.loadscopereorder = False
     config.addinivalue_line(
         "markers", "core_only: drives only the native core through numpy (the same C sources and abi3 build "
-        "on every interpreter): tools/run.sh's Python 3.13 half leaves it to the 3.11 half (-m 'not core_only'), "
-        "as it leaves the files of its CORE_ONLY list")
+        "on every interpreter), or only prints a figure whose behaviour another test checks on both: "
+        "tools/run.sh's Python 3.13 half leaves it to the 3.11 half (-m 'not core_only'), as it leaves the "
+        "files of its CORE_ONLY list")
 
 
 def pytest_collection_modifyitems(session, config, items):

@@ -349,6 +349,7 @@ def test_a_text_block_registered_to_run_on_load_never_runs(blends, tmp_path):
     assert not marker.exists()
 
 
+@pytest.mark.core_only  # a printed figure (~16 s of bakes): the two-worker wedge is tested on both halves
 def test_wall_time_of_four_bakes_on_two_workers_against_one(local_two, tmp_path):
     out, two, _ = local_two
     proc, one = _farm(SQUARE, *WEDGE, "--workers", 1, "--out", tmp_path / "one")

@@ -79,12 +79,13 @@ OWN_WHEEL_DIR=out/own-wheel
 own_wheel() {
     # own_wheel VENV: the path of this run's wheel, built by VENV's pip the first time (the folder is
     # emptied when a run starts, so a wheel of older sources is never installed)
+    # (|| true: ls of an empty folder fails, and pipefail would end a background call of this here)
     local found
-    found=$(ls "$OWN_WHEEL_DIR"/tearcloth-*.whl 2>/dev/null | head -n 1)
+    found=$(ls "$OWN_WHEEL_DIR"/tearcloth-*.whl 2>/dev/null | head -n 1 || true)
     if [ -z "$found" ]; then
         mkdir -p "$OWN_WHEEL_DIR"
         "$1/bin/python" -m pip wheel -q --no-deps --wheel-dir "$OWN_WHEEL_DIR" . >&2 || return 1
-        found=$(ls "$OWN_WHEEL_DIR"/tearcloth-*.whl 2>/dev/null | head -n 1)
+        found=$(ls "$OWN_WHEEL_DIR"/tearcloth-*.whl 2>/dev/null | head -n 1 || true)
         [ -n "$found" ] || { echo "tools/run.sh: pip wheel made no tearcloth wheel in $OWN_WHEEL_DIR" >&2; return 1; }
     fi
     echo "$PWD/$found"
@@ -102,19 +103,27 @@ setup() {
         "$py" -m venv "$venv" 2>/dev/null || { rm -rf "$venv"; apt_install python3-venv; "$py" -m venv "$venv"; }
     fi
     "$venv/bin/python" -m pip install -q --upgrade pip
+    # this run's wheel compiles (on every core, setup.py) while pip fetches and unpacks the
+    # requirements beside it: one after the other, the first set-up waited ~30 s for the compile
+    # with the network idle, then ~40 s for pip with a core idle
+    local building=""
+    if ! ls "$OWN_WHEEL_DIR"/tearcloth-*.whl >/dev/null 2>&1; then
+        own_wheel "$venv" >/dev/null &
+        building=$!
+    fi
+    # the project's requirements and the test extra's (pyproject.toml), but for the extra's bpy
+    # when the caller names another ($3: a list of requirements)
+    local reqs
+    mapfile -t reqs < <("$venv/bin/python" -c 'import sys, tomllib
+p = tomllib.load(open("pyproject.toml", "rb"))["project"]
+test = [r for r in p["optional-dependencies"]["test"] if not (sys.argv[1] and r.startswith("bpy"))]
+print("\n".join(p["dependencies"] + test))' "${3:+other-bpy}")
+    # shellcheck disable=SC2086  # $3 is a list of requirements, split on purpose
+    "$venv/bin/python" -m pip install -q "${reqs[@]}" ${3:-}
+    if [ -n "$building" ]; then wait "$building"; fi
     local wheel
     wheel=$(own_wheel "$venv")
-    if [ -n "${3:-}" ]; then
-        # another bpy than the test extra pins: the extra's other requirements, then that bpy
-        local reqs
-        mapfile -t reqs < <("$venv/bin/python" -c 'import tomllib; t = tomllib.load(open("pyproject.toml", "rb"))
-print("\n".join(r for r in t["project"]["optional-dependencies"]["test"] if not r.startswith("bpy")))')
-        # shellcheck disable=SC2086  # $3 is a list of requirements, split on purpose
-        "$venv/bin/python" -m pip install -q "$wheel" "${reqs[@]}" $3
-    else
-        "$venv/bin/python" -m pip install -q "$wheel[test]"
-    fi
-    # pip keeps an installed tearcloth of the same version as the wheel: this run's build replaces it
+    # --force-reinstall: pip keeps an installed tearcloth of the same version as the wheel
     "$venv/bin/python" -m pip install -q --no-deps --force-reinstall "$wheel"
     # bpy from PyPI needs a few X/GL client libraries even headless
     if ! "$venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
@@ -125,7 +134,8 @@ print("\n".join(r for r in t["project"]["optional-dependencies"]["test"] if not 
 # The test files the 3.13 half leaves to the 3.11 half: the native core driven through numpy (the
 # same C sources, the same abi3 build), heavy and blind to the interpreter: physics studies, the
 # long scenes, the cross and arm64 builds, the FEM, solver, stiff-group, SIMD-kernel, snapshot and tearing
-# tests, the collision kernels, CCD and clustering (C and numpy/scipy only). Everything that
+# tests, the collision kernels, CCD and clustering (C and numpy/scipy only), and the layering
+# (test_layers.py reads the sources and the compiled objects' symbols, imports nothing). Everything that
 # touches bpy, the add-on, the extension, caches, haptics, the farm or the CLI runs on both, and so
 # do test_native_defaults.py (the C modules' messages through 3.13's C API) and the two collision
 # files that go through embreex, whose binary wheel is built per Python version
@@ -136,7 +146,7 @@ CORE_ONLY=(test_native_arm64.py test_platforms.py test_bake_resume_tshirt.py tes
            test_orthotropic.py test_plasticity.py test_fragments.py
            test_fem.py test_solver.py test_solver_simd.py test_stiff_groups.py test_snapshot.py test_tearing.py
            test_collision_kernels.py test_collision_ccd.py test_collision_clusters.py
-           test_collision_impact.py test_contact_friction.py)
+           test_collision_impact.py test_contact_friction.py test_layers.py)
 # pytest workers (pytest-xdist): one per core, at most 4; files stay whole on one worker
 # (--dist loadfile) so module fixtures are built once; the extension zips are built once per run
 # for all workers (tests/extension_build.py). TEARCLOTH_TEST_WORKERS=1: serial.
