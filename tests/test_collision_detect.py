@@ -278,7 +278,7 @@ def test_detection_continues_after_a_tear():
 
 
 def test_the_swept_stage_on_its_worker_thread_gives_the_same_contacts_bit_for_bit():
-    """The swept stage's step runs on a worker thread beside the colliders' detection when the
+    """The swept stage's step runs on its own thread beside the colliders' detection when the
     process may use a second CPU (detector.py, stage 5); it reads the step's positions, the previous
     ones and the velocities and writes only its own state. A sheet jittered by 0.3-2 mm a step (pairs
     of its two-ring come within their gaps, so the stage hands out contact rows) gives the same
@@ -307,8 +307,158 @@ def test_the_swept_stage_on_its_worker_thread_gives_the_same_contacts_bit_for_bi
         predicted += sa["swept_predicted"] + sa["swept_remembered"]
         x = x1
     assert predicted > 0, "the swept stage handed out no contact: the comparison says nothing about its rows"
-    assert dets[True]._pool is not None and getattr(dets[False], "_pool", None) is None
+    assert dets[True]._worker is not None and getattr(dets[False], "_worker", None) is None
+    assert dets[True].stats["swept_thread_fallbacks"] == 0  # every step ran on the worker's thread
     again = pickle.loads(pickle.dumps(dets[True]))
-    assert again.swept_thread and getattr(again, "_pool", None) is None
+    assert again.swept_thread and getattr(again, "_worker", None) is None
     again.detect(x, t, np.zeros_like(x), dt)
-    assert again._pool is not None
+    assert again._worker is not None
+
+
+def _swept_sheet(n=10):
+    from tearcloth.collision.narrow import ring_table
+    from tearcloth.collision.swept import SweptSelf
+
+    p, t = grid(n, n, 0.1, z=0.0)
+    return p, SweptSelf(p, t, ring_table(t, p.shape[0]), p, 0.005)
+
+
+def test_a_swept_step_on_the_worker_thread_equals_the_step_here_and_fails_the_same_way():
+    """swept_start / swept_join (native/collide/pymodule.c: the step on an OS thread that never
+    takes the GIL) against swept_step on this thread: the same counts, live pairs, memories and cull
+    state, step for step on a jittered sheet; bad input raises at the start, a kernel's error (a
+    non-finite position) at the join, and the worker takes the next step after either."""
+    from tearcloth import _collide
+
+    x, a = _swept_sheet()
+    _, b = _swept_sheet()
+    worker = _collide.swept_worker()
+    rng = np.random.default_rng(3)
+    dt, prev = 1e-3, None
+    live = 0
+    for step in range(40):
+        x1 = np.ascontiguousarray(x + rng.normal(size=x.shape) * (2e-3 if step % 2 else 2e-5))
+        v = np.ascontiguousarray(rng.normal(size=x.shape) * 1.0)
+        na = a.step(prev, x1, v, dt)
+        seconds, on_thread, nb = b.finish(b.start(worker, prev, x1, v, dt))
+        assert on_thread and seconds > 0
+        assert na == nb and a.counts == b.counts, f"step {step}"
+        for kind in ("vt", "ee"):
+            for u, w in zip(a.live[kind], b.live[kind]):
+                assert np.array_equal(u, w), f"step {step} {kind}"
+            assert np.array_equal(a.blocks[kind][3], b.blocks[kind][3])
+        assert np.array_equal(a.mem_vt, b.mem_vt) and np.array_equal(a.mem_ee_n, b.mem_ee_n)
+        live += na
+        prev, x = x1, x1
+    assert live > 0, "no pair gave contacts: the comparison says nothing about the rows"
+    bad = x.copy()
+    bad[4, 2] = np.nan
+    job = b.start(worker, x, bad, None, 0.0)
+    with pytest.raises(ValueError, match="not finite"):
+        _collide.swept_join(job)
+    with pytest.raises(ValueError, match="joined already"):
+        _collide.swept_join(job)
+    with pytest.raises(TypeError, match="positions"):
+        b.start(worker, x, x.astype(np.float32), None, 0.0)  # float32 positions: refused before the thread
+    assert b.finish(b.start(worker, x, x, None, 0.0))[1]
+
+
+def test_a_swept_job_dropped_unjoined_is_waited_for_and_the_worker_goes_on():
+    """A job let go without its join (an exception between start and join) is waited for before its
+    arrays are released; a worker takes one job at a time (a second start before the join is an
+    error, and the pending job still joins); a worker let go while its job runs lives until the job
+    is done (the job holds it). None of it may crash or hang."""
+    import gc
+
+    from tearcloth import _collide
+
+    x, sw = _swept_sheet(14)
+    worker = _collide.swept_worker()
+    sw.step(None, x, None, 0.0)
+    job = sw.start(worker, x, x, np.ones_like(x), 1e-3)
+    with pytest.raises(ValueError, match="not joined yet"):
+        sw.start(worker, x, x, None, 0.0)
+    assert sw.finish(job)[1]
+    for _ in range(20):  # dropped at once, while the thread may still run it
+        job = _collide.swept_start(worker, **sw._arguments(x, np.ascontiguousarray(x + 1e-4), None, 0.0, None)[0])
+        del job
+        gc.collect()
+    assert sw.finish(sw.start(worker, x, x, None, 0.0))[1]  # the worker is free again
+    job = sw.start(worker, x, x, np.ones_like(x), 1e-3)
+    del worker
+    gc.collect()
+    assert sw.finish(job)[1]
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "fork"), reason="no fork on this system")
+def test_a_forked_child_never_waits_for_its_parents_swept_thread():
+    """A fork's child (a process started by fork from a baking one) has none of its parent's threads:
+    a worker made before the fork runs nothing there (a job handed to it before the fork fails its
+    join, saying so; dropped, it is let go without waiting), and a detector stepping in the child
+    makes a worker of its own. Run in a child process that must end within 60 s."""
+    import gc
+    import os
+    import time
+    import warnings
+
+    from tearcloth import _collide
+
+    x, sw = _swept_sheet()
+    p, t = grid(10, 10, 0.1, z=0.1)
+    det = CollisionDetector(0.005, 0.3, 0.003, swept_thread=True)
+    det.detect(p, t, np.zeros_like(p), 1e-3)
+    worker = _collide.swept_worker()
+    sw.step(None, x, None, 0.0)
+    pending = sw.start(worker, x, x, None, 0.0)
+    time.sleep(0.05)  # (its step has run here; the child's copy of the job still says "handed over")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # Python 3.12+: fork of a threaded process
+        pid = os.fork()
+    if pid == 0:  # the child: any failure is its exit status
+        code = 1
+        try:
+            try:
+                _collide.swept_join(pending)
+                code = 2
+            except ValueError as exc:
+                code = 3 if "a fork's child" not in str(exc) else 0
+            del pending, worker
+            gc.collect()
+            det.detect(p, t, np.zeros_like(p), 1e-3)
+            if code == 0 and not (det._worker[0] == os.getpid() and det.stats["swept_thread_fallbacks"] == 0):
+                code = 4
+        finally:
+            os._exit(code)
+    deadline = time.monotonic() + 60
+    while True:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        if time.monotonic() > deadline:
+            os.kill(pid, 9)
+            os.waitpid(pid, 0)
+            pytest.fail("the forked child hung on its parent's swept thread")
+        time.sleep(0.05)
+    assert os.waitstatus_to_exitcode(status) == 0
+    assert sw.finish(pending)[1]  # the parent's own job joins as ever
+
+
+def test_an_error_beside_the_swept_thread_waits_for_it_and_the_detector_steps_on(monkeypatch):
+    """The colliders' step raising while the swept stage runs on its thread: the detector waits for
+    the stage before the error leaves detect (nothing may still write its state), raises the
+    colliders' error, and its next step runs on the same worker."""
+    p, t = grid(12, 12, 0.1, z=0.1)
+    det = CollisionDetector(0.005, 0.3, 0.003, swept_thread=True)
+    v = np.zeros_like(p)
+    det.detect(p, t, v, 1e-3)
+    real = det._colliders_step
+
+    def boom(*args):
+        raise RuntimeError("colliders failed")
+
+    monkeypatch.setattr(det, "_colliders_step", boom)
+    with pytest.raises(RuntimeError, match="colliders failed"):
+        det.detect(p, t, v, 1e-3)
+    monkeypatch.setattr(det, "_colliders_step", real)
+    det.detect(p, t, v, 1e-3)
+    assert det.stats["swept_thread_fallbacks"] == 0

@@ -29,8 +29,10 @@ numpy arrays in and out and no Python per pair, ray or triangle:
               and edge-edge tests over the step (``swept.py``, two calls); its contacts join
               ``all_contacts``. Its first call, the larger (the cull and the tests: ~2-3 ms a
               sub-step of the race's shirt, as much as steps 1-4), depends on nothing steps 1-4
-              make, so it starts first, on a worker thread when the process may use a second CPU
-              (``swept_thread``), and runs beside them; its rows are merged after them. The
+              make, so it starts first, on a thread of its own when the process may use a second CPU
+              (``swept_thread``: an OS thread started in C that never takes the GIL, so it begins at
+              once, however long the colliders' Python holds the GIL), and runs beside them; its
+              rows are merged after them. The
               contacts are the same bit for bit with or without the thread (test_collision_detect).
 
 The previous release ran steps 2-4 in Python over per-stage kernels, bodies in Embree scenes in
@@ -83,8 +85,6 @@ from __future__ import annotations
 import os
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
-from concurrent.futures import wait as _wait_for
 
 import numpy as np
 
@@ -300,7 +300,7 @@ class CollisionDetector:
     body that starts inside the cloth blow it up, test_collision_session); ``clearance_cap`` (>= 1)
     the paper's rule's threshold per pair raised by the clearance its last full detection measured,
     up to this factor (module docs, "Clearance"; 1: off); ``swept_thread`` runs the swept stage on a
-    worker thread while the colliders are detected (default: when this process may use more than one
+    thread of its own while the colliders are detected (default: when this process may use more than one
     CPU; the two read the same positions and write nothing the other reads, so the contacts are the
     same either way, bit for bit).
     """
@@ -343,6 +343,7 @@ class CollisionDetector:
         self.swept = bool(swept)  # stage 5 (swept.py); off only to measure what it costs and saves
         self._swept = None
         self.swept_thread = usable_cpus() > 1 if swept_thread is None else bool(swept_thread)
+        self._swept_thread_fallbacks = 0  # steps whose thread could not be started (stats)
         self.trip_rule = trip_rule
         self.inflate = 0.5 * (self.displacement_threshold + self.thickness)
         # Relative motion between two full detections of a pair stays under the threshold (twice
@@ -385,7 +386,7 @@ class CollisionDetector:
     # positions, step counter, trees): pickled whole by ``tearcloth.resume``. The trees are plain
     # arrays, pickled as they are (their shape depends on the pose they were built in).
     def __getstate__(self):
-        return {k: v for k, v in self.__dict__.items() if k not in ("_ws", "_pool")}  # the step's scratch, the thread
+        return {k: v for k, v in self.__dict__.items() if k not in ("_ws", "_worker")}  # the step's scratch, the thread
 
     def __setstate__(self, state):
         state.setdefault("trip_rule", "paper")  # saved before trip rules existed: the paper's measures
@@ -394,6 +395,7 @@ class CollisionDetector:
         self.__dict__.setdefault("swept", True)
         self.__dict__.setdefault("_swept", None)
         self.__dict__.setdefault("swept_thread", usable_cpus() > 1)  # the machine that resumes decides
+        self.__dict__.setdefault("_swept_thread_fallbacks", 0)
         # saved before the trip rule's bound: its budget and reach as __init__ sets them
         self.__dict__.setdefault("trip_budget", self.displacement_threshold)
         self.__dict__.setdefault("trip_reach", 2.0 * self.track_range)
@@ -621,23 +623,28 @@ class CollisionDetector:
         t_start = time.perf_counter()
         pos, step = self._begin_step(positions, triangles, velocities)
         ws = self._workspace(pos.shape[0])
-        # 5 (started first). the swept stage of the two-ring: on a worker thread when there is a
-        # second CPU, while steps 1-4 run here (its C call releases the GIL); it reads the step's
-        # positions, the previous ones and the velocities, and writes only its own state. Without
-        # the thread it runs here after steps 1-4.
+        # 5 (started first). the swept stage of the two-ring: on its thread when there is a second
+        # CPU (C, never taking the GIL), while steps 1-4 run here; it reads the step's positions,
+        # the previous ones and the velocities, and writes only its own state. Without the thread
+        # it runs here after steps 1-4.
         t_begin = time.perf_counter()
         swept = self._swept_begin(pos, dt)  # a new topology's pairs: the stage's time, not the measure's
         begin_s = time.perf_counter() - t_begin
-        job = self._swept_pool().submit(_timed_swept_step, *swept) if swept and self.swept_thread else None
+        job = swept[0].start(self._swept_worker(), *swept[1:]) if swept and self.swept_thread else None
         try:
             contacts, every, n_close, counts, times, self_times, t_phase = self._colliders_step(pos, ws, step)
         except BaseException:
             if job is not None:
-                _wait_for([job])  # nothing may still run on the detector's state once this raises
+                try:  # nothing may still run on the detector's state once this raises
+                    swept[0].finish(job)
+                except Exception:  # noqa: S110 - the colliders' error is the one to raise
+                    pass
             raise
         t_join = time.perf_counter()
         if job is not None:
-            swept_s, n_live = job.result()
+            swept_s, on_thread, n_live = swept[0].finish(job)
+            # no thread could be started (the system's limit): the step ran before the colliders
+            self._swept_thread_fallbacks += not on_thread
         else:  # off, or on this thread
             swept_s, n_live = _timed_swept_step(*swept) if swept else (0.0, 0)
         t_rows = time.perf_counter()
@@ -675,6 +682,7 @@ class CollisionDetector:
                 "swept_wait": 1e3 * (t_rows - t_join) if job is not None else 0.0,
             },
             "swept_pairs": 0 if self._swept is None else self._swept.n_pairs,
+            "swept_thread_fallbacks": self._swept_thread_fallbacks,
             **{f"swept_{k}": v for k, v in (self._swept.counts if self._swept is not None else {}).items()},
         }
         return contacts
@@ -933,13 +941,13 @@ class CollisionDetector:
         return (self._swept, None if self._first else self._cloth_prev, pos, cloth.velocities,
                 0.0 if dt is None else float(dt))
 
-    def _swept_pool(self):
-        """The stage's worker thread, made when first needed (not pickled). One per detector: two
-        cloths baked on two threads never wait for each other's stage."""
-        pool = getattr(self, "_pool", None)
-        if pool is None:
-            pool = self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tearcloth-swept")
-        return pool
+    def _swept_worker(self):
+        """The swept stage's thread (C, native/collide/pymodule.c), made when first needed (not
+        pickled). One per detector: two cloths baked on two threads never wait for each other's stage."""
+        worker = getattr(self, "_worker", None)
+        if worker is None or worker[0] != os.getpid():  # (a fork's child has not the parent's thread)
+            worker = self._worker = (os.getpid(), _collide.swept_worker())
+        return worker[1]
 
     def _swept_rows(self, every, n_live):
         """``every`` (the colliders' contacts, sorted by vertex) with the swept stage's contact rows

@@ -230,6 +230,26 @@ class SweptSelf:
         pairs giving contacts (pairs, normal, depth, weights, live count). Returns how many pairs
         give contacts. ``handed_out``, a dict (tests): receives per kind the pairs the cull handed out
         over the real and the predicted motion."""
+        args, extra = self._arguments(x_prev, x, v, dt, handed_out)
+        _collide.swept_step(**args, **extra)
+        return self._take(handed_out)
+
+    def start(self, worker, x_prev, x, v, dt):
+        """``step`` handed to ``worker``'s thread (``_collide.swept_worker()``: an OS thread that never
+        needs the GIL, so the step begins at once whatever Python runs meanwhile). Nothing of this
+        object, x_prev, x or v may change until ``finish(job)``."""
+        args, extra = self._arguments(x_prev, x, v, dt, None)
+        return _collide.swept_start(worker, **args, **extra)  # (the job holds the arrays' buffers)
+
+    def finish(self, job):
+        """The end of a ``start``ed step: (its own seconds, whether it ran on its thread, how many
+        pairs give contacts), ``self.live`` as ``step`` leaves it. Raises the step's error."""
+        seconds, on_thread = _collide.swept_join(job)
+        return seconds, on_thread, self._take(None)
+
+    def _arguments(self, x_prev, x, v, dt, handed_out):
+        """The C step's keyword arguments for this step (the kept buffers, this step's arrays and
+        the memory buffer it writes), and the optional handed-out outputs."""
         buf = self._buffers()
         real = x_prev is not None and x_prev.shape == x.shape
         predict = v is not None and dt > 0
@@ -249,7 +269,12 @@ class SweptSelf:
             for kind, k in (("vt", self.vt_gap.size), ("ee", self.ee_gap.size)):
                 handed_out[kind] = (np.empty(k, np.int64), np.empty(k, np.int64))
                 extra[f"{kind}_handed_out"], extra[f"{kind}_predicted_out"] = handed_out[kind]
-        _collide.swept_step(**args, **extra)
+        return args, extra
+
+    def _take(self, handed_out):
+        """After the C step: the new memories, ``self.live``, the counts; returns how many pairs give
+        contacts."""
+        buf = self._buffers()
         c = buf["counts"].tolist()
         vt, ee = c[:12], c[12:]
         self.live = {}
