@@ -164,6 +164,9 @@ class Progress:
         # solves so far whose multigrid or Gauss-Seidel preconditioner could not be had (out of
         # memory, a broken-down cycle) and block Jacobi took over: same answer, slower, said at the end
         self.preconditioner_fallbacks = 0
+        # collision steps whose swept stage ran on the baking thread because the system would not
+        # start its own (the detector's count): same contacts, slower, said at the end
+        self.swept_thread_fallbacks = 0
         # the most stiff groups a step of this run had (the core's stats: sliver triangles' corners
         # solved together, native/stiff.c), and the thinnest triangle of the mesh the bake began
         # with (degrees, the user's polygon): said at the end, as remeshing them speeds the bake
@@ -226,14 +229,20 @@ class Progress:
         return ", ".join(parts)
 
     def fallback_text(self) -> str | None:
-        """The sentence for the end of a bake when some solves fell back to block Jacobi (None when
-        none did): the motion is as accurate, the bake was slower than it should have been."""
+        """The sentence for the end of a bake when some solves fell back to block Jacobi, or some
+        collision steps ran their swept stage without its thread (None when neither happened): the
+        motion is as accurate, the bake was slower than it should have been."""
+        said = []
         n = self.preconditioner_fallbacks
-        if not n:
-            return None
-        return (f"{n} solve{'s' if n != 1 else ''} fell back from the chosen preconditioner to block Jacobi "
-                "(out of memory, or the multigrid cycle broke down): same result, slower; free memory or "
-                "set the preconditioner to Jacobi")
+        if n:
+            said.append(f"{n} solve{'s' if n != 1 else ''} fell back from the chosen preconditioner to block Jacobi "
+                        "(out of memory, or the multigrid cycle broke down): same result, slower; free memory or "
+                        "set the preconditioner to Jacobi")
+        n = self.swept_thread_fallbacks
+        if n:
+            said.append(f"{n} collision step{'s' if n != 1 else ''} ran the self-collision sweep on the baking "
+                        "thread because the system would not start another (its thread limit): same result, slower")
+        return ". ".join(said) or None
 
     def sliver_text(self) -> str | None:
         """The sentence for the end of a bake whose mesh had sliver triangles that the solver
@@ -451,6 +460,8 @@ class BakeJob:
                 self.progress.unconverged_steps += 1
         st = session.cloth.stats()
         self.progress.preconditioner_fallbacks = int(st["amg_fallbacks"]) + int(st["sgs_fallbacks"])
+        if session.detector is not None:
+            self.progress.swept_thread_fallbacks = int(session.detector.stats.get("swept_thread_fallbacks", 0))
         self.progress.stiff_groups = max(self.progress.stiff_groups, int(st["stiff_groups"]))
         self._write(inputs)
         self.next_frame += 1

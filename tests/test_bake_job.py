@@ -136,6 +136,13 @@ def test_progress_line_prints_every_tenth_to_a_pipe():
     assert p.fallback_text() is None
     p.preconditioner_fallbacks = 3
     assert p.fallback_text().startswith("3 solves fell back from the chosen preconditioner to block Jacobi")
+    p.preconditioner_fallbacks, p.swept_thread_fallbacks = 0, 1
+    assert p.fallback_text().startswith("1 collision step ran the self-collision sweep on the baking thread")
+    p.preconditioner_fallbacks = 2
+    both = p.fallback_text()  # both, one after the other
+    assert both.startswith("2 solves fell back") and both.endswith("1 collision step ran the self-collision sweep on "
+                                                                    "the baking thread because the system would not "
+                                                                    "start another (its thread limit): same result, slower")
     # removed small pieces: said at the end; a warning once they took a quarter of the cloth
     assert p.fragment_text() is None
     p.fragments_removed, p.fragment_triangles_removed, p.start_triangles, p.min_fragment_area = 2, 3, 100, 1e-4
@@ -253,3 +260,27 @@ def test_a_bake_of_a_mesh_with_slivers_says_so_naming_the_thinnest_polygon(tmp_p
                            f"{polygons[k]}): the solver took {p.stiff_groups} groups of their corners together")
     (tmp_path / "w").mkdir()
     assert bake(plan_for(tmp_path / "w")).progress.sliver_text() is None
+
+
+def test_a_swept_stage_without_its_thread_is_said_at_the_end_of_the_bake(tmp_path, monkeypatch):
+    """A bake with self-collision whose detector could not start the swept stage's thread (the
+    system's thread limit; forced here by reporting every step as run without it): the bake counts
+    those steps from the detector and says so at the end - same result, slower - never silently."""
+    from dataclasses import replace
+
+    from tearcloth.collision import detector as det_mod
+    from tearcloth.collision.swept import SweptSelf
+    from tearcloth.session import CollisionSettings
+
+    monkeypatch.setattr(det_mod, "usable_cpus", lambda: 2)  # the stage gets its thread
+    real = SweptSelf.finish
+
+    def without_thread(self, job):
+        seconds, _, live = real(self, job)
+        return seconds, False, live
+
+    monkeypatch.setattr(SweptSelf, "finish", without_thread)
+    plan = replace(plan_for(tmp_path, (1, 2)), collision=CollisionSettings())
+    job = bake(plan)
+    assert job.progress.swept_thread_fallbacks == STEPS  # every collision step from frame 1 to 2
+    assert f"{STEPS} collision steps ran the self-collision sweep on the baking thread" in job.progress.fallback_text()
