@@ -7,13 +7,17 @@ import pytest
 from tearcloth import _collide
 
 
-def _closest_on_triangle(p, a, b, c, m=60):
-    # oracle: dense barycentric grid (fine enough for the margins below)
+def _closest_on_triangles(X, m=60):
+    """Oracle: X (k, 4, 3) rows of (p, a, b, c); (k,) distances from p to a dense barycentric grid
+    of (a, b, c) (fine enough for the margins below), all configurations at once."""
     u, v = np.meshgrid(np.linspace(0, 1, m), np.linspace(0, 1, m))
     keep = u + v <= 1
     u, v = u[keep], v[keep]
-    q = a + u[:, None] * (b - a) + v[:, None] * (c - a)
-    return np.linalg.norm(q - p, axis=1).min()
+    p, a, b, c = (X[:, i] for i in range(4))
+    # q - p = (a - p) + u (b - a) + v (c - a), per axis: (k, grid) at a time
+    d2 = sum((a[:, k, None] - p[:, k, None] + u[None] * (b - a)[:, k, None] + v[None] * (c - a)[:, k, None]) ** 2
+             for k in range(3))
+    return np.sqrt(d2.min(axis=1))
 
 
 def test_vertex_driven_through_a_triangle_is_found_with_its_side_and_time():
@@ -57,12 +61,13 @@ def test_vertex_passing_beside_or_staying_away_is_not_a_hit():
         _collide.ccd_vertex_triangle(start=x0, end=x1, triangles=tri, vertex=np.array([0]), triangle=np.array([0]),
                                      gap=gap, toi=toi, weights=wt, side=sd)
         s = np.linspace(0, 1, 201)
-        d = np.array([_closest_on_triangle(*(x0 + t * (x1 - x0))) for t in s])
+        X = x0[None] + s[:, None, None] * (x1 - x0)[None]  # the pair at each of the 201 times
+        d = _closest_on_triangles(X)
         if d.min() > 1.2 * gap:
             assert not np.isfinite(toi[0]), "a hit where the vertex never came within the gap"
             checked += 1
         # a crossing of the plane inside the triangle must be found, at the oracle's time
-        f = np.array([np.dot(P[0] - P[1], np.cross(P[2] - P[1], P[3] - P[1])) for P in (x0 + t * (x1 - x0) for t in s)])
+        f = np.einsum("ij,ij->i", X[:, 0] - X[:, 1], np.cross(X[:, 2] - X[:, 1], X[:, 3] - X[:, 1]))
         through = (np.sign(f[1:]) != np.sign(f[:-1])) & (np.minimum(d[1:], d[:-1]) < 0.2 * gap)
         if through.any():
             assert np.isfinite(toi[0]) and toi[0] <= s[np.argmax(through) + 1] + 1e-9
