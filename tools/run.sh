@@ -168,6 +168,18 @@ suite() {
 
 command -v cc >/dev/null 2>&1 || apt_install gcc libc6-dev
 rm -rf "$OWN_WHEEL_DIR"
+sanitizers=""
+if [ "$job" = test ]; then
+    # the sanitizer build and run of the native tests (one process, ~150 s of CPU; it needs only
+    # cc) from the start: the set-up below is mostly pip, one core, and left the other idle for
+    # about a minute; started with the first half instead, the two competed for both cores
+    mkdir -p out
+    bash native/tests/run_sanitizers.sh >out/sanitizers.log 2>&1 &
+    sanitizers=$!
+    # a failed set-up ends the script and with it this job's script (a test binary it runs then ends
+    # on its own, writing only to out/sanitizers.log)
+    trap '[ -z "$sanitizers" ] || kill "$sanitizers" 2>/dev/null || true' EXIT
+fi
 setup "$PY" "$VENV"
 
 case "$job" in
@@ -209,14 +221,11 @@ case "$job" in
             fi
         ) &
         others=$!
-        # the sanitizer build and run (one process, ~85 s of CPU) beside the first half too: alone it
-        # left the second core idle
-        bash native/tests/run_sanitizers.sh >out/sanitizers.log 2>&1 &
-        sanitizers=$!
         status=0
         suite "$VENV" || status=$?
         san=0
         wait "$sanitizers" || san=$?
+        sanitizers=""  # (waited for: nothing for the exit trap to stop)
         echo "== the sanitizer build of the native tests (out/sanitizers.log)" >&2
         cat out/sanitizers.log >&2
         if [ "$san" != 0 ]; then echo "tools/run.sh: the sanitizer run FAILED (status $san)" >&2; status=1; fi
