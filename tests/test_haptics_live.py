@@ -123,7 +123,7 @@ def test_two_emulated_falcons_tear_the_square_like_fig6(tmp_path, servo):
     # the peak must still follow within 35 steps, and the drop within 40 of the peak (below).
     assert -10 <= kp - k0 <= 35, (k0, kp)
     assert mean[ph["pull_step"] : kp].max() <= peak
-    # The hands' own peaks: within 1 % in quiet runs and beside two CPU hogs (8 runs each way);
+    # The hands' own peaks: within 1 % in 3 quiet runs and in 5 runs beside two CPU hogs;
     # 11.4 % once in a fresh-clone CI run (61.3 / 54.3 N, thread servo, both cores busy with the
     # suite's two workers and the sanitizer build), where one hand's servo thread rendered the peak
     # late. The peak is one smoothed sample of the force a device rendered, so a starved servo moves
