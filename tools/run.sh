@@ -76,16 +76,21 @@ find_python313() {
 # them beside the first half's tests)
 OWN_WHEEL_DIR=out/own-wheel
 
+built_wheel() {
+    # the wheel this run built so far, or nothing (|| true: ls of an empty folder fails, and
+    # pipefail would end a background caller here)
+    ls "$OWN_WHEEL_DIR"/tearcloth-*.whl 2>/dev/null | head -n 1 || true
+}
+
 own_wheel() {
     # own_wheel VENV: the path of this run's wheel, built by VENV's pip the first time (the folder is
     # emptied when a run starts, so a wheel of older sources is never installed)
-    # (|| true: ls of an empty folder fails, and pipefail would end a background call of this here)
     local found
-    found=$(ls "$OWN_WHEEL_DIR"/tearcloth-*.whl 2>/dev/null | head -n 1 || true)
+    found=$(built_wheel)
     if [ -z "$found" ]; then
         mkdir -p "$OWN_WHEEL_DIR"
         "$1/bin/python" -m pip wheel -q --no-deps --wheel-dir "$OWN_WHEEL_DIR" . >&2 || return 1
-        found=$(ls "$OWN_WHEEL_DIR"/tearcloth-*.whl 2>/dev/null | head -n 1 || true)
+        found=$(built_wheel)
         [ -n "$found" ] || { echo "tools/run.sh: pip wheel made no tearcloth wheel in $OWN_WHEEL_DIR" >&2; return 1; }
     fi
     echo "$PWD/$found"
@@ -107,7 +112,7 @@ setup() {
     # requirements beside it: one after the other, the first set-up waited ~30 s for the compile
     # with the network idle, then ~40 s for pip with a core idle
     local building=""
-    if ! ls "$OWN_WHEEL_DIR"/tearcloth-*.whl >/dev/null 2>&1; then
+    if [ -z "$(built_wheel)" ]; then
         own_wheel "$venv" >/dev/null &
         building=$!
     fi
