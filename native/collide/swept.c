@@ -257,9 +257,16 @@ static int cull_kind(tcc_swept *s, tcc_swept_kind *K, const double *x1, const do
         K->settled[2 + real_open]++;
         if (real_open) {
             /* read the pairs: carry each bound to this step (less its own corners' motion since the
-             * reference), hand out those that may meet; the reference becomes this step's pose */
+             * reference), hand out those that may meet; the reference becomes this step's pose.
+             * The predicted window is judged in the same pass: from the new reference (this step's
+             * pose) a pair's predicted motion is x1 - x at its corners, tested against its new
+             * bound as the pass below would; its pairs are kept only if the block's own test
+             * (its smallest bound against the spread of x1 - x) leaves the window open. The same
+             * arithmetic as a second pass over the block (bit for bit), without reading it twice:
+             * in the race's shirt at 10 sub-steps a frame a quarter of the blocks are read a step */
             double lo = INFINITY;
             int unknown = 0;
+            const tcc_idx pfrom = pcand->n;
             scatter_ref(vert, nv, ref, rs, stamp, ++*tag); /* block_spread checked vert */
             for (tcc_idx q = K->bptr[b]; q < K->bptr[b + 1]; q++) {
                 tcc_idx id[4];
@@ -272,27 +279,36 @@ static int cull_kind(tcc_swept *s, tcc_swept_kind *K, const double *x1, const do
                 if (sl > 0 && sl * sl > fmax(bn, bp)) {
                     K->slack[q] = sl - sqrt(bn);
                     if (K->slack[q] < lo) lo = K->slack[q]; /* sl > 0 and finite: never NaN */
-                    continue;
+                } else {
+                    if ((rc = list_push(cand, q, err))) return rc;
+                    const double *P[4];
+                    points(s->x, id, P);
+                    K->slack[q] = sqrt(tcc_pair_distance2(P, K->split)) - K->gap[q];
+                    if (isnan(K->slack[q]))
+                        unknown = 1;
+                    else if (K->slack[q] < lo)
+                        lo = K->slack[q];
                 }
-                if ((rc = list_push(cand, q, err))) return rc;
-                const double *P[4];
-                points(s->x, id, P);
-                K->slack[q] = sqrt(tcc_pair_distance2(P, K->split)) - K->gap[q];
-                if (isnan(K->slack[q]))
-                    unknown = 1;
-                else if (K->slack[q] < lo)
-                    lo = K->slack[q];
+                if (x1) {
+                    /* x - x at the corners (the new reference) is 0: the predicted motion alone */
+                    double dx[4][3];
+                    for (int j = 0; j < 4; j++)
+                        for (int c = 0; c < 3; c++) dx[j][c] = x1[3 * id[j] + c] - s->x[3 * id[j] + c];
+                    double ns = K->slack[q];
+                    if (!(ns > 0 && ns * ns > fmax(0.0, pair_motion2(dx, K->split))) && (rc = list_push(pcand, q, err)))
+                        return rc;
+                }
             }
             st[0] = unknown ? NAN : lo;
             st[1] = 0.0;
             for (tcc_idx i = 0; i < nv; i++)
                 for (int c = 0; c < 3; c++) ref[3 * i + c] = s->x[3 * vert[i] + c];
-            /* the predicted window from the new reference: its pairs against the prediction alone */
             if (x1) {
                 double s0, s1;
                 if ((rc = block_spread(s->x, x1, n, vert, ref, nv, &s0, &s1, err))) return rc;
-                pred_open = !(st[0] - s1 > 0);
+                if (st[0] - s1 > 0) pcand->n = pfrom; /* the block's window is closed: none of them */
             }
+            continue;
         }
         if (!pred_open) continue;
         scatter_ref(vert, nv, ref, rs, stamp, ++*tag);
