@@ -175,7 +175,7 @@ command -v cc >/dev/null 2>&1 || apt_install gcc libc6-dev
 rm -rf "$OWN_WHEEL_DIR"
 sanitizers=""
 if [ "$job" = test ]; then
-    # the sanitizer build and run of the native tests (one process, ~150 s of CPU; it needs only
+    # the sanitizer build and run of the native tests (one process, ~90 s of CPU; it needs only
     # cc) from the start: the set-up below is mostly pip, one core, and left the other idle for
     # about a minute; started with the first half instead, the two competed for both cores
     mkdir -p out
