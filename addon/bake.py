@@ -338,9 +338,13 @@ class BakeJob:
         self._tears_before = 0
         self._grasp: list = []
         self._handles: list = []
-        # A fresh bake is staged beside the old cache and replaces it with its first simulated
-        # frame (``_write``): a bake that fails before that (bad geometry found by the core,
-        # a cancel) leaves the user's previous bake, its resume state included, as it was.
+        # A fresh bake is staged beside the old cache. Over a previous bake (a re-bake) it replaces
+        # it only once complete (``close``): a re-bake that fails, is cancelled or is killed at any
+        # frame leaves the user's previous bake, its resume state included, as it was (its own
+        # frames are dropped: the user asked for a new bake, not half of one over the old). With
+        # nothing to replace, the staged bake moves to the final path with its first simulated
+        # frame (``_write``), so a first bake killed midway keeps its frames and resumes.
+        self.replacing = not plan.resume and os.path.lexists(plan.cache_path)
         self.writer = CacheWriter(
             plan.cache_path, plan.prim_name, plan.fps, "Z", plan.scale,
             object_name=plan.object_name, fingerprint=plan.fingerprint, resume=plan.resume,
@@ -449,9 +453,11 @@ class BakeJob:
             try:
                 report = session.step(plan.dt)
             except SimulationError as exc:
+                # a re-bake's frames are dropped with it (its caller says the previous bake stays)
+                kept = "" if self.replacing else "frames before are kept. "
                 raise SimulationError(
                     f"the simulation blew up between frames {inputs.frame - 1} and {inputs.frame} ({exc}); "
-                    "frames before are kept. Try more steps per frame or a gentler pull"
+                    f"{kept}Try more steps per frame or a gentler pull"
                 ) from None
             self.progress.step_seconds += time.perf_counter() - start
             self.progress.steps += 1
@@ -486,7 +492,7 @@ class BakeJob:
         # exactly what the Mesh Sequence Cache modifier (which ignores metersPerUnit) shows.
         writer.write_frame(inputs.frame, local * plan.scale, cloth.triangles,
                            cloth.corner_uv if self._has_uv else None, velocity * plan.scale, primvars=primvars)
-        if writer.staged and inputs.frame > self.start_frame:
+        if writer.staged and inputs.frame > self.start_frame and not self.replacing:
             self._promote()
         self.progress.frame_done(inputs.frame)
         self.progress.tears = tears
@@ -497,7 +503,8 @@ class BakeJob:
             self.on_event(BakeEvent("frame", self, inputs.frame))
 
     def _promote(self) -> None:
-        """The new bake has a simulated frame: it replaces the old one. The state file moves
+        """The new bake moves to the final path (a first bake with its first simulated frame, a
+        re-bake once complete), replacing the old one if any. The state file moves
         first: a crash before the cache moves leaves the old cache with a state of an earlier
         frame than its last, which resume refuses as stale (never a wrong continuation)."""
         staged_state = state_path_for(self.writer.path)

@@ -35,12 +35,13 @@ cache is split::
   every frame, so at every instant it names only frame files that already exist in full. A crash
   between a frame's rename and the root's rewrite leaves one complete frame the root does not
   name yet; ``resume=True`` adopts it.
-* A re-bake never destroys the bake it replaces before it has something better: it is written
-  beside it (``.cloth.baking.usda`` + ``.cloth.baking_frames/``, ``CacheWriter(stage=True)``)
-  and replaces it with ``promote()`` once it holds a simulated frame (the bake calls it after
-  its first step frame). A bake that fails or is cancelled before that leaves the old cache,
-  frames and resume state untouched, and its staged files are deleted (``discard``); a staging
-  left by a killed process is cleared by the next bake. Only Free Bake deletes frames on purpose.
+* A re-bake never destroys the bake it replaces: it is written beside it (``.cloth.baking.usda``
+  + ``.cloth.baking_frames/``, ``CacheWriter(stage=True)``) and replaces it with ``promote()``
+  only once complete (bake.py's BakeJob: a first bake, with nothing to replace, is promoted with
+  its first simulated frame so that a killed one keeps its frames). A re-bake that fails, is
+  cancelled or is killed at any frame leaves the old cache, frames and resume state untouched,
+  and its staged files are deleted (``discard``); a staging left by a killed process is cleared
+  by the next bake. Only Free Bake deletes frames on purpose.
 * Value clips hold, not interpolate: between two frames (motion-blur sub-frames) the earlier
   frame's mesh is used as is, which is the only correct answer when the topology differs; before
   the first frame the first one is shown, after the last the last one.
@@ -752,9 +753,10 @@ class CacheWriter:
             self._resume()
         elif stage:
             # The re-bake rule: a new bake is written beside the old one (a hidden staging root
-            # and frames folder) and replaces it only in ``promote`` (called by the bake once the
-            # new bake has a simulated frame). Until then the old cache is not touched, so a bake
-            # that fails or is cancelled early leaves the previous bake exactly as it was.
+            # and frames folder) and replaces it only in ``promote`` (called by the bake when the
+            # new bake is complete, or with a first bake's first simulated frame). Until then the
+            # old cache is not touched, so a bake that fails, is cancelled or killed leaves the
+            # previous bake exactly as it was.
             if os.path.lexists(self.path) and not damaged_root(self.path):
                 _read_root(self.path, check_frames=False)  # refuse a foreign file before writing anything
             self.path = staging_path_for(self.final_path)

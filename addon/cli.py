@@ -64,6 +64,8 @@ from . import settings
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_TERMINATED = 143  # 128 + SIGTERM, the shells' convention
 CACHE_SUBFOLDER = "tearcloth_cache"
+# a re-bake replaces the previous bake only once complete (tearcloth.bake.BakeJob)
+PREVIOUS_KEPT = "its new frames dropped, the previous bake kept as it was"
 
 # First bytes of a .blend: plain, zstd-compressed (Blender 3.0+) or gzip-compressed (older).
 _PLAIN_MAGIC = b"BLENDER"
@@ -358,19 +360,22 @@ def _report(summary: dict, out) -> int:
             out(f"{r.name}: baked frames {r.frames[0]}-{r.frames[-1]}: {r.tears} tear{'s' if r.tears != 1 else ''}, "
                 f"{r.vertices} vertices, {r.seconds:.1f} s{rate} -> {r.cache_path}")
         elif r.state == "cancelled":
-            kept = f"frames {r.frames[0]}-{r.frames[-1]} kept" if r.frames else "no frame written"
+            kept = (f"frames {r.frames[0]}-{r.frames[-1]} kept" if r.frames else
+                    PREVIOUS_KEPT if r.previous_kept else "no frame written")
             print(f"{prog}: {r.name}: interrupted; {kept}", file=sys.stderr)
             status = max(status, EXIT_FAILED)
         else:
-            print(f"{prog}: error: {r.name}: {r.message}", file=sys.stderr)
+            print(f"{prog}: error: {r.name}: {r.message}" + (f"; {PREVIOUS_KEPT}" if r.previous_kept else ""),
+                  file=sys.stderr)
             status = max(status, EXIT_FAILED)
     if signal_name:
         # one line: what stopped it, what is kept, where, and how to go on
-        kept = [f"{r.name} frames {r.frames[0]}-{r.frames[-1]}" for r in summary["objects"]
-                if r.state == "cancelled" and r.frames]
+        kept = [f"{r.name} frames {r.frames[0]}-{r.frames[-1]}" if r.frames else f"{r.name}'s previous bake"
+                for r in summary["objects"] if r.state == "cancelled" and (r.frames or r.previous_kept)]
         saved = f"; saved {summary['output']}" if summary["saved"] else ""
+        again = " (a re-bake starts over)" if any(r.previous_kept for r in summary["objects"]) else ""
         print(f"{prog}: stopped by {signal_name}: {', '.join(kept) or 'no frame'} kept{saved}; "
-              "run the same command again to resume", file=sys.stderr)
+              f"run the same command again to resume{again}", file=sys.stderr)
         return EXIT_TERMINATED if signal_name == "SIGTERM" else EXIT_INTERRUPTED
     if summary["saved"]:
         out(f"saved {summary['output']}")

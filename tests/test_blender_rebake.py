@@ -161,10 +161,31 @@ REBAKE = '''
     run.start_thread(bpy.context)
     run.stop()
     out["cancelled"] = dict(state=run.finish(bpy.context), same=snapshot() == good)
-    # 4. a good re-bake replaces the old one once it has simulated a frame
-    cut = bake.bake_object(bpy.context, obj, progress=lambda p: p.frame < 3)
+    # 4. a good re-bake cancelled after it simulated frames 2 and 3: the previous bake as it was
+    r = bake.Reports()
+    cut = bake.bake_object(bpy.context, obj, progress=lambda p: p.frame < 3, reports=r)
+    out["cancelled_midway"] = dict(state=cut.state, frames=cut.frames, same=snapshot() == good, messages=r.items)
+    # 5. a re-bake that fails at its fourth frame (the solver blows up): the same
+    from tearcloth import session as session_mod
+    from tearcloth.cloth import SimulationError
+    step = session_mod.Session.step
+    calls = [0]
+    def failing(self, *a, **k):
+        calls[0] += 1
+        if calls[0] > 3 * obj.tearcloth.steps_per_frame:
+            raise SimulationError("the step blew up (injected by the test)")
+        return step(self, *a, **k)
+    session_mod.Session.step = failing
+    r = bake.Reports()
+    try:
+        failed = bake.bake_object(bpy.context, obj, reports=r)
+    finally:
+        session_mod.Session.step = step
+    out["failed_midway"] = dict(state=failed.state, frames=failed.frames, same=snapshot() == good, messages=r.items)
+    # 6. a re-bake that completes replaces the previous one
+    done = bake.bake_object(bpy.context, obj)
     info = cache.cache_info(path)
-    out["replaced"] = dict(state=cut.state, frames=info["frames"],
+    out["replaced"] = dict(state=done.state, frames=info["frames"], complete=info["complete"],
                            listing=sorted(os.listdir(os.path.dirname(path))))
     result(out)
 '''
@@ -176,8 +197,18 @@ def test_failed_rebake_keeps_the_previous_bake(tmp_path):
         assert got[key]["state"][0] == ["ERROR"], key
         assert got[key]["same"], f"{key}: the previous bake changed"
     assert got["cancelled"]["state"] == "cancelled" and got["cancelled"]["same"]
-    assert got["replaced"]["state"] == "cancelled" and got["replaced"]["frames"] == [1, 2, 3]
-    # nothing of the staged attempts is left beside the cache
+    # a re-bake cancelled or failing after it simulated frames: the previous bake, its resume
+    # state and the folder's listing as they were (the snapshot compares all three), and said
+    cancelled, failed = got["cancelled_midway"], got["failed_midway"]
+    assert cancelled["state"] == "cancelled" and cancelled["frames"] == [] and cancelled["same"], cancelled
+    assert any("previous bake is kept as it was" in m and "up to 3 are dropped" in m and "Resume" not in m
+               for level, m in cancelled["messages"] if level == "WARNING"), cancelled["messages"]
+    assert failed["state"] == "error" and failed["frames"] == [] and failed["same"], failed
+    assert any("blew up" in m and "previous bake is kept as it was" in m
+               for level, m in failed["messages"] if level == "ERROR"), failed["messages"]
+    # a complete re-bake replaces it; nothing of the staged attempts is left beside the cache
+    assert got["replaced"]["state"] == "done" and got["replaced"]["complete"]
+    assert got["replaced"]["frames"] == [1, 2, 3, 4, 5, 6]
     assert got["replaced"]["listing"] == ["Sheet.state.npz", "Sheet.usda", "Sheet_frames"]
 
 

@@ -183,8 +183,9 @@ MACHINE = '''
         @rule(sig=st.sampled_from(["SIGKILL", "SIGTERM"]), after=st.sampled_from([2, 3]))
         def kill_baking_process(self, sig, after):
             """Save, bake the file with `tearcloth bake --overwrite --restart` in a subprocess, kill
-            it once frame ``after`` is in the cache (past the staged start: the new bake has
-            replaced the old), reopen the file."""
+            it once frame ``after`` is written (past the staged start), reopen the file. A first
+            bake has moved into place by then and keeps its frames; a re-bake is still beside the
+            previous bake, which must be as it was."""
             runs["actions"] += 1
             runs["kills"] += 1
             bpy.ops.wm.save_mainfile()
@@ -193,17 +194,29 @@ MACHINE = '''
             bpy.ops.wm.save_mainfile()
             path = modifier.cache_path(self.obj())
             frame_file = os.path.join(os.path.splitext(path)[0] + "_frames", f"frame_{after:06d}.usdc")
+            # a re-bake writes its frames beside the previous bake until it is complete
+            staged_file = os.path.join(cache.frames_dir_for(cache.staging_path_for(path)), f"frame_{after:06d}.usdc")
+            before = None
+            if os.path.exists(path):
+                info = cache.cache_info(path)
+                before = (info["frames"], info["complete"],
+                          [cache.read_frame(path, f)[0].tobytes() for f in info["frames"]])
             # the file of frame ``after`` as this bake writes it (an older bake may have left one)
-            old = os.stat(frame_file).st_mtime_ns if os.path.exists(frame_file) else None
+            # (a first bake's staged frame moves into place with it: there the final file is watched)
+            watched = (frame_file, staged_file) if before is not None else (frame_file,)
+            old = {f: os.stat(f).st_mtime_ns if os.path.exists(f) else None for f in watched}
             proc = subprocess.Popen([sys.executable, "-m", "tearcloth.cli", "bake", blend, "--overwrite",
                                      "--restart", "--objects", name], stdout=subprocess.PIPE,
                                     stderr=subprocess.PIPE, text=True)
             deadline = time.monotonic() + 120
             def written():
-                try:
-                    return os.stat(frame_file).st_mtime_ns != old
-                except FileNotFoundError:
-                    return False
+                for f, mtime in old.items():
+                    try:
+                        if os.stat(f).st_mtime_ns != mtime:
+                            return True
+                    except FileNotFoundError:
+                        pass
+                return False
             while not written() and proc.poll() is None and time.monotonic() < deadline:
                 time.sleep(0.005)
             proc.send_signal(getattr(signal, sig))
@@ -223,6 +236,18 @@ MACHINE = '''
                 assert cache.cache_info(path)["complete"], err[-2000:]
             else:
                 assert proc.returncode == (143 if sig == "SIGTERM" else -9), (proc.returncode, err[-2000:])
+                if before is not None:
+                    # a re-bake: cut short, the previous bake is as it was, frame for frame; else it
+                    # completed before the signal came and replaced it (checked below as a bake)
+                    info = cache.cache_info(path)
+                    now = (info["frames"], info["complete"],
+                           [cache.read_frame(path, f)[0].tobytes() for f in info["frames"]])
+                    if "previous bake kept" in err:  # said (SIGTERM) only when it was cut short
+                        assert now == before, (before[:2], now[:2], err[-2000:])
+                    if now == before:  # (a completed re-bake of the same scene may equal it too)
+                        runs["rebakes_cut"] = runs.get("rebakes_cut", 0) + 1
+                        return  # what the object plays is what the file was saved with before
+                    assert info["complete"], (before[:2], now[:2], err[-2000:])
             info = cache.cache_info(path)
             assert info["frames"] and info["frames"] == list(range(1, info["frames"][-1] + 1)), info["frames"]
             # every frame its progress line reported is kept (the frame file of ``after`` on disk
@@ -283,7 +308,8 @@ MACHINE = '''
 def test_user_action_sequences_never_lose_a_baked_frame(tmp_path):
     got = run_blender(tmp_path, MACHINE, tmp_path, SEQUENCES, timeout=900)
     print(f"user-action sequences: {got['sequences']} sequences, {got['actions']} actions, {got['kills']} "
-          f"killed bakes ({got.get('promotions_cut', 0)} inside a promotion, rebuilt), {got['playback_checks']} "
+          f"killed bakes ({got.get('promotions_cut', 0)} inside a promotion, rebuilt; {got.get('rebakes_cut', 0)} "
+          f"re-bakes, the previous bake kept), {got['playback_checks']} "
           "playback checks in a Blender without the add-on")
     assert got["ok"], "\n".join(got["failures"])
     assert got["sequences"] >= SEQUENCES and got["kills"] >= 1 and got["playback_checks"] >= 1
@@ -343,6 +369,7 @@ def test_a_kill_inside_a_promotion_is_rebuilt_and_resumed(tmp_path):
     assert killed.returncode == -9, (killed.stdout + killed.stderr)[-3000:]
     got = run_blender(tmp_path, KILLED_IN_PROMOTION, tmp_path, "resume", name="resume.py")
     assert got["damaged"] and got["state"] == "done", got
-    assert any("rebuilt it from its intact frame files (frames 1-2)" in w for w in got["warnings"]), got["warnings"]
+    # (a re-bake moves into place once complete: the frames cut short in the promotion are all four)
+    assert any("rebuilt it from its intact frame files (frames 1-4)" in w for w in got["warnings"]), got["warnings"]
     assert got["frames"] == [1, 2, 3, 4] and got["complete"]
     assert got["left"] == ["Sheet.state.npz", "Sheet.usda", "Sheet_frames"]  # the spent staging is gone

@@ -95,7 +95,11 @@ class BakeRun:
             self.object_name = obj.name
             self.progress = Progress(obj.name, self.plan.frame_start, self.plan.frame_end)
             self.created_folders = _missing_folders(os.path.dirname(self.plan.cache_path))
-            # Blender must let go of the old cache before the writer deletes or rewrites it.
+            # Blender must let go of the old cache before the writer deletes or rewrites it. What
+            # it played is noted first: a bake that writes nothing shows it again (_reattach_existing)
+            md = modifier.find_modifier(obj)
+            self._attached_before = ((modifier.attached_path(obj), md.object_path.lstrip("/"))
+                                     if md is not None and md.cache_file is not None else None)
             modifier.detach_cache(obj)
             try:
                 self.job = BakeJob(self.plan, self.progress, on_event)
@@ -119,13 +123,19 @@ class BakeRun:
 
     def _reattach_existing(self, obj) -> bool:
         """Show the cache that is at the object's path again (the previous bake a failed or
-        cancelled re-bake left as it was); False if there is none."""
+        cancelled re-bake left as it was), else the one the modifier played before this attempt
+        (a bake another file's folder holds, after Save As); False if there is neither."""
         try:
             cache.check_owner(self.plan.cache_path, obj.name, object_id=self.plan.object_id)
+            path, prim = self.plan.cache_path, self.plan.prim_name
         except cache.CacheError:
-            return False
+            before = getattr(self, "_attached_before", None)
+            if before is None or not os.path.isfile(before[0]) or os.path.normcase(before[0]) == os.path.normcase(
+                    os.path.abspath(self.plan.cache_path)):
+                return False
+            path, prim = before
         try:
-            modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
+            modifier.attach_cache(obj, path, prim)
         except BakeError as exc:
             self.reports.error(str(exc))
             return False
@@ -237,15 +247,19 @@ class BakeRun:
             removed = p.fragment_text()
             if removed is not None:
                 (self.reports.warning if removed[1] else self.reports.info)(f"{self.object_name}: {removed[0]}")
-        kept = f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"
-        if previous:
-            kept += "; the previous bake is kept as it was"
+        if frames:
+            kept = f"frames {frames[0]}-{frames[-1]} kept"
+        elif previous:  # a re-bake replaces the previous bake only once complete (tearcloth.bake)
+            kept = "the previous bake is kept as it was" + (
+                f" (this bake's frames up to {p.frame} are dropped)" if p.frame is not None else "")
+        else:
+            kept = "no frame written"
         if p.state == "done":
             self.reports.info(f"{self.object_name}: baked frames {frames[0]}-{frames[-1]} "
                               f"({p.tears} tear{'s' if p.tears != 1 else ''}, {p.vertices} vertices at the end) "
                               f"into {self.plan.cache_path}")
         elif p.state == "cancelled":
-            self.reports.warning(f"{self.object_name}: bake cancelled; {kept}. Resume continues it")
+            self.reports.warning(f"{self.object_name}: bake cancelled; {kept}" + (". Resume continues it" if frames else ""))
         else:
             p.state = "error"
             self.reports.error(f"{self.object_name}: bake stopped: {p.message}; {kept}")
@@ -387,8 +401,9 @@ def bake_object(context, obj, frame_start=None, frame_end=None, progress=None, *
     """Bake ``obj`` from ``frame_start`` to ``frame_end`` (default: its settings) inline, on the
     calling thread: the same ``BakeJob`` the modal operator runs on its worker.
 
-    ``progress(Progress)`` is called after every frame; returning False stops the bake (the
-    frames written so far are kept). ``resume=True`` continues an interrupted bake. Raises
+    ``progress(Progress)`` is called after every frame; returning False stops the bake (a first
+    bake keeps the frames written so far; a re-bake, which replaces the previous bake only once
+    complete, leaves that one as it was). ``resume=True`` continues an interrupted bake. Raises
     ``BakeError`` (scene unchanged) when the bake cannot start; otherwise returns a
     ``BakeResult`` whose ``state`` says how it ended and whose ``reports`` hold every message
     (also logged under the "tearcloth" logger).

@@ -52,6 +52,7 @@ class ObjectResult:
     vertices: int = 0
     seconds: float = 0.0
     message: str = ""
+    previous_kept: bool = False  # a re-bake that did not complete: the object's previous bake is as it was
 
     @property
     def seconds_per_frame(self) -> float | None:
@@ -197,8 +198,10 @@ def _bake_objects(names, start, end, plan, progress: ProgressLine, on_event, sto
         message = p.message if state == "error" else ""
         if state == "error" and not message:
             message = "; ".join(reports.errors)
-        results.append(ObjectResult(name, state, list(run.job.writer.frames), run.plan.cache_path, p.tears,
-                                    p.vertices, time.perf_counter() - t0, message))
+        frames = list(run.job.writer.frames)
+        results.append(ObjectResult(name, state, frames, run.plan.cache_path, p.tears,
+                                    p.vertices, time.perf_counter() - t0, message,
+                                    previous_kept=state != "done" and not frames and run.job.replacing))
     return results
 
 
