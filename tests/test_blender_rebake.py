@@ -328,6 +328,30 @@ IDENTITY = '''
     out["old_id"] = modifier.object_id(old)
     out["dup_path"] = modifier.cache_path(dup)
     out["old_kept_after_dup"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    # 4. Free Bake on a duplicate that still shows its original's bake: it lets go, the bake stays
+    twin = old.copy()  # the modifier copied too: it plays the same cache; the same id
+    twin.name = "Twin"
+    bpy.context.scene.collection.objects.link(twin)
+    assert modifier.attached_path(twin) == first
+    r = bake.Reports()
+    out["twin_freed"] = bake.free_bake(twin, r)
+    out["twin_messages"] = r.items
+    out["twin_plays"] = modifier.attached_path(twin)
+    out["old_plays_after_twin"] = modifier.attached_path(old)
+    out["old_kept_after_twin"] = os.path.isfile(first) and [
+        cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    # 5. a duplicate renamed to the name the original was baked under ("MySheet"), the original
+    # renamed away and still showing that bake: the duplicate bakes into a cache of its own
+    new.name = "NewSheet"
+    swap = old.copy()
+    bpy.context.scene.collection.objects.link(swap)
+    swap.name = "MySheet"
+    swap.tearcloth.tear_stress = 3e6
+    assert op("bake", swap) == {"FINISHED"}
+    out["swap_id"] = modifier.object_id(swap)
+    out["swap_path"] = modifier.cache_path(swap)
+    out["old_plays_after_swap"] = modifier.attached_path(old)
+    out["old_kept_after_swap"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
     result(out)
 '''
 
@@ -348,6 +372,13 @@ def test_caches_never_collide_across_files_renames_and_duplicates(tmp_path):
     # a duplicate gets an id of its own and a cache of its own
     assert got["dup_id"] not in (got["id"], got["new_id"]) and got["old_id"] == got["id"]
     assert got["dup_path"].endswith("Dup.usda") and got["old_kept_after_dup"]
+    # Free Bake on a duplicate still showing its original's bake lets go of it, deletes nothing
+    assert got["twin_freed"] and got["twin_plays"] is None
+    assert got["old_plays_after_twin"] == first and got["old_kept_after_twin"]
+    assert any("stays on disk for 'OldSheet'" in m for level, m in got["twin_messages"]), got["twin_messages"]
+    # a duplicate that took the name the bake was made under gets its own id and cache
+    assert got["swap_id"] != got["id"] and got["swap_path"].endswith(f"MySheet-{got['swap_id']}.usda")
+    assert got["old_plays_after_swap"] == first and got["old_kept_after_swap"]
 
 
 EDIT_MODE = '''

@@ -415,7 +415,8 @@ def bake_object(context, obj, frame_start=None, frame_end=None, progress=None, *
 
 def free_bake(obj, reports: Reports) -> bool:
     """Delete the object's cache (root, frames, resume state) and let the modifier show the rest
-    mesh again. False (with an error report) if it cannot."""
+    mesh again; while other objects still show the same bake (a duplicate and its original),
+    only this one lets go of it. False (with an error report) if it cannot."""
     if obj.name in jobs.bakes:
         reports.error(f"{obj.name}: cannot free while its bake is running; cancel it first (Esc)")
         return False
@@ -441,6 +442,15 @@ def free_bake(obj, reports: Reports) -> bool:
             return False
         except cache.CacheError:
             pass  # damaged: delete_cache below still refuses anything that is not a Tear Cloth cache
+    others = modifier.players(path, obj)
+    if others:
+        # a duplicate (its modifier copied with the cache it played) or an object that shares the
+        # bake: this one lets go of it; the bake is deleted by the Free Bake of the last one
+        modifier.detach_cache(obj)
+        names = ", ".join(repr(o.name) for o in others)
+        reports.info(f"{obj.name}: no longer shows the bake at {path}; it stays on disk for {names}, "
+                     "which still show it")
+        return True
     modifier.detach_cache(obj)
     damaged = cache.damaged_root(path)
     try:

@@ -105,6 +105,14 @@ def _recorded(path: str) -> dict | None:
     return cache.owner_of(path)
 
 
+def players(path: str, but=None) -> list:
+    """The objects of this file (but ``but``) whose "Tear Cloth" modifier plays the cache root
+    ``path``: a duplicate's modifier plays its original's bake until it bakes its own."""
+    path = os.path.normcase(os.path.abspath(path))
+    return [o for o in bpy.data.objects if o is not but and find_modifier(o) is not None
+            and (a := attached_path(o)) is not None and os.path.normcase(a) == path]
+
+
 def claim_id(obj, fingerprint: str | None = None) -> str:
     """Make sure the object has a persistent id of its own, and return it.
 
@@ -112,7 +120,9 @@ def claim_id(obj, fingerprint: str | None = None) -> str:
     object of its name and that id is not another object's in this file (the bake ran, the file
     was not saved after it) and, when ``fingerprint`` is given, for the same rest mesh;
     otherwise it gets a new id. An object that shares its id with
-    another (Duplicate copies custom properties) keeps it only if its cache was baked for it."""
+    another (Duplicate copies custom properties) keeps it only if its cache was baked for it and
+    no object of that id plays that cache: a duplicate renamed to the name its original was baked
+    under (the original renamed away, still playing the bake) would otherwise bake over it."""
     current = object_id(obj)
     taken = {object_id(o) for o in bpy.data.objects if o is not obj} - {""}
     if current and current not in taken:
@@ -122,7 +132,8 @@ def claim_id(obj, fingerprint: str | None = None) -> str:
                                           or recorded["fingerprint"] == fingerprint)
     if recorded is not None and recorded["object"] == obj.name and same_mesh:
         theirs = recorded.get("object_id", "")
-        if theirs and (theirs == current or (not current and theirs not in taken)):
+        shown = current in taken and any(object_id(o) == current for o in players(_plain_path(obj), obj))
+        if theirs and ((theirs == current and not shown) or (not current and theirs not in taken)):
             obj[ID_PROPERTY] = theirs
             return theirs
     new = uuid.uuid4().hex[:12]
