@@ -490,9 +490,14 @@ UNITS = '''
         s = obj.tearcloth
         fresh = dict(thickness=s.thickness, collision=s.collision_thickness, threshold=s.displacement_threshold,
                      si=convert.material_from_settings(s, scene).thickness)
+        # lengths a user types in scene units: 2 cm of thickness and a 5 cm tear radius are kept
+        # whatever the unit scale (a cap of 1 BU clamped them to 1 cm in a centimetre scene)
+        s.thickness, s.tear_radius = 0.02 / scale, 0.05 / scale
+        si = convert.material_from_settings(s, scene)
+        out[str(scale)] = dict(fresh=fresh, typed=(si.thickness, si.tear_radius))
         s.thickness = 1.0  # a preset writes physical values through the scene's units
         assert op("material_preset", obj, preset="cotton") == {"FINISHED"}
-        out[str(scale)] = dict(fresh=fresh, preset=s.thickness)
+        out[str(scale)]["preset"] = s.thickness
     result(out)
 '''
 
@@ -505,6 +510,8 @@ def test_defaults_and_presets_follow_the_scene_unit_scale(tmp_path):
         assert cm["fresh"][key] == pytest.approx(metre["fresh"][key] / 0.01), key  # 0.4 mm is 0.04 cm
     assert cm["fresh"]["si"] == pytest.approx(4e-4) and metre["fresh"]["si"] == pytest.approx(4e-4)
     assert cm["preset"] == pytest.approx(0.04) and metre["preset"] == pytest.approx(4e-4)
+    for got_scale in (metre, cm):
+        assert got_scale["typed"] == pytest.approx((0.02, 0.05)), got_scale["typed"]
 
 
 UV_BAKE = '''

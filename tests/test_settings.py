@@ -293,6 +293,10 @@ def test_blender_properties_are_the_table_rows(tmp_path):
             assert _same(p["default"], default), key
             hard = row.hard or table.Bounds()
             soft = row.soft or hard
+            if row.is_scene_length:
+                # stored in BU: bounded in metres only where it is used (a BU bound is another
+                # length in each unit scale), but for a zero floor, the same in every scale
+                hard = soft = table.Bounds(lo=0.0 if hard.lo == 0 else None)
             assert _same(p["min"], hard.lo) if hard.lo is not None else p["min"] <= -2**31, key
             assert _same(p["max"], hard.hi) if hard.hi is not None else p["max"] >= 2**31 - 1, key
             assert _same(p["soft_min"], soft.lo if soft.lo is not None else p["min"]), key

@@ -64,12 +64,20 @@ def blender_property(row):
     hints.pop("when", None)  # a layout rule for ui.py, not a property option
     options = _BLEND_RELATIVE if hints.pop("blend_relative", False) else {}
     if row.kind in ("float", "vector"):
-        kw = dict(common, **_bounds(row, row.hard, "min", "max", float), **_bounds(row, row.soft, "soft_min",
-                                                                                  "soft_max", float), **hints)
         if row.is_scene_length:
-            kw.update(unit="LENGTH", subtype="TRANSLATION" if row.kind == "vector" else "DISTANCE")
-        elif row.unit == "rad":  # stored in radians (SI), shown in the scene's rotation units
-            kw.update(unit="ROTATION", subtype="ANGLE")
+            # Stored in Blender units, bounded in metres: a bound in BU is another length in every
+            # unit scale (the 1 m cap on thickness was 1 cm in a centimetre scene, and a 2 cm sheet
+            # was clamped to 1 cm without a word). Only a zero bound means the same in all; the
+            # rest are checked in metres when the values are used (Material / CollisionSettings
+            # validate, naming the value, its unit and the bound).
+            kw = dict(common, **hints, unit="LENGTH", subtype="TRANSLATION" if row.kind == "vector" else "DISTANCE")
+            if row.hard is not None and row.hard.lo == 0:
+                kw["min"] = 0.0
+        else:
+            kw = dict(common, **_bounds(row, row.hard, "min", "max", float),
+                      **_bounds(row, row.soft, "soft_min", "soft_max", float), **hints)
+        if not row.is_scene_length and row.unit == "rad":
+            kw.update(unit="ROTATION", subtype="ANGLE")  # stored in radians (SI), shown in the scene's units
         if row.kind == "vector":
             return FloatVectorProperty(size=len(row.default), default=row.default, **kw)
         return FloatProperty(default=row.default, **kw)
