@@ -137,6 +137,11 @@ class FrameInputs:
     bodies: dict                            # collider name -> (k, 3) world metres
 
 
+# A starting triangle is called a sliver in the bake's closing text below this smallest corner
+# (degrees): the core groups a sliver's corners from about 1.5 degrees (TC_STIFF_SLIVER, 0.94)
+SLIVER_DEG = 5.0
+
+
 class Progress:
     """Shared between the worker and the UI; plain attributes (each write is atomic under the GIL).
 
@@ -250,11 +255,18 @@ class Progress:
         n = self.stiff_groups
         if not n:
             return None
+        groups = f"{n} group{'s' if n != 1 else ''}"
+        if self.thinnest_angle_deg is None or self.thinnest_angle_deg >= SLIVER_DEG:
+            # the user's mesh has no sliver: the stiff corners are thin triangles its tears made, or
+            # a material stiff against its mass at this step (the core's test reads the matrix)
+            return (f"the solver took {groups} of stiff corners together (thin triangles made by tears, or a "
+                    "material stiff for this step length; the mesh you made has none) and converged, more "
+                    "slowly; more steps per frame make each solve easier")
         where = ""
         if self.thinnest_angle_deg is not None:
             where = f" (the thinnest has a {self.thinnest_angle_deg:.2g} degree corner"
             where += f", in polygon {self.thinnest_polygon})" if self.thinnest_polygon is not None else ")"
-        return (f"the mesh has sliver triangles{where}: the solver took {n} group{'s' if n != 1 else ''} of their "
+        return (f"the mesh has sliver triangles{where}: the solver took {groups} of their "
                 "corners together and converged, more slowly than on a well-shaped mesh; remeshing the slivers "
                 "(e.g. Remesh, or Triangulate with Beauty) makes the bake faster")
 

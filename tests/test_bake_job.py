@@ -260,6 +260,11 @@ def test_a_bake_of_a_mesh_with_slivers_says_so_naming_the_thinnest_polygon(tmp_p
                            f"{polygons[k]}): the solver took {p.stiff_groups} groups of their corners together")
     (tmp_path / "w").mkdir()
     assert bake(plan_for(tmp_path / "w")).progress.sliver_text() is None
+    # stiff groups on a mesh with no sliver of its own (made by tears, or a stiff material): the
+    # text does not send the user to remesh a well-shaped mesh
+    p.thinnest_angle_deg, p.thinnest_polygon = 45.0, 7
+    text = p.sliver_text()
+    assert "the mesh you made has none" in text and "polygon" not in text and "remesh" not in text.lower(), text
 
 
 def test_a_swept_stage_without_its_thread_is_said_at_the_end_of_the_bake(tmp_path, monkeypatch):

@@ -588,3 +588,43 @@ def test_users_save_and_share_material_presets(tmp_path, monkeypatch):
     assert got["state"] == ["FINISHED"] and got["name"] == "My Felt"
     assert got["young"] == pytest.approx(2.5e6) and got["tear"] == pytest.approx(1.5e6)
     assert got["thickness"] == pytest.approx(1.2e-3)  # metres, whatever the scene's unit scale
+
+
+FOLDERS_AND_SCALES = '''
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=3)  # saved as scene.blend in folder
+    out = {}
+    # a cache folder typed without "//": beside the .blend, as "//" is; "~": the user's home
+    for typed in ("mycache", "./mycache/", "~/homecache"):
+        os.environ["HOME"] = os.path.join(folder, "home")
+        obj.tearcloth.cache_folder = typed
+        out[typed] = modifier.cache_path(obj)
+    obj.tearcloth.cache_folder = "mycache"
+    r = bake.bake_object(bpy.context, obj)
+    out["baked"] = (r.state, r.cache_path)
+    # the object's scale reaching zero on Y at frame 3 (keyframed): a message naming it all
+    obj.scale = (1.0, 1.0, 1.0)
+    obj.keyframe_insert("scale", frame=1)
+    obj.scale = (1.0, 0.0, 1.0)
+    obj.keyframe_insert("scale", frame=3)
+    r = bake.Reports()
+    try:
+        got = bake.bake_object(bpy.context, obj, reports=r)
+        out["zero_scale"] = (got.state, got.frames, r.items)
+    except bake.BakeError as exc:
+        out["zero_scale"] = ("refused", [], [["ERROR", str(exc)]])
+    result(out)
+'''
+
+
+def test_cache_folders_as_typed_and_a_zero_scale_are_understood(tmp_path):
+    got = run_blender(tmp_path, FOLDERS_AND_SCALES, tmp_path)
+    beside = os.path.join(str(tmp_path), "mycache", "scene")
+    assert os.path.dirname(got["mycache"]) == beside and os.path.dirname(got["./mycache/"]) == beside, got
+    assert os.path.dirname(got["~/homecache"]) == os.path.join(str(tmp_path), "home", "homecache", "scene"), got
+    assert got["baked"][0] == "done" and os.path.dirname(got["baked"][1]) == beside
+    state, frames, messages = got["zero_scale"]
+    assert state == "error" and frames == [], got["zero_scale"]
+    assert any("its scale is zero on Y at frame 3" in m and "Singular" not in m for level, m in messages
+               if level == "ERROR"), messages

@@ -438,4 +438,15 @@ def gather_inputs(context, sources: Sources, frame: int, scale: float) -> FrameI
         if other is None:
             raise BakeError(f"{sources.object_name}: collider {name!r} was deleted or renamed during the bake")
         bodies[name] = convert.collider_world_si(other, depsgraph, scale)[0]
-    return FrameInputs(frame, convert.matrix_array(obj.evaluated_get(depsgraph).matrix_world), matrices, bodies)
+    matrix = convert.matrix_array(obj.evaluated_get(depsgraph).matrix_world)
+    # the cache is written in the object's local space (matrix^-1): a flat transform has no inverse
+    # (numpy's bare "Singular matrix" otherwise, naming neither the object, the axis nor the frame)
+    linear = np.asarray(matrix, float)[:3, :3]
+    lengths = np.linalg.norm(linear, axis=0)
+    volume = float(np.prod(lengths))
+    if not (volume > 0 and abs(np.linalg.det(linear)) > 1e-9 * volume):
+        flat = [a for a, n in zip("XYZ", lengths) if not n > 1e-9 * lengths.max(initial=0.0)]
+        what = f"its scale is zero on {', '.join(flat)}" if flat else "its transform is flat (sheared onto a plane)"
+        raise BakeError(f"{sources.object_name}: {what} at frame {frame} (parents included); Tear Cloth writes "
+                        "the cache in the object's own space, which then has no inverse: change or apply the scale")
+    return FrameInputs(frame, matrix, matrices, bodies)

@@ -142,10 +142,17 @@ def claim_id(obj, fingerprint: str | None = None) -> str:
 
 
 def _folder(obj) -> str:
-    folder = cache_folder(obj.tearcloth)
+    typed = cache_folder(obj.tearcloth)
+    # "~" is the user's home (bpy.path.abspath leaves it as it is: a folder named "~" in the working
+    # directory); a relative folder without "//" ("cache", "./cache") is taken beside the .blend,
+    # like "//cache": relative to the working directory of whichever process baked, it landed
+    # wherever Blender was started from, and its walk up to "" gave a garbled message
+    folder = os.path.expanduser(typed)
+    if not folder.startswith("//") and not os.path.isabs(folder):
+        folder = "//" + os.path.normpath(folder)
     if folder.startswith("//") and not bpy.data.filepath:
         raise BakeError(
-            f"the cache folder {folder!r} is relative to the .blend file, which is not saved yet: "
+            f"the cache folder {typed!r} is relative to the .blend file, which is not saved yet: "
             "save the file first or choose an absolute cache folder (Physics > Tear Cloth > Cache)"
         )
     blend = bpy.path.display_name_from_filepath(bpy.data.filepath) or "untitled"
