@@ -176,6 +176,9 @@ class Progress:
         # solved together, native/stiff.c), and the thinnest triangle of the mesh the bake began
         # with (degrees, the user's polygon): said at the end, as remeshing them speeds the bake
         self.stiff_groups = 0
+        # the first frame at which the cloth object (or a parent) had moved while its pins held
+        # their vertices where they were in the world: said at the end (pins_text)
+        self.pins_left_at: int | None = None
         self.thinnest_angle_deg: float | None = None
         self.thinnest_polygon: int | None = None
         # pieces a tear set free with less rest area than Min Fragment, removed with their
@@ -248,6 +251,15 @@ class Progress:
             said.append(f"{n} collision step{'s' if n != 1 else ''} ran the self-collision sweep on the baking "
                         "thread because the system would not start another (its thread limit): same result, slower")
         return ". ".join(said) or None
+
+    def pins_text(self) -> str | None:
+        """The sentence for the end of a bake whose object moved away from its pins, or None."""
+        if self.pins_left_at is None:
+            return None
+        return (f"the object moves (its transform or a parent's) from frame {self.pins_left_at}, and its pinned "
+                "vertices stayed where they were in the world at the start: pins hold the cloth to the world, "
+                "not to the object. To carry the cloth along, grasp the pin group with a handle that follows "
+                "the moving object (Tear Cloth > Handles) instead of pinning it")
 
     def sliver_text(self) -> str | None:
         """The sentence for the end of a bake whose mesh had sliver triangles that the solver
@@ -407,6 +419,9 @@ class BakeJob:
         else:
             self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
         self.session = session
+        # pins hold their vertices where they are in the world: the object's transform here, to
+        # say at the end if the object moved away from them (advance)
+        self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64) if plan.pin_group else None
         self._tracker = self._attribute_tracker()
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
         self.progress.start_triangles = len(plan.triangles)
@@ -449,6 +464,10 @@ class BakeJob:
         if inputs.frame != self.next_frame:
             raise ValueError(f"expected the inputs of frame {self.next_frame}, got frame {inputs.frame}")
         t = plan.time_of(inputs.frame)
+        if self._pin_matrix is not None and self.progress.pins_left_at is None:
+            m = np.asarray(inputs.object_matrix, dtype=np.float64)
+            if not np.allclose(m, self._pin_matrix, rtol=1e-9, atol=1e-9 * (1.0 + np.abs(self._pin_matrix).max())):
+                self.progress.pins_left_at = inputs.frame
         for h, grasp, current in zip(self._handles, self._grasp, inputs.handle_matrices):
             if grasp is not None and current is not None:
                 session.set_handle_keyframe(h, spaces.handle_target_si(current, grasp, plan.scale), t)

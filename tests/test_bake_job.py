@@ -289,3 +289,24 @@ def test_a_swept_stage_without_its_thread_is_said_at_the_end_of_the_bake(tmp_pat
     job = bake(plan)
     assert job.progress.swept_thread_fallbacks == STEPS  # every collision step from frame 1 to 2
     assert f"{STEPS} collision steps ran the self-collision sweep on the baking thread" in job.progress.fallback_text()
+
+
+def test_an_object_that_moves_away_from_its_pins_is_said(tmp_path):
+    """Pins hold their vertices in the world; a cloth object (or its parent) that moves leaves them
+    behind. The bake says so at the end, with the frame, and says nothing for a still object."""
+    (tmp_path / "still").mkdir()
+    assert bake(plan_for(tmp_path / "still")).progress.pins_text() is None
+    plan = plan_for(tmp_path / "moving")
+    (tmp_path / "moving").mkdir()
+    job = BakeJob(plan)
+    job.begin(inputs(plan.frame_start, plan))
+    while not job.done:
+        frame = inputs(job.next_frame, plan)
+        if frame.frame >= 3:  # the object carried 0.5 m along y from frame 3
+            moved = np.eye(4)
+            moved[1, 3] = 0.5
+            frame = FrameInputs(frame.frame, moved, frame.handle_matrices, frame.bodies)
+        assert job.advance(frame)
+    job.close()
+    text = job.progress.pins_text()
+    assert job.progress.pins_left_at == 3 and "from frame 3" in text and "handle" in text, text

@@ -244,6 +244,8 @@ class BakeRun:
                 self.reports.warning(f"{self.object_name}: {p.fallback_text()}")
             if p.sliver_text():
                 self.reports.info(f"{self.object_name}: {p.sliver_text()}")
+            if p.pins_text():
+                self.reports.warning(f"{self.object_name}: {p.pins_text()}")
             removed = p.fragment_text()
             if removed is not None:
                 (self.reports.warning if removed[1] else self.reports.info)(f"{self.object_name}: {removed[0]}")
