@@ -365,8 +365,9 @@ def _report(summary: dict, out) -> int:
             print(f"{prog}: {r.name}: interrupted; {kept}", file=sys.stderr)
             status = max(status, EXIT_FAILED)
         else:
-            print(f"{prog}: error: {r.name}: {r.message}" + (f"; {PREVIOUS_KEPT}" if r.previous_kept else ""),
-                  file=sys.stderr)
+            # (the add-on's messages start with the object's name already: said once)
+            message = r.message if r.message.startswith(f"{r.name}: ") else f"{r.name}: {r.message}"
+            print(f"{prog}: error: {message}" + (f"; {PREVIOUS_KEPT}" if r.previous_kept else ""), file=sys.stderr)
             status = max(status, EXIT_FAILED)
     if signal_name:
         # one line: what stopped it, what is kept, where, and how to go on

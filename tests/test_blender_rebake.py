@@ -628,3 +628,29 @@ def test_cache_folders_as_typed_and_a_zero_scale_are_understood(tmp_path):
     assert state == "error" and frames == [], got["zero_scale"]
     assert any("its scale is zero on Y at frame 3" in m and "Singular" not in m for level, m in messages
                if level == "ERROR"), messages
+
+
+SAID_ONCE = '''
+    from tearcloth.blender import bake
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=2)
+    obj.tearcloth.thickness = 1e-6  # inside the hard bounds, below the soft ones: unusual
+    r = bake.Reports()
+    state = bake.bake_object(bpy.context, obj, reports=r).state
+    freed = []
+    for _ in range(2):
+        f = bake.Reports()
+        bake.free_bake(obj, f)
+        freed.append(f.items)
+    result(dict(state=state, warnings=r.warnings, freed=freed))
+'''
+
+
+def test_a_warning_is_said_once_with_the_name_and_a_second_free_says_there_is_nothing(tmp_path):
+    got = run_blender(tmp_path, SAID_ONCE, tmp_path)
+    assert got["state"] == "done"
+    unusual = [w for w in got["warnings"] if "thickness" in w and "unusual" in w]
+    assert len(unusual) == 1 and unusual[0].startswith("Sheet: "), got["warnings"]
+    first, second = got["freed"]
+    assert any("freed the bake at" in m for _, m in first), first
+    assert any("no bake to free" in m for _, m in second) and not any("freed" in m for _, m in second), second

@@ -91,8 +91,8 @@ class BakeRun:
                     self.reports.error(f"{getattr(obj, 'name', '?')}: internal error while checking the bake "
                                        f"({type(exc).__name__}: {exc}); please report it")
                     self.reports.raise_if_errors()
+            self.object_name = obj.name  # before the warnings: they are said with the object's name
             self._report_warnings(caught)
-            self.object_name = obj.name
             self.progress = Progress(obj.name, self.plan.frame_start, self.plan.frame_end)
             self.created_folders = _missing_folders(os.path.dirname(self.plan.cache_path))
             # Blender must let go of the old cache before the writer deletes or rewrites it. What
@@ -452,6 +452,11 @@ def free_bake(obj, reports: Reports) -> bool:
         names = ", ".join(repr(o.name) for o in others)
         reports.info(f"{obj.name}: no longer shows the bake at {path}; it stays on disk for {names}, "
                      "which still show it")
+        return True
+    if not os.path.lexists(path) and not os.path.isdir(cache.frames_dir_for(path)):
+        modifier.detach_cache(obj)
+        delete_state(path)  # a state left alone by a killed bake is no bake
+        reports.info(f"{obj.name}: no bake to free (none at {path})")
         return True
     modifier.detach_cache(obj)
     damaged = cache.damaged_root(path)

@@ -33,6 +33,8 @@ class Reports:
     def add(self, level: str, message: str) -> None:
         if level not in _LEVELS:
             raise ValueError(f"report level must be one of {sorted(_LEVELS)}, not {level!r}")
+        if (level, message) in self.items:
+            return  # the same check reached twice (the plan's and the core's): said once
         self.items.append((level, message))
         log.log(_LEVELS[level], message)
 
