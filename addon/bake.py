@@ -92,6 +92,9 @@ class BakePlan:
     # The user's polygon of each triangle and vertex of each vertex (messages name those)
     triangle_polygons: np.ndarray | None = None         # (m,)
     vertex_ids: np.ndarray | None = None                # (n,)
+    # the modifiers above "Tear Cloth" that renumbered the mesh (then the two above number their
+    # elements, not the user's: messages say so and nothing is selected)
+    renumbered_by: tuple = ()
     # The user's grain override, radians per triangle (None: the material's own grain)
     grain_angles: np.ndarray | None = None              # (m,)
     # The user's attributes the cache carries through tears (attributes.UserAttribute)
@@ -181,6 +184,7 @@ class Progress:
         self.pins_left_at: int | None = None
         self.thinnest_angle_deg: float | None = None
         self.thinnest_polygon: int | None = None
+        self.polygons_renumbered_by: tuple = ()  # modifiers above whose numbering thinnest_polygon is in
         # pieces a tear set free with less rest area than Min Fragment, removed with their
         # triangles (the core's count, carried through a resume); start_triangles: the user's mesh
         # triangulated, to say when removal took much of the cloth (a cloth small against Min Fragment)
@@ -277,7 +281,13 @@ class Progress:
         where = ""
         if self.thinnest_angle_deg is not None:
             where = f" (the thinnest has a {self.thinnest_angle_deg:.2g} degree corner"
-            where += f", in polygon {self.thinnest_polygon})" if self.thinnest_polygon is not None else ")"
+            if self.thinnest_polygon is None:
+                where += ")"
+            elif self.polygons_renumbered_by:
+                where += (f", in polygon {self.thinnest_polygon} of the mesh the modifiers above Tear Cloth make: "
+                          f"{', '.join(self.polygons_renumbered_by)})")
+            else:
+                where += f", in polygon {self.thinnest_polygon})"
         return (f"the mesh has sliver triangles{where}: the solver took {groups} of their "
                 "corners together and converged, more slowly than on a well-shaped mesh; remeshing the slivers "
                 "(e.g. Remesh, or Triangulate with Beauty) makes the bake faster")
@@ -355,6 +365,7 @@ class BakeJob:
             self.progress.thinnest_angle_deg = float(angles[k])
             if plan.triangle_polygons is not None and k < len(plan.triangle_polygons):
                 self.progress.thinnest_polygon = int(plan.triangle_polygons[k])
+                self.progress.polygons_renumbered_by = tuple(plan.renumbered_by)
         self.on_event = on_event
         self.cancel = threading.Event()
         self.session: Session | None = None

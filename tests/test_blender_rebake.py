@@ -654,3 +654,38 @@ def test_a_warning_is_said_once_with_the_name_and_a_second_free_says_there_is_no
     first, second = got["freed"]
     assert any("freed the bake at" in m for _, m in first), first
     assert any("no bake to free" in m for _, m in second) and not any("freed" in m for _, m in second), second
+
+
+RENUMBERED = '''
+    from tearcloth.blender import bake
+    folder = sys.argv[1]
+    obj = build_scene(folder, n=8, frame_end=2)
+    me = obj.data
+    corners = list(me.polygons[5].vertices)
+    for v in corners[1:]:  # one quad collapsed to a point: degenerate, subdivided or not
+        me.vertices[v].co = me.vertices[corners[0]].co
+    sub = obj.modifiers.new("Subdivision", "SUBSURF")
+    sub.subdivision_type = "SIMPLE"  # (Catmull-Clark would pull the collapsed corners apart)
+    obj.modifiers.move(len(obj.modifiers) - 1, 0)  # above Tear Cloth: it makes the rest mesh
+    out = {}
+    for above in (True, False):
+        sub.show_viewport = above
+        r = bake.Reports()
+        try:
+            bake.bake_object(bpy.context, obj, reports=r)
+        except bake.BakeError:
+            pass
+        out[str(above)] = r.items
+    result(out)
+'''
+
+
+def test_elements_numbered_by_the_modifiers_above_are_said_to_be_theirs(tmp_path):
+    got = run_blender(tmp_path, RENUMBERED, tmp_path)
+    above = [m for level, m in got["True"] if level == "ERROR"]
+    assert any("degenerate" in m and "modifiers above Tear Cloth make: Subdivision" in m for m in above), got["True"]
+    assert not any("selected" in m for _, m in got["True"]), got["True"]  # not the user's elements
+    plain = [m for level, m in got["False"] if level == "ERROR"]
+    # without it: the user's own numbers (the collapsed quad's neighbours are degenerate too), selected
+    assert any("degenerate" in m and "modifiers above" not in m for m in plain), got["False"]
+    assert any("selected polygon" in m for _, m in got["False"]), got["False"]

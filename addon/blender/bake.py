@@ -182,7 +182,14 @@ class BakeRun:
         if self.job.resumed:
             return text
         self.culprits = user_culprits(exc, self.plan.triangle_polygons, self.plan.vertex_ids)
-        return user_geometry_message(text, self.plan.triangle_polygons, self.plan.vertex_ids, self.culprits)
+        text = user_geometry_message(text, self.plan.triangle_polygons, self.plan.vertex_ids, self.culprits)
+        if self.plan.renumbered_by and any(self.culprits):
+            # the numbers are those of the mesh the modifiers above make, not of the user's: said,
+            # and nothing of the user's mesh is selected under them
+            self.culprits = ([], [])
+            text += (f" (numbered in the mesh the modifiers above Tear Cloth make: "
+                     f"{', '.join(self.plan.renumbered_by)}; apply or disable them to see it in your mesh)")
+        return text
 
     def _select_culprits(self, obj) -> None:
         """Select the polygons and vertices a refused mesh names, alone, so the user sees them
@@ -265,7 +272,7 @@ class BakeRun:
         else:
             p.state = "error"
             self.reports.error(f"{self.object_name}: bake stopped: {p.message}; {kept}")
-            if obj is not None and getattr(self, "culprits", None):
+            if obj is not None and any(getattr(self, "culprits", None) or ()):
                 self._select_culprits(obj)
         return p.state
 

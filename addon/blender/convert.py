@@ -188,6 +188,9 @@ class MeshArrays:
     not_carried: list = field(default_factory=list)  # (attribute name, why not)
     grain_angles: np.ndarray | None = None  # (m,) radians: the GRAIN_ATTRIBUTE of each triangle's polygon
     grain_problem: str | None = None        # why GRAIN_ATTRIBUTE cannot be read (wrong domain or type)
+    # the modifiers above "Tear Cloth" that made this mesh with other elements than the user's
+    # (Subdivision, Array...): kept and polygons then number theirs, not the user's (inputs.py)
+    renumbered_by: list = field(default_factory=list)
 
 
 def read_mesh(mesh, *, uv: bool = True, vertex_groups=None, group_names=(), attributes: bool = False) -> MeshArrays:

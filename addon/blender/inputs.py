@@ -104,8 +104,14 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
             for m in switched:
                 m.show_viewport = False
             depsgraph = context.evaluated_depsgraph_get()
-            return convert.evaluated_mesh_arrays(obj, depsgraph, vertex_groups=obj.vertex_groups,
-                                                 group_names=group_names, attributes=True)
+            arrays = convert.evaluated_mesh_arrays(obj, depsgraph, vertex_groups=obj.vertex_groups,
+                                                   group_names=group_names, attributes=True)
+            me = obj.data
+            polygons = 0 if arrays.polygons is None or not len(arrays.polygons) else int(arrays.polygons.max()) + 1
+            vertices = (0 if arrays.kept is None else len(arrays.kept)) + arrays.loose
+            if above and (vertices != len(me.vertices) or polygons > len(me.polygons)):
+                arrays.renumbered_by = [m.name for m in above]
+            return arrays
         finally:
             for m in switched:
                 m.show_viewport = True
@@ -281,6 +287,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         blend=bpy.data.filepath,
         triangle_polygons=mesh.polygons,
         vertex_ids=mesh.kept,
+        renumbered_by=tuple(mesh.renumbered_by),
         grain_angles=grain_angles,
         attributes=attributes,
     )
