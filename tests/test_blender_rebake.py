@@ -689,3 +689,37 @@ def test_elements_numbered_by_the_modifiers_above_are_said_to_be_theirs(tmp_path
     # without it: the user's own numbers (the collapsed quad's neighbours are degenerate too), selected
     assert any("degenerate" in m and "modifiers above" not in m for m in plain), got["False"]
     assert any("selected polygon" in m for _, m in got["False"]), got["False"]
+
+
+RENAMED_MODIFIER = '''
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=2)
+    assert op("bake", obj) == {"FINISHED"}
+    path = modifier.cache_path(obj)
+    md = modifier.find_modifier(obj)
+    md.name = "My Cache"  # the user renames the baked modifier: Tear Cloth no longer finds it
+    out = dict(enabled=modifier.is_enabled(obj))
+    # Enable takes it back under its name instead of adding a second one below it
+    out["enable"] = sorted(op("enable", obj))
+    out["names"] = [m.name for m in obj.modifiers]
+    out["plays"] = modifier.attached_path(obj) == path
+    # a copy of it moved above Tear Cloth: refused, named, rather than baked from a baked frame
+    copy = obj.modifiers.new("Old Bake", "MESH_SEQUENCE_CACHE")
+    copy.cache_file = modifier.find_modifier(obj).cache_file
+    obj.modifiers.move(len(obj.modifiers) - 1, 0)
+    r = bake.Reports()
+    try:
+        bake.bake_object(bpy.context, obj, reports=r)
+        out["above"] = "baked"
+    except bake.BakeError as exc:
+        out["above"] = str(exc)
+    result(out)
+'''
+
+
+def test_a_renamed_tear_cloth_modifier_is_taken_back_and_a_bake_above_is_refused(tmp_path):
+    got = run_blender(tmp_path, RENAMED_MODIFIER, tmp_path)
+    assert got["enabled"] is False and got["enable"] == ["FINISHED"]
+    assert got["names"] == ["Tear Cloth"] and got["plays"], got
+    assert "'Old Bake' above 'Tear Cloth' plays a Tear Cloth bake" in got["above"], got["above"]

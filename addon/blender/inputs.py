@@ -92,6 +92,16 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
     # the colour modifier a bake puts above Tear Cloth is playback's, not part of the rest mesh
     colours = [m for m in mods[:index] if m.name == modifier.COLOUR_MODIFIER and m.show_viewport]
     above = [m for m in mods[:index] if m.show_viewport and m not in colours]
+    for m in above:
+        # a Mesh Sequence Cache above that plays a Tear Cloth bake (the renamed modifier of an
+        # earlier bake, or a copy of it) would make a baked frame the rest mesh, and the bake would
+        # then feed on its own output
+        played = modifier.attached_path_of(m) if m.type == modifier.MODIFIER_TYPE else None
+        if played is not None and cache.owner_of(played) is not None:
+            reports.error(f"{obj.name}: the modifier {m.name!r} above {modifier.MODIFIER_NAME!r} plays a Tear Cloth "
+                          f"bake ({played}), which would become the rest mesh: remove it, or move it below "
+                          f"{modifier.MODIFIER_NAME!r}")
+            return None
     try:
         # Shape keys are evaluated like modifiers: their mix, not the basis, is the rest shape.
         # In Edit Mode the original mesh's corner data (UVs) reads as empty: take the evaluated

@@ -196,7 +196,11 @@ def _same_file(a: str, b: str) -> bool:
 
 def attached_path(obj) -> str | None:
     """Absolute path of the cache the modifier plays, or None."""
-    md = find_modifier(obj)
+    return attached_path_of(find_modifier(obj))
+
+
+def attached_path_of(md) -> str | None:
+    """Absolute path of the cache a Mesh Sequence Cache modifier ``md`` plays, or None."""
     if md is None or md.cache_file is None:
         return None
     return os.path.abspath(bpy.path.abspath(md.cache_file.filepath))

@@ -18,6 +18,7 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy.types import Operator
 
+from .. import cache
 from .. import settings as table
 from .. import spaces
 from ..materials import MATERIALS
@@ -56,6 +57,19 @@ class TEARCLOTH_OT_enable(Operator):
                           "Cache is in the way; rename it first")
             reports.to_operator(self)
             return {"CANCELLED"}
+        # the object's own Tear Cloth modifier renamed by the user (it plays this object's bake):
+        # taken back under its name, not doubled by a second one below it (which would bake from
+        # the first one's frames)
+        own = modifier.object_id(obj)
+        for md in obj.modifiers:
+            played = (modifier.attached_path_of(md) if md.type == modifier.MODIFIER_TYPE else None)
+            owner = cache.owner_of(played) if played is not None else None
+            if own and owner is not None and owner.get("object_id") == own:
+                reports.info(f"{obj.name}: the modifier {md.name!r} plays this object's bake: renamed back to "
+                             f"{modifier.MODIFIER_NAME!r} (Tear Cloth finds its modifier by that name)")
+                md.name = modifier.MODIFIER_NAME
+                reports.to_operator(self)
+                return {"FINISHED"}
         modifier.add_modifier(obj)
         # lengths the user never set start as their physical defaults in this scene's units
         convert.scene_length_defaults(obj.tearcloth, context.scene)
