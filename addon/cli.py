@@ -112,7 +112,8 @@ def parser() -> _Parser:
     k.add_argument("file", metavar="FILE.blend", help="the .blend file to bake")
     k.add_argument("--objects", metavar="NAMES",
                    help="comma-separated object names (default: every Tear Cloth object of the scene)")
-    k.add_argument("--frames", metavar="A-B", help="bake frames A to B (default: each object's own range)")
+    k.add_argument("--frames", metavar="A-B", help="bake frames A to B (default: each object's own range); "
+                   "negative frames with '=': --frames=-10--1 (a leading '-' reads as an option)")
     k.add_argument("--out", metavar="DIR",
                    help="output folder for the baked .blend and its caches (default: <input folder>/<name>_baked)")
     k.add_argument("--overwrite", action="store_true",
@@ -186,7 +187,8 @@ def _parse(argv: list) -> argparse.Namespace:
 
 
 def parse_frames(text: str | None) -> tuple[int, int] | None:
-    """'A-B' -> (A, B) with A < B (negative frames allowed: '-10--1'); UsageError otherwise."""
+    """'A-B' -> (A, B) with A < B (negative frames allowed: '-10--1', given as ``--frames=-10--1``:
+    argparse reads a separate value starting with '-' as an option); UsageError otherwise."""
     if text is None:
         return None
     m = re.fullmatch(r"\s*(-?\d+)\s*-\s*(-?\d+)\s*", text)

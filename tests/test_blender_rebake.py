@@ -723,3 +723,27 @@ def test_a_renamed_tear_cloth_modifier_is_taken_back_and_a_bake_above_is_refused
     assert got["enabled"] is False and got["enable"] == ["FINISHED"]
     assert got["names"] == ["Tear Cloth"] and got["plays"], got
     assert "'Old Bake' above 'Tear Cloth' plays a Tear Cloth bake" in got["above"], got["above"]
+
+
+COMMA_NAME = '''
+    import types
+    from pathlib import Path
+    from tearcloth.blender import headless
+    folder = sys.argv[1]
+    obj = build_scene(folder, name="Sheet, Left", frame_end=2)
+    # what `tearcloth bake --objects "Sheet, Left"` hands over after splitting at the comma
+    plan = types.SimpleNamespace(objects=["Sheet", "Left"], source=Path(bpy.data.filepath))
+    out = dict(picked=headless._pick_objects(plan))
+    plan.objects = ["Nope"]
+    try:
+        headless._pick_objects(plan)
+    except headless.InputError as exc:
+        out["missing"] = str(exc)
+    result(out)
+'''
+
+
+def test_an_object_name_with_a_comma_is_found_by_the_cli(tmp_path):
+    got = run_blender(tmp_path, COMMA_NAME, tmp_path)
+    assert got["picked"] == ["Sheet, Left"]
+    assert "no object named 'Nope'" in got["missing"]

@@ -76,7 +76,12 @@ def _pick_objects(plan) -> list[str]:
             raise InputError(f"{plan.source.name} has no Tear Cloth object in scene {scene.name!r} "
                              "(enable it on a mesh: Properties > Physics > Tear Cloth)")
         return enabled
-    for name in plan.objects:
+    names = list(plan.objects)
+    if any(bpy.data.objects.get(n) is None for n in names):
+        # a name with commas in it ("Cloth, Left") split by --objects: the whole one, if it is there
+        whole = next((sep.join(names) for sep in (", ", ",") if bpy.data.objects.get(sep.join(names)) is not None), None)
+        names = [whole] if whole is not None else names
+    for name in names:
         obj = bpy.data.objects.get(name)
         listing = ", ".join(repr(n) for n in enabled) or "none"
         if obj is None:
@@ -85,7 +90,7 @@ def _pick_objects(plan) -> list[str]:
             raise InputError(f"object {name!r} is not in scene {scene.name!r} of {plan.source.name}")
         if not modifier.is_enabled(obj):
             raise InputError(f"object {name!r} is not a Tear Cloth object (Tear Cloth objects: {listing})")
-    return list(dict.fromkeys(plan.objects))
+    return list(dict.fromkeys(names))
 
 
 def _cache_folder_setting(cache_dir: Path, blend: Path) -> str:
