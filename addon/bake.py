@@ -544,6 +544,12 @@ class BakeJob:
         if self.on_event is not None:
             self.on_event(BakeEvent("frame", self, inputs.frame))
 
+    @property
+    def previous_kept(self) -> bool:
+        """After ``close``: a re-bake that did not complete dropped its frames, and the previous
+        bake is as it was."""
+        return self.replacing and not self.writer.frames
+
     def _promote(self) -> None:
         """The new bake moves to the final path (a first bake with its first simulated frame, a
         re-bake once complete), replacing the old one if any. The state file moves

@@ -297,13 +297,22 @@ IDENTITY = '''
     bpy.ops.wm.save_mainfile()  # scene.blend, with the bake
     first = modifier.cache_path(obj)
     before = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)]
+
+    def first_kept():  # the first bake still on disk, frame for frame
+        return os.path.isfile(first) and [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+
+    def duplicate(source, name):  # what Shift+D makes: custom properties and modifiers copied
+        copy = source.copy()
+        bpy.context.scene.collection.objects.link(copy)
+        copy.name = name
+        return copy
     out = dict(first=first, id=modifier.object_id(obj), owner=cache.cache_info(first)["owner"])
     # 1. the same file saved beside itself under another name: same object names, same ids
     bpy.ops.wm.save_as_mainfile(filepath=os.path.join(folder, "copy.blend"))
     obj.tearcloth.tear_stress = 2e6
     assert op("bake", obj) == {"FINISHED"}
     out["copy_path"] = modifier.cache_path(obj)
-    out["first_kept"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    out["first_kept"] = first_kept()
     # 2. rename the baked object, make a new one with its old name (a smaller sheet), bake it
     bpy.ops.wm.open_mainfile(filepath=os.path.join(folder, "scene.blend"))
     old = bpy.data.objects["MySheet"]
@@ -318,40 +327,33 @@ IDENTITY = '''
     out["new_path"] = modifier.cache_path(new)
     out["new_id"] = modifier.object_id(new)
     out["old_plays"] = modifier.attached_path(old)
-    out["old_kept"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    out["old_kept"] = first_kept()
     # 3. a duplicate (custom properties copied: the same id) bakes into its own cache
-    dup = old.copy()
-    dup.name = "Dup"
-    bpy.context.scene.collection.objects.link(dup)
+    dup = duplicate(old, "Dup")
     assert op("bake", dup) == {"FINISHED"}
     out["dup_id"] = modifier.object_id(dup)
     out["old_id"] = modifier.object_id(old)
     out["dup_path"] = modifier.cache_path(dup)
-    out["old_kept_after_dup"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    out["old_kept_after_dup"] = first_kept()
     # 4. Free Bake on a duplicate that still shows its original's bake: it lets go, the bake stays
-    twin = old.copy()  # the modifier copied too: it plays the same cache; the same id
-    twin.name = "Twin"
-    bpy.context.scene.collection.objects.link(twin)
+    twin = duplicate(old, "Twin")  # its modifier plays the same cache; the same id
     assert modifier.attached_path(twin) == first
     r = bake.Reports()
     out["twin_freed"] = bake.free_bake(twin, r)
     out["twin_messages"] = r.items
     out["twin_plays"] = modifier.attached_path(twin)
     out["old_plays_after_twin"] = modifier.attached_path(old)
-    out["old_kept_after_twin"] = os.path.isfile(first) and [
-        cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    out["old_kept_after_twin"] = first_kept()
     # 5. a duplicate renamed to the name the original was baked under ("MySheet"), the original
     # renamed away and still showing that bake: the duplicate bakes into a cache of its own
     new.name = "NewSheet"
-    swap = old.copy()
-    bpy.context.scene.collection.objects.link(swap)
-    swap.name = "MySheet"
+    swap = duplicate(old, "MySheet")
     swap.tearcloth.tear_stress = 3e6
     assert op("bake", swap) == {"FINISHED"}
     out["swap_id"] = modifier.object_id(swap)
     out["swap_path"] = modifier.cache_path(swap)
     out["old_plays_after_swap"] = modifier.attached_path(old)
-    out["old_kept_after_swap"] = [cache.read_frame(first, f)[0].tolist() for f in (1, 2, 3)] == before
+    out["old_kept_after_swap"] = first_kept()
     result(out)
 '''
 

@@ -79,8 +79,10 @@ def _pick_objects(plan) -> list[str]:
     names = list(plan.objects)
     if any(bpy.data.objects.get(n) is None for n in names):
         # a name with commas in it ("Cloth, Left") split by --objects: the whole one, if it is there
-        whole = next((sep.join(names) for sep in (", ", ",") if bpy.data.objects.get(sep.join(names)) is not None), None)
-        names = [whole] if whole is not None else names
+        for whole in (", ".join(names), ",".join(names)):
+            if bpy.data.objects.get(whole) is not None:
+                names = [whole]
+                break
     for name in names:
         obj = bpy.data.objects.get(name)
         listing = ", ".join(repr(n) for n in enabled) or "none"
@@ -206,7 +208,7 @@ def _bake_objects(names, start, end, plan, progress: ProgressLine, on_event, sto
         frames = list(run.job.writer.frames)
         results.append(ObjectResult(name, state, frames, run.plan.cache_path, p.tears,
                                     p.vertices, time.perf_counter() - t0, message,
-                                    previous_kept=state != "done" and not frames and run.job.replacing))
+                                    previous_kept=run.job.previous_kept))
     return results
 
 

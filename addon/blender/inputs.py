@@ -96,10 +96,10 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
         # a Mesh Sequence Cache above that plays a Tear Cloth bake (the renamed modifier of an
         # earlier bake, or a copy of it) would make a baked frame the rest mesh, and the bake would
         # then feed on its own output
-        played = modifier.attached_path_of(m) if m.type == modifier.MODIFIER_TYPE else None
-        if played is not None and cache.owner_of(played) is not None:
+        played = modifier.bake_played_by(m)
+        if played is not None:
             reports.error(f"{obj.name}: the modifier {m.name!r} above {modifier.MODIFIER_NAME!r} plays a Tear Cloth "
-                          f"bake ({played}), which would become the rest mesh: remove it, or move it below "
+                          f"bake ({played[0]}), which would become the rest mesh: remove it, or move it below "
                           f"{modifier.MODIFIER_NAME!r}")
             return None
     try:

@@ -109,8 +109,8 @@ def players(path: str, but=None) -> list:
     """The objects of this file (but ``but``) whose "Tear Cloth" modifier plays the cache root
     ``path``: a duplicate's modifier plays its original's bake until it bakes its own."""
     path = os.path.normcase(os.path.abspath(path))
-    return [o for o in bpy.data.objects if o is not but and find_modifier(o) is not None
-            and (a := attached_path(o)) is not None and os.path.normcase(a) == path]
+    return [o for o in bpy.data.objects
+            if o is not but and (a := attached_path(o)) is not None and os.path.normcase(a) == path]
 
 
 def claim_id(obj, fingerprint: str | None = None) -> str:
@@ -204,6 +204,14 @@ def attached_path_of(md) -> str | None:
     if md is None or md.cache_file is None:
         return None
     return os.path.abspath(bpy.path.abspath(md.cache_file.filepath))
+
+
+def bake_played_by(md) -> tuple[str, dict] | None:
+    """(path, recorded owner) of the Tear Cloth bake a modifier plays, whatever its name (a
+    renamed "Tear Cloth", or a copy of it); None for another modifier or cache."""
+    path = attached_path_of(md) if md.type == MODIFIER_TYPE else None
+    owner = _recorded(path) if path is not None else None
+    return (path, owner) if owner is not None else None
 
 
 def attach_cache(obj, path: str, prim_name: str) -> None:

@@ -18,7 +18,6 @@ import numpy as np
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, StringProperty
 from bpy.types import Operator
 
-from .. import cache
 from .. import settings as table
 from .. import spaces
 from ..materials import MATERIALS
@@ -62,9 +61,8 @@ class TEARCLOTH_OT_enable(Operator):
         # the first one's frames)
         own = modifier.object_id(obj)
         for md in obj.modifiers:
-            played = (modifier.attached_path_of(md) if md.type == modifier.MODIFIER_TYPE else None)
-            owner = cache.owner_of(played) if played is not None else None
-            if own and owner is not None and owner.get("object_id") == own:
+            played = modifier.bake_played_by(md) if own else None
+            if played is not None and played[1].get("object_id") == own:
                 reports.info(f"{obj.name}: the modifier {md.name!r} plays this object's bake: renamed back to "
                              f"{modifier.MODIFIER_NAME!r} (Tear Cloth finds its modifier by that name)")
                 md.name = modifier.MODIFIER_NAME

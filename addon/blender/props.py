@@ -76,8 +76,8 @@ def blender_property(row):
         else:
             kw = dict(common, **_bounds(row, row.hard, "min", "max", float),
                       **_bounds(row, row.soft, "soft_min", "soft_max", float), **hints)
-        if not row.is_scene_length and row.unit == "rad":
-            kw.update(unit="ROTATION", subtype="ANGLE")  # stored in radians (SI), shown in the scene's units
+            if row.unit == "rad":  # stored in radians (SI), shown in the scene's rotation units
+                kw.update(unit="ROTATION", subtype="ANGLE")
         if row.kind == "vector":
             return FloatVectorProperty(size=len(row.default), default=row.default, **kw)
         return FloatProperty(default=row.default, **kw)
