@@ -180,7 +180,8 @@ class Progress:
         # with (degrees, the user's polygon): said at the end, as remeshing them speeds the bake
         self.stiff_groups = 0
         # the first frame at which the cloth object (or a parent) had moved while its pins held
-        # their vertices where they were in the world: said at the end (pins_text)
+        # their vertices where they were in the world (a resumed state from before pins followed
+        # the object): said at the end (pins_text)
         self.pins_left_at: int | None = None
         self.thinnest_angle_deg: float | None = None
         self.thinnest_polygon: int | None = None
@@ -257,13 +258,13 @@ class Progress:
         return ". ".join(said) or None
 
     def pins_text(self) -> str | None:
-        """The sentence for the end of a bake whose object moved away from its pins, or None."""
+        """The sentence for the end of a resumed bake whose state held its pins in the world (saved
+        by a build before pins followed the object) while the object moved away from them, or None."""
         if self.pins_left_at is None:
             return None
         return (f"the object moves (its transform or a parent's) from frame {self.pins_left_at}, and its pinned "
-                "vertices stayed where they were in the world at the start: pins hold the cloth to the world, "
-                "not to the object. To carry the cloth along, grasp the pin group with a handle that follows "
-                "the moving object (Tear Cloth > Handles) instead of pinning it")
+                "vertices stayed where they were in the world: this bake resumed a state saved before pins "
+                "followed the object. Free the bake and bake again to carry the pinned vertices along")
 
     def sliver_text(self) -> str | None:
         """The sentence for the end of a bake whose mesh had sliver triangles that the solver
@@ -430,9 +431,20 @@ class BakeJob:
         else:
             self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
         self.session = session
-        # pins hold their vertices where they are in the world: the object's transform here, to
-        # say at the end if the object moved away from them (advance)
-        self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64) if plan.pin_group else None
+        # Pins follow the cloth object, as Blender's own cloth pins do: the pinned vertices are one
+        # more handle, held at the object's motion since the first frame (advance). Its target is
+        # exactly the identity while the object stands still, so a still object's pins step bit for
+        # bit as pins. A state saved before pins followed (no pin handle) keeps world pins and says
+        # so at the end if the object moves (pins_text).
+        self._pin_handle, self._pin_matrix = None, None
+        if state is None:
+            self._pin_handle = pin_handle(plan, session)
+            if self._pin_handle is not None:
+                self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64)
+        elif int(state.get("pin_handle", -1)) >= 0:
+            self._pin_handle, self._pin_matrix = int(state["pin_handle"]), np.array(state["pin_grasp"])
+        elif plan.pin_group:
+            self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64)
         self._tracker = self._attribute_tracker()
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
         self.progress.start_triangles = len(plan.triangles)
@@ -475,7 +487,13 @@ class BakeJob:
         if inputs.frame != self.next_frame:
             raise ValueError(f"expected the inputs of frame {self.next_frame}, got frame {inputs.frame}")
         t = plan.time_of(inputs.frame)
-        if self._pin_matrix is not None and self.progress.pins_left_at is None:
+        if self._pin_handle is not None:
+            m = np.asarray(inputs.object_matrix, dtype=np.float64)
+            # the identity itself for a still object: current @ inv(grasp) rounds off it
+            target = np.eye(4) if np.array_equal(m, self._pin_matrix) else \
+                spaces.handle_target_si(m, self._pin_matrix, plan.scale)
+            session.set_handle_keyframe(self._pin_handle, target, t)
+        elif self._pin_matrix is not None and self.progress.pins_left_at is None:
             m = np.asarray(inputs.object_matrix, dtype=np.float64)
             if not np.allclose(m, self._pin_matrix, rtol=1e-9, atol=1e-9 * (1.0 + np.abs(self._pin_matrix).max())):
                 self.progress.pins_left_at = inputs.frame
@@ -522,7 +540,8 @@ class BakeJob:
         # the state follows the cache it belongs to: beside the staged root until it is promoted
         state_path = state_path_for(writer.path)
         if save_state:
-            save_state_file(state_path, inputs.frame, plan, self.session, tears, self._has_uv, self._grasp)
+            pin = None if self._pin_handle is None else (self._pin_handle, self._pin_matrix)
+            save_state_file(state_path, inputs.frame, plan, self.session, tears, self._has_uv, self._grasp, pin)
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
@@ -626,12 +645,33 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
     return session, handles
 
 
+def pin_handle(plan: BakePlan, session: Session) -> int | None:
+    """Turn the plan's pins into a handle held at the identity, for a bake to move with the cloth
+    object (``BakeJob.advance``); None without pins. A pinned vertex that a handle of the plan
+    holds too stays pinned, as before: that handle moves it, and it is pinned in the world if the
+    handle lets go. Pins and handles are the same constraint in the core (a prescribed velocity,
+    torn and released alike), so this changes nothing while the target is the identity."""
+    if not plan.pin_group:
+        return None
+    cloth = session.cloth
+    pinned = cloth.group(plan.pin_group) >= 0.5
+    for group in plan.handle_groups:
+        pinned &= ~(cloth.group(group) >= 0.5)
+    if not pinned.any():
+        return None
+    idx = np.flatnonzero(pinned)
+    cloth.pin(idx, False)
+    h = cloth.add_handle(idx)
+    session.set_handle_keyframe(h, np.eye(4), session.time)
+    return h
+
+
 # ---------------------------------------------------------------------------------------------
 # The state file
 
 
 def save_state_file(path: str, frame: int, plan: BakePlan, session: Session, tears: int, has_uv: bool,
-                    grasp: list) -> None:
+                    grasp: list, pin: tuple | None = None) -> None:
     """The full simulation state after ``frame``: the session's (``Session.save_state``), plus the
     mesh arrays a resumed cloth is built from (the restore then replaces its whole state) and the
     handles' grasp matrices of the first frame. ``has_uv``: whether the cache holds UVs (the
@@ -657,6 +697,10 @@ def save_state_file(path: str, frame: int, plan: BakePlan, session: Session, tea
         tears=np.int64(tears),
         session=np.frombuffer(session.save_state(), np.uint8),
         grasp=np.array([np.full((4, 4), np.nan) if m is None else m for m in grasp], np.float64).reshape(-1, 4, 4),
+        # the handle that carries the pins along with the object, and the object's matrix at the
+        # first frame (-1: pins held in the world, a state from before pins followed the object)
+        pin_handle=np.int64(-1 if pin is None else pin[0]),
+        pin_grasp=np.full((4, 4), np.nan) if pin is None else np.array(pin[1], np.float64),
     )
     if plan.grain_angles is not None and hasattr(cloth, "grain_angles"):
         data["grain_angles"] = np.array(cloth.grain_angles)  # per triangle, carried through tears by the core
@@ -683,6 +727,7 @@ def load_state(path: str) -> dict | None:
     if state["corner_uv"].size == 0:
         state["corner_uv"] = None
     state["session"] = state["session"].tobytes()
+    state["pin_handle"] = int(state.get("pin_handle", -1))
     return state
 
 

@@ -381,7 +381,9 @@ SETTINGS: tuple[Setting, ...] = (
        ui=dict(precision=5)),
 
     # -- pins --------------------------------------------------------------------------------------
-    _s("pins", "pin_group", "", "Pin Group", "Vertices held in place (weight 0.5 or more); empty: none", _UI),
+    _s("pins", "pin_group", "", "Pin Group",
+       "Vertices held in place on the object (weight 0.5 or more): they move with the object's transform; "
+       "empty: none", _UI),
 
     # -- collision (session.CollisionSettings) ------------------------------------------------
     _b("collision", "enabled", True, "Collision", "Collide with the colliders listed here and, if on, with itself",

@@ -291,22 +291,91 @@ def test_a_swept_stage_without_its_thread_is_said_at_the_end_of_the_bake(tmp_pat
     assert f"{STEPS} collision steps ran the self-collision sweep on the baking thread" in job.progress.fallback_text()
 
 
-def test_an_object_that_moves_away_from_its_pins_is_said(tmp_path):
-    """Pins hold their vertices in the world; a cloth object (or its parent) that moves leaves them
-    behind. The bake says so at the end, with the frame, and says nothing for a still object."""
-    (tmp_path / "still").mkdir()
-    assert bake(plan_for(tmp_path / "still")).progress.pins_text() is None
-    plan = plan_for(tmp_path / "moving")
-    (tmp_path / "moving").mkdir()
+def moving_inputs(frame: int, plan: BakePlan) -> FrameInputs:
+    """The cloth object (say, parented to a walking character) carried from frame 2: 2 cm along y
+    and 4 degrees about z per frame, about the world's origin, and the handle's follow object
+    with it (parented to the same character): the sheet is carried, not pulled."""
+    base = inputs(frame, plan)
+    k = max(0, frame - 2)
+    a = np.radians(4.0 * k)
+    obj = np.eye(4)
+    obj[:2, :2] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]
+    obj[1, 3] = 0.02 * k
+    return FrameInputs(frame, obj, [obj], base.bodies)
+
+
+def bake_with(plan: BakePlan, frame_inputs, stop: int | None = None) -> BakeJob:
     job = BakeJob(plan)
-    job.begin(inputs(plan.frame_start, plan))
-    while not job.done:
-        frame = inputs(job.next_frame, plan)
-        if frame.frame >= 3:  # the object carried 0.5 m along y from frame 3
-            moved = np.eye(4)
-            moved[1, 3] = 0.5
-            frame = FrameInputs(frame.frame, moved, frame.handle_matrices, frame.bodies)
-        assert job.advance(frame)
+    job.begin(frame_inputs(job.start_frame, plan))
+    while not job.done and (stop is None or job.next_frame <= stop):
+        assert job.advance(frame_inputs(job.next_frame, plan))
     job.close()
+    return job
+
+
+def test_pinned_vertices_move_with_the_object(tmp_path, monkeypatch):
+    """Pins hold their vertices on the object, as Blender's cloth pins do: a cloth object carried
+    along (its transform or a parent's) carries its pinned vertices, which the cache then holds
+    still in the object's space. A still object's pins step bit for bit as world pins did."""
+    import tearcloth.bake as bake_mod
+
+    (tmp_path / "still").mkdir()
+    still = bake(plan_for(tmp_path / "still"))
+    (tmp_path / "world").mkdir()
+    with monkeypatch.context() as m:
+        m.setattr(bake_mod, "pin_handle", lambda plan, session: None)  # the pins as they were: in the world
+        world = bake(plan_for(tmp_path / "world"))
+    for name in ("positions", "velocities", "triangles"):
+        assert np.array_equal(getattr(still.session.cloth, name), getattr(world.session.cloth, name)), name
+    assert still.progress.pins_text() is None
+
+    (tmp_path / "moving").mkdir()
+    plan = plan_for(tmp_path / "moving", (1, 6))
+    job = bake_with(plan, moving_inputs)
+    pinned = plan.groups["pin"] >= 0.5
+    last = moving_inputs(plan.frame_end, plan).object_matrix
+    expected = plan.vertices[pinned] @ last[:3, :3].T + last[:3, 3]
+    assert np.abs(job.session.cloth.positions[:len(pinned)][pinned] - expected).max() < 1e-9
+    # in the cache (float32), in the object's space, the pinned vertices have not moved (BU = m here)
+    from tearcloth.cache import read_frame
+    for frame in (1, 3, 6):
+        local = read_frame(plan.cache_path, frame)[0]
+        assert np.abs(local[:len(pinned)][pinned] - plan.vertices[pinned]).max() < 1e-7, frame  # float32
+    assert job.progress.pins_text() is None
+    # carried along whole: pins and handle move together, nothing pulls the sheet apart
+    st = job.session.cloth.stats()
+    assert st["tears_started"] == 0 and st["grips_released"] == 0
+
+
+def test_a_bake_with_following_pins_resumes_exactly(tmp_path):
+    """A bake of a moving pinned cloth stopped after frame 3 and resumed ends bit for bit where the
+    bake run in one go ends: the pin handle, its grasp and keyframes live in the state."""
+    (tmp_path / "whole").mkdir()
+    straight = bake_with(plan_for(tmp_path / "whole", (1, 6)), moving_inputs)
+    (tmp_path / "parts").mkdir()
+    bake_with(plan_for(tmp_path / "parts", (1, 6)), moving_inputs, stop=3)
+    rest = plan_for(tmp_path / "parts", (1, 6))
+    rest.resume = True
+    resumed = bake_with(rest, moving_inputs)
+    assert resumed.start_frame == 3 and resumed.writer.frames == [1, 2, 3, 4, 5, 6]
+    for name in ("positions", "velocities", "triangles"):
+        assert np.array_equal(getattr(straight.session.cloth, name), getattr(resumed.session.cloth, name)), name
+
+
+def test_a_state_from_before_pins_followed_keeps_them_in_the_world_and_says_so(tmp_path, monkeypatch):
+    """A bake resumed from a state saved before pins followed the object (no pin handle in it)
+    goes on as it began, pins in the world, and says at the end that the object moved away from
+    them, with the frame and what to do."""
+    import tearcloth.bake as bake_mod
+    from tearcloth.bake import load_state
+
+    (tmp_path / "old").mkdir()
+    with monkeypatch.context() as m:
+        m.setattr(bake_mod, "pin_handle", lambda plan, session: None)
+        bake_with(plan_for(tmp_path / "old", (1, 6)), moving_inputs, stop=2)
+    rest = plan_for(tmp_path / "old", (1, 6))
+    assert load_state(rest.state_path)["pin_handle"] == -1
+    rest.resume = True
+    job = bake_with(rest, moving_inputs)
     text = job.progress.pins_text()
-    assert job.progress.pins_left_at == 3 and "from frame 3" in text and "handle" in text, text
+    assert job.progress.pins_left_at == 3 and "from frame 3" in text and "bake again" in text, text

@@ -400,6 +400,51 @@ def test_scene_units_convert_at_the_boundary(tmp_path):
     np.testing.assert_allclose(cm, m, atol=2e-4)
 
 
+def test_pins_ride_with_a_parent_that_walks_away(tmp_path):
+    """The sheet and the empty its handle follows are parented to a keyframed 'Character' that
+    walks 0.3 m and turns 20 degrees over the bake. Played back by the stock modifier, the pinned
+    vertices stay where they are on the object (in its space, frame after frame), so in the world
+    they ride along with the character, as Blender's cloth pins do; the free cloth comes along."""
+    got = run_blender(tmp_path, '''
+        import math
+        from tearcloth.blender import bake_object
+        folder = sys.argv[1]
+        obj = build_scene(folder, frame_end=8, tear_stress=5e8, pull=0.0, save=False)
+        scene = bpy.context.scene
+        char = bpy.data.objects.new("Character", None)
+        scene.collection.objects.link(char)
+        char.keyframe_insert("location", frame=1)
+        char.keyframe_insert("rotation_euler", frame=1)
+        char.location = (0.0, 0.3, 0.0)
+        char.rotation_euler = (0.0, 0.0, math.radians(20.0))
+        char.keyframe_insert("location", frame=8)
+        char.keyframe_insert("rotation_euler", frame=8)
+        obj.parent = char
+        obj.tearcloth.handles[0].follow.parent = char
+        obj.tearcloth.cache_folder = os.path.join(folder, "cache")
+        rest = positions(obj.data).reshape(-1, 3)
+        pinned = [v.index for v in obj.data.vertices if any(g.group == obj.vertex_groups["pins"].index
+                                                           for g in v.groups)]
+        r = bake_object(bpy.context, obj)
+        out = dict(state=r.state, local=[], world_moved=[], free_moved=[])
+        free = [i for i in range(len(rest)) if i not in set(pinned)]
+        for frame in range(1, 9):
+            scene.frame_set(frame)
+            with evaluated_mesh(obj) as m:
+                co = positions(m).reshape(-1, 3)
+            mw = np.array(obj.matrix_world)
+            world = co @ mw[:3, :3].T + mw[:3, 3]
+            out["local"].append(float(np.abs(co[pinned] - rest[pinned]).max()))
+            out["world_moved"].append(float(np.linalg.norm(world[pinned] - rest[pinned], axis=1).min()))
+            out["free_moved"].append(float(np.linalg.norm(world[free].mean(0) - rest[free].mean(0))))
+        result(out)
+    ''', tmp_path)
+    assert got["state"] == "done"
+    assert max(got["local"]) < 1e-5, got["local"]       # pinned vertices still on the object (float32)
+    assert got["world_moved"][-1] > 0.15, got            # ... which carried them (0.3 m and 20 degrees)
+    assert got["free_moved"][-1] > 0.15, got             # the rest of the sheet came with them
+
+
 def test_undo_during_and_after_a_bake(tmp_path):
     """Undo reloads every datablock (memfile undo): the bake holds only names and its own arrays,
     so it carries on through an undo in the middle, and undo/redo after it are harmless."""
