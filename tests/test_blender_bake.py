@@ -445,6 +445,51 @@ def test_pins_ride_with_a_parent_that_walks_away(tmp_path):
     assert got["free_moved"][-1] > 0.15, got             # the rest of the sheet came with them
 
 
+def test_pins_deformed_by_what_lies_above_are_said(tmp_path):
+    """Pins follow the object's transform, not the deformation of the stack above Tear Cloth (an
+    Armature skinning a garment, animated shape keys): the plan compares the pinned vertices'
+    shape over the bake with the first frame's and says by how much and when they move, naming
+    what moves them; a still stack above says nothing, and the scene is left at the first frame."""
+    got = run_blender(tmp_path, '''
+        from tearcloth.blender.inputs import build_plan
+        from tearcloth.blender.report import Reports
+        folder = sys.argv[1]
+        out = {}
+        obj = build_scene(folder, frame_end=12, save=False)
+        scene = bpy.context.scene
+        pins = obj.vertex_groups["pins"].index
+        pinned = [v.index for v in obj.data.vertices if any(g.group == pins for g in v.groups)]
+        obj.tearcloth.cache_folder = os.path.join(folder, "cache")
+        def warnings():
+            scene.frame_set(1)
+            r = Reports()
+            build_plan(bpy.context, obj, reports=r)
+            return [w for w in r.warnings if "pins follow only" in w], scene.frame_current
+        out["plain"] = warnings()
+        # a still stack above: a Displace of strength 0 and static shape keys
+        disp = obj.modifiers.new("Flat", "DISPLACE")
+        disp.strength = 0.0
+        bpy.context.view_layer.objects.active = obj
+        with bpy.context.temp_override(object=obj, active_object=obj):
+            bpy.ops.object.modifier_move_to_index(modifier="Flat", index=0)
+        obj.shape_key_add(name="Basis")
+        lift = obj.shape_key_add(name="Lift")
+        for i in pinned:
+            lift.data[i].co.z += 0.04
+        out["still"] = warnings()
+        # the shape key lifts the pinned rows 4 cm from frame 1 to frame 9
+        lift.value = 0.0
+        lift.keyframe_insert("value", frame=1)
+        lift.value = 1.0
+        lift.keyframe_insert("value", frame=9)
+        out["keys"] = warnings()
+        result(out)
+    ''', tmp_path)
+    assert got["plain"] == [[], 1] and got["still"] == [[], 1], got
+    (said,), frame = got["keys"]
+    assert frame == 1 and "4 cm by frame" in said and "'Flat' and its animated shape keys" in said and "handle" in said, said
+
+
 def test_undo_during_and_after_a_bake(tmp_path):
     """Undo reloads every datablock (memfile undo): the bake holds only names and its own arrays,
     so it carries on through an undo in the middle, and undo/redo after it are harmless."""

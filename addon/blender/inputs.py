@@ -9,6 +9,7 @@ and ``gather_inputs`` (move the scene to a frame and copy out what the job needs
 """
 from __future__ import annotations
 
+import contextlib
 import difflib
 import os
 import re
@@ -79,6 +80,30 @@ def _collider_objects(obj, settings, reports: Reports) -> list:
     return colliders
 
 
+def _stack_above(obj) -> tuple[list, list]:
+    """(the modifiers above "Tear Cloth" that make the rest mesh, the modifiers a one-off
+    evaluation of that mesh switches off: the colour modifier a bake puts above Tear Cloth, which
+    is playback's, then Tear Cloth and everything below it)."""
+    md = modifier.find_modifier(obj)
+    mods = list(obj.modifiers)
+    index = mods.index(md)
+    colours = [m for m in mods[:index] if m.name == modifier.COLOUR_MODIFIER and m.show_viewport]
+    above = [m for m in mods[:index] if m.show_viewport and m not in colours]
+    return above, colours + [m for m in mods[index:] if m.show_viewport]
+
+
+@contextlib.contextmanager
+def _switched_off(modifiers):
+    """The modifiers switched off in the viewport for the block, and back on after it."""
+    try:
+        for m in modifiers:
+            m.show_viewport = False
+        yield
+    finally:
+        for m in modifiers:
+            m.show_viewport = True
+
+
 def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArrays | None:
     """The cloth's rest mesh: the object's mesh as evaluated by the modifiers ABOVE "Tear Cloth"
     (like Blender's Cloth modifier). Those below, and Tear Cloth itself, are switched off for the
@@ -86,12 +111,7 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
     editing = obj.mode == "EDIT"
     if editing:
         obj.update_from_editmode()  # the edit-mode mesh, as the user sees it, is the rest mesh
-    md = modifier.find_modifier(obj)
-    mods = list(obj.modifiers)
-    index = mods.index(md)
-    # the colour modifier a bake puts above Tear Cloth is playback's, not part of the rest mesh
-    colours = [m for m in mods[:index] if m.name == modifier.COLOUR_MODIFIER and m.show_viewport]
-    above = [m for m in mods[:index] if m.show_viewport and m not in colours]
+    above, switched = _stack_above(obj)
     for m in above:
         # a Mesh Sequence Cache above that plays a Tear Cloth bake (the renamed modifier of an
         # earlier bake, or a copy of it) would make a baked frame the rest mesh, and the bake would
@@ -109,25 +129,64 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
         if not above and obj.data.shape_keys is None and not editing:
             return convert.read_mesh(obj.data, vertex_groups=obj.vertex_groups, group_names=group_names,
                                      attributes=True)
-        switched = colours + [m for m in mods[index:] if m.show_viewport]
-        try:
-            for m in switched:
-                m.show_viewport = False
+        with _switched_off(switched):
             depsgraph = context.evaluated_depsgraph_get()
             arrays = convert.evaluated_mesh_arrays(obj, depsgraph, vertex_groups=obj.vertex_groups,
                                                    group_names=group_names, attributes=True)
-            me = obj.data
-            polygons = 0 if arrays.polygons is None or not len(arrays.polygons) else int(arrays.polygons.max()) + 1
-            vertices = (0 if arrays.kept is None else len(arrays.kept)) + arrays.loose
-            if above and (vertices != len(me.vertices) or polygons > len(me.polygons)):
-                arrays.renumbered_by = [m.name for m in above]
-            return arrays
-        finally:
-            for m in switched:
-                m.show_viewport = True
+        me = obj.data
+        polygons = 0 if arrays.polygons is None or not len(arrays.polygons) else int(arrays.polygons.max()) + 1
+        vertices = (0 if arrays.kept is None else len(arrays.kept)) + arrays.loose
+        if above and (vertices != len(me.vertices) or polygons > len(me.polygons)):
+            arrays.renumbered_by = [m.name for m in above]
+        return arrays
     except KeyError as exc:
         reports.error(f"{obj.name}: vertex group {exc.args[0]!r} does not exist")
         return None
+
+
+# frames of the bake at which the pinned vertices' shape from the modifiers above is compared with
+# the first frame's (the first and last among them): one evaluation of the stack above each
+PIN_DRIFT_SAMPLES = 8
+
+
+def _pins_deformed_above(context, obj, mesh: convert.MeshArrays, pinned: np.ndarray, start: int, end: int,
+                         scale: float) -> tuple[float, int] | None:
+    """(largest distance in metres, frame) by which the modifiers above Tear Cloth or animated
+    shape keys (an Armature skinning the garment) move the pinned vertices, in the object's own
+    space, away from their first-frame shape, at a few frames of the bake; None when they do not
+    (or nothing above can: no evaluation then). Pins follow the object's transform, not that
+    deformation, so the bake says so (build_plan). Leaves the scene at ``start``."""
+    above, switched = _stack_above(obj)
+    keys = obj.data.shape_keys
+    if not (above or (keys is not None and keys.animation_data is not None)) or not pinned.any() or end <= start:
+        return None
+    reference = mesh.vertices[pinned]
+    index = (np.flatnonzero(pinned) if mesh.kept is None else mesh.kept[pinned]).astype(np.int64)
+    frames = sorted(set(np.linspace(start, end, PIN_DRIFT_SAMPLES + 1).round().astype(int).tolist()) - {start})
+    worst = None
+    try:
+        with _switched_off(switched):
+            for frame in frames:
+                context.scene.frame_set(frame)
+                evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
+                me = evaluated.to_mesh()
+                try:
+                    if len(me.vertices) <= int(index.max()):
+                        return None  # the stack above changes the vertex count over time: not comparable
+                    co = np.empty(3 * len(me.vertices), np.float32)
+                    me.vertices.foreach_get("co", co)
+                finally:
+                    evaluated.to_mesh_clear()
+                # in metres: the object's scale applies (its matrix is the first frame's, as the cloth's)
+                linear = np.abs(np.linalg.svd(np.asarray(obj.matrix_world, float)[:3, :3], compute_uv=False)).max()
+                d = float(np.linalg.norm(co.reshape(-1, 3)[index] - reference, axis=1).max()) * linear * scale
+                if worst is None or d > worst[0]:
+                    worst = (d, frame)
+    finally:
+        context.scene.frame_set(start)
+    size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0))) * scale
+    # float32 evaluation noise and sub-millimetre skinning jitter are not a drift
+    return worst if worst is not None and worst[0] > max(1e-3 * size, 1e-5) else None
 
 
 def require_mesh(obj, reports: Reports) -> None:
@@ -244,6 +303,20 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         if pinned == 0:
             reports.warning(f"{obj.name}: pin group {settings.pin_group!r} has no vertex with weight 0.5 or more; "
                             "nothing is pinned")
+        elif hands is None:
+            drift = _pins_deformed_above(context, obj, mesh, mesh.groups[settings.pin_group] >= 0.5, start, end,
+                                         scale)
+            if drift is not None:
+                movers = [repr(m.name) for m in _stack_above(obj)[0]]
+                keys = obj.data.shape_keys
+                if keys is not None and keys.animation_data is not None:
+                    movers.append("its animated shape keys")
+                names = " and ".join(movers)
+                reports.warning(
+                    f"{obj.name}: the pinned vertices move {drift[0] * 100:.3g} cm by frame {drift[1]} under "
+                    f"{names} above {modifier.MODIFIER_NAME!r}, but pins follow only the object's transform: they "
+                    f"keep the shape of frame {start}. To hold the cloth to a bone, grasp that part with a handle "
+                    "that follows an empty parented to the bone (Tear Cloth > Handles)")
     for i, h in handles:
         if not np.any(mesh.groups[h.vertex_group] >= 0.5):
             reports.error(f"{obj.name}: handle {i + 1}: vertex group {h.vertex_group!r} has no vertex with "
