@@ -138,6 +138,10 @@ class FrameInputs:
     object_matrix: np.ndarray               # cloth object's world matrix (4x4, BU)
     handle_matrices: list                   # per handle: follow object's world matrix or None
     bodies: dict                            # collider name -> (k, 3) world metres
+    # the rest mesh's vertices (plan.vertices' order, world metres) as the stack above Tear Cloth
+    # deforms them at this frame, for the pins to follow; None: nothing above deforms them (the
+    # pins follow the object's transform, object_matrix)
+    pin_source: np.ndarray | None = None
 
 
 # A starting triangle is called a sliver in the bake's closing text below this smallest corner
@@ -431,20 +435,19 @@ class BakeJob:
         else:
             self._grasp = [None if m is None else np.array(m, dtype=np.float64) for m in inputs.handle_matrices]
         self.session = session
-        # Pins follow the cloth object, as Blender's own cloth pins do: the pinned vertices are one
-        # more handle, held at the object's motion since the first frame (advance). Its target is
-        # exactly the identity while the object stands still, so a still object's pins step bit for
-        # bit as pins. A state saved before pins followed (no pin handle) keeps world pins and says
-        # so at the end if the object moves (pins_text).
-        self._pin_handle, self._pin_matrix = None, None
-        if state is None:
-            self._pin_handle = pin_handle(plan, session)
-            if self._pin_handle is not None:
-                self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64)
-        elif int(state.get("pin_handle", -1)) >= 0:
-            self._pin_handle, self._pin_matrix = int(state["pin_handle"]), np.array(state["pin_grasp"])
-        elif plan.pin_group:
-            self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64)
+        # Pins follow the cloth object, as Blender's own cloth pins do: its transform, and the
+        # deformation of the stack above Tear Cloth when the inputs carry it (pin_source). While
+        # neither moves, the pins hold still exactly as pins always did. A state saved before
+        # pins followed anything keeps its pins in the world, and says so at the end if the
+        # object moves (pins_text).
+        self._pins_follow = False
+        self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64) if plan.pin_group else None
+        if plan.pin_group and state is None:
+            session.follow_pins(plan.vertices, plan.triangles)
+            self._pins_follow = True
+        elif state is not None and session.pins_follow:
+            self._pins_follow = True
+            self._pin_matrix = np.array(state["pin_matrix"])
         self._tracker = self._attribute_tracker()
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
         self.progress.start_triangles = len(plan.triangles)
@@ -487,12 +490,8 @@ class BakeJob:
         if inputs.frame != self.next_frame:
             raise ValueError(f"expected the inputs of frame {self.next_frame}, got frame {inputs.frame}")
         t = plan.time_of(inputs.frame)
-        if self._pin_handle is not None:
-            m = np.asarray(inputs.object_matrix, dtype=np.float64)
-            # the identity itself for a still object: current @ inv(grasp) rounds off it
-            target = np.eye(4) if np.array_equal(m, self._pin_matrix) else \
-                spaces.handle_target_si(m, self._pin_matrix, plan.scale)
-            session.set_handle_keyframe(self._pin_handle, target, t)
+        if self._pins_follow:
+            session.set_pin_keyframe(self._pin_source(inputs), t)
         elif self._pin_matrix is not None and self.progress.pins_left_at is None:
             m = np.asarray(inputs.object_matrix, dtype=np.float64)
             if not np.allclose(m, self._pin_matrix, rtol=1e-9, atol=1e-9 * (1.0 + np.abs(self._pin_matrix).max())):
@@ -533,6 +532,19 @@ class BakeJob:
         self.next_frame += 1
         return True
 
+    def _pin_source(self, inputs: FrameInputs) -> np.ndarray:
+        """The rest mesh's vertices (world m) where the pins follow them at this frame: the
+        deformed mesh the inputs carry, else the rest mesh carried by the object's motion since
+        the first frame (exactly the rest mesh while the object stands still)."""
+        plan = self.plan
+        if inputs.pin_source is not None:
+            return inputs.pin_source
+        m = np.asarray(inputs.object_matrix, dtype=np.float64)
+        if np.array_equal(m, self._pin_matrix):
+            return plan.vertices
+        a = spaces.handle_target_si(m, self._pin_matrix, plan.scale)
+        return plan.vertices @ a[:3, :3].T + a[:3, 3]
+
     def _write(self, inputs: FrameInputs, save_state: bool = True) -> None:
         plan, cloth, writer = self.plan, self.session.cloth, self.writer
         st = cloth.stats()
@@ -540,8 +552,8 @@ class BakeJob:
         # the state follows the cache it belongs to: beside the staged root until it is promoted
         state_path = state_path_for(writer.path)
         if save_state:
-            pin = None if self._pin_handle is None else (self._pin_handle, self._pin_matrix)
-            save_state_file(state_path, inputs.frame, plan, self.session, tears, self._has_uv, self._grasp, pin)
+            save_state_file(state_path, inputs.frame, plan, self.session, tears, self._has_uv, self._grasp,
+                            self._pin_matrix if self._pins_follow else None)
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
@@ -645,33 +657,12 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
     return session, handles
 
 
-def pin_handle(plan: BakePlan, session: Session) -> int | None:
-    """Turn the plan's pins into a handle held at the identity, for a bake to move with the cloth
-    object (``BakeJob.advance``); None without pins. A pinned vertex that a handle of the plan
-    holds too stays pinned, as before: that handle moves it, and it is pinned in the world if the
-    handle lets go. Pins and handles are the same constraint in the core (a prescribed velocity,
-    torn and released alike), so this changes nothing while the target is the identity."""
-    if not plan.pin_group:
-        return None
-    cloth = session.cloth
-    pinned = cloth.group(plan.pin_group) >= 0.5
-    for group in plan.handle_groups:
-        pinned &= ~(cloth.group(group) >= 0.5)
-    if not pinned.any():
-        return None
-    idx = np.flatnonzero(pinned)
-    cloth.pin(idx, False)
-    h = cloth.add_handle(idx)
-    session.set_handle_keyframe(h, np.eye(4), session.time)
-    return h
-
-
 # ---------------------------------------------------------------------------------------------
 # The state file
 
 
 def save_state_file(path: str, frame: int, plan: BakePlan, session: Session, tears: int, has_uv: bool,
-                    grasp: list, pin: tuple | None = None) -> None:
+                    grasp: list, pin_matrix: np.ndarray | None = None) -> None:
     """The full simulation state after ``frame``: the session's (``Session.save_state``), plus the
     mesh arrays a resumed cloth is built from (the restore then replaces its whole state) and the
     handles' grasp matrices of the first frame. ``has_uv``: whether the cache holds UVs (the
@@ -697,10 +688,8 @@ def save_state_file(path: str, frame: int, plan: BakePlan, session: Session, tea
         tears=np.int64(tears),
         session=np.frombuffer(session.save_state(), np.uint8),
         grasp=np.array([np.full((4, 4), np.nan) if m is None else m for m in grasp], np.float64).reshape(-1, 4, 4),
-        # the handle that carries the pins along with the object, and the object's matrix at the
-        # first frame (-1: pins held in the world, a state from before pins followed the object)
-        pin_handle=np.int64(-1 if pin is None else pin[0]),
-        pin_grasp=np.full((4, 4), np.nan) if pin is None else np.array(pin[1], np.float64),
+        # the object's matrix at the first frame, which following pins move from (NaN: none)
+        pin_matrix=np.full((4, 4), np.nan) if pin_matrix is None else np.array(pin_matrix, np.float64),
     )
     if plan.grain_angles is not None and hasattr(cloth, "grain_angles"):
         data["grain_angles"] = np.array(cloth.grain_angles)  # per triangle, carried through tears by the core
@@ -727,7 +716,6 @@ def load_state(path: str) -> dict | None:
     if state["corner_uv"].size == 0:
         state["corner_uv"] = None
     state["session"] = state["session"].tobytes()
-    state["pin_handle"] = int(state.get("pin_handle", -1))
     return state
 
 

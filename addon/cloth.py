@@ -278,6 +278,19 @@ class Cloth:
         """Pin vertices (indices, a boolean mask or a vertex-group name) in place."""
         self._c.pin(self._indices(vertices), pinned)
 
+    def set_pin_goals(self, vertices, goals) -> None:
+        """Where pinned vertices (indices or a mask; every one pinned) are to be at the end of the
+        next step ((k, 3) m, world): a pin that follows a moving or deforming mesh. Reached in a
+        straight line from the goals of the step before, across sub-steps; kept until set again.
+        A vertex pinned (``pin``) or put somewhere (``set_positions``) has its goal where it is."""
+        idx = self._indices(vertices)
+        self._c.set_pin_goals(idx, _f64(goals, "goals", 3) if len(idx) else np.zeros((0, 3)))
+
+    @property
+    def pinned(self) -> np.ndarray:
+        """(N,) bool: the vertices pinned now (a tear's duplicates of a pinned vertex are pinned)."""
+        return np.frombuffer(self._c.pin_flags(), np.int8).astype(bool)
+
     def add_handle(self, vertices) -> int:
         """Grasp vertices (indices, mask or group name) as one handle; returns the handle id."""
         idx = self._indices(vertices)

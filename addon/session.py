@@ -91,6 +91,78 @@ class _Track:
         return v0 + (t - t0) * rate, rate
 
 
+class _PinSource:
+    """The mesh the pins follow: its vertices at rest (world m: the cloth's own rest mesh as it was
+    made) and their positions over time (keyframes, e.g. the mesh an Armature deforms above the
+    cloth). A pinned vertex of the cloth is at a point of that mesh at rest (one of its vertices,
+    or, for a tear's split of pinned vertices, a point of one of its triangles: the rest positions
+    of splits are interpolated, native remesh.c), and its goal at any time is the same point of the
+    moved mesh: the same vertex, or the same barycentric combination."""
+
+    def __init__(self, rest, triangles, t: float):
+        self.rest = np.array(rest, dtype=np.float64)
+        self.triangles = np.array(triangles, dtype=np.int64)
+        self.track = _Track(self.rest, t)
+        self.moved = False  # until a keyframe leaves the rest shape, pins hold still exactly
+        self._where: tuple | None = None  # (key, vertices (k, 3), weights (k, 3)) for the pinned set
+
+    def add(self, vertices, t: float) -> None:
+        vertices = np.asarray(vertices, dtype=np.float64)
+        if vertices.shape != self.rest.shape:
+            raise ValueError(f"the pins' mesh has {len(self.rest)} vertices, this keyframe {len(vertices)}")
+        self.track.add(vertices, t)
+        self.moved = self.moved or not np.array_equal(vertices, self.rest)
+
+    def goals(self, pinned: np.ndarray, rest: np.ndarray, t: float) -> np.ndarray:
+        """The goals at time t of the pinned vertices ``pinned`` whose rest positions are ``rest``."""
+        key = (len(rest), pinned.tobytes())
+        if self._where is None or self._where[0] != key:
+            self._where = (key, *self._locate(rest))
+        _, corners, weights = self._where
+        # the track sampled at the corners only (a garment's pins are a sliver of its vertices)
+        tr = self.track
+        at = tr.values[-1][corners] if len(tr.times) == 1 or t >= tr.times[-1] else (
+            tr.values[0][corners] if t <= tr.times[0] else
+            tr.values[0][corners] + (t - tr.times[0]) / (tr.times[1] - tr.times[0])
+            * (tr.values[1][corners] - tr.values[0][corners]))
+        return np.einsum("kj,kjd->kd", weights, at)
+
+    def _locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each point as (three vertex indices, three weights) of the rest mesh: a vertex it sits on
+        exactly (weight 1), else the triangle whose plane it is nearest with barycentric weights
+        inside it (the point's projection; a split lies on its triangle up to rounding)."""
+        k = len(points)
+        corners = np.zeros((k, 3), np.int64)
+        weights = np.zeros((k, 3))
+        index = {row.tobytes(): i for i, row in enumerate(self.rest)}
+        rest = np.ascontiguousarray(points, dtype=np.float64)
+        todo = []
+        for j in range(k):
+            i = index.get(rest[j].tobytes())
+            if i is None:
+                todo.append(j)
+            else:
+                corners[j], weights[j] = i, (1.0, 0.0, 0.0)
+        if todo:
+            a, b, c = (self.rest[self.triangles[:, q]] for q in range(3))
+            e1, e2 = b - a, c - a
+            d11, d12, d22 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+            det = d11 * d22 - d12 * d12
+            ok_det = det > 0
+            for j in todo:
+                w = rest[j] - a
+                r1, r2 = (w * e1).sum(1), (w * e2).sum(1)
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    u = np.where(ok_det, (d22 * r1 - d12 * r2) / det, -1.0)
+                    v = np.where(ok_det, (d11 * r2 - d12 * r1) / det, -1.0)
+                outside = np.maximum(0.0, -np.minimum(np.minimum(u, v), 1.0 - u - v))
+                off = np.linalg.norm(w - u[:, None] * e1 - v[:, None] * e2, axis=1)
+                best = int(np.argmin(off + outside * np.sqrt(np.maximum(d11, d22))))
+                corners[j] = self.triangles[best]
+                weights[j] = (1.0 - u[best] - v[best], u[best], v[best])
+        return corners, weights
+
+
 @dataclass
 class StepReport:
     collision_s: float = 0.0
@@ -132,6 +204,7 @@ class Session:
         self.collision = collision.validate() if collision else None
         self._bodies: dict[str, _Body] = {}
         self._handle_tracks: dict[int, _Track] = {}
+        self._pins: _PinSource | None = None  # the mesh pinned vertices follow (follow_pins)
         self.detector = None
         self.impact = None  # the impact guard (collision/impact.py), with self-collision
         self.last = StepReport()
@@ -191,14 +264,39 @@ class Session:
         else:
             track.add(m, t)
 
+    # ---- pins ----
+    def follow_pins(self, rest_vertices, triangles) -> None:
+        """From now on pinned vertices follow a mesh: ``rest_vertices`` (n, 3) m and ``triangles``
+        are it at rest, where the cloth was made from it (its rest mesh); ``set_pin_keyframe``
+        moves it. Pinned vertices hold still until a keyframe moves it."""
+        self._pins = _PinSource(rest_vertices, triangles, self.time)
+
+    @property
+    def pins_follow(self) -> bool:
+        """Pinned vertices follow a mesh (``follow_pins``; restored with a state that had one)."""
+        return self._pins is not None
+
+    def set_pin_keyframe(self, vertices, t: float) -> None:
+        """The followed mesh's vertices (n, 3) m at time t (after ``follow_pins``)."""
+        if self._pins is None:
+            raise ValueError("the pins follow no mesh; call follow_pins first")
+        self._pins.add(vertices, t)
+
+    def _set_pin_goals(self, t: float) -> None:
+        cloth = self.cloth
+        pinned = np.flatnonzero(cloth.pinned)
+        if len(pinned):
+            cloth.set_pin_goals(pinned, self._pins.goals(pinned, cloth.rest_positions[pinned], t))
+
     # ---- saved state ----
     # Everything a step reads, so that a session restored from it steps as this one would have
     # (a bake killed and resumed equals an uninterrupted one; tests/test_bake_resume_cli.py).
     _STATE_FIELDS = ("time", "_bodies", "_handle_tracks", "detector", "max_substeps", "retries",
-                     "unconverged_steps", "impact")
+                     "unconverged_steps", "impact", "_pins")
     # fields a state saved by an older build may lack: such a state keeps this session's own (the
-    # impact guard reads nothing from earlier steps; only its running counts start again)
-    _STATE_OPTIONAL = ("impact",)
+    # impact guard reads nothing from earlier steps; only its running counts start again; pins
+    # that followed nothing go on following nothing)
+    _STATE_OPTIONAL = ("impact", "_pins")
 
     def save_state(self) -> bytes:
         """The whole state: the cloth's native snapshot and the Python side (``tearcloth.resume``)."""
@@ -213,7 +311,8 @@ class Session:
         from . import resume
 
         cloth_blob, state = resume.loads(blob)
-        state = {**{k: getattr(self, k) for k in self._STATE_OPTIONAL if k not in state}, **state}
+        state = {**{k: None if k == "_pins" else getattr(self, k) for k in self._STATE_OPTIONAL if k not in state},
+                 **state}
         if set(state) != set(self._STATE_FIELDS):
             raise ValueError(f"session state holds {sorted(state)}, not {sorted(self._STATE_FIELDS)}")
         if (state["detector"] is None) != (self.detector is None):
@@ -261,6 +360,8 @@ class Session:
         t_end = self.time + dt
         for h, track in self._handle_tracks.items():
             self.cloth.set_handle_target(h, track.sample(t_end)[0])
+        if self._pins is not None and self._pins.moved:
+            self._set_pin_goals(t_end)
         if self.detector is not None:
             t0 = time.perf_counter()
             for body in self._bodies.values():

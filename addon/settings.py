@@ -382,8 +382,8 @@ SETTINGS: tuple[Setting, ...] = (
 
     # -- pins --------------------------------------------------------------------------------------
     _s("pins", "pin_group", "", "Pin Group",
-       "Vertices held in place on the object (weight 0.5 or more): they move with the object's transform; "
-       "empty: none", _UI),
+       "Vertices held in place on the object (weight 0.5 or more): they follow its transform and what "
+       "deforms them above Tear Cloth (Armature, shape keys); empty: none", _UI),
 
     # -- collision (session.CollisionSettings) ------------------------------------------------
     _b("collision", "enabled", True, "Collision", "Collide with the colliders listed here and, if on, with itself",

@@ -39,9 +39,41 @@ int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned)
 {
     if (check_indices(c, idx, k)) return TC_ERR_INPUT;
     int8_t *p = tc_vec_ptr(&c->vpin);
-    for (int32_t i = 0; i < k; i++) p[idx[i]] = pinned ? 1 : 0;
+    const double *x = tc_vec_ptr(&c->x);
+    double *g = tc_vec_ptr(&c->vgoal), *g0 = tc_vec_ptr(&c->vgoal0);
+    for (int32_t i = 0; i < k; i++) {
+        int32_t v = idx[i];
+        if (pinned && !p[v] && c->vgoal.len)  /* held where it is (a pin already set keeps its goals) */
+            for (int q = 0; q < 3; q++) g[3 * v + q] = g0[3 * v + q] = x[3 * v + q];
+        p[v] = pinned ? 1 : 0;
+    }
     return TC_OK;
 }
+
+int tc_cloth_set_pin_goals(tc_cloth *c, const int32_t *idx, const double *pos, int32_t k)
+{
+    if (check_indices(c, idx, k)) return TC_ERR_INPUT;
+    const int8_t *p = tc_vec_ptr(&c->vpin);
+    for (int32_t i = 0; i < k; i++) {
+        if (!p[idx[i]]) { tc_set_err(c, "vertex %d (item %d) is not pinned", (int)idx[i], (int)i); return TC_ERR_INPUT; }
+        for (int q = 0; q < 3; q++)
+            if (!isfinite(pos[3 * i + q])) { tc_set_err(c, "pin goal %d (vertex %d) is not finite", (int)i, (int)idx[i]); return TC_ERR_INPUT; }
+    }
+    if (!c->vgoal.len) {  /* the first goals: every pin's goals where it is, then these */
+        const size_t n3 = 3 * (size_t)c->nv;
+        if (tc_vec_resize(&c->vgoal, n3) || tc_vec_resize(&c->vgoal0, n3)) {
+            tc_vec_resize(&c->vgoal, 0); tc_vec_resize(&c->vgoal0, 0);
+            tc_set_err(c, "out of memory"); return TC_ERR_NOMEM;
+        }
+        memcpy(tc_vec_ptr(&c->vgoal), tc_vec_ptr(&c->x), n3 * sizeof(double));
+        memcpy(tc_vec_ptr(&c->vgoal0), tc_vec_ptr(&c->x), n3 * sizeof(double));
+    }
+    double *g = tc_vec_ptr(&c->vgoal);
+    for (int32_t i = 0; i < k; i++) memcpy(g + 3 * (size_t)idx[i], pos + 3 * (size_t)i, 3 * sizeof(double));
+    return TC_OK;
+}
+
+const int8_t *tc_cloth_pin_flags(const tc_cloth *c) { return tc_vec_ptr((tc_vec *)&c->vpin); }
 
 static const double IDENTITY[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
 
@@ -469,8 +501,17 @@ void tc_constraints_begin(tc_cloth *c, double dt, double alpha)
     memset(tc_vec_ptr(&c->cactive), 1, c->cvert.len);
     carry_in(c);
     tc_contact_basis(c, dt);
+    const double *g = c->vgoal.len ? tc_vec_ptr(&c->vgoal) : NULL, *g0 = tc_vec_ptr(&c->vgoal0);
     for (int32_t i = 0; i < n; i++)
-        if (pin[i]) { fl[i] = VC_PINNED; fix[3 * i] = fix[3 * i + 1] = fix[3 * i + 2] = 0.0; }
+        if (pin[i]) {
+            /* at the goal on the line from vgoal0 to vgoal at this sub-step's end (a pin that
+               holds still: g0 = g = x, exactly zero), or still while no pin has a goal */
+            fl[i] = VC_PINNED;
+            for (int q = 0; q < 3; q++) {
+                const size_t o = 3 * (size_t)i + (size_t)q;
+                fix[o] = g ? (g0[o] + alpha * (g[o] - g0[o]) - x[o]) / dt : 0.0;
+            }
+        }
     for (int32_t h = 0; h < c->nh; h++) {
         tc_handle *H = &c->handles[h];
         if (!H->active) continue;

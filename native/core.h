@@ -169,6 +169,13 @@ struct tc_cloth {
      * ended in (int8, TC_CARRY_*) and the kinetic friction force its contacts applied then (N,
      * x3, zero unless sliding); during a sub-step, vkinetic is the force b carries */
     tc_vec vcstate, vkinetic;
+    /* per vertex, double x3, or empty while every pin holds still (48 bytes a vertex that a cloth
+     * whose pins never move does not pay): where a pinned vertex is to be at the end of the step
+     * (vgoal) and where it was to be at its start (vgoal0); sub-steps go between them in a straight
+     * line, as handles do between their maps. Made by the first tc_cloth_set_pin_goals (a pin that
+     * follows a moving or deforming mesh), every pin's goals its position then; a vertex pinned or
+     * put somewhere later has its goals where it is. Read only for pinned vertices. */
+    tc_vec vgoal, vgoal0;
 
     /* solver scratch, sized to 3 * vertex capacity */
     tc_vec diag;             /* 9 per vertex */

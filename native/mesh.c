@@ -181,6 +181,8 @@ int tc_reserve_vertices(tc_cloth *c, int32_t n)
                     &c->sfix, &c->sb2, &c->sdv, &c->v0, &c->vkinetic};
     for (size_t i = 0; i < sizeof v3 / sizeof *v3; i++)
         if (tc_vec_resize(v3[i], 3 * N)) return TC_ERR_NOMEM;
+    if (c->vgoal.len && (tc_vec_resize(&c->vgoal, 3 * N) || tc_vec_resize(&c->vgoal0, 3 * N)))  /* once made */
+        return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->diag, 12 * N) || tc_vec_resize(&c->pinv, 9 * N) ||
         tc_vec_resize(&c->snorm, 9 * N) || tc_vec_resize(&c->scount, N) ||
         tc_vec_resize(&c->vsa, N) || tc_vec_resize(&c->vcstate, N))

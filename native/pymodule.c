@@ -355,6 +355,33 @@ static PyObject *Cloth_pin(PyObject *o, PyObject *args, PyObject *kw)
     Py_RETURN_NONE;
 }
 
+static PyObject *Cloth_set_pin_goals(PyObject *o, PyObject *args)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    PyObject *idx, *pos;
+    if (!PyArg_ParseTuple(args, "OO", &idx, &pos)) return NULL;
+    Arg A = {0}, P = {0};
+    Py_ssize_t k, kp;
+    if (arg_get(idx, "vertices", 'i', 0, &A, &k)) return NULL;
+    if (arg_get(pos, "goals", 'd', 3, &P, &kp)) { arg_release(&A); return NULL; }
+    if (k != kp) {
+        arg_release(&A); arg_release(&P);
+        return PyErr_Format(InvalidInputError, "%zd pinned vertices but %zd goals", k, kp);
+    }
+    int rc = tc_cloth_set_pin_goals(self->c, A.view.buf, P.view.buf, (int32_t)k);
+    arg_release(&A); arg_release(&P);
+    if (rc) return raise_core(self, rc);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Cloth_pin_flags(PyObject *o, PyObject *unused)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    return PyBytes_FromStringAndSize((const char *)tc_cloth_pin_flags(self->c), (Py_ssize_t)tc_cloth_num_vertices(self->c));
+}
+
 static PyObject *Cloth_add_handle(PyObject *o, PyObject *idx)
 {
     ClothObject *self = (ClothObject *)o;
@@ -664,6 +691,9 @@ static PyMethodDef Cloth_methods[] = {
     {"set_tear_strength", Cloth_set_tear_strength, METH_O, "Per-vertex factor on the tear stress (N,) float64."},
     {"set_grain_angles", Cloth_set_grain_angles, METH_O, "Per-triangle grain angle (M,) float64 in radians; NaN: the material's."},
     {"pin", (PyCFunction)(void (*)(void))Cloth_pin, METH_VARARGS | METH_KEYWORDS, "Pin (or unpin) vertices."},
+    {"set_pin_goals", Cloth_set_pin_goals, METH_VARARGS,
+     "Where pinned vertices (int32 indices) are to be at the end of the next step ((k, 3) float64 m)."},
+    {"pin_flags", Cloth_pin_flags, METH_NOARGS, "One byte per vertex, 1 where pinned."},
     {"add_handle", Cloth_add_handle, METH_O, "Create a handle from vertex indices; returns its id."},
     {"set_handle_target", Cloth_set_handle_target, METH_VARARGS, "Set a handle's 3x4 affine target."},
     {"release_handle", Cloth_release_handle, METH_O, "Let go of a handle."},

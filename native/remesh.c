@@ -123,8 +123,9 @@ static int32_t new_vertex(tc_cloth *c, int32_t a, int32_t b, double s)
     c->nv = v + 1;
     double wa = b < 0 ? 1.0 : 1.0 - s, wb = b < 0 ? 0.0 : s;
     int32_t bb = b < 0 ? a : b;
-    tc_vec *lerp3[] = {&c->x, &c->v, &c->rest, &c->v0, &c->sdv};
-    for (int i = 0; i < 5; i++) {
+    /* a pinned split's goals (once made) on the line between its parents', as its position */
+    tc_vec *lerp3[] = {&c->x, &c->v, &c->rest, &c->v0, &c->sdv, &c->vgoal, &c->vgoal0};
+    for (int i = 0; i < (c->vgoal.len ? 7 : 5); i++) {
         double *p = tc_vec_ptr(lerp3[i]);
         for (int k = 0; k < 3; k++) p[3 * v + k] = wa * p[3 * a + k] + wb * p[3 * bb + k];
     }

@@ -67,16 +67,17 @@ static void sizes(uint32_t out[7])
     out[6] = sizeof(double[12]);
 }
 
-/* Arrays appended to the table after the layout of the last release, from this one on: the contact
- * state a vertex carries from one sub-step to the next (vcstate, vkinetic). A blob written before
- * them lacks them and resumes with no state carried, so a bake killed under that release is not
- * lost to the update. */
-static const char FIRST_APPENDED[] = "vcstate";
+/* Arrays appended to the table after the layouts of earlier releases, the first of each release:
+ * the contact state a vertex carries from one sub-step to the next (vcstate, vkinetic), then the
+ * pins' goals (vgoal, vgoal0). A blob written before them lacks them and resumes with no contact
+ * state carried and its pins holding still where they are, so a bake killed under an earlier
+ * release is not lost to the update. */
+static const char *const APPENDED[] = {"vcstate", "vgoal"};
 
-static size_t first_appended(void)
+static size_t appended_at(const char *name)
 {
     for (size_t k = 0; k < tc_vec_table_len; k++)
-        if (!strcmp(tc_vec_table[k].name, FIRST_APPENDED)) return k;
+        if (!strcmp(tc_vec_table[k].name, name)) return k;
     return tc_vec_table_len;
 }
 
@@ -204,6 +205,9 @@ static const char *check(const tc_cloth *c)
     if (!all_finite(&c->v)) return "v (not finite)";
     if (!all_finite(&c->rest)) return "rest (not finite)";
     if (!all_finite(&c->vkinetic)) return "vkinetic (not finite)";
+    /* the pins' goals: not made yet, or one per vertex coordinate, finite */
+    if ((c->vgoal.len != 0 && c->vgoal.len != 3 * nv) || c->vgoal0.len != c->vgoal.len) return "vgoal";
+    if (!all_finite(&c->vgoal) || !all_finite(&c->vgoal0)) return "vgoal (not finite)";
     {
         const int8_t *cs = tc_vec_ptr(&c->vcstate);
         for (size_t i = 0; i < c->vcstate.len; i++)
@@ -285,7 +289,8 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
     got[3] = want[3];
     /* so do the blobs written before the arrays appended from FIRST_APPENDED on (below) */
     const size_t arrays = got[5];
-    if (arrays == first_appended()) got[5] = want[5];
+    for (size_t k = 0; k < sizeof APPENDED / sizeof *APPENDED; k++)
+        if (arrays == appended_at(APPENDED[k])) got[5] = want[5];
     if (memcmp(want, got, sizeof want)) FAIL("snapshot was written by a different build of the core (struct sizes or array count differ)");
     if (stats_bytes > want[3])
         FAIL("snapshot was written by a newer build of the core (its statistics hold %u bytes, this build's %u)", stats_bytes, want[3]);
@@ -335,6 +340,8 @@ tc_cloth *tc_cloth_from_snapshot(const void *data, size_t size, char *msg, size_
        judges its contacts afresh, as on first touch) */
     if (arrays < tc_vec_table_len && (tc_vec_resize(&c->vcstate, (size_t)c->nv) || tc_vec_resize(&c->vkinetic, 3 * (size_t)c->nv)))
         FAIL("out of memory");
+    /* a blob from before the pins' goals has none (every pin holds still where it is), as a cloth
+       whose pins never moved */
     /* a blob of the builds that stored the world stress, the principal stresses and direction
        (derived now, see core.h) or had a vector of their own for the solve's prescribed part
        (sfix2: in sz now, solver.c) carries them: nothing reads them, so they go */

@@ -219,8 +219,10 @@ int tc_cloth_step(tc_cloth *c, double dt, int substeps)
     int rc = TC_OK;
     for (int s = 0; s < substeps && rc == TC_OK; s++) rc = span(c, h, (double)s / substeps, (double)(s + 1) / substeps, 0);
     if (c->stats.unconverged_substeps) c->stats.unconverged_steps++;
-    if (rc == TC_OK)
+    if (rc == TC_OK) {
         for (int32_t k = 0; k < c->nh; k++) memcpy(c->handles[k].prev, c->handles[k].target, 12 * sizeof(double));
+        if (c->vgoal.len) memcpy(tc_vec_ptr(&c->vgoal0), tc_vec_ptr(&c->vgoal), 3 * (size_t)c->nv * sizeof(double));
+    }
     tc_handle_forces(c);
     double t1 = tc_now();
     c->stats.fem_seconds = t1 - t0;

@@ -140,8 +140,14 @@ int tc_cloth_num_groups(const tc_cloth *c);
 int tc_cloth_set_positions(tc_cloth *c, const double *x, int32_t n);
 int tc_cloth_set_velocities(tc_cloth *c, const double *v, int32_t n);
 
-/* Pins (zero velocity) or frees vertices. */
+/* Pins vertices where they are (their goals, below, become their positions) or frees them. */
 int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned);
+/* Where pinned vertices are to be at the end of the next step (k positions, all finite; every
+ * listed vertex pinned): a pin that follows a moving or deforming mesh. Reached in a straight line
+ * from the goals of the step before, across sub-steps; kept until set again. */
+int tc_cloth_set_pin_goals(tc_cloth *c, const int32_t *idx, const double *pos, int32_t k);
+/* nv flags, 1 for a pinned vertex (valid until the next change of the cloth). */
+const int8_t *tc_cloth_pin_flags(const tc_cloth *c);
 
 /* Handles: a set of vertices moved rigidly to a target (the grasped part of the cloth).
  * The target is an affine map (3x4, row-major) applied to the positions the vertices had when the

@@ -313,17 +313,22 @@ def bake_with(plan: BakePlan, frame_inputs, stop: int | None = None) -> BakeJob:
     return job
 
 
+def world_pins(patch) -> None:
+    """The build before pins followed the object: a session that follows no mesh (its state then
+    holds none, as a state of that build)."""
+    patch.setattr(Session, "follow_pins", lambda self, rest, triangles: None)
+    patch.setattr(Session, "set_pin_keyframe", lambda self, vertices, t: None)
+
+
 def test_pinned_vertices_move_with_the_object(tmp_path, monkeypatch):
     """Pins hold their vertices on the object, as Blender's cloth pins do: a cloth object carried
     along (its transform or a parent's) carries its pinned vertices, which the cache then holds
     still in the object's space. A still object's pins step bit for bit as world pins did."""
-    import tearcloth.bake as bake_mod
-
     (tmp_path / "still").mkdir()
     still = bake(plan_for(tmp_path / "still"))
     (tmp_path / "world").mkdir()
     with monkeypatch.context() as m:
-        m.setattr(bake_mod, "pin_handle", lambda plan, session: None)  # the pins as they were: in the world
+        world_pins(m)  # the pins as they were: in the world
         world = bake(plan_for(tmp_path / "world"))
     for name in ("positions", "velocities", "triangles"):
         assert np.array_equal(getattr(still.session.cloth, name), getattr(world.session.cloth, name)), name
@@ -349,7 +354,8 @@ def test_pinned_vertices_move_with_the_object(tmp_path, monkeypatch):
 
 def test_a_bake_with_following_pins_resumes_exactly(tmp_path):
     """A bake of a moving pinned cloth stopped after frame 3 and resumed ends bit for bit where the
-    bake run in one go ends: the pin handle, its grasp and keyframes live in the state."""
+    bake run in one go ends: the mesh the pins follow, its keyframes and the first frame's matrix
+    live in the state."""
     (tmp_path / "whole").mkdir()
     straight = bake_with(plan_for(tmp_path / "whole", (1, 6)), moving_inputs)
     (tmp_path / "parts").mkdir()
@@ -363,19 +369,56 @@ def test_a_bake_with_following_pins_resumes_exactly(tmp_path):
 
 
 def test_a_state_from_before_pins_followed_keeps_them_in_the_world_and_says_so(tmp_path, monkeypatch):
-    """A bake resumed from a state saved before pins followed the object (no pin handle in it)
-    goes on as it began, pins in the world, and says at the end that the object moved away from
+    """A bake resumed from a state saved before pins followed the object (its session follows no
+    mesh) goes on as it began, pins in the world, and says at the end that the object moved away from
     them, with the frame and what to do."""
-    import tearcloth.bake as bake_mod
-    from tearcloth.bake import load_state
-
     (tmp_path / "old").mkdir()
     with monkeypatch.context() as m:
-        m.setattr(bake_mod, "pin_handle", lambda plan, session: None)
+        world_pins(m)
         bake_with(plan_for(tmp_path / "old", (1, 6)), moving_inputs, stop=2)
     rest = plan_for(tmp_path / "old", (1, 6))
-    assert load_state(rest.state_path)["pin_handle"] == -1
     rest.resume = True
     job = bake_with(rest, moving_inputs)
+    assert not job.session.pins_follow  # restored from the state: following nothing
     text = job.progress.pins_text()
     assert job.progress.pins_left_at == 3 and "from frame 3" in text and "bake again" in text, text
+
+
+def bent_inputs(frame: int, plan: BakePlan) -> FrameInputs:
+    """The object stands still, the handle holds still, and the stack above Tear Cloth (say, an
+    Armature) bends the pinned edge: from frame 2 its vertices rise by 5 mm per frame times
+    (y / 10 cm)^2."""
+    source = np.array(plan.vertices)
+    source[:, 2] += 0.005 * max(0, frame - 2) * (source[:, 1] / 0.1) ** 2 * (source[:, 0] < 1e-9)
+    return FrameInputs(frame, np.eye(4), [np.eye(4)], {}, pin_source=source)
+
+
+def test_pinned_vertices_follow_the_deformation_above(tmp_path):
+    """Pins follow the mesh the stack above Tear Cloth deforms (pin_source of the frame inputs),
+    vertex by vertex: at each frame's end every pinned vertex is where that mesh puts it."""
+    plan = plan_for(tmp_path, (1, 5))
+    job = bake_with(plan, bent_inputs)
+    pinned = plan.groups["pin"] >= 0.5
+    goal = bent_inputs(plan.frame_end, plan).pin_source[pinned]
+    assert np.ptp(goal[:, 2]) > 0.01  # bent, not moved rigidly
+    assert job.session.cloth.stats()["grips_released"] == 0
+    assert np.abs(job.session.cloth.positions[:len(pinned)][pinned] - goal).max() < 1e-9
+
+
+def test_a_split_pinned_vertex_follows_its_point_of_the_mesh():
+    """A tear's split of two pinned vertices sits at rest on the line between them (native
+    remesh.c); its goal is the same point of the moved mesh: the same barycentric weights of the
+    same triangle, so an affine motion carries it exactly and a bend by the weights."""
+    from tearcloth.session import _PinSource
+
+    v, t = sheet(0.1, 0.1, 3, 3)
+    source = _PinSource(v, t, 0.0)
+    a, b = 0, 1
+    points = np.array([v[a], 0.3 * v[a] + 0.7 * v[b], v[t[2]].mean(axis=0)])
+    rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    moved = v @ rot.T + (0.1, 0.2, 0.3)
+    source.add(moved, 1.0)
+    key = np.array([a, 100, 101], np.int64)
+    goals = source.goals(key, points, 1.0)
+    np.testing.assert_allclose(goals, points @ rot.T + (0.1, 0.2, 0.3), atol=1e-15)
+    assert source.moved

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import logging
 import os
 import re
 import tempfile
@@ -26,6 +27,8 @@ from . import convert, modifier
 from .props import COLLIDER_TYPES
 from .report import BakeError, Reports, not_a_mesh, object_kind
 
+log = logging.getLogger("tearcloth")
+
 
 @dataclass
 class Sources:
@@ -34,6 +37,11 @@ class Sources:
     object_name: str
     follow_names: list = field(default_factory=list)   # per handle: object name or None
     collider_names: list = field(default_factory=list)
+    # the pins follow the stack above Tear Cloth (an Armature, animated shape keys): the evaluated
+    # vertices of that stack that are the rest mesh's (MeshArrays.kept), read every frame; None:
+    # nothing above can deform the pinned vertices, they follow the object's transform
+    pin_kept: np.ndarray | None = None
+    pin_fallback_said: bool = False  # a frame whose stack above changed its vertex count was said
 
 
 # ---------------------------------------------------------------------------------------------
@@ -104,6 +112,39 @@ def _switched_off(modifiers):
             m.show_viewport = True
 
 
+def _stack_can_deform(obj) -> bool:
+    """Something above Tear Cloth may move the rest mesh's vertices over time: a modifier above it,
+    or animated (or driven) shape keys."""
+    keys = obj.data.shape_keys
+    return bool(_stack_above(obj)[0]) or (keys is not None and keys.animation_data is not None)
+
+
+def _deformed_rest(context, obj, sources: Sources, matrix, scale: float, frame: int) -> np.ndarray | None:
+    """The rest mesh's vertices (world metres) as the stack above Tear Cloth deforms them at the
+    depsgraph's frame, for the pins to follow (one more evaluation of the object, with Tear Cloth
+    and what lies below it switched off); None, said once in the log, at a frame where that stack
+    has fewer vertices than the rest mesh needs (a Remesh animated above: its numbering is not the
+    rest mesh's, so the pins follow only the object's transform there)."""
+    with _switched_off(_stack_above(obj)[1]):
+        evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
+        me = evaluated.to_mesh()
+        try:
+            count = len(me.vertices)
+            co = np.empty(3 * count, np.float32)
+            me.vertices.foreach_get("co", co)
+        finally:
+            evaluated.to_mesh_clear()
+    kept = sources.pin_kept
+    if count <= int(kept.max(initial=-1)):
+        if not sources.pin_fallback_said:
+            sources.pin_fallback_said = True
+            log.warning("%s: at frame %d the stack above %r has %d vertices, fewer than the rest mesh's %d: "
+                        "the pins follow only the object's transform there", sources.object_name, frame,
+                        modifier.MODIFIER_NAME, count, int(kept.max()) + 1)
+        return None
+    return spaces.local_to_world_si(co.reshape(-1, 3)[kept].astype(np.float64), matrix, scale)
+
+
 def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArrays | None:
     """The cloth's rest mesh: the object's mesh as evaluated by the modifiers ABOVE "Tear Cloth"
     (like Blender's Cloth modifier). Those below, and Tear Cloth itself, are switched off for the
@@ -142,51 +183,6 @@ def _input_mesh(context, obj, reports: Reports, group_names) -> convert.MeshArra
     except KeyError as exc:
         reports.error(f"{obj.name}: vertex group {exc.args[0]!r} does not exist")
         return None
-
-
-# frames of the bake at which the pinned vertices' shape from the modifiers above is compared with
-# the first frame's (the first and last among them): one evaluation of the stack above each
-PIN_DRIFT_SAMPLES = 8
-
-
-def _pins_deformed_above(context, obj, mesh: convert.MeshArrays, pinned: np.ndarray, start: int, end: int,
-                         scale: float) -> tuple[float, int] | None:
-    """(largest distance in metres, frame) by which the modifiers above Tear Cloth or animated
-    shape keys (an Armature skinning the garment) move the pinned vertices, in the object's own
-    space, away from their first-frame shape, at a few frames of the bake; None when they do not
-    (or nothing above can: no evaluation then). Pins follow the object's transform, not that
-    deformation, so the bake says so (build_plan). Leaves the scene at ``start``."""
-    above, switched = _stack_above(obj)
-    keys = obj.data.shape_keys
-    if not (above or (keys is not None and keys.animation_data is not None)) or not pinned.any() or end <= start:
-        return None
-    reference = mesh.vertices[pinned]
-    index = (np.flatnonzero(pinned) if mesh.kept is None else mesh.kept[pinned]).astype(np.int64)
-    frames = sorted(set(np.linspace(start, end, PIN_DRIFT_SAMPLES + 1).round().astype(int).tolist()) - {start})
-    worst = None
-    try:
-        with _switched_off(switched):
-            for frame in frames:
-                context.scene.frame_set(frame)
-                evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
-                me = evaluated.to_mesh()
-                try:
-                    if len(me.vertices) <= int(index.max()):
-                        return None  # the stack above changes the vertex count over time: not comparable
-                    co = np.empty(3 * len(me.vertices), np.float32)
-                    me.vertices.foreach_get("co", co)
-                finally:
-                    evaluated.to_mesh_clear()
-                # in metres: the object's scale applies (its matrix is the first frame's, as the cloth's)
-                linear = np.abs(np.linalg.svd(np.asarray(obj.matrix_world, float)[:3, :3], compute_uv=False)).max()
-                d = float(np.linalg.norm(co.reshape(-1, 3)[index] - reference, axis=1).max()) * linear * scale
-                if worst is None or d > worst[0]:
-                    worst = (d, frame)
-    finally:
-        context.scene.frame_set(start)
-    size = float(np.linalg.norm(np.ptp(mesh.vertices, axis=0))) * scale
-    # float32 evaluation noise and sub-millimetre skinning jitter are not a drift
-    return worst if worst is not None and worst[0] > max(1e-3 * size, 1e-5) else None
 
 
 def require_mesh(obj, reports: Reports) -> None:
@@ -303,20 +299,6 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         if pinned == 0:
             reports.warning(f"{obj.name}: pin group {settings.pin_group!r} has no vertex with weight 0.5 or more; "
                             "nothing is pinned")
-        elif hands is None:
-            drift = _pins_deformed_above(context, obj, mesh, mesh.groups[settings.pin_group] >= 0.5, start, end,
-                                         scale)
-            if drift is not None:
-                movers = [repr(m.name) for m in _stack_above(obj)[0]]
-                keys = obj.data.shape_keys
-                if keys is not None and keys.animation_data is not None:
-                    movers.append("its animated shape keys")
-                names = " and ".join(movers)
-                reports.warning(
-                    f"{obj.name}: the pinned vertices move {drift[0] * 100:.3g} cm by frame {drift[1]} under "
-                    f"{names} above {modifier.MODIFIER_NAME!r}, but pins follow only the object's transform: they "
-                    f"keep the shape of frame {start}. To hold the cloth to a bone, grasp that part with a handle "
-                    "that follows an empty parented to the bone (Tear Cloth > Handles)")
     for i, h in handles:
         if not np.any(mesh.groups[h.vertex_group] >= 0.5):
             reports.error(f"{obj.name}: handle {i + 1}: vertex group {h.vertex_group!r} has no vertex with "
@@ -375,6 +357,8 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         attributes=attributes,
     )
     sources = Sources(obj.name, follow, list(body_triangles))
+    if pinned and hands is None and _stack_can_deform(obj):
+        sources.pin_kept = np.arange(len(mesh.vertices)) if mesh.kept is None else np.array(mesh.kept)
     return plan, sources
 
 
@@ -539,4 +523,5 @@ def gather_inputs(context, sources: Sources, frame: int, scale: float) -> FrameI
         what = f"its scale is zero on {', '.join(flat)}" if flat else "its transform is flat (sheared onto a plane)"
         raise BakeError(f"{sources.object_name}: {what} at frame {frame} (parents included); Tear Cloth writes "
                         "the cache in the object's own space, which then has no inverse: change or apply the scale")
-    return FrameInputs(frame, matrix, matrices, bodies)
+    pin_source = None if sources.pin_kept is None else _deformed_rest(context, obj, sources, matrix, scale, frame)
+    return FrameInputs(frame, matrix, matrices, bodies, pin_source=pin_source)

@@ -1185,30 +1185,121 @@ static void test_batches_through_fragment_removal_and_restore(void)
     free(V); free(T);
 }
 
-/* A blob written before the contact state carried between sub-steps (vcstate, vkinetic: the last
- * two arrays of the table, cut out of a blob of c) resumes with none carried: it steps as c with
- * that state forgotten, bit for bit, while c itself (carrying it) steps otherwise. c is left as it
- * was. */
-static void test_snapshot_older_arrays(tc_cloth *c)
+/* Pins that follow goals: a row of pinned vertices given goals 2 mm up reaches them at the end of
+ * the step (within rounding), sub-steps going there in a straight line (each sub-step's velocity
+ * the same); the goals stay until set again (the next step holds them there); a vertex put
+ * somewhere by tc_cloth_set_positions is pinned there; goals of an unpinned vertex and non-finite
+ * goals are refused with a message and change nothing; a tear through pinned vertices gives its
+ * duplicates their originals' goals. */
+static void test_pin_goals(void)
 {
-    void *blob;
-    size_t size;
+    double *V; int32_t *T, n, m;
+    grid(6, 5, 0.05, 0.04, &V, &T, &n, &m);
     char msg[512];
-    CHECK(tc_cloth_snapshot(c, &blob, &size) == TC_OK, "snapshot");
-    unsigned char *b = blob, *first = NULL;
-    static const unsigned char rec[] = {7, 0, 0, 0, 'v', 'c', 's', 't', 'a', 't', 'e'};
-    for (size_t at = 32; at + sizeof rec <= size && !first; at++)
-        if (!memcmp(b + at, rec, sizeof rec)) first = b + at;
-    CHECK(first != NULL, "the vcstate record");
-    if (!first) { free(blob); return; }
-    /* the two records: name length, name, item size, count, items */
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    CHECK(c != NULL, "create: %s", msg);
+    if (!c) { free(V); free(T); return; }
+    int32_t pins[6];
+    double goal[18];
+    for (int i = 0; i < 6; i++) {
+        pins[i] = (int32_t)(i * 5 + 4);  /* the top row, y = 4 cm (grid numbers i * ny + j) */
+        for (int q = 0; q < 3; q++) goal[3 * i + q] = V[3 * pins[i] + q] + (q == 2 ? 0.002 : 0.0);
+    }
+    CHECK(tc_cloth_pin(c, pins, 6, 1) == TC_OK, "pin");
+    int32_t free_v = 0;
+    double nan_goal[3] = {0.0, NAN, 0.0};
+    CHECK(tc_cloth_set_pin_goals(c, &free_v, goal, 1) == TC_ERR_INPUT && strstr(tc_cloth_error(c), "not pinned"),
+          "unpinned vertex refused: %s", tc_cloth_error(c));
+    CHECK(tc_cloth_set_pin_goals(c, pins, nan_goal, 1) == TC_ERR_INPUT && strstr(tc_cloth_error(c), "not finite"),
+          "non-finite goal refused: %s", tc_cloth_error(c));
+    CHECK(tc_cloth_set_pin_goals(c, pins, goal, 6) == TC_OK, "goals: %s", tc_cloth_error(c));
+    CHECK(tc_cloth_step(c, 1.0 / 240, 4) == TC_OK, "step: %s", tc_cloth_error(c));
+    size_t rows, cols, item;
+    tc_buf *xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item), *vb = tc_cloth_array(c, TC_VELOCITIES, &rows, &cols, &item);
+    const double *x = tc_buf_data(xb), *v = tc_buf_data(vb);
+    double worst = 0.0, vworst = 0.0;
+    for (int i = 0; i < 6; i++)
+        for (int q = 0; q < 3; q++) {
+            worst = fmax(worst, fabs(x[3 * pins[i] + q] - goal[3 * i + q]));
+            vworst = fmax(vworst, fabs(v[3 * pins[i] + q] - (q == 2 ? 0.002 * 240 : 0.0)));
+        }
+    CHECK(worst < 1e-15 && vworst < 1e-12, "pins at their goals (off by %g m, velocity by %g m/s)", worst, vworst);
+    tc_buf_decref(xb); tc_buf_decref(vb);
+    CHECK(tc_cloth_step(c, 1.0 / 240, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+    xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
+    x = tc_buf_data(xb);
+    worst = 0.0;
+    for (int i = 0; i < 6; i++)
+        for (int q = 0; q < 3; q++) worst = fmax(worst, fabs(x[3 * pins[i] + q] - goal[3 * i + q]));
+    CHECK(worst < 1e-15, "goals kept: off by %g m", worst);
+    /* moved by hand: pinned where put */
+    double *moved = malloc(rows * cols * sizeof(double));
+    memcpy(moved, x, rows * cols * sizeof(double));
+    tc_buf_decref(xb);
+    moved[3 * pins[0]] += 0.001;
+    CHECK(tc_cloth_set_positions(c, moved, (int32_t)rows) == TC_OK, "set positions");
+    CHECK(tc_cloth_step(c, 1.0 / 240, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+    xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
+    x = tc_buf_data(xb);
+    CHECK(x[3 * pins[0]] == moved[3 * pins[0]] && x[3 * pins[0] + 2] == moved[3 * pins[0] + 2], "pinned where put");
+    tc_buf_decref(xb);
+    /* a tear along the pinned row: every duplicate of a pinned vertex is pinned at its original's goal */
+    const int32_t n0 = tc_cloth_num_vertices(c);
+    double dir[3] = {0.0, -1.0, 0.0};  /* down from the pinned edge */
+    int32_t cuts = 0;
+    tc_tear_settings ts = tc_tear_default();
+    ts.enabled = 1;
+    CHECK(tc_cloth_set_tearing(c, &ts) == TC_OK, "tearing");
+    CHECK(tc_cloth_scripted_tear(c, pins[2], dir, 0.015, &cuts) == TC_OK, "tear: %s", tc_cloth_error(c));
+    CHECK(tc_cloth_step(c, 1.0 / 240, 1) == TC_OK, "step after the tear: %s", tc_cloth_error(c));
+    const int8_t *pf = tc_cloth_pin_flags(c);
+    xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
+    x = tc_buf_data(xb);
+    worst = 0.0;
+    int pinned_new = 0;
+    for (int32_t i = n0; i < tc_cloth_num_vertices(c); i++)
+        if (pf[i]) {
+            pinned_new++;
+            double best = INFINITY;  /* the nearest original pin */
+            for (int k = 0; k < 6; k++) {
+                double d = 0.0;
+                for (int q = 0; q < 3; q++) d += (x[3 * i + q] - moved[3 * pins[k] + q]) * (x[3 * i + q] - moved[3 * pins[k] + q]);
+                best = fmin(best, sqrt(d));
+            }
+            worst = fmax(worst, best);
+        }
+    CHECK(pinned_new >= 1 && worst < 1e-12, "duplicated pins held at their originals' goals (off by %g m, %d new pinned)",
+          worst, pinned_new);
+    tc_buf_decref(xb);
+    free(moved);
+    tc_cloth_destroy(c);
+    free(V); free(T);
+}
+
+/* The blob of an earlier release: the records from the array named `name` (7 or fewer characters)
+ * to the end of the table cut out (the arrays appended since) and the array count lowered to
+ * match, resealed. NULL if the record is not found. */
+static unsigned char *older_blob(const unsigned char *b, size_t size, const char *name, size_t *out_size)
+{
+    unsigned char rec[4 + 8];
+    const uint32_t nl = (uint32_t)strlen(name);
+    memcpy(rec, &nl, 4);
+    memcpy(rec + 4, name, nl);
+    const unsigned char *first = NULL;
+    for (size_t at = 32; at + 4 + nl <= size && !first; at++)
+        if (!memcmp(b + at, rec, 4 + nl)) first = b + at;
+    if (!first) return NULL;
+    size_t k = 0;
+    for (; k < tc_vec_table_len && strcmp(tc_vec_table[k].name, name); k++) {}
+    const uint32_t nrec = (uint32_t)(tc_vec_table_len - k);
+    /* the records: name length, name, item size, count, items */
     size_t end = (size_t)(first - b);
-    for (int r = 0; r < 2; r++) {
-        uint32_t nl, it; uint64_t len;
-        memcpy(&nl, b + end, 4);
-        memcpy(&it, b + end + 4 + nl, 4);
-        memcpy(&len, b + end + 8 + nl, 8);
-        end += 16 + nl + (size_t)(it * len);
+    for (uint32_t r = 0; r < nrec; r++) {
+        uint32_t l, it; uint64_t len;
+        memcpy(&l, b + end, 4);
+        memcpy(&it, b + end + 4 + l, 4);
+        memcpy(&len, b + end + 8 + l, 8);
+        end += 16 + l + (size_t)(it * len);
     }
     const size_t cut = end - (size_t)(first - b);
     unsigned char *old = malloc(size - cut);
@@ -1216,28 +1307,49 @@ static void test_snapshot_older_arrays(tc_cloth *c)
     memcpy(old + (first - b), b + end, size - end);
     uint32_t arrays;
     memcpy(&arrays, old + 32 + 5 * 4, 4);
-    arrays -= 2;
+    arrays -= nrec;
     memcpy(old + 32 + 5 * 4, &arrays, 4);
     unsigned char *t = reseal(old, size - cut);
-    tc_cloth *e = tc_cloth_from_snapshot(t, size - cut, msg, sizeof msg);
+    free(old);
+    *out_size = size - cut;
+    return t;
+}
+
+/* A blob written before the contact state carried between sub-steps (vcstate, vkinetic, and the
+ * pins' goals after them, cut out of a blob of c) resumes with none carried: it steps as c with
+ * that state forgotten, bit for bit, while c itself (carrying it) steps otherwise. A blob of the
+ * release before the pins' goals (vgoal, vgoal0 cut) resumes as c, bit for bit: its pins hold
+ * still where they are, as c's do. c is left as it was. */
+static void test_snapshot_older_arrays(tc_cloth *c)
+{
+    void *blob;
+    size_t size, osize, gsize;
+    char msg[512];
+    CHECK(tc_cloth_snapshot(c, &blob, &size) == TC_OK, "snapshot");
+    unsigned char *t = older_blob(blob, size, "vcstate", &osize), *u = older_blob(blob, size, "vgoal", &gsize);
+    CHECK(t != NULL && u != NULL, "the vcstate and vgoal records");
+    if (!t || !u) { free(t); free(u); free(blob); return; }
+    tc_cloth *e = tc_cloth_from_snapshot(t, osize, msg, sizeof msg);
     tc_cloth *f = tc_cloth_from_snapshot(blob, size, msg, sizeof msg), *g = tc_cloth_from_snapshot(blob, size, msg, sizeof msg);
-    CHECK(e && f && g, "an older blob and its own resume: %s", msg);
-    if (e && f && g) {
+    tc_cloth *h = tc_cloth_from_snapshot(u, gsize, msg, sizeof msg);
+    CHECK(e && f && g && h, "older blobs and their own resume: %s", msg);
+    if (e && f && g && h) {
         tc_cloth_forget_contacts(f);
         for (int k = 0; k < 3; k++) {
-            tc_cloth *all[3] = {e, f, g};
-            for (int q = 0; q < 3; q++) CHECK(tc_cloth_step(all[q], 1.0 / 240, 1) == TC_OK, "resumed step");
+            tc_cloth *all[4] = {e, f, g, h};
+            for (int q = 0; q < 4; q++) CHECK(tc_cloth_step(all[q], 1.0 / 240, 1) == TC_OK, "resumed step");
         }
         size_t rows, cols, item;
         tc_buf *xe = tc_cloth_array(e, TC_VELOCITIES, &rows, &cols, &item), *xf = tc_cloth_array(f, TC_VELOCITIES, &rows, &cols, &item);
-        tc_buf *xg = tc_cloth_array(g, TC_VELOCITIES, &rows, &cols, &item);
+        tc_buf *xg = tc_cloth_array(g, TC_VELOCITIES, &rows, &cols, &item), *xh = tc_cloth_array(h, TC_VELOCITIES, &rows, &cols, &item);
         CHECK(!memcmp(tc_buf_data(xe), tc_buf_data(xf), rows * cols * item), "an older blob steps as one that forgot its contacts");
         CHECK(memcmp(tc_buf_data(xg), tc_buf_data(xf), rows * cols * item) != 0, "the carried state changes the steps");
+        CHECK(!memcmp(tc_buf_data(xh), tc_buf_data(xg), rows * cols * item), "a blob without pin goals steps as its own build's");
         CHECK(tc_cloth_stats(g).slides_carried > tc_cloth_stats(e).slides_carried, "resumed with its sliding vertices");
-        tc_buf_decref(xe); tc_buf_decref(xf); tc_buf_decref(xg);
+        tc_buf_decref(xe); tc_buf_decref(xf); tc_buf_decref(xg); tc_buf_decref(xh);
     }
-    tc_cloth_destroy(e); tc_cloth_destroy(f); tc_cloth_destroy(g);
-    free(t); free(old); free(blob);
+    tc_cloth_destroy(e); tc_cloth_destroy(f); tc_cloth_destroy(g); tc_cloth_destroy(h);
+    free(t); free(u); free(blob);
 }
 
 /* A sheet on a plane thrown up at 0.1 m/s: its held contacts would pull, so they are released and
@@ -1631,6 +1743,7 @@ int main(int argc, char **argv)
     test_axes_stored_when_read();
     test_pair_hash_dropped();
     test_contacts_and_arrays();
+    test_pin_goals();
     test_contact_squeeze_and_friction();
     test_solver();
     for (int sliver = 0; sliver <= 1; sliver++) {
