@@ -325,6 +325,12 @@ class Progress:
                 "splitting: the motion there is less accurate; raise CG Iterations")
 
 
+def frame_span(first: int, last: int) -> str:
+    """A range of frames as a person reads it: '1-24', and '-8 to -2' where a frame is negative
+    ('-8--2' reads as a typo)."""
+    return f"{first} to {last}" if first < 0 or last < 0 else f"{first}-{last}"
+
+
 def duration(seconds: float | None) -> str:
     """Seconds as a person reads them ('42 s', '3 min 07 s', '1 h 05 min'); '?' if unknown."""
     if seconds is None or not math.isfinite(seconds):

@@ -350,6 +350,8 @@ def bake_file(plan: FilePlan, on_event=None) -> dict:
 
 
 def _report(summary: dict, out) -> int:
+    from .bake import frame_span  # loaded by the bake already
+
     prog = "tearcloth bake"
     status = EXIT_OK
     signal_name = summary.get("signal")
@@ -359,10 +361,10 @@ def _report(summary: dict, out) -> int:
         if r.state == "done":
             spf = r.seconds_per_frame
             rate = f" ({spf:.3f} s/frame)" if spf is not None else ""
-            out(f"{r.name}: baked frames {r.frames[0]}-{r.frames[-1]}: {r.tears} tear{'s' if r.tears != 1 else ''}, "
+            out(f"{r.name}: baked frames {frame_span(r.frames[0], r.frames[-1])}: {r.tears} tear{'s' if r.tears != 1 else ''}, "
                 f"{r.vertices} vertices, {r.seconds:.1f} s{rate} -> {r.cache_path}")
         elif r.state == "cancelled":
-            kept = (f"frames {r.frames[0]}-{r.frames[-1]} kept" if r.frames else
+            kept = (f"frames {frame_span(r.frames[0], r.frames[-1])} kept" if r.frames else
                     PREVIOUS_KEPT if r.previous_kept else "no frame written")
             print(f"{prog}: {r.name}: interrupted; {kept}", file=sys.stderr)
             status = max(status, EXIT_FAILED)
@@ -373,7 +375,7 @@ def _report(summary: dict, out) -> int:
             status = max(status, EXIT_FAILED)
     if signal_name:
         # one line: what stopped it, what is kept, where, and how to go on
-        kept = [f"{r.name} frames {r.frames[0]}-{r.frames[-1]}" if r.frames else f"{r.name}'s previous bake"
+        kept = [f"{r.name} frames {frame_span(r.frames[0], r.frames[-1])}" if r.frames else f"{r.name}'s previous bake"
                 for r in summary["objects"] if r.state == "cancelled" and (r.frames or r.previous_kept)]
         saved = f"; saved {summary['output']}" if summary["saved"] else ""
         again = " (a re-bake starts over)" if any(r.previous_kept for r in summary["objects"]) else ""
@@ -449,6 +451,7 @@ def demo(out_dir: str = "tearcloth_demo") -> dict:
     Writes ``torn_cloth.png``, ``forces.png``, ``forces.csv`` and the baked scene
     (``square_cloth.blend`` + ``tearcloth_cache/``) into ``out_dir``. Raises ValueError or OSError
     with a one-line message on failure (``main`` prints it)."""
+    from .bake import frame_span
     from .haptics.forcelog import ForceLog
 
     out = Path(out_dir).expanduser().resolve()
@@ -471,7 +474,7 @@ def demo(out_dir: str = "tearcloth_demo") -> dict:
     r = results[0]
     log.to_csv(out / "forces.csv")
     log.plot(out / "forces.png", axis=(1.0, 0.0, 0.0), title="Force felt by each hand (along the pull)")
-    print(f"baked {r.name}: frames {r.frames[0]}-{r.frames[-1]}, {r.tears} tear{'s' if r.tears != 1 else ''}, "
+    print(f"baked {r.name}: frames {frame_span(r.frames[0], r.frames[-1])}, {r.tears} tear{'s' if r.tears != 1 else ''}, "
           f"{r.vertices} vertices at the end, {r.seconds:.1f} s ({r.seconds_per_frame:.3f} s/frame)")
     print(f"wrote {out / 'torn_cloth.png'}, {out / 'forces.png'}, {out / 'forces.csv'} and {summary['output']}")
     return {"wall_s": wall, "tears": r.tears, "frames": [r.frames[0], r.frames[-1]], "vertices": r.vertices,

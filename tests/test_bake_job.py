@@ -422,3 +422,11 @@ def test_a_split_pinned_vertex_follows_its_point_of_the_mesh():
     goals = source.goals(key, points, 1.0)
     np.testing.assert_allclose(goals, points @ rot.T + (0.1, 0.2, 0.3), atol=1e-15)
     assert source.moved
+
+
+def test_frame_ranges_read_as_ranges():
+    """Negative frames (a bake from before the scene's start) read as a range, not a typo."""
+    from tearcloth.bake import frame_span
+
+    assert frame_span(1, 24) == "1-24"
+    assert frame_span(-8, -2) == "-8 to -2" and frame_span(-3, 5) == "-3 to 5"

@@ -288,6 +288,23 @@ BAD_INPUTS = '''
     out["ngon_intact"] = {k: v for k, v in snapshot(disk).items() if k != "attached"} == \\
         {k: v for k, v in before.items() if k != "attached"}
 
+    # a handle whose follow object was deleted (the pointer goes empty) and a loose vertex: both said
+    lone = bpy.data.objects.new("Lone", obj.data.copy())
+    bpy.context.scene.collection.objects.link(lone)
+    lone.vertex_groups.new(name="hand").add([0, 1], 1.0, "REPLACE")
+    lone.data.vertices.add(1)
+    lone.data.vertices[-1].co = (5.0, 5.0, 5.0)
+    op("enable", lone)
+    lone.tearcloth.frame_end = 2
+    lone.tearcloth.use_collision = False
+    handle = lone.tearcloth.handles.add()
+    handle.vertex_group = "hand"
+    ghost = bpy.data.objects.new("Ghost", None)
+    bpy.context.scene.collection.objects.link(ghost)
+    handle.follow = ghost
+    bpy.data.objects.remove(ghost)
+    attempt("lone", lambda: op("bake", lone))
+
     # an object renamed after its bake: resume says so; free frees what it plays
     op("bake", obj)
     obj.name = "Renamed"
@@ -373,6 +390,10 @@ def test_bad_inputs_are_reported_and_the_scene_is_intact(tmp_path):
     assert out["ngon"]["state"] == ["FINISHED"]
     _one(out["ngon"], "WARNING", "1 n-gon triangulated", "your mesh is unchanged")
     assert out["ngon_intact"]
+
+    assert out["lone"]["state"] == ["FINISHED"], out["lone"]
+    _one(out["lone"], "WARNING", "handle 1 ('hand') follows no object", "holds its vertices where they are")
+    _one(out["lone"], "WARNING", "1 loose vertex", "left out of the simulation and of the baked mesh")
 
     _one(out["renamed_resume"], "ERROR", "renamed since its bake")
     assert out["renamed_free"]["state"] == ["FINISHED"] and out["renamed_freed"]

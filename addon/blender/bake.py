@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import bpy
 
 from .. import cache
-from ..bake import BakeJob, Progress, delete_state, start_worker
+from ..bake import BakeJob, Progress, delete_state, frame_span, start_worker
 from ..cloth import ClothError
 from . import jobs, modifier
 from .inputs import build_plan, gather_inputs
@@ -228,7 +228,7 @@ class BakeRun:
             self.reports.info(f"{self.object_name}: created the cache folder {self.created_folders[-1]}")
         if self.abandoned:  # another file is open now: touch none of its data
             self.reports.warning(f"{self.object_name}: bake stopped by loading another file; "
-                                 + (f"frames {frames[0]}-{frames[-1]} kept" if frames else "no frame written"))
+                                 + (f"frames {frame_span(frames[0], frames[-1])} kept" if frames else "no frame written"))
             return "cancelled"
         scene = bpy.data.scenes.get(self.scene_name)
         if scene is not None and scene.frame_current != self.original_frame:
@@ -257,14 +257,14 @@ class BakeRun:
             if removed is not None:
                 (self.reports.warning if removed[1] else self.reports.info)(f"{self.object_name}: {removed[0]}")
         if frames:
-            kept = f"frames {frames[0]}-{frames[-1]} kept"
+            kept = f"frames {frame_span(frames[0], frames[-1])} kept"
         elif previous:  # a re-bake replaces the previous bake only once complete (tearcloth.bake)
             kept = "the previous bake is kept as it was" + (
                 f" (this bake's frames up to {p.frame} are dropped)" if p.frame is not None else "")
         else:
             kept = "no frame written"
         if p.state == "done":
-            self.reports.info(f"{self.object_name}: baked frames {frames[0]}-{frames[-1]} "
+            self.reports.info(f"{self.object_name}: baked frames {frame_span(frames[0], frames[-1])} "
                               f"({p.tears} tear{'s' if p.tears != 1 else ''}, {p.vertices} vertices at the end) "
                               f"into {self.plan.cache_path}")
         elif p.state == "cancelled":

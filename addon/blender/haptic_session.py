@@ -75,7 +75,7 @@ import bpy
 import numpy as np
 
 from .. import spaces
-from ..bake import delete_state, make_session
+from ..bake import delete_state, frame_span, make_session
 from ..cache import CacheError, CacheWriter
 from ..haptics import discovery as devices
 from ..haptics.device import DeviceState, HapticError, Workspace
@@ -819,7 +819,7 @@ class HapticRun:
         else:
             self.state = "error" if r.errors else "done"  # e.g. the object vanished during the session
         frames = self.recorder.frames
-        kept = f"frames {frames[0]}-{frames[-1]}" if frames else "no frame"
+        kept = f"frames {frame_span(frames[0], frames[-1])}" if frames else "no frame"
         if self.recorder.error is not None:
             self.state = "error"
             r.error(f"{name}: recording stopped: {self.recorder.error}; {kept} kept")

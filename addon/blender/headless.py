@@ -30,7 +30,7 @@ from pathlib import Path
 import bpy
 
 from .. import cache
-from ..bake import ProgressLine
+from ..bake import ProgressLine, frame_span
 from . import modifier, register
 from .bake import BakeRun
 from .report import BakeError, Reports
@@ -251,7 +251,7 @@ def _start_run(obj, start, end, reports: Reports, listen, progress: ProgressLine
         try:
             run = BakeRun(bpy.context, obj, start, end, True, tried, on_event=listen)
         except BakeError as exc:
-            _say(progress, f"{obj.name}: the partial bake (frames {partial[0]}-{partial[-1]}) cannot be resumed "
+            _say(progress, f"{obj.name}: the partial bake (frames {frame_span(partial[0], partial[-1])}) cannot be resumed "
                            f"({exc}); baking from the start")
         else:
             reports.items.extend(tried.items)

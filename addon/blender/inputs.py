@@ -21,7 +21,7 @@ import bpy
 import numpy as np
 
 from .. import cache, spaces
-from ..bake import BakePlan, FrameInputs
+from ..bake import BakePlan, FrameInputs, frame_span
 from ..cloth import Cloth
 from . import convert, modifier
 from .props import COLLIDER_TYPES
@@ -256,6 +256,10 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     follow = []
     for i, h in handles:
         follow.append(h.follow.name if h.follow is not None else None)
+        if hands is None and h.follow is None and h.vertex_group:
+            # a follow object deleted since it was chosen leaves the pointer empty, and nothing else says so
+            reports.warning(f"{obj.name}: handle {i + 1} ({h.vertex_group!r}) follows no object, so it holds its "
+                            "vertices where they are; choose the object it follows (Tear Cloth > Handles)")
         if hands is not None and h.follow is not None:
             reports.warning(f"{obj.name}: handle {i + 1} follows {h.follow.name!r}, but the scene's time stands "
                             "still during a live session: the handle holds still")
@@ -291,7 +295,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     grain_angles = _grain_angles(obj, mesh, reports)
     if mesh.loose:
         reports.warning(f"{obj.name}: {mesh.loose} loose {'vertices' if mesh.loose != 1 else 'vertex'} (in no face) "
-                        "left out of the simulation")
+                        "left out of the simulation and of the baked mesh (the played mesh has none of them)")
 
     pinned = 0
     if settings.pin_group:
@@ -450,7 +454,7 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
             reports.error(f"{obj.name}: the cache root {path} is damaged and cannot be rebuilt ({exc}); "
                           "Free Bake deletes it")
             return
-        span = f"frames {frames[0]}-{frames[-1]}" if frames else "no frame"
+        span = f"frames {frame_span(frames[0], frames[-1])}" if frames else "no frame"
         reports.warning(f"{obj.name}: the cache root {path} was damaged (cut short); rebuilt it from its intact "
                         f"frame files ({span})")
     if resume:

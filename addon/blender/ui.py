@@ -18,6 +18,7 @@ from bpy.types import Menu, Panel, UIList
 
 from .. import cache
 from .. import settings as table
+from ..bake import frame_span
 from ..materials import MATERIALS
 from . import bake, fray, haptic_session, modifier
 from .ops import PRESET_SUBDIR
@@ -136,7 +137,7 @@ class TEARCLOTH_PT_main(TearClothPanel, Panel):
             layout.label(text=problem, icon="ERROR")
         elif info is not None and info["frames"]:
             state = "" if info["complete"] else " (interrupted)"
-            layout.label(text=f"Baked frames {info['frames'][0]}-{info['frames'][-1]}{state}", icon="CHECKMARK")
+            layout.label(text=f"Baked frames {frame_span(info['frames'][0], info['frames'][-1])}{state}", icon="CHECKMARK")
             _draw_convergence(layout, obj)
         else:
             layout.label(text="Not baked: the rest mesh is shown", icon="INFO")
