@@ -50,7 +50,7 @@ import numpy as np
 
 from . import attributes as attrs
 from . import spaces
-from .cache import CacheWriter, _remove_quietly, read_primvars, staging_path_for
+from .cache import CacheWriter, _remove_quietly, interrupted_rebake, read_primvars, staging_path_for
 from .cloth import Cloth, SimulationError, smallest_angles_deg
 from .materials import Material
 from .session import CollisionSettings, Session, StepReport
@@ -389,22 +389,26 @@ class BakeJob:
         # frame leaves the user's previous bake, its resume state included, as it was (its own
         # frames are dropped: the user asked for a new bake, not half of one over the old). With
         # nothing to replace, the staged bake moves to the final path with its first simulated
-        # frame (``_write``), so a first bake killed midway keeps its frames and resumes.
-        self.replacing = not plan.resume and os.path.lexists(plan.cache_path)
+        # frame (``_write``), so a first bake killed midway keeps its frames and resumes. A
+        # re-bake killed midway (a crash, SIGKILL) leaves its staged frames and state beside the
+        # previous bake: resuming continues it there (``cache.interrupted_rebake``).
+        rebake = plan.resume and interrupted_rebake(plan.cache_path) is not None
+        self.replacing = rebake or (not plan.resume and os.path.lexists(plan.cache_path))
         self.writer = CacheWriter(
             plan.cache_path, plan.prim_name, plan.fps, "Z", plan.scale,
             object_name=plan.object_name, fingerprint=plan.fingerprint, resume=plan.resume,
-            stage=not plan.resume, owner=plan.owner, uv_name=plan.uv_name,
+            stage=rebake or not plan.resume, owner=plan.owner, uv_name=plan.uv_name,
         )
         last = self.writer.last_frame
         if plan.resume and last is not None:
-            state = load_state(plan.state_path)
+            # the state beside the cache it belongs to (the staged root of an interrupted re-bake)
+            state = load_state(state_path_for(self.writer.path))
             if (state is None or state["frame"] < last or state["object_name"] != plan.object_name
                     or (plan.fingerprint and state["fingerprint"] and state["fingerprint"] != plan.fingerprint)):
                 self.writer.close(complete=False)
                 raise ValueError(
                     f"{plan.cache_path}: cannot resume: the simulation state for frame {last} is missing "
-                    f"or stale ({os.path.basename(plan.state_path)}); bake again from the start"
+                    f"or stale ({os.path.basename(state_path_for(self.writer.path))}); bake again from the start"
                 )
             self._state = state
             self.start_frame = int(state["frame"])

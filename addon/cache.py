@@ -40,8 +40,10 @@ cache is split::
   only once complete (bake.py's BakeJob: a first bake, with nothing to replace, is promoted with
   its first simulated frame so that a killed one keeps its frames). A re-bake that fails, is
   cancelled or is killed at any frame leaves the old cache, frames and resume state untouched,
-  and its staged files are deleted (``discard``); a staging left by a killed process is cleared
-  by the next bake. Only Free Bake deletes frames on purpose.
+  and its staged files are deleted (``discard``); a staging left by a killed process (a crash,
+  SIGKILL: nothing could tidy up) is continued by a resume, still beside the old cache
+  (``interrupted_rebake``, ``CacheWriter(resume=True, stage=True)``), or cleared by the next
+  bake. Only Free Bake deletes frames on purpose.
 * Value clips hold, not interpolate: between two frames (motion-blur sub-frames) the earlier
   frame's mesh is used as is, which is the only correct answer when the topology differs; before
   the first frame the first one is shown, after the last the last one.
@@ -655,6 +657,20 @@ def staging_path_for(path) -> str:
     return os.path.join(folder, f".{stem}.baking{ext}")
 
 
+def interrupted_rebake(path) -> dict | None:
+    """The re-bake of the cache ``path`` that a killed process left beside it (its staging root,
+    with at least one frame: ``cache_info`` of it), which ``CacheWriter(resume=True, stage=True)``
+    continues; None when there is none or it cannot be read (the next bake clears it)."""
+    staging = staging_path_for(path)
+    if not os.path.lexists(staging):
+        return None
+    try:
+        info = cache_info(staging)
+    except CacheError:
+        return None
+    return info if info["frames"] else None
+
+
 def _remove_staging(staging: str) -> None:
     """Delete a staging root and its frames folder. Their hidden names are made only by
     ``CacheWriter(stage=True)``, so whatever is there is a left-over of a bake attempt."""
@@ -678,7 +694,9 @@ class CacheWriter:
     any other file); ``resume=True`` reopens it, keeps the frames written up to the last complete
     one and continues after ``last_frame``. ``stage=True`` (a re-bake) writes beside the cache at
     ``path`` without touching it until ``promote()`` replaces it; ``discard()`` (or closing an
-    incomplete staged bake) drops the new frames and leaves the old cache as it was.
+    incomplete staged bake) drops the new frames and leaves the old cache as it was. Both
+    (``resume=True, stage=True``) continue the staged re-bake a killed process left beside the
+    cache (``interrupted_rebake``), still beside it until it is complete.
     ``durable=True`` also fsyncs every file (power-cut
     safety; crash and SIGKILL safety need no fsync).
     """
@@ -749,7 +767,14 @@ class CacheWriter:
             self._closed = True
             return
         os.makedirs(os.path.dirname(self.path), exist_ok=True)
-        if resume and os.path.lexists(self.path):
+        if resume and stage:
+            # a re-bake a killed process left beside the cache, continued beside it
+            self.path = staging_path_for(self.final_path)
+            self.frames_dir = frames_dir_for(self.path)
+            if not os.path.lexists(self.path):
+                raise CacheError(f"{self.final_path}: no interrupted re-bake beside it to resume")
+            self._resume()
+        elif resume and os.path.lexists(self.path):
             self._resume()
         elif stage:
             # The re-bake rule: a new bake is written beside the old one (a hidden staging root

@@ -255,16 +255,26 @@ def _start_run(obj, start, end, reports: Reports, listen, progress: ProgressLine
                            f"({exc}); baking from the start")
         else:
             reports.items.extend(tried.items)
-            _say(progress, f"{obj.name}: resuming the partial bake after frame {run.job.start_frame} "
+            what = ("the interrupted re-bake (the previous bake stays until it is complete)" if run.job.replacing
+                    else "the partial bake")
+            _say(progress, f"{obj.name}: resuming {what} after frame {run.job.start_frame} "
                            "(--restart bakes from the start)")
             return run
     return BakeRun(bpy.context, obj, start, end, False, reports, on_event=listen)
 
 
 def _partial_bake(obj) -> list | None:
-    """The frames of an interrupted bake at the object's cache path, or None."""
+    """The frames of an interrupted bake of the object: a re-bake killed midway beside its
+    previous bake (the latest attempt), else an incomplete bake at its cache path; or None."""
     try:
-        info = cache.check_owner(modifier.cache_path(obj), obj.name, object_id=modifier.object_id(obj))
+        path = modifier.cache_path(obj)
+        staged = cache.interrupted_rebake(path)
+        if staged is not None:
+            try:
+                return cache.check_owner(staged["path"], obj.name, object_id=modifier.object_id(obj))["frames"]
+            except cache.CacheError:
+                pass  # not this object's: the next bake clears it
+        info = cache.check_owner(path, obj.name, object_id=modifier.object_id(obj))
     except (BakeError, cache.CacheError):
         return None
     return info["frames"] if info["frames"] and not info["complete"] else None

@@ -458,6 +458,14 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
         reports.warning(f"{obj.name}: the cache root {path} was damaged (cut short); rebuilt it from its intact "
                         f"frame files ({span})")
     if resume:
+        staged = cache.interrupted_rebake(path)
+        if staged is not None:
+            # a re-bake killed midway (its frames beside the previous bake): resuming continues it
+            try:
+                cache.check_owner(staged["path"], obj.name, object_id=modifier.object_id(obj))
+            except cache.CacheError as exc:
+                reports.error(f"{obj.name}: cannot resume the interrupted re-bake: {exc}")
+            return
         if not os.path.exists(path):
             attached = modifier.attached_path(obj)
             if attached is not None and os.path.exists(attached):

@@ -83,6 +83,24 @@ def _cache_state(obj):
 _memo: dict = {}
 
 
+def _interrupted_rebake(obj) -> dict | None:
+    """The re-bake a crash left beside the cache the object plays (``cache.interrupted_rebake``),
+    memoised on its staging root's modification time, or None."""
+    path = modifier.attached_path(obj)
+    if path is None:
+        return None
+    staging = cache.staging_path_for(path)
+    try:
+        mtime = os.path.getmtime(staging)
+    except OSError:
+        return None
+    memo = _memo.get(staging)
+    if memo is None or memo[0] != mtime:
+        memo = (mtime, cache.interrupted_rebake(path), None)
+        _memo[staging] = memo
+    return memo[1]
+
+
 class TearClothPanel:
     bl_space_type = "PROPERTIES"
     bl_region_type = "WINDOW"
@@ -332,6 +350,9 @@ class TEARCLOTH_PT_cache(TearClothPanel, Panel):
         info, problem = _cache_state(obj)
         if info is not None and info["frames"]:
             col.label(text=f"{len(info['frames'])} frames in {os.path.basename(info['path'])}")
+        staged = _interrupted_rebake(obj)
+        if staged is not None:
+            col.label(text=f"Re-bake stopped after frame {staged['frames'][-1]}: Resume continues it", icon="INFO")
         layout.use_property_split = False
         if running:
             layout.operator("tearcloth.bake_cancel", icon="CANCEL")
