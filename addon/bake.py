@@ -379,6 +379,9 @@ class BakeJob:
                 self.progress.polygons_renumbered_by = tuple(plan.renumbered_by)
         self.on_event = on_event
         self.cancel = threading.Event()
+        # a stop meant to be resumed (the CLI's SIGTERM: a farm manager's preemption): an unfinished
+        # re-bake keeps its frames and state beside the previous bake instead of dropping them
+        self.keep_staged = False
         self.session: Session | None = None
         self._state: dict | None = None
         self._tears_before = 0
@@ -587,9 +590,15 @@ class BakeJob:
 
     @property
     def previous_kept(self) -> bool:
-        """After ``close``: a re-bake that did not complete dropped its frames, and the previous
-        bake is as it was."""
-        return self.replacing and not self.writer.frames
+        """After ``close``: a re-bake that did not complete left the previous bake as it was (its
+        own frames dropped, or waiting beside it: ``waiting_frames``)."""
+        return self.replacing and (not self.writer.frames or self.writer.staged)
+
+    @property
+    def waiting_frames(self) -> list:
+        """After ``close``: the frames of a re-bake stopped with ``keep_staged`` that wait beside
+        the previous bake for a resume (``cache.interrupted_rebake``); [] otherwise."""
+        return self.writer.frames if self.writer.staged else []
 
     def _promote(self) -> None:
         """The new bake moves to the final path (a first bake with its first simulated frame, a
@@ -610,8 +619,9 @@ class BakeJob:
             if self.writer.staged and complete and self.writer.frames:
                 self._promote()
             staged = self.writer.staged
-            self.writer.close(complete=complete)
-            if staged:  # never promoted: the staged bake and its state are gone, the old one stays
+            keep = staged and self.keep_staged and self.replacing and not complete
+            self.writer.close(complete=complete, keep_staged=keep)
+            if staged and not keep:  # never promoted: the staged bake and its state are gone, the old one stays
                 _remove_quietly(state_path_for(staging_path_for(self.plan.cache_path)))
 
 

@@ -916,15 +916,20 @@ class CacheWriter:
         self._frames.append(frame)
         self._write_root(complete=False)
 
-    def close(self, complete: bool = True) -> None:
+    def close(self, complete: bool = True, keep_staged: bool = False) -> None:
         """Finish the cache. ``complete`` marks it finished in the root (``cache_info()['complete']``);
         leaving a writer without closing it (or closing with ``complete=False``) keeps every frame
-        but tells the UI the bake was interrupted."""
+        but tells the UI the bake was interrupted. An incomplete staged bake is discarded, or with
+        ``keep_staged`` left beside the old cache for a resume (``interrupted_rebake``)."""
         if self._closed:
             return
         if self.staged:  # a staged bake replaces the old one only when it is complete
             if not (complete and self._frames):
-                self.discard()
+                if keep_staged and self._frames:
+                    self._write_root(complete=False)
+                    self._closed = True
+                else:
+                    self.discard()
                 return
             self.promote()
         self._write_root(complete=complete)

@@ -34,7 +34,8 @@ What a bake does, in order:
    kept, the file is saved pointing at them, one line on stderr says so, and the exit status is
    130 (SIGINT) or 143 (SIGTERM).
    Resume: when an object's cache holds an interrupted bake of the same object (a killed or
-   stopped run of the same command), the bake continues after its last complete frame and says
+   stopped run of the same command; for a re-bake, its frames beside the previous bake, which
+   it replaces only once complete), the bake continues after its last complete frame and says
    so, from the whole saved simulation state (it ends exactly as an uninterrupted bake would); a bake that cannot be resumed (another mesh, a stale state) starts over and says why.
    ``--restart`` always bakes from the first frame.
 5. ``--render PNG`` renders a frame (default: the last baked frame; ``--render-frame 1,24``
@@ -375,10 +376,14 @@ def _report(summary: dict, out) -> int:
             status = max(status, EXIT_FAILED)
     if signal_name:
         # one line: what stopped it, what is kept, where, and how to go on
-        kept = [f"{r.name} frames {frame_span(r.frames[0], r.frames[-1])}" if r.frames else f"{r.name}'s previous bake"
+        kept = [f"{r.name} frames {frame_span(r.frames[0], r.frames[-1])}" if r.frames else
+                f"{r.name}'s previous bake" + (f" (its re-bake's frames {frame_span(r.waiting[0], r.waiting[-1])} "
+                                               "wait beside it)" if r.waiting else "")
                 for r in summary["objects"] if r.state == "cancelled" and (r.frames or r.previous_kept)]
         saved = f"; saved {summary['output']}" if summary["saved"] else ""
-        again = " (a re-bake starts over)" if any(r.previous_kept for r in summary["objects"]) else ""
+        # a re-bake stopped before its first simulated frame has nothing to resume from
+        again = " (a re-bake stopped before its first frame starts over)" if any(
+            r.previous_kept and not r.waiting for r in summary["objects"]) else ""
         print(f"{prog}: stopped by {signal_name}: {', '.join(kept) or 'no frame'} kept{saved}; "
               f"run the same command again to resume{again}", file=sys.stderr)
         return EXIT_TERMINATED if signal_name == "SIGTERM" else EXIT_INTERRUPTED

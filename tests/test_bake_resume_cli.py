@@ -121,20 +121,27 @@ def test_restart_bakes_from_the_first_frame(tmp_path):
     assert sorted(os.listdir(root(out).parent)) == [f"{stem}.state.npz", f"{stem}.usda", f"{stem}_frames"]
 
 
-def test_a_killed_rebake_resumes_beside_the_previous_bake(tmp_path, uninterrupted):
-    """A re-bake (``--restart`` over a complete bake) killed with SIGKILL midway leaves the
-    previous bake as it was and its own frames and state beside it (a crash gives no chance to
-    tidy up); the same command again resumes that re-bake there, says so, and replaces the previous
-    bake once complete, ending bit for bit as an uninterrupted bake, with nothing left beside it."""
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_stopped_rebake_resumes_beside_the_previous_bake(tmp_path, uninterrupted, sig):
+    """A re-bake (``--restart`` over a complete bake) killed with SIGKILL (a crash: no chance to
+    tidy up) or stopped by SIGTERM (a farm manager's preemption: kept on purpose, and said) midway
+    leaves the previous bake as it was and its own frames and state beside it; the same command
+    again resumes that re-bake there, says so, and replaces the previous bake once complete,
+    ending bit for bit as an uninterrupted bake, with nothing left beside it."""
     out = tmp_path / "out"
     first = subprocess.run(command(out), capture_output=True, text=True, timeout=300)
     assert first.returncode == 0, first.stderr[-3000:]
     before = {f: Path(file).read_bytes() for f, file in
               zip(cache.cache_info(root(out))["frames"], cache.cache_info(root(out))["frame_files"])}
     staged = Path(cache.staging_path_for(root(out)))
-    killed = signal_at(command(out, "--restart"), out,
-                       f"square_cloth/{staged.stem}_frames/frame_000005.usdc", signal.SIGKILL)
-    assert killed.returncode == -9
+    killed = signal_at(command(out, "--restart"), out, f"square_cloth/{staged.stem}_frames/frame_000005.usdc", sig)
+    if sig == signal.SIGKILL:
+        assert killed.returncode == -9
+    else:
+        lines = [line for line in killed.stderr.splitlines() if "stopped by SIGTERM" in line]
+        assert killed.returncode == 143 and len(lines) == 1, killed.stderr[-3000:]
+        assert "SquareCloth's previous bake (its re-bake's frames 1-" in lines[0] and "wait beside it" in lines[0] \
+            and "run the same command again to resume" in lines[0] and "starts over" not in lines[0], lines[0]
     info = cache.cache_info(root(out))
     assert info["complete"] and {f: Path(file).read_bytes() for f, file in
                                  zip(info["frames"], info["frame_files"])} == before  # as it was

@@ -221,8 +221,10 @@ class BakeRun:
             self.job.close()
         except Exception as exc:  # the cache keeps every frame it had; say why it is not closed
             self.progress.state, self.progress.message = "error", f"could not finish the cache: {exc}"
-        frames = self.job.writer.frames
-        if not frames:
+        # a re-bake stopped to be resumed keeps its frames beside the previous bake, which stays
+        waiting = self.job.waiting_frames
+        frames = [] if waiting else self.job.writer.frames
+        if not frames and not waiting:
             self._remove_created_folders()
         elif self.created_folders:
             self.reports.info(f"{self.object_name}: created the cache folder {self.created_folders[-1]}")
@@ -258,6 +260,9 @@ class BakeRun:
                 (self.reports.warning if removed[1] else self.reports.info)(f"{self.object_name}: {removed[0]}")
         if frames:
             kept = f"frames {frame_span(frames[0], frames[-1])} kept"
+        elif previous and waiting:
+            kept = (f"the previous bake is kept as it was; this re-bake's frames {frame_span(waiting[0], waiting[-1])} "
+                    "wait beside it (Resume continues it)")
         elif previous:  # a re-bake replaces the previous bake only once complete (tearcloth.bake)
             kept = "the previous bake is kept as it was" + (
                 f" (this bake's frames up to {p.frame} are dropped)" if p.frame is not None else "")

@@ -24,7 +24,7 @@ import signal
 import threading
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import bpy
@@ -53,6 +53,7 @@ class ObjectResult:
     seconds: float = 0.0
     message: str = ""
     previous_kept: bool = False  # a re-bake that did not complete: the object's previous bake is as it was
+    waiting: list = field(default_factory=list)  # that re-bake's frames, kept beside it for a resume
 
     @property
     def seconds_per_frame(self) -> float | None:
@@ -191,6 +192,7 @@ def _bake_objects(names, start, end, plan, progress: ProgressLine, on_event, sto
             continue
         stop.run = run
         if stop.signal is not None:  # came while the bake was being set up
+            run.job.keep_staged = True
             run.job.cancel.set()
         try:
             state = run.run_inline(bpy.context)
@@ -205,10 +207,11 @@ def _bake_objects(names, start, end, plan, progress: ProgressLine, on_event, sto
         message = p.message if state == "error" else ""
         if state == "error" and not message:
             message = "; ".join(reports.errors)
-        frames = list(run.job.writer.frames)
+        waiting = list(run.job.waiting_frames)
+        frames = [] if waiting else list(run.job.writer.frames)
         results.append(ObjectResult(name, state, frames, run.plan.cache_path, p.tears,
                                     p.vertices, time.perf_counter() - t0, message,
-                                    previous_kept=run.job.previous_kept))
+                                    previous_kept=run.job.previous_kept, waiting=waiting))
     return results
 
 
@@ -225,6 +228,7 @@ class _Stop:
     def _handler(self, signum, frame):
         self.signal = signal.Signals(signum).name
         if self.run is not None:
+            self.run.job.keep_staged = True  # stopped to be resumed: a re-bake keeps its frames beside
             self.run.job.cancel.set()
 
     @contextlib.contextmanager
