@@ -117,7 +117,7 @@ class _PinSource:
         """The goals at time t of the pinned vertices ``pinned`` whose rest positions are ``rest``."""
         key = (len(rest), pinned.tobytes())
         if self._where is None or self._where[0] != key:
-            self._where = (key, *self._locate(rest))
+            self._where = (key, *self._locate(pinned, rest))
         _, corners, weights = self._where
         # the track sampled at the corners only (a garment's pins are a sliver of its vertices)
         tr = self.track
@@ -127,18 +127,23 @@ class _PinSource:
             * (tr.values[1][corners] - tr.values[0][corners]))
         return np.einsum("kj,kjd->kd", weights, at)
 
-    def _locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Each point as (three vertex indices, three weights) of the rest mesh: a vertex it sits on
-        exactly (weight 1), else the triangle whose plane it is nearest with barycentric weights
-        inside it (the point's projection; a split lies on its triangle up to rounding)."""
+    def _locate(self, vertices: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each cloth vertex ``vertices[j]`` at rest position ``points[j]`` as (three vertex
+        indices, three weights) of the rest mesh: the vertex of the same number at the same place
+        (a vertex the cloth was made with; two at one place, an unmerged seam, stay apart), else a
+        vertex it sits on exactly (a tear's duplicate), else the triangle whose plane it is nearest
+        with barycentric weights inside it (the point's projection; a split lies on its triangle
+        up to rounding)."""
         k = len(points)
         corners = np.zeros((k, 3), np.int64)
         weights = np.zeros((k, 3))
         index = {row.tobytes(): i for i, row in enumerate(self.rest)}
         rest = np.ascontiguousarray(points, dtype=np.float64)
+        n0 = len(self.rest)
         todo = []
         for j in range(k):
-            i = index.get(rest[j].tobytes())
+            own = int(vertices[j])
+            i = own if own < n0 and np.array_equal(self.rest[own], rest[j]) else index.get(rest[j].tobytes())
             if i is None:
                 todo.append(j)
             else:

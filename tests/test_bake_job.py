@@ -418,7 +418,7 @@ def test_a_split_pinned_vertex_follows_its_point_of_the_mesh():
     rot = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     moved = v @ rot.T + (0.1, 0.2, 0.3)
     source.add(moved, 1.0)
-    key = np.array([a, 100, 101], np.int64)
+    key = np.array([a, 100, 101], np.int64)  # the first the cloth was made with, then two made by tears
     goals = source.goals(key, points, 1.0)
     np.testing.assert_allclose(goals, points @ rot.T + (0.1, 0.2, 0.3), atol=1e-15)
     assert source.moved
@@ -430,3 +430,20 @@ def test_frame_ranges_read_as_ranges():
 
     assert frame_span(1, 24) == "1-24"
     assert frame_span(-8, -2) == "-8 to -2" and frame_span(-3, 5) == "-3 to 5"
+
+
+def test_unmerged_vertices_at_one_place_follow_their_own_motion():
+    """Two vertices of the mesh at one place (an unmerged seam: each side skinned to its own
+    bone) are two pins, each following its own vertex, not whichever the place names last."""
+    from tearcloth.session import _PinSource
+
+    v, t = sheet(0.1, 0.1, 3, 3)
+    v = np.vstack([v, v[4]])           # vertex 9: a second vertex where vertex 4 is
+    t = np.vstack([t, [[9, 5, 8]]])
+    source = _PinSource(v, t, 0.0)
+    moved = np.array(v)
+    moved[4, 0] += 0.01
+    moved[9, 0] -= 0.01
+    source.add(moved, 1.0)
+    pinned = np.array([4, 9])
+    np.testing.assert_array_equal(source.goals(pinned, v[pinned], 1.0), moved[pinned])
