@@ -488,6 +488,60 @@ def test_pins_follow_what_deforms_them_above(tmp_path):
     assert max(got["off"]) < 1e-5, got["off"]  # float32 cache
 
 
+def test_pins_follow_an_armature_above(tmp_path):
+    """The garment case: an Armature modifier above Tear Cloth skins the pinned corners to a bone
+    that moves 15 cm and turns 40 degrees over the bake. Played back, every pinned vertex is where
+    the Armature alone puts it (Tear Cloth switched off), at every frame."""
+    got = run_blender(tmp_path, '''
+        import math
+        from tearcloth.blender import bake_object
+        folder = sys.argv[1]
+        obj = build_scene(folder, frame_end=8, tear_stress=5e8, pull=0.0, save=False)
+        scene = bpy.context.scene
+        pins = obj.vertex_groups["pins"].index
+        pinned = [v.index for v in obj.data.vertices if any(g.group == pins for g in v.groups)]
+        rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
+        scene.collection.objects.link(rig)
+        bpy.context.view_layer.objects.active = rig
+        with bpy.context.temp_override(active_object=rig, object=rig, selected_objects=[rig]):
+            bpy.ops.object.mode_set(mode="EDIT")
+            bone = rig.data.edit_bones.new("Hips")
+            bone.head, bone.tail = (0.0, 0.0, 1.5), (0.0, 0.0, 1.8)
+            bpy.ops.object.mode_set(mode="OBJECT")
+        obj.vertex_groups.new(name="Hips").add(pinned, 1.0, "REPLACE")
+        skin = obj.modifiers.new("Armature", "ARMATURE")
+        skin.object = rig
+        bpy.context.view_layer.objects.active = obj
+        with bpy.context.temp_override(object=obj, active_object=obj):
+            bpy.ops.object.modifier_move_to_index(modifier="Armature", index=0)
+        hips = rig.pose.bones["Hips"]
+        hips.rotation_mode = "XYZ"
+        for frame, angle, shift in ((1, 0.0, 0.0), (8, 40.0, 0.15)):
+            hips.rotation_euler = (0.0, 0.0, math.radians(angle))
+            hips.location = (shift, 0.0, 0.0)
+            hips.keyframe_insert("rotation_euler", frame=frame)
+            hips.keyframe_insert("location", frame=frame)
+        obj.tearcloth.cache_folder = os.path.join(folder, "cache")
+        r = bake_object(bpy.context, obj)
+        md = obj.modifiers["Tear Cloth"]
+        out = dict(state=r.state, off=[], moved=[])
+        for frame in range(1, 9):
+            scene.frame_set(frame)
+            with evaluated_mesh(obj) as m:
+                co = positions(m).reshape(-1, 3)
+            md.show_viewport = False
+            with evaluated_mesh(obj) as m:
+                skinned = positions(m).reshape(-1, 3)
+            md.show_viewport = True
+            out["off"].append(float(np.abs(co[pinned] - skinned[pinned]).max()))
+            out["moved"].append(float(np.abs(skinned[pinned] - positions(obj.data).reshape(-1, 3)[pinned]).max()))
+        result(out)
+    ''', tmp_path)
+    assert got["state"] == "done"
+    assert got["moved"][-1] > 0.1, got["moved"]  # the bone carried the pins
+    assert max(got["off"]) < 1e-5, got["off"]    # and the played pins are where it put them
+
+
 def test_undo_during_and_after_a_bake(tmp_path):
     """Undo reloads every datablock (memfile undo): the bake holds only names and its own arrays,
     so it carries on through an undo in the middle, and undo/redo after it are harmless."""
