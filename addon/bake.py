@@ -453,13 +453,10 @@ class BakeJob:
         # neither moves, the pins hold still exactly as pins always did. A state saved before
         # pins followed anything keeps its pins in the world, and says so at the end if the
         # object moves (pins_text).
-        self._pins_follow = False
         self._pin_matrix = np.array(inputs.object_matrix, dtype=np.float64) if plan.pin_group else None
         if plan.pin_group and state is None:
             session.follow_pins(plan.vertices, plan.triangles)
-            self._pins_follow = True
         elif state is not None and session.pins_follow:
-            self._pins_follow = True
             self._pin_matrix = np.array(state["pin_matrix"])
         self._tracker = self._attribute_tracker()
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
@@ -503,7 +500,7 @@ class BakeJob:
         if inputs.frame != self.next_frame:
             raise ValueError(f"expected the inputs of frame {self.next_frame}, got frame {inputs.frame}")
         t = plan.time_of(inputs.frame)
-        if self._pins_follow:
+        if session.pins_follow:
             session.set_pin_keyframe(self._pin_source(inputs), t)
         elif self._pin_matrix is not None and self.progress.pins_left_at is None:
             m = np.asarray(inputs.object_matrix, dtype=np.float64)
@@ -566,7 +563,7 @@ class BakeJob:
         state_path = state_path_for(writer.path)
         if save_state:
             save_state_file(state_path, inputs.frame, plan, self.session, tears, self._has_uv, self._grasp,
-                            self._pin_matrix if self._pins_follow else None)
+                            self._pin_matrix if self.session.pins_follow else None)
         matrix = inputs.object_matrix
         local = spaces.world_si_to_local(cloth.positions, matrix, plan.scale)
         velocity = spaces.world_si_vectors_to_local(cloth.velocities, matrix, plan.scale)
@@ -593,6 +590,12 @@ class BakeJob:
         """After ``close``: a re-bake that did not complete left the previous bake as it was (its
         own frames dropped, or waiting beside it: ``waiting_frames``)."""
         return self.replacing and (not self.writer.frames or self.writer.staged)
+
+    @property
+    def kept_frames(self) -> list:
+        """After ``close``: the frames at the cache path this job wrote (none for a re-bake that
+        did not complete: its frames were dropped, or wait beside the previous bake)."""
+        return [] if self.writer.staged else self.writer.frames
 
     @property
     def waiting_frames(self) -> list:

@@ -79,6 +79,16 @@ class _Track:
         if len(self.times) > 2:  # only the last two matter for stepping forward
             self.times, self.values = self.times[-2:], self.values[-2:]
 
+    def rows_at(self, t: float, rows: np.ndarray) -> np.ndarray:
+        """The value's ``rows`` at time t, as ``sample`` gives them, reading only those rows."""
+        if len(self.times) == 1 or t <= self.times[0]:
+            return self.values[0][rows]
+        t0, t1 = self.times
+        if t >= t1:
+            return self.values[1][rows]
+        v0 = self.values[0][rows]
+        return v0 + (t - t0) * ((self.values[1][rows] - v0) / (t1 - t0))
+
     def sample(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """(value, rate of change) at time t."""
         if len(self.times) == 1 or t <= self.times[0]:
@@ -120,12 +130,7 @@ class _PinSource:
             self._where = (key, *self._locate(pinned, rest))
         _, corners, weights = self._where
         # the track sampled at the corners only (a garment's pins are a sliver of its vertices)
-        tr = self.track
-        at = tr.values[-1][corners] if len(tr.times) == 1 or t >= tr.times[-1] else (
-            tr.values[0][corners] if t <= tr.times[0] else
-            tr.values[0][corners] + (t - tr.times[0]) / (tr.times[1] - tr.times[0])
-            * (tr.values[1][corners] - tr.values[0][corners]))
-        return np.einsum("kj,kjd->kd", weights, at)
+        return np.einsum("kj,kjd->kd", weights, self.track.rows_at(t, corners))
 
     def _locate(self, vertices: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Each cloth vertex ``vertices[j]`` at rest position ``points[j]`` as (three vertex

@@ -83,6 +83,17 @@ PRELUDE = textwrap.dedent(
             bpy.ops.wm.save_as_mainfile(filepath=os.path.join(folder, "scene.blend"))
         return obj
 
+    def members(obj, group):
+        """The indices of the vertices in one of the object's vertex groups."""
+        index = obj.vertex_groups[group].index
+        return [v.index for v in obj.data.vertices if any(g.group == index for g in v.groups)]
+
+    def to_top(obj, name):
+        """Move one of the object's modifiers to the top of its stack (above Tear Cloth)."""
+        bpy.context.view_layer.objects.active = obj
+        with bpy.context.temp_override(object=obj, active_object=obj):
+            bpy.ops.object.modifier_move_to_index(modifier=name, index=0)
+
     def op(name, obj, **kwargs):
         with bpy.context.temp_override(object=obj, active_object=obj, selected_objects=[obj]):
             return getattr(bpy.ops.tearcloth, name)(**kwargs)
@@ -423,8 +434,7 @@ def test_pins_ride_with_a_parent_that_walks_away(tmp_path):
         obj.tearcloth.handles[0].follow.parent = char
         obj.tearcloth.cache_folder = os.path.join(folder, "cache")
         rest = positions(obj.data).reshape(-1, 3)
-        pinned = [v.index for v in obj.data.vertices if any(g.group == obj.vertex_groups["pins"].index
-                                                           for g in v.groups)]
+        pinned = members(obj, "pins")
         r = bake_object(bpy.context, obj)
         out = dict(state=r.state, local=[], world_moved=[], free_moved=[])
         free = [i for i in range(len(rest)) if i not in set(pinned)]
@@ -455,13 +465,10 @@ def test_pins_follow_what_deforms_them_above(tmp_path):
         folder = sys.argv[1]
         obj = build_scene(folder, frame_end=10, tear_stress=5e8, pull=0.0, save=False)
         scene = bpy.context.scene
-        pins = obj.vertex_groups["pins"].index
-        pinned = [v.index for v in obj.data.vertices if any(g.group == pins for g in v.groups)]
+        pinned = members(obj, "pins")
         disp = obj.modifiers.new("Flat", "DISPLACE")
         disp.strength = 0.0
-        bpy.context.view_layer.objects.active = obj
-        with bpy.context.temp_override(object=obj, active_object=obj):
-            bpy.ops.object.modifier_move_to_index(modifier="Flat", index=0)
+        to_top(obj, "Flat")
         obj.shape_key_add(name="Basis")
         lift = obj.shape_key_add(name="Lift")
         for i in pinned:
@@ -498,8 +505,7 @@ def test_pins_follow_an_armature_above(tmp_path):
         folder = sys.argv[1]
         obj = build_scene(folder, frame_end=8, tear_stress=5e8, pull=0.0, save=False)
         scene = bpy.context.scene
-        pins = obj.vertex_groups["pins"].index
-        pinned = [v.index for v in obj.data.vertices if any(g.group == pins for g in v.groups)]
+        pinned = members(obj, "pins")
         rig = bpy.data.objects.new("Rig", bpy.data.armatures.new("Rig"))
         scene.collection.objects.link(rig)
         bpy.context.view_layer.objects.active = rig
@@ -511,9 +517,7 @@ def test_pins_follow_an_armature_above(tmp_path):
         obj.vertex_groups.new(name="Hips").add(pinned, 1.0, "REPLACE")
         skin = obj.modifiers.new("Armature", "ARMATURE")
         skin.object = rig
-        bpy.context.view_layer.objects.active = obj
-        with bpy.context.temp_override(object=obj, active_object=obj):
-            bpy.ops.object.modifier_move_to_index(modifier="Armature", index=0)
+        to_top(obj, "Armature")
         hips = rig.pose.bones["Hips"]
         hips.rotation_mode = "XYZ"
         for frame, angle, shift in ((1, 0.0, 0.0), (8, 40.0, 0.15)):

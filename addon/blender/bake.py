@@ -222,8 +222,7 @@ class BakeRun:
         except Exception as exc:  # the cache keeps every frame it had; say why it is not closed
             self.progress.state, self.progress.message = "error", f"could not finish the cache: {exc}"
         # a re-bake stopped to be resumed keeps its frames beside the previous bake, which stays
-        waiting = self.job.waiting_frames
-        frames = [] if waiting else self.job.writer.frames
+        waiting, frames = self.job.waiting_frames, self.job.kept_frames
         if not frames and not waiting:
             self._remove_created_folders()
         elif self.created_folders:

@@ -207,8 +207,7 @@ def _bake_objects(names, start, end, plan, progress: ProgressLine, on_event, sto
         message = p.message if state == "error" else ""
         if state == "error" and not message:
             message = "; ".join(reports.errors)
-        waiting = list(run.job.waiting_frames)
-        frames = [] if waiting else list(run.job.writer.frames)
+        waiting, frames = list(run.job.waiting_frames), list(run.job.kept_frames)
         results.append(ObjectResult(name, state, frames, run.plan.cache_path, p.tears,
                                     p.vertices, time.perf_counter() - t0, message,
                                     previous_kept=run.job.previous_kept, waiting=waiting))

@@ -63,18 +63,17 @@ def _cache_state(obj):
     path = modifier.attached_path(obj)
     if path is None:
         return None, None
+
+    def read(path):
+        try:
+            return cache.cache_info(path), None
+        except cache.CacheError as exc:
+            return None, str(exc)
+
     try:
-        mtime = os.path.getmtime(path)
+        info, problem = _by_mtime(path, read)
     except OSError:
         return None, f"cache file missing: {path}"
-    memo = _memo.get(path)
-    if memo is None or memo[0] != mtime:
-        try:
-            memo = (mtime, cache.cache_info(path), None)
-        except cache.CacheError as exc:
-            memo = (mtime, None, str(exc))
-        _memo[path] = memo
-    info, problem = memo[1], memo[2]
     if info is not None and info["object"] != obj.name:
         problem = f"baked for object {info['object']!r} (renamed since?): free or bake again"
     return info, problem
@@ -83,22 +82,27 @@ def _cache_state(obj):
 _memo: dict = {}
 
 
+def _by_mtime(path: str, read):
+    """``read(path)``, memoised on the file's modification time so redraws do not reopen USD
+    files; OSError when the file is not there."""
+    mtime = os.path.getmtime(path)
+    memo = _memo.get(path)
+    if memo is None or memo[0] != mtime:
+        memo = (mtime, read(path))
+        _memo[path] = memo
+    return memo[1]
+
+
 def _interrupted_rebake(obj) -> dict | None:
     """The re-bake a crash left beside the cache the object plays (``cache.interrupted_rebake``),
     memoised on its staging root's modification time, or None."""
     path = modifier.attached_path(obj)
     if path is None:
         return None
-    staging = cache.staging_path_for(path)
     try:
-        mtime = os.path.getmtime(staging)
+        return _by_mtime(cache.staging_path_for(path), lambda staging: cache.interrupted_rebake(path))
     except OSError:
         return None
-    memo = _memo.get(staging)
-    if memo is None or memo[0] != mtime:
-        memo = (mtime, cache.interrupted_rebake(path), None)
-        _memo[staging] = memo
-    return memo[1]
 
 
 class TearClothPanel:
