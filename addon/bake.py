@@ -51,7 +51,7 @@ import numpy as np
 from . import attributes as attrs
 from . import spaces
 from .cache import CacheWriter, _remove_quietly, interrupted_rebake, read_primvars, staging_path_for
-from .cloth import Cloth, SimulationError, smallest_angles_deg
+from .cloth import PIN_HARD_WEIGHT, Cloth, SimulationError, smallest_angles_deg
 from .materials import Material
 from .session import CollisionSettings, Session, StepReport
 
@@ -80,6 +80,7 @@ class BakePlan:
     groups: dict                    # vertex-group name -> (n,) weights
     fingerprint: str                # of the rest mesh (local BU), recorded in the cache
     pin_group: str | None = None
+    pin_stiffness: float = 1000.0   # 1/s^2: the pull of pin weights below 1 (Cloth.pin_weights)
     handle_groups: list = field(default_factory=list)   # one vertex-group name per handle
     seam_group: str | None = None
     seam_factor: float = 1.0        # tear-strength factor where the seam weight is 1
@@ -109,9 +110,17 @@ class BakePlan:
         key = repr((sorted(vars(self.material).items()), sorted(self.solver.items()), sorted(self.tearing.items()),
                     collision, self.steps_per_frame, self.fps, self.frame_start, self.scale, self.pin_group,
                     list(self.handle_groups), self.seam_group, self.seam_factor, sorted(self.body_triangles)))
+        if self.pin_group and np.any(self._soft_pin_weights()):
+            # (only then, as the grain below) weights between 0 and PIN_HARD_WEIGHT are soft pins,
+            # held exactly (from 0.5 up) by releases before them: such a bake resumes under neither
+            key += repr(("soft pins", float(self.pin_stiffness)))
         if self.grain_angles is not None:  # (only then: fingerprints of bakes without one stay as they were)
             key += repr(np.round(np.asarray(self.grain_angles, dtype=np.float64), 9).tobytes())
         return hashlib.sha256(key.encode("utf-8")).hexdigest()[:16]
+
+    def _soft_pin_weights(self) -> np.ndarray:
+        w = np.asarray(self.groups.get(self.pin_group, ()), dtype=np.float64)
+        return (w > 0) & (w < PIN_HARD_WEIGHT)
 
     @property
     def owner(self) -> dict:
@@ -666,7 +675,7 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
         w = cloth.group(plan.seam_group)
         cloth.set_tear_strength(1.0 - w * (1.0 - plan.seam_factor))
     if plan.pin_group:
-        cloth.pin(plan.pin_group)
+        cloth.pin_weights(plan.pin_group, plan.pin_stiffness)
     session = Session(cloth, plan.collision, start_time=start_time)
     handles = [cloth.add_handle(group) for group in plan.handle_groups]
     for h in handles:

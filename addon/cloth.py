@@ -25,6 +25,11 @@ from .materials import Material, material as _preset
 
 ClothError = _native.ClothError
 InvalidInputError = _native.InvalidInputError
+
+# A pin weight at or above this holds its vertex exactly (a hard pin); below, down to 0, it is a
+# soft pin's spring. Blender's cloth snaps its goal at the same weight (SOFTGOALSNAP, 0.999), so a
+# pin group painted for Blender's cloth pins the same vertices hard.
+PIN_HARD_WEIGHT = 0.999
 SimulationError = _native.SimulationError
 
 
@@ -275,7 +280,9 @@ class Cloth:
         return _i32(sel, "vertices").reshape(-1)
 
     def pin(self, vertices, pinned: bool = True) -> None:
-        """Pin vertices (indices, a boolean mask or a vertex-group name) in place."""
+        """Pin vertices (indices, a boolean mask or a vertex-group name: its weights of 0.5 or
+        more, as for handles) in place. A group painted as Blender's cloth reads pin weights (1:
+        held, less: a spring) goes through ``pin_weights``."""
         self._c.pin(self._indices(vertices), pinned)
 
     def set_pin_goals(self, vertices, goals) -> None:
@@ -290,6 +297,49 @@ class Cloth:
     def pinned(self) -> np.ndarray:
         """(N,) bool: the vertices pinned now (a tear's duplicates of a pinned vertex are pinned)."""
         return np.frombuffer(self._c.pin_flags(), np.int8).astype(bool)
+
+    def set_pin_springs(self, vertices, stiffness) -> None:
+        """Soft pins: a spring of ``stiffness`` N/m (one per vertex, or one for all; 0 removes it)
+        pulls each vertex (indices or a mask) towards its goal, which starts where the vertex is and
+        moves with ``set_pin_goals`` (and a followed mesh: ``Session.follow_pins``). A pinned vertex
+        ignores its spring."""
+        idx = self._indices(vertices)
+        k = np.broadcast_to(np.asarray(stiffness, np.float64), idx.shape)
+        self._c.set_pin_springs(idx, np.ascontiguousarray(k))
+
+    @property
+    def pin_springs(self) -> np.ndarray:
+        """(N,) N/m: each vertex's soft pin spring (0: none)."""
+        k = np.frombuffer(self._c.pin_springs(), np.float64)
+        return k.copy() if len(k) else np.zeros(self.num_vertices)
+
+    @property
+    def soft_pinned(self) -> np.ndarray:
+        """(N,) bool: the vertices a pin spring pulls (not pinned, spring above 0)."""
+        return (self.pin_springs > 0) & ~self.pinned
+
+    def pin_weights(self, weights, pin_stiffness: float) -> tuple[int, int]:
+        """Pins by weight as Blender's cloth reads a pin group: a weight of ``PIN_HARD_WEIGHT`` or
+        more pins the vertex; a weight w between 0 and that makes a soft pin, a spring of
+        w * pin_stiffness * the vertex's mass (``pin_stiffness`` in N/(m kg) = 1/s^2: at weight w the
+        vertex swings about its goal at sqrt(w pin_stiffness) rad/s and sags g / (w pin_stiffness)
+        under gravity, whatever the mesh resolution). ``weights``: (N,) or a vertex-group name.
+        Returns (pinned, soft) vertex counts."""
+        w = self.group(weights) if isinstance(weights, str) else np.asarray(weights, np.float64).reshape(-1)
+        if w.shape != (self.num_vertices,):
+            raise InvalidInputError(f"pin weights: expected {self.num_vertices} values, got {w.shape[0]}")
+        if not np.all(np.isfinite(w)):
+            raise InvalidInputError("pin weights must be finite")
+        if not (np.isfinite(pin_stiffness) and pin_stiffness >= 0):
+            raise InvalidInputError(f"pin_stiffness must be a finite value >= 0 (got {pin_stiffness} 1/s^2)")
+        hard = w >= PIN_HARD_WEIGHT
+        soft = (w > 0) & ~hard & (pin_stiffness > 0)
+        if hard.any():
+            self.pin(np.flatnonzero(hard))
+        if soft.any():
+            idx = np.flatnonzero(soft)
+            self.set_pin_springs(idx, w[idx] * pin_stiffness * self.masses[idx])
+        return int(hard.sum()), int(soft.sum())
 
     def add_handle(self, vertices) -> int:
         """Grasp vertices (indices, mask or group name) as one handle; returns the handle id."""

@@ -48,7 +48,7 @@ UNITS = {
     "m/s^2": "metre per second squared", "deg": "degree", "rad": "radian", "N": "newton", "N/m": "newton per metre",
     "N s/m": "newton second per metre", "frame": "frame number", "-": "not a quantity",
     "1/m": "per metre",
-    "m^2": "square metre",
+    "m^2": "square metre", "1/s^2": "per second squared (newton per metre per kilogram)",
 }
 KINDS = ("float", "int", "bool", "enum", "str", "file", "dir", "vector")
 NUMERIC = ("float", "int", "vector")
@@ -382,8 +382,18 @@ SETTINGS: tuple[Setting, ...] = (
 
     # -- pins --------------------------------------------------------------------------------------
     _s("pins", "pin_group", "", "Pin Group",
-       "Vertices held in place on the object (weight 0.5 or more): they follow its transform and what "
-       "deforms them above Tear Cloth (Armature, shape keys); empty: none", _UI),
+       "Vertices held to the object, as Blender's cloth reads its pin group: weight 1 holds a vertex "
+       "exactly, a lower weight pulls it with a spring of that share of Pin Stiffness; pinned vertices "
+       "follow the object's transform and what deforms them above Tear Cloth (Armature, shape keys); "
+       "empty: none", _UI),
+    _f("pins", "pin_stiffness", "1/s^2", 1000.0, "Pin Stiffness",
+       "Pull of a pin group's weights below 1, per kilogram of cloth and metre away from the pinned "
+       "place: a vertex of weight w sags g / (w x this) under gravity (1000: 2 cm at weight 0.5) and "
+       "swings about its place at sqrt(w x this) rad/s, at any mesh resolution",
+       "per unit mass so that a painted weight means the same pull on a fine mesh as on a coarse one; "
+       "1000 1/s^2 holds weight-1-ish vertices within ~1 cm and lets weight 0.1 drape (10 cm of sag), "
+       "the falloff a painted gradient is meant to give", _B(0.0, 1.0e8), _B(1.0, 1.0e5),
+       ui=dict(precision=0, step=1e4)),
 
     # -- collision (session.CollisionSettings) ------------------------------------------------
     _b("collision", "enabled", True, "Collision", "Collide with the colliders listed here and, if on, with itself",

@@ -27,7 +27,7 @@
     X(ev_chg, int32_t) X(ev_newt, int32_t) X(rptr, int32_t) X(rcol, int32_t) X(rblk, double) X(fptr, int32_t)  \
     X(fcol, int32_t) X(fval, double) X(pslot, int32_t) X(tipadv, double) X(tstamp, int32_t) X(vstamp, int32_t)     \
     X(tqueue, int32_t) X(vqueue, int32_t) X(tgrain, double) X(twarp, double) X(taxis, double) X(tplast, double) X(ev_rmv, int32_t) X(ev_rmt, int32_t) \
-    X(vcstate, int8_t) X(vkinetic, double) X(vgoal, double) X(vgoal0, double)
+    X(vcstate, int8_t) X(vkinetic, double) X(vgoal, double) X(vgoal0, double) X(vpink, double)
 
 /* The list above as data, for snapshot.c (which carries every array by it, so an array added to
  * the list is saved and restored with no change there). */
@@ -198,10 +198,11 @@ int tc_cloth_set_positions(tc_cloth *c, const double *x, int32_t n)
     /* a pinned vertex put somewhere is pinned there: its goals move with it (a caller that drives
        goals sets them again before the next step) */
     const int8_t *pin = tc_vec_ptr(&c->vpin);
+    const double *ks = c->vpink.len ? tc_vec_ptr(&c->vpink) : NULL;
     double *g = tc_vec_ptr(&c->vgoal), *g0 = tc_vec_ptr(&c->vgoal0);
     if (c->vgoal.len)
         for (int32_t i = 0; i < n; i++)
-            if (pin[i])
+            if (pin[i] || (ks && ks[i] > 0))
                 for (int q = 0; q < 3; q++) g[3 * i + q] = g0[3 * i + q] = x[3 * i + q];
     c->dirty = true;
     return TC_OK;

@@ -57,6 +57,9 @@
  * left as solved, counted in tc_stats (friction_cone_exceeded: held vertices outside their cone;
  * contact_rounds_capped: the sub-steps). (solves) */
 #define TC_CONTACT_ROUNDS 8
+/* The stiffest soft pin spring accepted (N/m): far past any cloth's (a gram held to a micrometre
+ * under 1000 g), a bound that keeps dt^2 k finite against the mass on the diagonal */
+#define TC_PIN_SPRING_MAX 1e12
 /* The solves of a sub-step with contacts that only guess the contact state (each one until a solve
  * leaves it unchanged) stop at this many times cg_tolerance (at most TC_CONTACT_GUESS_TOLERANCE_MAX);
  * the state they settle on is then solved to cg_tolerance and judged again, and every re-solve

@@ -35,6 +35,27 @@ static int check_indices(tc_cloth *c, const int32_t *idx, int32_t k)
     return TC_OK;
 }
 
+/* Whether vertex v follows a goal: pinned, or a soft pin's spring pulls it */
+static bool has_goal(const tc_cloth *c, int32_t v)
+{
+    return ((const int8_t *)tc_vec_ptr((tc_vec *)&c->vpin))[v] ||
+           (c->vpink.len && ((const double *)tc_vec_ptr((tc_vec *)&c->vpink))[v] > 0);
+}
+
+/* The goals, made on first use: every vertex's where it is */
+static int goals_made(tc_cloth *c)
+{
+    if (c->vgoal.len) return TC_OK;
+    const size_t n3 = 3 * (size_t)c->nv;
+    if (tc_vec_resize(&c->vgoal, n3) || tc_vec_resize(&c->vgoal0, n3)) {
+        tc_vec_resize(&c->vgoal, 0); tc_vec_resize(&c->vgoal0, 0);
+        tc_set_err(c, "out of memory"); return TC_ERR_NOMEM;
+    }
+    memcpy(tc_vec_ptr(&c->vgoal), tc_vec_ptr(&c->x), n3 * sizeof(double));
+    memcpy(tc_vec_ptr(&c->vgoal0), tc_vec_ptr(&c->x), n3 * sizeof(double));
+    return TC_OK;
+}
+
 int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned)
 {
     if (check_indices(c, idx, k)) return TC_ERR_INPUT;
@@ -43,7 +64,8 @@ int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned)
     double *g = tc_vec_ptr(&c->vgoal), *g0 = tc_vec_ptr(&c->vgoal0);
     for (int32_t i = 0; i < k; i++) {
         int32_t v = idx[i];
-        if (pinned && !p[v] && c->vgoal.len)  /* held where it is (a pin already set keeps its goals) */
+        /* held where it is (a vertex that already follows a goal, pinned or soft, keeps it) */
+        if (pinned && !has_goal(c, v) && c->vgoal.len)
             for (int q = 0; q < 3; q++) g[3 * v + q] = g0[3 * v + q] = x[3 * v + q];
         p[v] = pinned ? 1 : 0;
     }
@@ -53,24 +75,63 @@ int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned)
 int tc_cloth_set_pin_goals(tc_cloth *c, const int32_t *idx, const double *pos, int32_t k)
 {
     if (check_indices(c, idx, k)) return TC_ERR_INPUT;
-    const int8_t *p = tc_vec_ptr(&c->vpin);
     for (int32_t i = 0; i < k; i++) {
-        if (!p[idx[i]]) { tc_set_err(c, "vertex %d (item %d) is not pinned", (int)idx[i], (int)i); return TC_ERR_INPUT; }
+        if (!has_goal(c, idx[i])) {
+            tc_set_err(c, "vertex %d (item %d) is not pinned and has no pin spring", (int)idx[i], (int)i);
+            return TC_ERR_INPUT;
+        }
         for (int q = 0; q < 3; q++)
             if (!isfinite(pos[3 * i + q])) { tc_set_err(c, "pin goal %d (vertex %d) is not finite", (int)i, (int)idx[i]); return TC_ERR_INPUT; }
     }
-    if (!c->vgoal.len) {  /* the first goals: every pin's goals where it is, then these */
-        const size_t n3 = 3 * (size_t)c->nv;
-        if (tc_vec_resize(&c->vgoal, n3) || tc_vec_resize(&c->vgoal0, n3)) {
-            tc_vec_resize(&c->vgoal, 0); tc_vec_resize(&c->vgoal0, 0);
-            tc_set_err(c, "out of memory"); return TC_ERR_NOMEM;
-        }
-        memcpy(tc_vec_ptr(&c->vgoal), tc_vec_ptr(&c->x), n3 * sizeof(double));
-        memcpy(tc_vec_ptr(&c->vgoal0), tc_vec_ptr(&c->x), n3 * sizeof(double));
-    }
+    if (goals_made(c)) return TC_ERR_NOMEM;  /* the first goals: every pin's where it is, then these */
     double *g = tc_vec_ptr(&c->vgoal);
     for (int32_t i = 0; i < k; i++) memcpy(g + 3 * (size_t)idx[i], pos + 3 * (size_t)i, 3 * sizeof(double));
     return TC_OK;
+}
+
+int tc_cloth_set_pin_springs(tc_cloth *c, const int32_t *idx, const double *k, int32_t n)
+{
+    if (check_indices(c, idx, n)) return TC_ERR_INPUT;
+    for (int32_t i = 0; i < n; i++)
+        if (!(k[i] >= 0 && k[i] <= TC_PIN_SPRING_MAX)) {
+            tc_set_err(c, "pin spring stiffness %g N/m (vertex %d) is not in [0, %g]", k[i], (int)idx[i], TC_PIN_SPRING_MAX);
+            return TC_ERR_INPUT;
+        }
+    if (goals_made(c)) return TC_ERR_NOMEM;
+    if (!c->vpink.len) {
+        if (tc_vec_resize(&c->vpink, (size_t)c->nv)) { tc_set_err(c, "out of memory"); return TC_ERR_NOMEM; }
+        memset(tc_vec_ptr(&c->vpink), 0, (size_t)c->nv * sizeof(double));
+    }
+    double *ks = tc_vec_ptr(&c->vpink), *g = tc_vec_ptr(&c->vgoal), *g0 = tc_vec_ptr(&c->vgoal0);
+    const double *x = tc_vec_ptr(&c->x);
+    for (int32_t i = 0; i < n; i++) {
+        const int32_t v = idx[i];
+        if (!has_goal(c, v))  /* a new soft pin's goal is where it is; one that has a goal keeps it */
+            for (int q = 0; q < 3; q++) g[3 * v + q] = g0[3 * v + q] = x[3 * v + q];
+        ks[v] = k[i];
+    }
+    return TC_OK;
+}
+
+const double *tc_cloth_pin_springs(const tc_cloth *c) { return c->vpink.len ? tc_vec_ptr((tc_vec *)&c->vpink) : NULL; }
+
+void tc_pin_springs_add(tc_cloth *c, double dt, double alpha, double *b)
+{
+    if (!c->vpink.len) return;
+    const double *ks = tc_vec_ptr(&c->vpink), *x = tc_vec_ptr(&c->x);
+    const double *g = tc_vec_ptr(&c->vgoal), *g0 = tc_vec_ptr(&c->vgoal0);
+    const int8_t *fl = tc_vec_ptr(&c->vflag);
+    double *D = tc_vec_ptr(&c->diag);
+    for (int32_t i = 0; i < c->nv; i++) {
+        if (!(ks[i] > 0) || fl[i] == VC_PINNED || fl[i] == VC_HANDLE) continue;  /* held: its row is filtered out */
+        double *d = D + 12 * (size_t)i;
+        const double a = dt * dt * ks[i];
+        d[0] += a; d[5] += a; d[10] += a;
+        for (int q = 0; q < 3; q++) {
+            const size_t o = 3 * (size_t)i + (size_t)q;
+            b[o] += dt * ks[i] * (g0[o] + alpha * (g[o] - g0[o]) - x[o]);
+        }
+    }
 }
 
 const int8_t *tc_cloth_pin_flags(const tc_cloth *c) { return tc_vec_ptr((tc_vec *)&c->vpin); }

@@ -176,6 +176,10 @@ struct tc_cloth {
      * follows a moving or deforming mesh), every pin's goals its position then; a vertex pinned or
      * put somewhere later has its goals where it is. Read only for pinned vertices. */
     tc_vec vgoal, vgoal0;
+    /* per vertex, double, or empty while no vertex has one: the stiffness (N/m) of a spring that
+     * pulls the vertex towards its goal (a soft pin: Blender's pin weights below 1). Made by the
+     * first tc_cloth_set_pin_springs, which makes the goals too. A hard pin ignores its spring. */
+    tc_vec vpink;
 
     /* solver scratch, sized to 3 * vertex capacity */
     tc_vec diag;             /* 9 per vertex */
@@ -401,7 +405,11 @@ int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3
 /* vflag and sfix for one sub-step of length dt ending at fraction alpha of the handles' motion */
 void tc_constraints_begin(tc_cloth *c, double dt, double alpha);
 void tc_contact_basis(tc_cloth *c, double dt);
-void tc_contacts_kinetic_start(tc_cloth *c, double *b, double dt);  /* carried kinetic friction into b */
+void tc_contacts_kinetic_start(tc_cloth *c, double *b, double dt);
+/* The soft pins' springs in the sub-step's system (after the assembly, b made): A_ii += dt^2 k_i I,
+ * b_i += dt k_i (goal_i - x_i), the goal at fraction alpha of the step's motion (implicit Euler of
+ * the spring force k (goal - x) at the sub-step's end) */
+void tc_pin_springs_add(tc_cloth *c, double dt, double alpha, double *b);  /* carried kinetic friction into b */
 void tc_constraint_filter(const tc_cloth *c, double *r);             /* r := S r */
 void tc_constraint_matrix(const tc_cloth *c, int32_t i, double S[9]);  /* S_i, row-major */
 void tc_filtered_diagonal(const double S[9], const double A[9], double F[9]);  /* S A S + w (I - S) */

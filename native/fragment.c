@@ -40,7 +40,8 @@
     X(x, 3) X(v, 3) X(rest, 3) X(mass, 1) X(force, 3) X(groups, (c)->ng ? (c)->ng : 1) X(strength, 1)  \
     X(vtri, 1) X(vflag, 1) X(vhandle, 1) X(vpin, 1) X(vbend, 1) X(diag, 12) X(pinv, 9) X(sb, 3)         \
     X(sr, 3) X(sz, 3) X(sp, 3) X(sq, 3) X(sfix, 3) X(sb2, 3) X(sfix2, 3) X(sdv, 3) X(x0, 3) X(v0, 3)    \
-    X(fel, 3) X(snorm, 9) X(scount, 1) X(vsa, 1) X(vcstate, 1) X(vkinetic, 3) X(vgoal, 3) X(vgoal0, 3)
+    X(fel, 3) X(snorm, 9) X(scount, 1) X(vsa, 1) X(vcstate, 1) X(vkinetic, 3) X(vgoal, 3) X(vgoal0, 3) \
+    X(vpink, 1)
 /* Per-triangle arrays (tstamp, tqueue: walk marks, as above). */
 #define TRIANGLE_ARRAYS(c, X)                                                                         \
     X(tri, 3) X(tpair, 3) X(grad, 4) X(area, 1) X(rot, 6) X(sig, 3) X(stress, 9) X(principal, 2)      \

@@ -183,6 +183,7 @@ int tc_reserve_vertices(tc_cloth *c, int32_t n)
         if (tc_vec_resize(v3[i], 3 * N)) return TC_ERR_NOMEM;
     if (c->vgoal.len && (tc_vec_resize(&c->vgoal, 3 * N) || tc_vec_resize(&c->vgoal0, 3 * N)))  /* once made */
         return TC_ERR_NOMEM;
+    if (c->vpink.len && tc_vec_resize(&c->vpink, N)) return TC_ERR_NOMEM;
     if (tc_vec_resize(&c->diag, 12 * N) || tc_vec_resize(&c->pinv, 9 * N) ||
         tc_vec_resize(&c->snorm, 9 * N) || tc_vec_resize(&c->scount, N) ||
         tc_vec_resize(&c->vsa, N) || tc_vec_resize(&c->vcstate, N))

@@ -375,6 +375,34 @@ static PyObject *Cloth_set_pin_goals(PyObject *o, PyObject *args)
     Py_RETURN_NONE;
 }
 
+static PyObject *Cloth_set_pin_springs(PyObject *o, PyObject *args)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    PyObject *idx, *stiff;
+    if (!PyArg_ParseTuple(args, "OO", &idx, &stiff)) return NULL;
+    Arg A = {0}, K = {0};
+    Py_ssize_t k, kk;
+    if (arg_get(idx, "vertices", 'i', 0, &A, &k)) return NULL;
+    if (arg_get(stiff, "stiffness", 'd', 0, &K, &kk)) { arg_release(&A); return NULL; }
+    if (k != kk) {
+        arg_release(&A); arg_release(&K);
+        return PyErr_Format(InvalidInputError, "%zd vertices but %zd pin spring stiffnesses", k, kk);
+    }
+    int rc = tc_cloth_set_pin_springs(self->c, A.view.buf, K.view.buf, (int32_t)k);
+    arg_release(&A); arg_release(&K);
+    if (rc) return raise_core(self, rc);
+    Py_RETURN_NONE;
+}
+
+static PyObject *Cloth_pin_springs(PyObject *o, PyObject *unused)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    const double *k = tc_cloth_pin_springs(self->c);
+    return PyBytes_FromStringAndSize((const char *)k, k ? (Py_ssize_t)tc_cloth_num_vertices(self->c) * (Py_ssize_t)sizeof(double) : 0);
+}
+
 static PyObject *Cloth_pin_flags(PyObject *o, PyObject *unused)
 {
     ClothObject *self = (ClothObject *)o;
@@ -694,6 +722,9 @@ static PyMethodDef Cloth_methods[] = {
     {"set_pin_goals", Cloth_set_pin_goals, METH_VARARGS,
      "Where pinned vertices (int32 indices) are to be at the end of the next step ((k, 3) float64 m)."},
     {"pin_flags", Cloth_pin_flags, METH_NOARGS, "One byte per vertex, 1 where pinned."},
+    {"set_pin_springs", Cloth_set_pin_springs, METH_VARARGS,
+     "set_pin_springs(vertices, stiffness): soft pins, a spring (N/m, 0 removes it) towards each vertex's goal."},
+    {"pin_springs", Cloth_pin_springs, METH_NOARGS, "float64 bytes, one per vertex (N/m), or empty while none is set."},
     {"add_handle", Cloth_add_handle, METH_O, "Create a handle from vertex indices; returns its id."},
     {"set_handle_target", Cloth_set_handle_target, METH_VARARGS, "Set a handle's 3x4 affine target."},
     {"release_handle", Cloth_release_handle, METH_O, "Let go of a handle."},

@@ -123,16 +123,34 @@ static int32_t new_vertex(tc_cloth *c, int32_t a, int32_t b, double s)
     c->nv = v + 1;
     double wa = b < 0 ? 1.0 : 1.0 - s, wb = b < 0 ? 0.0 : s;
     int32_t bb = b < 0 ? a : b;
-    /* a pinned split's goals (once made) on the line between its parents', as its position */
-    tc_vec *lerp3[] = {&c->x, &c->v, &c->rest, &c->v0, &c->sdv, &c->vgoal, &c->vgoal0};
-    for (int i = 0; i < (c->vgoal.len ? 7 : 5); i++) {
+    tc_vec *lerp3[] = {&c->x, &c->v, &c->rest, &c->v0, &c->sdv};
+    for (int i = 0; i < 5; i++) {
         double *p = tc_vec_ptr(lerp3[i]);
         for (int k = 0; k < 3; k++) p[3 * v + k] = wa * p[3 * a + k] + wb * p[3 * bb + k];
+    }
+    if (c->vgoal.len) {
+        /* the goals (once made): the new position plus the parents' offsets from their goals, a
+           parent that follows none counting 0 (its goal is stale). Two parents that follow goals
+           (a pinned split) put it on the line between theirs, as its position; a split between a
+           soft pin and a free vertex keeps half the pull, towards where the soft pin's is. */
+        const int8_t *pin = tc_vec_ptr(&c->vpin);
+        const double *ks = c->vpink.len ? tc_vec_ptr(&c->vpink) : NULL, *x = tc_vec_ptr(&c->x);
+        const double fa = (pin[a] || (ks && ks[a] > 0)) ? wa : 0.0, fb = (pin[bb] || (ks && ks[bb] > 0)) ? wb : 0.0;
+        tc_vec *goals[] = {&c->vgoal, &c->vgoal0};
+        for (int i = 0; i < 2; i++) {
+            double *g = tc_vec_ptr(goals[i]);
+            for (int k = 0; k < 3; k++)
+                g[3 * v + k] = x[3 * v + k] + fa * (g[3 * a + k] - x[3 * a + k]) + fb * (g[3 * bb + k] - x[3 * bb + k]);
+        }
     }
     double *g = tc_vec_ptr(&c->groups);
     for (int k = 0; k < c->ng; k++) g[(size_t)v * c->ng + k] = wa * g[(size_t)a * c->ng + k] + wb * g[(size_t)bb * c->ng + k];
     double *st = tc_vec_ptr(&c->strength);
     st[v] = wa * st[a] + wb * st[bb];
+    if (c->vpink.len) {  /* a soft pin's spring, as its goals: between its parents' */
+        double *kp = tc_vec_ptr(&c->vpink);
+        kp[v] = wa * kp[a] + wb * kp[bb];
+    }
     int8_t *pin = tc_vec_ptr(&c->vpin);
     pin[v] = (int8_t)(pin[a] && pin[bb]);
     int32_t *vh = tc_vec_ptr(&c->vhandle);

@@ -69,10 +69,10 @@ static void sizes(uint32_t out[7])
 
 /* Arrays appended to the table after the layouts of earlier releases, the first of each release:
  * the contact state a vertex carries from one sub-step to the next (vcstate, vkinetic), then the
- * pins' goals (vgoal, vgoal0). A blob written before them lacks them and resumes with no contact
- * state carried and its pins holding still where they are, so a bake killed under an earlier
- * release is not lost to the update. */
-static const char *const APPENDED[] = {"vcstate", "vgoal"};
+ * pins' goals (vgoal, vgoal0), then the soft pins' springs (vpink). A blob written before them
+ * lacks them and resumes with no contact state carried, its pins holding still where they are and
+ * no soft pin, so a bake killed under an earlier release is not lost to the update. */
+static const char *const APPENDED[] = {"vcstate", "vgoal", "vpink"};
 
 static size_t appended_at(const char *name)
 {
@@ -208,6 +208,13 @@ static const char *check(const tc_cloth *c)
     /* the pins' goals: not made yet, or one per vertex coordinate, finite */
     if ((c->vgoal.len != 0 && c->vgoal.len != 3 * nv) || c->vgoal0.len != c->vgoal.len) return "vgoal";
     if (!all_finite(&c->vgoal) || !all_finite(&c->vgoal0)) return "vgoal (not finite)";
+    /* the soft pins' springs: not made yet, or one per vertex, finite and >= 0, with their goals */
+    if (c->vpink.len != 0 && (c->vpink.len != nv || c->vgoal.len != 3 * nv)) return "vpink";
+    {
+        const double *k = tc_vec_ptr(&c->vpink);
+        for (size_t i = 0; i < c->vpink.len; i++)
+            if (!(k[i] >= 0 && k[i] <= TC_PIN_SPRING_MAX)) return "vpink (not finite or out of range)";
+    }
     {
         const int8_t *cs = tc_vec_ptr(&c->vcstate);
         for (size_t i = 0; i < c->vcstate.len; i++)

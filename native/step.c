@@ -65,6 +65,7 @@ static int substep(tc_cloth *c, double dt, double alpha_target)
     for (int32_t i = 0; i < n; i++)
         for (int q = 0; q < 3; q++) b[3 * i + q] = m[i] * v0[3 * i + q] + dt * b[3 * i + q];
     if (nc) tc_contacts_kinetic_start(c, b, dt);
+    tc_pin_springs_add(c, dt, alpha_target, b);  /* after the assembly, before the preconditioner's build */
 
     tc_precondition_build(c, dt);
     /* warm start: the velocity change of the last step (constant acceleration), exact for a

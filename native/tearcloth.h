@@ -143,9 +143,15 @@ int tc_cloth_set_velocities(tc_cloth *c, const double *v, int32_t n);
 /* Pins vertices where they are (their goals, below, become their positions) or frees them. */
 int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned);
 /* Where pinned vertices are to be at the end of the next step (k positions, all finite; every
- * listed vertex pinned): a pin that follows a moving or deforming mesh. Reached in a straight line
+ * listed vertex pinned or with a spring): a pin that follows a moving or deforming mesh. Reached in a straight line
  * from the goals of the step before, across sub-steps; kept until set again. */
 int tc_cloth_set_pin_goals(tc_cloth *c, const int32_t *idx, const double *pos, int32_t k);
+/* Soft pins: a spring of stiffness k[i] (N/m, finite, >= 0; 0 removes it) pulls vertex idx[i]
+ * towards its goal, which starts where the vertex is (or stays where it was set) and moves with
+ * tc_cloth_set_pin_goals. A pinned vertex ignores its spring. */
+int tc_cloth_set_pin_springs(tc_cloth *c, const int32_t *idx, const double *k, int32_t n);
+/* nv spring stiffnesses (N/m), or NULL while no vertex has one. */
+const double *tc_cloth_pin_springs(const tc_cloth *c);
 /* nv flags, 1 for a pinned vertex (valid until the next change of the cloth). */
 const int8_t *tc_cloth_pin_flags(const tc_cloth *c);
 

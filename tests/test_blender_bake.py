@@ -495,6 +495,39 @@ def test_pins_follow_what_deforms_them_above(tmp_path):
     assert max(got["off"]) < 1e-5, got["off"]  # float32 cache
 
 
+def test_pin_weights_below_one_are_soft_pins(tmp_path):
+    """A pin group painted at weight 0.5, as for Blender's cloth: the sheet hangs from its top
+    corners by the pins alone (no hand). Baked three times, nothing else changed:
+    weight 1 holds them exactly; weight 0.5 with Pin Stiffness 1000 1/s^2 lets the top droop
+    under the sheet's weight (where before every weight from 0.5 up was held exactly); Pin
+    Stiffness 1e5 holds them a hundredth as far (static sag ~ 1 / stiffness)."""
+    got = run_blender(tmp_path, '''
+        from tearcloth.blender import bake_object
+        folder = sys.argv[1]
+        out = {}
+        for weight, stiffness in ((1.0, 1000.0), (0.5, 1000.0), (0.5, 1.0e5)):
+            obj = build_scene(folder, frame_end=10, tear_stress=5e8, pull=0.0, save=False)
+            scene = bpy.context.scene
+            pins = members(obj, "pins")
+            obj.vertex_groups["pins"].add(pins, weight, "REPLACE")
+            obj.tearcloth.handles.clear()
+            obj.tearcloth.pin_stiffness = stiffness
+            obj.tearcloth.cache_folder = os.path.join(folder, f"cache{weight}_{int(stiffness)}")
+            rest = positions(obj.data).reshape(-1, 3)
+            r = bake_object(bpy.context, obj)
+            scene.frame_set(10)
+            with evaluated_mesh(obj) as m:
+                co = positions(m).reshape(-1, 3)
+            out[f"{weight} {int(stiffness)}"] = dict(state=r.state, moved=float(np.linalg.norm(co[pins] - rest[pins], axis=1).max()))
+        result(out)
+    ''', tmp_path)
+    hard, loose, stiff = got["1.0 1000"], got["0.5 1000"], got["0.5 100000"]
+    assert hard["state"] == loose["state"] == stiff["state"] == "done", got
+    assert hard["moved"] < 1e-5, got                  # held exactly (float32 cache)
+    assert loose["moved"] > 0.01, got                 # pulled, not held: the top droops
+    assert stiff["moved"] < 0.1 * loose["moved"], got  # a stiffer pull holds it closer
+
+
 def test_pins_follow_an_armature_above(tmp_path):
     """The garment case: an Armature modifier above Tear Cloth skins the pinned corners to a bone
     that moves 15 cm and turns 40 degrees over the bake. Played back, every pinned vertex is where

@@ -22,7 +22,7 @@ import numpy as np
 
 from .. import cache, spaces
 from ..bake import BakePlan, FrameInputs, frame_span
-from ..cloth import Cloth
+from ..cloth import PIN_HARD_WEIGHT, Cloth
 from . import convert, modifier
 from .props import COLLIDER_TYPES
 from .report import BakeError, Reports, not_a_mesh, object_kind
@@ -299,10 +299,15 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
 
     pinned = 0
     if settings.pin_group:
-        pinned = int(np.count_nonzero(mesh.groups[settings.pin_group] >= 0.5))
+        w = mesh.groups[settings.pin_group]
+        pinned = int(np.count_nonzero(w > 0))  # weight 1 holds exactly, less pulls (Cloth.pin_weights)
         if pinned == 0:
-            reports.warning(f"{obj.name}: pin group {settings.pin_group!r} has no vertex with weight 0.5 or more; "
+            reports.warning(f"{obj.name}: pin group {settings.pin_group!r} has no vertex with a weight above 0; "
                             "nothing is pinned")
+        soft = int(np.count_nonzero((w > 0) & (w < PIN_HARD_WEIGHT)))
+        if soft and not float(settings.pin_stiffness) > 0:
+            reports.warning(f"{obj.name}: Pin Stiffness is 0, so the {soft} vertices of pin group "
+                            f"{settings.pin_group!r} with a weight below 1 are not pinned at all; only weight 1 holds")
     for i, h in handles:
         if not np.any(mesh.groups[h.vertex_group] >= 0.5):
             reports.error(f"{obj.name}: handle {i + 1}: vertex group {h.vertex_group!r} has no vertex with "
@@ -345,6 +350,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         groups=mesh.groups,
         fingerprint=fingerprint,
         pin_group=settings.pin_group or None,
+        pin_stiffness=float(settings.pin_stiffness),
         handle_groups=[h.vertex_group for _, h in handles],
         seam_group=settings.seam_group or None,
         seam_factor=float(settings.seam_factor),

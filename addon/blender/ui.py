@@ -281,6 +281,9 @@ class TEARCLOTH_PT_pins(TearClothPanel, Panel):
         split = layout.column()
         split.use_property_split = True
         split.prop_search(settings, "pin_group", obj, "vertex_groups", text="Pin Group")
+        row = split.row()
+        row.active = bool(settings.pin_group)  # the pull of weights below 1 (weight 1 holds exactly)
+        row.prop(settings, "pin_stiffness")
         layout.label(text="Handles (vertex group, follow object):")
         _list_with_buttons(layout, "TEARCLOTH_UL_handles", settings, "handles", "active_handle_index",
                            "tearcloth.handle_add", "tearcloth.handle_remove")

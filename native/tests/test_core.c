@@ -1276,6 +1276,81 @@ static void test_pin_goals(void)
     free(V); free(T);
 }
 
+/* Soft pins: every vertex of a sheet pulled towards its place by a spring of 0.5 x 1000 1/s^2 x its
+ * mass sags g / 500 (the sheet moves rigidly, so only weight and springs act), to 1e-6 relative
+ * after 8 s of 20 ms steps; bad stiffnesses are refused naming the vertex and change nothing; a
+ * tear through the sheet gives every split a spring within its parents' (so, here, the same one);
+ * a snapshot carries the springs and resumes bit for bit; the blob of the release before them
+ * resumes with no spring (the sheet then falls). */
+static unsigned char *older_blob(const unsigned char *b, size_t size, const char *name, size_t *out_size);
+
+static void test_soft_pins(void)
+{
+    double *V; int32_t *T, n, m;
+    grid(8, 8, 0.1, 0.1, &V, &T, &n, &m);
+    char msg[512];
+    tc_cloth *c = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, NULL, msg, sizeof msg);
+    CHECK(c != NULL, "create: %s", msg);
+    if (!c) { free(V); free(T); return; }
+    size_t rows, cols, item;
+    tc_buf *mb = tc_cloth_array(c, TC_MASSES, &rows, &cols, &item);
+    const double *ms = tc_buf_data(mb);
+    int32_t *idx = malloc(sizeof(int32_t) * (size_t)n);
+    double *k = malloc(sizeof(double) * (size_t)n);
+    for (int32_t i = 0; i < n; i++) { idx[i] = i; k[i] = 0.5 * 1000.0 * ms[i]; }
+    tc_buf_decref(mb);
+    double bad = -1.0;
+    CHECK(tc_cloth_set_pin_springs(c, idx + 3, &bad, 1) == TC_ERR_INPUT && strstr(tc_cloth_error(c), "(vertex 3)") &&
+          tc_cloth_pin_springs(c) == NULL, "a negative stiffness refused, nothing made: %s", tc_cloth_error(c));
+    bad = NAN;
+    CHECK(tc_cloth_set_pin_springs(c, idx, &bad, 1) == TC_ERR_INPUT, "a NaN stiffness refused");
+    CHECK(tc_cloth_set_pin_springs(c, idx, k, n) == TC_OK, "springs: %s", tc_cloth_error(c));
+    for (int i = 0; i < 400; i++) CHECK(tc_cloth_step(c, 0.02, 1) == TC_OK, "step: %s", tc_cloth_error(c));
+    tc_buf *xb = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item);
+    const double *x = tc_buf_data(xb);
+    double worst = 0.0;
+    for (int32_t i = 0; i < n; i++) worst = fmax(worst, fabs((V[3 * i + 2] - x[3 * i + 2]) - 9.81 / 500.0));
+    CHECK(worst < 1e-6 * 9.81 / 500.0, "sag g / (w S) within %g m", worst);
+    tc_buf_decref(xb);
+    tc_tear_settings ts = tc_tear_default();
+    ts.enabled = 1;
+    CHECK(tc_cloth_set_tearing(c, &ts) == TC_OK, "tearing");
+    double dir[3] = {0.0, 1.0, 0.0};  /* from the edge y = 0 into the sheet */
+    int32_t cuts = 0;
+    CHECK(tc_cloth_scripted_tear(c, 3 * 8, dir, 0.05, &cuts) == TC_OK && cuts > 0, "tear: %s", tc_cloth_error(c));
+    const int32_t n1 = tc_cloth_num_vertices(c);
+    const double *k1 = tc_cloth_pin_springs(c);
+    bool within = n1 > n;
+    for (int32_t i = n; i < n1; i++) within = within && k1[i] > 0.0 && k1[i] <= 0.5 * 1000.0 * 1.0;
+    CHECK(within, "%d splits, each with a spring", (int)(n1 - n));
+    void *blob;
+    size_t size, osize;
+    CHECK(tc_cloth_snapshot(c, &blob, &size) == TC_OK, "snapshot");
+    tc_cloth *r = tc_cloth_from_snapshot(blob, size, msg, sizeof msg);
+    unsigned char *o = older_blob(blob, size, "vpink", &osize);
+    tc_cloth *e = o ? tc_cloth_from_snapshot(o, osize, msg, sizeof msg) : NULL;
+    CHECK(r && e, "resumed: %s", msg);
+    if (r && e) {
+        CHECK(tc_cloth_pin_springs(e) == NULL && tc_cloth_pin_springs(r) != NULL &&
+              !memcmp(tc_cloth_pin_springs(r), tc_cloth_pin_springs(c), sizeof(double) * (size_t)n1), "springs carried");
+        for (int i = 0; i < 5; i++) {
+            tc_cloth *all[3] = {c, r, e};
+            for (int q = 0; q < 3; q++) CHECK(tc_cloth_step(all[q], 0.02, 1) == TC_OK, "resumed step");
+        }
+        tc_buf *a = tc_cloth_array(c, TC_POSITIONS, &rows, &cols, &item), *b = tc_cloth_array(r, TC_POSITIONS, &rows, &cols, &item);
+        tc_buf *f = tc_cloth_array(e, TC_POSITIONS, &rows, &cols, &item);
+        CHECK(!memcmp(tc_buf_data(a), tc_buf_data(b), rows * cols * item), "a snapshot with springs resumes bit for bit");
+        CHECK(((const double *)tc_buf_data(f))[2] < ((const double *)tc_buf_data(a))[2] - 0.01,
+              "the release before them resumes with no spring: the sheet falls");
+        tc_buf_decref(a); tc_buf_decref(b); tc_buf_decref(f);
+    }
+    tc_cloth_destroy(r); tc_cloth_destroy(e);
+    free(o); free(blob);
+    free(idx); free(k);
+    tc_cloth_destroy(c);
+    free(V); free(T);
+}
+
 /* The blob of an earlier release: the records from the array named `name` (7 or fewer characters)
  * to the end of the table cut out (the arrays appended since) and the array count lowered to
  * match, resealed. NULL if the record is not found. */
@@ -1744,6 +1819,7 @@ int main(int argc, char **argv)
     test_pair_hash_dropped();
     test_contacts_and_arrays();
     test_pin_goals();
+    test_soft_pins();
     test_contact_squeeze_and_friction();
     test_solver();
     for (int sliver = 0; sliver <= 1; sliver++) {
