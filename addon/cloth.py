@@ -304,8 +304,10 @@ class Cloth:
         moves with ``set_pin_goals`` (and a followed mesh: ``Session.follow_pins``). A pinned vertex
         ignores its spring."""
         idx = self._indices(vertices)
-        k = np.broadcast_to(np.asarray(stiffness, np.float64), idx.shape)
-        self._c.set_pin_springs(idx, np.ascontiguousarray(k))
+        k = np.asarray(stiffness, np.float64).reshape(-1)
+        if k.size not in (1, idx.size):
+            raise InvalidInputError(f"pin spring stiffness: {k.size} values for {idx.size} vertices")
+        self._c.set_pin_springs(idx, np.ascontiguousarray(np.broadcast_to(k, idx.shape)))
 
     @property
     def pin_springs(self) -> np.ndarray:

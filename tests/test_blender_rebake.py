@@ -383,6 +383,52 @@ def test_caches_never_collide_across_files_renames_and_duplicates(tmp_path):
     assert got["old_plays_after_swap"] == first and got["old_kept_after_swap"]
 
 
+RENAMED = '''
+    from tearcloth import cache
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    obj = build_scene(folder, name="MySheet", frame_end=5)
+    assert op("bake", obj) == {"FINISHED"}
+    first = modifier.cache_path(obj)
+    before = [cache.read_frame(first, f)[0].tolist() for f in range(1, 6)]
+    kept = lambda: os.path.isfile(first) and [cache.read_frame(first, f)[0].tolist() for f in range(1, 6)] == before
+    obj.name = "Renamed"
+    obj.tearcloth.tear_stress = 2e6  # the re-bake differs
+    # 1. the re-bake under the new name cancelled after frame 3: the object still shows the bake
+    # it had, the new frames wait at the new name's path
+    r = bake.Reports()
+    cut = bake.bake_object(bpy.context, obj, progress=lambda p: p.frame < 3, reports=r)
+    out = dict(first=first, cut_state=cut.state, cut_frames=cut.frames, plays_after_cut=modifier.attached_path(obj),
+               new=modifier.cache_path(obj), kept_after_cut=kept(), cut_messages=r.items)
+    # 2. resumed to the end: the object shows the new bake; the old one stays on disk, said
+    r = bake.Reports()
+    done = bake.bake_object(bpy.context, obj, resume=True, reports=r)
+    out.update(done_state=done.state, plays_after_done=modifier.attached_path(obj), kept_after_done=kept(),
+               done_messages=r.items, new_frames=cache.cache_info(modifier.cache_path(obj))["frames"])
+    result(out)
+'''
+
+
+def test_a_rebake_after_a_rename_replaces_the_shown_bake_only_once_complete(tmp_path):
+    """A bake made under one name, the object renamed, re-baked: the new name's cache is another
+    path, so the re-bake did not count as one - cancelled midway, it left the object showing its
+    partial frames instead of the complete bake it had. Now, as for a re-bake at the same path,
+    the object keeps showing its bake until the new one is complete (cancelled: said, the new
+    frames wait for Resume), then shows the new one; the old files are never deleted (only Free
+    Bake deletes), and where they stay is said."""
+    got = run_blender(tmp_path, RENAMED, tmp_path)
+    first, new = got["first"], got["new"]
+    assert new != first and new.endswith("Renamed.usda")
+    assert got["cut_state"] == "cancelled" and got["cut_frames"] == [1, 2, 3], got
+    assert got["plays_after_cut"] == first and got["kept_after_cut"], got
+    assert any("previous bake at" in m and "kept as it was" in m and "wait at" in m and "Resume continues it" in m
+               for level, m in got["cut_messages"] if level == "WARNING"), got["cut_messages"]
+    assert got["done_state"] == "done" and got["new_frames"] == [1, 2, 3, 4, 5], got
+    assert got["plays_after_done"] == new and got["kept_after_done"], got
+    assert any("stays on disk" in m and first in m for level, m in got["done_messages"] if level == "INFO"), \
+        got["done_messages"]
+
+
 EDIT_MODE = '''
     import bmesh
     from tearcloth.blender import modifier

@@ -112,6 +112,8 @@ def test_bad_soft_pins_are_refused_by_name():
         c.set_pin_springs([3], -1.0)
     with pytest.raises(InvalidInputError, match="vertex 3"):
         c.set_pin_springs([3], float("nan"))
+    with pytest.raises(InvalidInputError, match="2 values for 3 vertices"):
+        c.set_pin_springs([1, 2, 3], [1.0, 2.0])
     with pytest.raises(InvalidInputError, match="pin weights: expected"):
         c.pin_weights(np.ones(3), 1000.0)
     with pytest.raises(InvalidInputError, match="pin_stiffness"):

@@ -121,6 +121,16 @@ class BakeRun:
             self.reports.warning(f"{self.object_name if hasattr(self, 'object_name') else ''}: {w.message}"
                                  .lstrip(": "))
 
+    def _attached_elsewhere(self) -> str | None:
+        """The cache the modifier played before this attempt when it is a bake at another path than
+        this one's and still on disk (the object renamed since, or its cache folder changed), else
+        None."""
+        before = getattr(self, "_attached_before", None)
+        if before is None or not os.path.isfile(before[0]):
+            return None
+        same = os.path.normcase(os.path.abspath(before[0])) == os.path.normcase(os.path.abspath(self.plan.cache_path))
+        return None if same else before[0]
+
     def _reattach_existing(self, obj) -> bool:
         """Show the cache that is at the object's path again (the previous bake a failed or
         cancelled re-bake left as it was), else the one the modifier played before this attempt
@@ -134,6 +144,10 @@ class BakeRun:
                     os.path.abspath(self.plan.cache_path)):
                 return False
             path, prim = before
+        return self._attach(obj, path, prim)
+
+    def _attach(self, obj, path: str, prim: str) -> bool:
+        """Show a cache on the object's modifier; a failure is an error report (False)."""
         try:
             modifier.attach_cache(obj, path, prim)
         except BakeError as exc:
@@ -235,15 +249,19 @@ class BakeRun:
         if scene is not None and scene.frame_current != self.original_frame:
             scene.frame_set(self.original_frame)
         obj = bpy.data.objects.get(self.object_name)
-        previous = False
-        if obj is not None and frames and modifier.is_enabled(obj):
-            try:
-                modifier.attach_cache(obj, self.plan.cache_path, self.plan.prim_name)
-            except BakeError as exc:
-                self.reports.error(str(exc))
-        elif obj is not None and modifier.is_enabled(obj):
-            previous = self._reattach_existing(obj)
         p = self.progress
+        previous = False
+        # The bake the object showed under another path (renamed since, or its cache folder
+        # changed): a re-bake too, so it replaces that one on the modifier only once complete, as
+        # a re-bake at the same path does; until then the new frames wait at their own path.
+        elsewhere = self._attached_elsewhere()
+        if obj is not None and modifier.is_enabled(obj):
+            if frames and elsewhere and p.state != "done":
+                previous = self._attach(obj, *self._attached_before)
+            elif frames:
+                self._attach(obj, self.plan.cache_path, self.plan.prim_name)
+            else:
+                previous = self._reattach_existing(obj)
         if obj is not None and frames:
             record_convergence(obj, p)
             if p.convergence_text():
@@ -254,10 +272,20 @@ class BakeRun:
                 self.reports.info(f"{self.object_name}: {p.sliver_text()}")
             if p.pins_text():
                 self.reports.warning(f"{self.object_name}: {p.pins_text()}")
+            fallback = getattr(getattr(self, "sources", None), "pin_fallback", None)
+            if fallback is not None:
+                self.reports.warning(
+                    f"{self.object_name}: from frame {fallback[0]} the modifiers above {modifier.MODIFIER_NAME!r} made "
+                    f"{fallback[1]} vertices where the rest mesh has {self.sources.pin_rest_count}: at such frames "
+                    "the pins followed only the object's transform, not those modifiers (keep their vertex count "
+                    "fixed over the bake, or apply them)")
             removed = p.fragment_text()
             if removed is not None:
                 (self.reports.warning if removed[1] else self.reports.info)(f"{self.object_name}: {removed[0]}")
-        if frames:
+        if frames and previous and elsewhere:
+            kept = (f"the previous bake at {elsewhere} is kept as it was (the object shows it); this bake's frames "
+                    f"{frame_span(frames[0], frames[-1])} wait at {self.plan.cache_path}")
+        elif frames:
             kept = f"frames {frame_span(frames[0], frames[-1])} kept"
         elif previous and waiting:
             kept = (f"the previous bake is kept as it was; this re-bake's frames {frame_span(waiting[0], waiting[-1])} "
@@ -271,6 +299,12 @@ class BakeRun:
             self.reports.info(f"{self.object_name}: baked frames {frame_span(frames[0], frames[-1])} "
                               f"({p.tears} tear{'s' if p.tears != 1 else ''}, {p.vertices} vertices at the end) "
                               f"into {self.plan.cache_path}")
+            if elsewhere and obj is not None and not modifier.players(elsewhere, obj):
+                # not deleted (only Free Bake removes baked frames, and Free Bake now frees this
+                # bake): said, with where it is, since no panel points at it any more
+                self.reports.info(f"{self.object_name}: the bake it showed before, at {elsewhere} (made under "
+                                  "another name, cache folder or file), stays on disk; no object of this file "
+                                  "shows it now: delete it by hand if it is not needed")
         elif p.state == "cancelled":
             self.reports.warning(f"{self.object_name}: bake cancelled; {kept}" + (". Resume continues it" if frames else ""))
         else:

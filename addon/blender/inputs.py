@@ -41,7 +41,9 @@ class Sources:
     # vertices of that stack that are the rest mesh's (MeshArrays.kept), read every frame; None:
     # nothing above can deform the pinned vertices, they follow the object's transform
     pin_kept: np.ndarray | None = None
-    pin_fallback_said: bool = False  # a frame whose stack above changed its vertex count was said
+    pin_rest_count: int = 0  # that stack's vertex count at rest (loose vertices included)
+    # the first frame where that stack had another vertex count: (frame, its count), or None
+    pin_fallback: tuple | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -123,8 +125,9 @@ def _deformed_rest(context, obj, sources: Sources, matrix, scale: float, frame: 
     """The rest mesh's vertices (world metres) as the stack above Tear Cloth deforms them at the
     depsgraph's frame, for the pins to follow (one more evaluation of the object, with Tear Cloth
     and what lies below it switched off); None, said once in the log, at a frame where that stack
-    has fewer vertices than the rest mesh needs (a Remesh animated above: its numbering is not the
-    rest mesh's, so the pins follow only the object's transform there)."""
+    has another vertex count than at rest (a Remesh or a Subdivision level animated above: its
+    numbering is not the rest mesh's, so the pins follow only the object's transform there; the
+    bake's end says so too, ``Sources.pin_fallback``)."""
     with _switched_off(_stack_above(obj)[1]):
         evaluated = obj.evaluated_get(context.evaluated_depsgraph_get())
         me = evaluated.to_mesh()
@@ -135,12 +138,15 @@ def _deformed_rest(context, obj, sources: Sources, matrix, scale: float, frame: 
         finally:
             evaluated.to_mesh_clear()
     kept = sources.pin_kept
-    if count <= int(kept.max(initial=-1)):
-        if not sources.pin_fallback_said:
-            sources.pin_fallback_said = True
-            log.warning("%s: at frame %d the stack above %r has %d vertices, fewer than the rest mesh's %d: "
+    # any other count, not only fewer: more vertices number another mesh too, and reading the
+    # rest mesh's numbers in it leads pins elsewhere (a Subdivision level: its smoothed corners,
+    # 4.3 mm off in the test; a Remesh: unrelated vertices)
+    if count != (sources.pin_rest_count or count) or count <= int(kept.max(initial=-1)):
+        if sources.pin_fallback is None:
+            sources.pin_fallback = (frame, count)
+            log.warning("%s: at frame %d the stack above %r has %d vertices, the rest mesh's %d: "
                         "the pins follow only the object's transform there", sources.object_name, frame,
-                        modifier.MODIFIER_NAME, count, int(kept.max()) + 1)
+                        modifier.MODIFIER_NAME, count, sources.pin_rest_count or int(kept.max()) + 1)
         return None
     return spaces.local_to_world_si(co.reshape(-1, 3)[kept].astype(np.float64), matrix, scale)
 
@@ -369,6 +375,7 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     sources = Sources(obj.name, follow, list(body_triangles))
     if pinned and hands is None and _stack_can_deform(obj):
         sources.pin_kept = np.arange(len(mesh.vertices)) if mesh.kept is None else np.array(mesh.kept)
+        sources.pin_rest_count = len(mesh.vertices) + int(mesh.loose)
     return plan, sources
 
 
