@@ -25,12 +25,12 @@ from .materials import Material, material as _preset
 
 ClothError = _native.ClothError
 InvalidInputError = _native.InvalidInputError
+SimulationError = _native.SimulationError
 
 # A pin weight at or above this holds its vertex exactly (a hard pin); below, down to 0, it is a
 # soft pin's spring. Blender's cloth snaps its goal at the same weight (SOFTGOALSNAP, 0.999), so a
 # pin group painted for Blender's cloth pins the same vertices hard.
 PIN_HARD_WEIGHT = 0.999
-SimulationError = _native.SimulationError
 
 
 @dataclass(frozen=True)
@@ -326,7 +326,8 @@ class Cloth:
         w * pin_stiffness * the vertex's mass (``pin_stiffness`` in N/(m kg) = 1/s^2: at weight w the
         vertex swings about its goal at sqrt(w pin_stiffness) rad/s and sags g / (w pin_stiffness)
         under gravity, whatever the mesh resolution). ``weights``: (N,) or a vertex-group name.
-        Returns (pinned, soft) vertex counts."""
+        Adds to the pins and springs set before (a vertex of weight 0 keeps what it had). Returns
+        (pinned, soft) vertex counts."""
         w = self.group(weights) if isinstance(weights, str) else np.asarray(weights, np.float64).reshape(-1)
         if w.shape != (self.num_vertices,):
             raise InvalidInputError(f"pin weights: expected {self.num_vertices} values, got {w.shape[0]}")
