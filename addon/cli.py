@@ -384,8 +384,12 @@ def _report(summary: dict, out) -> int:
         # a re-bake stopped before its first simulated frame has nothing to resume from
         again = " (a re-bake stopped before its first frame starts over)" if any(
             r.previous_kept and not r.waiting for r in summary["objects"]) else ""
-        print(f"{prog}: stopped by {signal_name}: {', '.join(kept) or 'no frame'} kept{saved}; "
-              f"run the same command again to resume{again}", file=sys.stderr)
+        if not kept and summary["objects"] and all(r.state == "done" for r in summary["objects"]):
+            # it came after the last frame (while the .blend was saved): nothing is left to resume
+            print(f"{prog}: stopped by {signal_name} after every bake was complete{saved}", file=sys.stderr)
+        else:
+            print(f"{prog}: stopped by {signal_name}: {', '.join(kept) or 'no frame'} kept{saved}; "
+                  f"run the same command again to resume{again}", file=sys.stderr)
         return EXIT_TERMINATED if signal_name == "SIGTERM" else EXIT_INTERRUPTED
     if summary["saved"]:
         out(f"saved {summary['output']}")

@@ -125,33 +125,37 @@ def bake_file(plan, progress: ProgressLine | None = None, on_event=None) -> dict
         except RuntimeError as exc:
             raise InputError(f"{plan.source}: Blender could not open it ({one_line(exc)})") from None
         register()  # no-op if still registered; a file load never unregisters Python classes
-        scene = bpy.context.scene
-        names = _pick_objects(plan)
-        if plan.render is not None and scene.camera is None:
-            raise InputError(f"scene {scene.name!r} of {plan.source.name} has no camera to --render from")
-        if plan.output != plan.source:
-            # a fresh copy needs no backup (.blend1) of the copy saved a minute earlier; with
-            # --overwrite Blender's own setting stays, so the input keeps its usual backup
-            bpy.context.preferences.filepaths.save_version = 0
-            _save(plan.output, plan.compressed, copy_to=True)
-        if plan.cache_dir is not None:
-            plan.cache_dir.mkdir(parents=True, exist_ok=True)
-            setting = _cache_folder_setting(plan.cache_dir, plan.output)
-            for name in names:
-                settings = bpy.data.objects[name].tearcloth
-                if settings.cache_folder != setting:
-                    with warnings.catch_warnings():
-                        # the property takes '//' paths although it does not declare so (yet)
-                        warnings.simplefilter("ignore", RuntimeWarning)
-                        settings.cache_folder = setting
-        start, end = plan.frames if plan.frames else (None, None)
+        # The handlers from the file's opening to its last save: a signal that comes while the
+        # .blend is written (a farm manager's SIGTERM right after the last frame, or while the
+        # input is copied to --out) lets the save finish and stops the run after it, as during a
+        # bake, instead of killing the process half-way through (status -15, nothing said)
         stop = _Stop()
         with stop.installed():
+            scene = bpy.context.scene
+            names = _pick_objects(plan)
+            if plan.render is not None and scene.camera is None:
+                raise InputError(f"scene {scene.name!r} of {plan.source.name} has no camera to --render from")
+            if plan.output != plan.source:
+                # a fresh copy needs no backup (.blend1) of the copy saved a minute earlier; with
+                # --overwrite Blender's own setting stays, so the input keeps its usual backup
+                bpy.context.preferences.filepaths.save_version = 0
+                _save(plan.output, plan.compressed, copy_to=True)
+            if plan.cache_dir is not None:
+                plan.cache_dir.mkdir(parents=True, exist_ok=True)
+                setting = _cache_folder_setting(plan.cache_dir, plan.output)
+                for name in names:
+                    settings = bpy.data.objects[name].tearcloth
+                    if settings.cache_folder != setting:
+                        with warnings.catch_warnings():
+                            # the property takes '//' paths although it does not declare so (yet)
+                            warnings.simplefilter("ignore", RuntimeWarning)
+                            settings.cache_folder = setting
+            start, end = plan.frames if plan.frames else (None, None)
             results = _bake_objects(names, start, end, plan, progress, on_event, stop)
+            baked_any = any(r.frames for r in results)
+            if baked_any or plan.output != plan.source:
+                _save(plan.output, plan.compressed)
         interrupted = stop.signal is not None
-        baked_any = any(r.frames for r in results)
-        if baked_any or plan.output != plan.source:
-            _save(plan.output, plan.compressed)
         rendered = []
         if plan.render is not None and not interrupted:
             baked = [f for r in results for f in r.frames]
