@@ -444,7 +444,7 @@ class Cloth:
         return self._c.stats()
 
     def energy(self) -> dict:
-        """kinetic, elastic, bending, gravity (J)."""
+        """kinetic, elastic, bending, gravity, pins (the soft pins' springs) (J)."""
         return self._c.energy()
 
     # ---- snapshot ----

@@ -1262,5 +1262,14 @@ tc_energy tc_cloth_energy(tc_cloth *c)
     }
     e.elastic = tc_elastic_energy(c, x);
     e.bending = tc_bending_energy(c, x);
+    if (c->vpink.len) {  /* towards the goals the last step reached (vgoal) */
+        const double *ks = tc_vec_ptr(&c->vpink), *g = tc_vec_ptr(&c->vgoal);
+        const int8_t *pin = tc_vec_ptr(&c->vpin);
+        for (int32_t i = 0; i < c->nv; i++)
+            if (ks[i] > 0 && !pin[i]) {
+                const double d[3] = {x[3 * i] - g[3 * i], x[3 * i + 1] - g[3 * i + 1], x[3 * i + 2] - g[3 * i + 2]};
+                e.pins += 0.5 * ks[i] * dot3(d, d);
+            }
+    }
     return e;
 }

@@ -587,8 +587,8 @@ static PyObject *Cloth_energy(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_energy e = tc_cloth_energy(self->c);
-    return Py_BuildValue("{s:d,s:d,s:d,s:d}", "kinetic", e.kinetic, "elastic", e.elastic, "bending", e.bending,
-                         "gravity", e.gravity);
+    return Py_BuildValue("{s:d,s:d,s:d,s:d,s:d}", "kinetic", e.kinetic, "elastic", e.elastic, "bending", e.bending,
+                         "gravity", e.gravity, "pins", e.pins);
 }
 
 static PyObject *Cloth_array(PyObject *o, PyObject *arg)

@@ -261,6 +261,7 @@ const char *tc_cloth_memory(const tc_cloth *c, size_t k, size_t *used, size_t *h
 
 typedef struct tc_energy {
     double kinetic, elastic, bending, gravity;
+    double pins;  /* the soft pins' springs: 1/2 k |x - goal|^2 (hard pins hold no energy) */
 } tc_energy;
 tc_energy tc_cloth_energy(tc_cloth *c);
 
