@@ -294,7 +294,7 @@ class Session:
 
     def _set_pin_goals(self, t: float) -> None:
         cloth = self.cloth
-        pinned = np.flatnonzero(cloth.pinned | cloth.soft_pinned)  # soft pins follow their goals too
+        pinned = np.flatnonzero(cloth.pinned | (cloth.pin_springs > 0))  # soft pins follow their goals too
         if len(pinned):
             cloth.set_pin_goals(pinned, self._pins.goals(pinned, cloth.rest_positions[pinned], t))
 

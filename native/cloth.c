@@ -197,12 +197,10 @@ int tc_cloth_set_positions(tc_cloth *c, const double *x, int32_t n)
     memcpy(tc_vec_ptr(&c->x), x, 3 * (size_t)n * sizeof(double));
     /* a pinned vertex put somewhere is pinned there: its goals move with it (a caller that drives
        goals sets them again before the next step) */
-    const int8_t *pin = tc_vec_ptr(&c->vpin);
-    const double *ks = c->vpink.len ? tc_vec_ptr(&c->vpink) : NULL;
     double *g = tc_vec_ptr(&c->vgoal), *g0 = tc_vec_ptr(&c->vgoal0);
     if (c->vgoal.len)
         for (int32_t i = 0; i < n; i++)
-            if (pin[i] || (ks && ks[i] > 0))
+            if (tc_follows_goal(c, i))
                 for (int q = 0; q < 3; q++) g[3 * i + q] = g0[3 * i + q] = x[3 * i + q];
     c->dirty = true;
     return TC_OK;

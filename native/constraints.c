@@ -35,13 +35,6 @@ static int check_indices(tc_cloth *c, const int32_t *idx, int32_t k)
     return TC_OK;
 }
 
-/* Whether vertex v follows a goal: pinned, or a soft pin's spring pulls it */
-static bool has_goal(const tc_cloth *c, int32_t v)
-{
-    return ((const int8_t *)tc_vec_ptr((tc_vec *)&c->vpin))[v] ||
-           (c->vpink.len && ((const double *)tc_vec_ptr((tc_vec *)&c->vpink))[v] > 0);
-}
-
 /* The goals, made on first use: every vertex's where it is */
 static int goals_made(tc_cloth *c)
 {
@@ -65,7 +58,7 @@ int tc_cloth_pin(tc_cloth *c, const int32_t *idx, int32_t k, int pinned)
     for (int32_t i = 0; i < k; i++) {
         int32_t v = idx[i];
         /* held where it is (a vertex that already follows a goal, pinned or soft, keeps it) */
-        if (pinned && !has_goal(c, v) && c->vgoal.len)
+        if (pinned && !tc_follows_goal(c, v) && c->vgoal.len)
             for (int q = 0; q < 3; q++) g[3 * v + q] = g0[3 * v + q] = x[3 * v + q];
         p[v] = pinned ? 1 : 0;
     }
@@ -76,7 +69,7 @@ int tc_cloth_set_pin_goals(tc_cloth *c, const int32_t *idx, const double *pos, i
 {
     if (check_indices(c, idx, k)) return TC_ERR_INPUT;
     for (int32_t i = 0; i < k; i++) {
-        if (!has_goal(c, idx[i])) {
+        if (!tc_follows_goal(c, idx[i])) {
             tc_set_err(c, "vertex %d (item %d) is not pinned and has no pin spring", (int)idx[i], (int)i);
             return TC_ERR_INPUT;
         }
@@ -106,7 +99,7 @@ int tc_cloth_set_pin_springs(tc_cloth *c, const int32_t *idx, const double *k, i
     const double *x = tc_vec_ptr(&c->x);
     for (int32_t i = 0; i < n; i++) {
         const int32_t v = idx[i];
-        if (!has_goal(c, v))  /* a new soft pin's goal is where it is; one that has a goal keeps it */
+        if (!tc_follows_goal(c, v))  /* a new soft pin's goal is where it is; one that has a goal keeps it */
             for (int q = 0; q < 3; q++) g[3 * v + q] = g0[3 * v + q] = x[3 * v + q];
         ks[v] = k[i];
     }

@@ -290,6 +290,12 @@ void tc_axes_set(tc_cloth *c, int32_t t, bool from_uv);  /* taxis from twarp (fr
 void tc_axes_refresh(tc_cloth *c);                  /* every triangle's warp again from its UVs and grain */
 /* twarp and taxis are stored (from the first orthotropic or plastic material on: ortho.c's head) */
 static inline bool tc_axes_stored(const tc_cloth *c) { return c->twarp.len != 0; }
+
+/* Whether vertex v follows a goal (vgoal): pinned, or a soft pin's spring pulls it */
+static inline bool tc_follows_goal(const tc_cloth *c, int32_t v)
+{
+    return ((const int8_t *)tc_vec_ptr(&c->vpin))[v] || (c->vpink.len && ((const double *)tc_vec_ptr(&c->vpink))[v] > 0);
+}
 int tc_axes_store(tc_cloth *c);                     /* made from the UVs and grain if not stored; TC_ERR_NOMEM */
 void tc_tri_warp(const tc_cloth *c, int32_t t, double w[3]);  /* stored, or made as tc_axes_store would */
 int32_t tc_plastic_commit(tc_cloth *c);             /* after a kept sub-step: triangles that yielded */
@@ -405,11 +411,11 @@ int tc_handle_add_member(tc_cloth *c, int32_t h, int32_t v, const double grasp[3
 /* vflag and sfix for one sub-step of length dt ending at fraction alpha of the handles' motion */
 void tc_constraints_begin(tc_cloth *c, double dt, double alpha);
 void tc_contact_basis(tc_cloth *c, double dt);
-void tc_contacts_kinetic_start(tc_cloth *c, double *b, double dt);
+void tc_contacts_kinetic_start(tc_cloth *c, double *b, double dt);  /* carried kinetic friction into b */
 /* The soft pins' springs in the sub-step's system (after the assembly, b made): A_ii += dt^2 k_i I,
  * b_i += dt k_i (goal_i - x_i), the goal at fraction alpha of the step's motion (implicit Euler of
  * the spring force k (goal - x) at the sub-step's end) */
-void tc_pin_springs_add(tc_cloth *c, double dt, double alpha, double *b);  /* carried kinetic friction into b */
+void tc_pin_springs_add(tc_cloth *c, double dt, double alpha, double *b);
 void tc_constraint_filter(const tc_cloth *c, double *r);             /* r := S r */
 void tc_constraint_matrix(const tc_cloth *c, int32_t i, double S[9]);  /* S_i, row-major */
 void tc_filtered_diagonal(const double S[9], const double A[9], double F[9]);  /* S A S + w (I - S) */

@@ -133,9 +133,8 @@ static int32_t new_vertex(tc_cloth *c, int32_t a, int32_t b, double s)
            parent that follows none counting 0 (its goal is stale). Two parents that follow goals
            (a pinned split) put it on the line between theirs, as its position; a split between a
            soft pin and a free vertex keeps half the pull, towards where the soft pin's is. */
-        const int8_t *pin = tc_vec_ptr(&c->vpin);
-        const double *ks = c->vpink.len ? tc_vec_ptr(&c->vpink) : NULL, *x = tc_vec_ptr(&c->x);
-        const double fa = (pin[a] || (ks && ks[a] > 0)) ? wa : 0.0, fb = (pin[bb] || (ks && ks[bb] > 0)) ? wb : 0.0;
+        const double *x = tc_vec_ptr(&c->x);
+        const double fa = tc_follows_goal(c, a) ? wa : 0.0, fb = tc_follows_goal(c, bb) ? wb : 0.0;
         tc_vec *goals[] = {&c->vgoal, &c->vgoal0};
         for (int i = 0; i < 2; i++) {
             double *g = tc_vec_ptr(goals[i]);

@@ -139,11 +139,9 @@ class BakeRun:
             cache.check_owner(self.plan.cache_path, obj.name, object_id=self.plan.object_id)
             path, prim = self.plan.cache_path, self.plan.prim_name
         except cache.CacheError:
-            before = getattr(self, "_attached_before", None)
-            if before is None or not os.path.isfile(before[0]) or os.path.normcase(before[0]) == os.path.normcase(
-                    os.path.abspath(self.plan.cache_path)):
+            if self._attached_elsewhere() is None:
                 return False
-            path, prim = before
+            path, prim = self._attached_before
         return self._attach(obj, path, prim)
 
     def _attach(self, obj, path: str, prim: str) -> bool:

@@ -141,12 +141,13 @@ def _deformed_rest(context, obj, sources: Sources, matrix, scale: float, frame: 
     # any other count, not only fewer: more vertices number another mesh too, and reading the
     # rest mesh's numbers in it leads pins elsewhere (a Subdivision level: its smoothed corners,
     # 4.3 mm off in the test; a Remesh: unrelated vertices)
-    if count != (sources.pin_rest_count or count) or count <= int(kept.max(initial=-1)):
+    # (pin_rest_count is set with pin_kept, whose numbers are below it)
+    if count != sources.pin_rest_count:
         if sources.pin_fallback is None:
             sources.pin_fallback = (frame, count)
             log.warning("%s: at frame %d the stack above %r has %d vertices, the rest mesh's %d: "
                         "the pins follow only the object's transform there", sources.object_name, frame,
-                        modifier.MODIFIER_NAME, count, sources.pin_rest_count or int(kept.max()) + 1)
+                        modifier.MODIFIER_NAME, count, sources.pin_rest_count)
         return None
     return spaces.local_to_world_si(co.reshape(-1, 3)[kept].astype(np.float64), matrix, scale)
 
