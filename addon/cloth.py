@@ -81,6 +81,8 @@ def _f64(a, name: str, cols: int | None = None) -> np.ndarray:
 
 def _i32(a, name: str) -> np.ndarray:
     arr = np.asarray(a)
+    if arr.size == 0 and arr.dtype.kind == "f":  # [] is float64 to numpy: no vertex, not a float index
+        arr = arr.astype(np.int32)
     if arr.dtype.kind not in "iub":
         raise InvalidInputError(f"{name} must hold integers, got dtype {arr.dtype}")
     if arr.dtype == np.bool_:
@@ -145,6 +147,10 @@ class Cloth:
                 w = np.asarray(groups[name], dtype=np.float64).reshape(-1)
                 if len(w) != len(v):
                     raise InvalidInputError(f"vertex group {name!r} has {len(w)} weights for {len(v)} vertices")
+                bad = np.flatnonzero(~np.isfinite(w))
+                if bad.size:  # a NaN weight reads as neither pinned nor free, weak nor strong
+                    raise InvalidInputError(f"vertex group {name!r}: vertex {int(bad[0])} has a non-finite weight "
+                                            f"({w[bad[0]]})")
                 cols.append(w)
             group_arr = np.ascontiguousarray(np.stack(cols, axis=1))
         # rest and groups go down flat; the core checks their length against the vertex count
@@ -466,6 +472,20 @@ class Cloth:
             self._c.restore(before)
             raise InvalidInputError(f"the snapshot has {groups} vertex groups, this cloth "
                                     f"{len(self.group_names)} ({', '.join(self.group_names) or 'none'})")
+        # the blob carries the material the core now runs: ``material`` (and set_material(**changes),
+        # which starts from it) must say that one, not the one this cloth had before
+        self._material = self._material_of_core()
+
+    def _material_of_core(self) -> Material:
+        """The core's material as a Material: the one this cloth had, or the preset, with the same
+        values (their name), else one named 'from snapshot'."""
+        from .materials import MATERIALS
+
+        core = self._c.material()
+        for m in (self._material, *MATERIALS.values()):
+            if m.native_kwargs() == core:
+                return m
+        return Material(name="from snapshot", **core)
 
     # ---- tearing ----
     def events(self) -> TopologyEvents:

@@ -78,6 +78,18 @@ tc_cloth *tc_cloth_create(const double *positions, int32_t n, const int32_t *tri
                 tc_culprit(-1, (int32_t)(i / rest_dim));
                 return NULL;
             }
+    /* a NaN or infinite UV made the triangle's warp fall back to the rest X axis, silently (and was
+       carried into every piece a tear made of it) */
+    if (corner_uv)
+        for (int64_t i = 0; i < 6 * (int64_t)m; i++)
+            if (!isfinite(corner_uv[i])) {
+                const int32_t t = (int32_t)(i / 6), k = (int32_t)(i % 6) / 2;
+                const int32_t vk = triangles[3 * (size_t)t + k];
+                snprintf(msg, msz, "triangle %d has a non-finite UV coordinate (%g) at its corner on vertex %d", (int)t,
+                         corner_uv[i], (int)vk);
+                tc_culprit(t, vk >= 0 && vk < n ? vk : -1);
+                return NULL;
+            }
     for (int32_t t = 0; t < m; t++) {
         const int32_t *T = triangles + 3 * (size_t)t;
         for (int k = 0; k < 3; k++)

@@ -140,7 +140,7 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
             /* largest eigenvalue of F^T F = squared principal stretch; NaN propagates through */
             double a = dot3(F0, F0), b = dot3(F0, F1), d = dot3(F1, F1);
             double s2 = 0.5 * (a + d) + sqrt(0.25 * (a - d) * (a - d) + b * b);
-            if (!(s2 <= worst2)) worst2 = s2;  /* also takes NaN */
+            if (!(s2 <= worst2) && worst2 == worst2) worst2 = s2;  /* takes NaN, and keeps it: a later finite triangle must not hide an overflowed one */
         }
         corotate(F0, F1, R, eps);
         double sxx, syy, sxy;
@@ -825,7 +825,7 @@ TC_INLINE double element_pass_lanes(tc_cloth *c, const double *x, const bool gen
         /* out, triangle by triangle in order (the force sums as the reference's) */
         for (int l = 0; l < nl; l++) {
             const size_t t = (size_t)(t0 + l);
-            if (!(s2[l] <= worst2)) worst2 = s2[l];  /* also takes NaN */
+            if (!(s2[l] <= worst2) && worst2 == worst2) worst2 = s2[l];  /* takes NaN and keeps it (as above) */
             TC_UNROLL
             for (int k = 0; k < 6; k++) Rall[6 * t + k] = in.R[k][l];
             TC_UNROLL

@@ -140,7 +140,7 @@ static PyObject *raise_core(ClothObject *self, int rc)
 static int ready(ClothObject *self)
 {
     if (!self->c) { PyErr_SetString(ClothError, "the cloth was not initialised"); return 0; }
-    if (self->busy) { PyErr_SetString(ClothError, "the cloth is being stepped in another thread"); return 0; }
+    if (self->busy) { PyErr_SetString(ClothError, "the cloth is in use in another thread (a step, or a restore or creation of its state)"); return 0; }
     return 1;
 }
 
@@ -196,11 +196,15 @@ static int Cloth_init(PyObject *o, PyObject *args, PyObject *kw)
     }
     char msg[512] = "";
     tc_cloth *c;
+    if (self->busy) { PyErr_SetString(ClothError, "the cloth is in use in another thread (a step, or a restore or creation of its state)"); goto done; }
+    self->busy = 1;  /* as in restore: nothing may start on the cloth replaced below meanwhile */
     Py_BEGIN_ALLOW_THREADS
     c = tc_cloth_create(P.view.buf, (int32_t)n, T.view.buf, (int32_t)m, R.held ? R.view.buf : NULL, rest_dim,
                         U.held ? U.view.buf : NULL, G.held ? G.view.buf : NULL, ng, NULL, msg, sizeof msg);
     Py_END_ALLOW_THREADS
+    self->busy = 0;
     if (!c) { raise_refused_mesh(msg, tc_create_culprits()); goto done; }
+    tc_cloth_destroy(self->c);  /* __init__ called again: the cloth it had (none the first time) */
     self->c = c;
     rc = 0;
 done:
@@ -692,14 +696,18 @@ static PyObject *Cloth_memory(PyObject *o, PyObject *unused)
 static PyObject *Cloth_restore(PyObject *o, PyObject *arg)
 {
     ClothObject *self = (ClothObject *)o;
-    if (self->busy) { PyErr_SetString(ClothError, "the cloth is being stepped in another thread"); return NULL; }
+    if (self->busy) { PyErr_SetString(ClothError, "the cloth is in use in another thread (a step, or a restore or creation of its state)"); return NULL; }
     Py_buffer view;
     if (PyObject_GetBuffer(arg, &view, PyBUF_SIMPLE)) return NULL;
     char msg[512] = "";
     tc_cloth *c;
+    /* busy while the GIL is released: a step (or another restore) started by another thread in the
+       meantime would run on the cloth destroyed below */
+    self->busy = 1;
     Py_BEGIN_ALLOW_THREADS
     c = tc_cloth_from_snapshot(view.buf, (size_t)view.len, msg, sizeof msg);
     Py_END_ALLOW_THREADS
+    self->busy = 0;
     PyBuffer_Release(&view);
     if (!c) { PyErr_SetString(InvalidInputError, msg); return NULL; }
     tc_cloth_destroy(self->c);

@@ -1,4 +1,5 @@
 """Physics of the native FEM core checked against analytic values, invariances and conservation."""
+import sys
 import threading
 import time
 
@@ -192,6 +193,56 @@ def test_step_releases_the_gil():
     assert len(inside) >= 3
 
 
+
+def test_a_step_during_a_restore_in_another_thread_is_refused():
+    """restore() parses its blob with the GIL released. It did so without marking the cloth busy,
+    so a step begun from another thread meanwhile ran on the state restore() then destroyed
+    (segmentation fault, every run). The restorer keeps the GIL until restore() lets it go (a long
+    switch interval), so the stepper runs exactly while the blob is parsed: every such step is
+    refused with ClothError, and the cloth ends restored and finite."""
+    from tearcloth.cloth import ClothError
+
+    V, T = sheet(0.5, 0.5, 61, 61, jitter=0.2, seed=1)
+    c = make(V, T)
+    c.step(1e-3)
+    blob = c.snapshot()
+    counts = {"restored": 0, "refused": 0, "stepped": 0, "other": []}
+    go, bar = threading.Event(), threading.Barrier(2)
+
+    def restorer():
+        for _ in range(20):
+            bar.wait()
+            go.set()
+            c.restore(blob)
+            counts["restored"] += 1
+
+    def stepper():
+        for _ in range(20):
+            bar.wait()
+            go.wait()
+            go.clear()
+            try:
+                c.step(1e-3)
+                counts["stepped"] += 1
+            except ClothError:
+                counts["refused"] += 1
+            except Exception as e:  # noqa: BLE001 - reported by the assertion below
+                counts["other"].append(repr(e))
+
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(1.0)
+    try:
+        threads = [threading.Thread(target=restorer), threading.Thread(target=stepper)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+    finally:
+        sys.setswitchinterval(old)
+    assert counts["restored"] == 20 and not counts["other"], counts
+    assert counts["refused"] > 0, counts  # the overlap the test is for happened
+    assert np.isfinite(c.positions).all()
+
 def interior_edge(T):
     """An edge used by two triangles (a third one on it makes the mesh non-manifold)."""
     seen = set()
@@ -219,6 +270,24 @@ def test_bad_meshes_raise_named_errors(words, breaker):
     V2, T2 = breaker(V, T)
     with pytest.raises(InvalidInputError, match=words):
         Cloth(V2, T2)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_uvs_and_group_weights_are_named(value):
+    """A NaN or infinite UV was accepted, and the triangles at it silently took the rest X axis
+    as their warp (warp and weft swapped there, when the map runs along Y); a NaN group weight read
+    as neither pinned nor free. Both are refused, naming the triangle and vertex, or the group."""
+    V, T = sheet(0.1, 0.05, 6, 4)
+    uv = V[:, :2].copy()
+    uv[7, 1] = value
+    with pytest.raises(InvalidInputError, match="non-finite UV .* vertex 7") as info:
+        Cloth(V, T, uv=uv)
+    assert 7 in info.value.vertices and info.value.triangles
+    assert all(7 in T[t] for t in info.value.triangles)
+    w = np.zeros(len(V))
+    w[3] = value
+    with pytest.raises(InvalidInputError, match="group 'pins': vertex 3 has a non-finite weight"):
+        Cloth(V, T, groups={"pins": w})
 
 
 def test_zero_area_triangle_is_named():
@@ -259,6 +328,9 @@ def test_bad_arrays_and_steps_are_named():
         c.step(-1e-3)
     with pytest.raises(InvalidInputError, match="outside"):
         c.pin([0, 99])
+    c.pin([])  # a plain empty list (float64 to numpy) is no vertex, not "dtype float64"
+    with pytest.raises(InvalidInputError, match="at least one vertex"):
+        c.add_handle([])
     with pytest.raises(InvalidInputError, match="no active handle"):
         c.move_handle(7, (0, 0, 0))
     with pytest.raises(InvalidInputError, match="unit vector"):
@@ -279,6 +351,24 @@ def test_exploding_step_is_rolled_back_and_never_returns_nan():
         c.step(1e-3)
     assert np.array_equal(c.positions, before)
     assert np.isfinite(c.positions).all()
+
+
+@pytest.mark.parametrize("vertex", [0, 60, 120])
+def test_an_overflowed_triangle_is_not_hidden_by_a_later_finite_one(vertex):
+    """A finite but huge velocity overflows the stretch of the triangles at that vertex (inf - inf:
+    NaN). The step's stretch check once kept the largest value over the triangles in their order, so
+    a NaN was replaced by the next finite triangle's stretch and the blown-up step was accepted (a
+    vertex at 1e157 m, energies inf and NaN) unless the vertex's triangles came last. Wherever the
+    vertex sits in the triangle order, the step is rolled back and nothing moves."""
+    V, T = sheet(0.1, 0.1, 11, 11)
+    c = make(V, T)
+    before = c.positions.copy()
+    v = np.zeros_like(V)
+    v[vertex, 2] = 1e160
+    c.set_velocities(v)
+    with pytest.raises(SimulationError, match="rolled back"):
+        c.step(1e-3)
+    assert np.array_equal(c.positions, before)
 
 
 def test_stretched_cloth_moving_out_of_plane_stays_calm():

@@ -150,3 +150,23 @@ def test_session_with_collision_resumes_bit_for_bit():
                 CollisionSettings()).restore_state(blob)
     with pytest.raises(ValueError, match="corrupted"):
         again.restore_state(blob[:-5] + b"xxxxx")
+
+
+def test_a_restored_cloth_says_the_material_of_its_snapshot():
+    """restore() replaced the core's material but left ``Cloth.material`` as it was, and
+    set_material(**changes), which starts from it, then put the old material back under the
+    restored state (a denim snapshot restored into a cotton cloth said cotton, and a change of its
+    tear stress made it cotton again)."""
+    V, T = sheet(0.1, 0.1, 6, 6)
+    denim = Cloth(V, T, material("denim"))
+    cotton = Cloth(V, T, material("cotton"))
+    cotton.restore(denim.snapshot())
+    assert cotton.material == material("denim")
+    cotton.set_material(tear_stress=2e7)
+    assert cotton._c.material()["young"] == material("denim").young  # still denim, only the tear stress changed
+    assert cotton.material.tear_stress == 2e7
+    # values no preset has: the core's values under a name that says where they came from
+    denim.set_material(bending=1e-5)
+    cotton.restore(denim.snapshot())
+    assert cotton.material.name == "from snapshot"
+    assert cotton.material.native_kwargs() == cotton._c.material()
