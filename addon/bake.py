@@ -422,6 +422,17 @@ class BakeJob:
                     f"{plan.cache_path}: cannot resume: the simulation state for frame {last} is missing "
                     f"or stale ({os.path.basename(state_path_for(self.writer.path))}); bake again from the start"
                 )
+            if state["frame"] > last + 1:
+                # frames between the last readable one and the state's were damaged (cut short, or
+                # written over): the state cannot go back to them, and a resume would leave a gap
+                # that playback fills by interpolation while the bake says it is complete
+                self.writer.close(complete=False)
+                lost = int(state["frame"]) - 1
+                what = f"frame {lost} is" if lost == last + 1 else f"frames {frame_span(last + 1, lost)} are"
+                raise ValueError(
+                    f"{plan.cache_path}: cannot resume: {what} damaged or missing (the frames up to {last} are intact, "
+                    f"the simulation state is at frame {state['frame']}); bake again from the start"
+                )
             self._state = state
             self.start_frame = int(state["frame"])
         else:

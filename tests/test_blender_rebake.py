@@ -795,3 +795,169 @@ def test_an_object_name_with_a_comma_is_found_by_the_cli(tmp_path):
     got = run_blender(tmp_path, COMMA_NAME, tmp_path)
     assert got["picked"] == ["Sheet, Left"]
     assert "no object named 'Nope'" in got["missing"]
+
+
+COPY_FREE = '''
+    from tearcloth import cache
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    a_dir, b_dir = os.path.join(folder, "A"), os.path.join(folder, "B")
+    os.makedirs(a_dir); os.makedirs(b_dir)
+    obj = build_scene(a_dir, frame_end=4)
+    assert op("bake", obj) == {"FINISHED"}
+    bpy.ops.wm.save_mainfile()
+    first = modifier.cache_path(obj)
+    # Save As into another folder: the copy plays the first file's bake; its Free Bake lets go of it
+    bpy.ops.wm.save_as_mainfile(filepath=os.path.join(b_dir, "copy.blend"))
+    obj = bpy.data.objects["Sheet"]
+    plays_in_copy = modifier.attached_path(obj)
+    r = bake.Reports()
+    freed = bake.free_bake(obj, r)
+    out = dict(first=first, plays_in_copy=plays_in_copy, freed=freed, plays_after=modifier.attached_path(obj),
+               kept=os.path.isfile(first) and cache.cache_info(first)["frames"], messages=r.items)
+    # back in the first file: a Free Bake the system refuses (a file that cannot be deleted) leaves
+    # the object showing its bake and says why, no traceback
+    bpy.ops.wm.open_mainfile(filepath=os.path.join(a_dir, "scene.blend"))
+    import tearcloth
+    obj = bpy.data.objects["Sheet"]
+    real = cache._remove_quietly
+    def refuse(path):
+        raise PermissionError(13, "Permission denied", path)
+    cache._remove_quietly = refuse
+    r = bake.Reports()
+    failed = bake.free_bake(obj, r)
+    cache._remove_quietly = real
+    out.update(failed=failed, plays_after_failed=modifier.attached_path(obj), failed_messages=r.items,
+               kept_after_failed=cache.cache_info(first)["frames"])
+    # and the first file's own Free Bake deletes it
+    r = bake.Reports()
+    out.update(own=bake.free_bake(obj, r), gone=not os.path.exists(first))
+    result(out)
+'''
+
+
+def test_free_bake_in_a_copy_of_the_file_keeps_the_originals_bake(tmp_path):
+    """A .blend saved as a copy (or an object appended from it) plays the first file's bake; Free
+    Bake there deleted that bake, which the first file still plays. Now the copy only lets go of it
+    and says whose it is; the first file's Free Bake deletes it. A Free Bake the system refuses
+    half way (a read-only folder) left the object detached and showed a raw PermissionError: now
+    nothing is deleted that cannot be, the object shows its bake as before, and one line says why."""
+    got = run_blender(tmp_path, COPY_FREE, tmp_path)
+    assert got["plays_in_copy"] == got["first"]
+    assert got["freed"] and got["plays_after"] is None
+    assert got["kept"] == [1, 2, 3, 4]
+    assert any("stays on disk" in m and "scene.blend" in m for _, m in got["messages"]), got["messages"]
+    assert not got["failed"] and got["plays_after_failed"] == got["first"]
+    assert got["kept_after_failed"] == [1, 2, 3, 4]
+    assert any(level == "ERROR" and "could not free" in m and "Permission denied" in m
+               for level, m in got["failed_messages"]), got["failed_messages"]
+    assert got["own"] and got["gone"]
+
+
+FRAMES_READ_ONLY = '''
+    from tearcloth import cache
+    from tearcloth.blender import bake, inputs, modifier
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=4)
+    assert op("bake", obj) == {"FINISHED"}
+    first = modifier.cache_path(obj)
+    before = [cache.read_frame(first, f)[0].tolist() for f in range(1, 5)]
+    # the frames folder refuses new files (as a read-only folder does to a user who is not root)
+    real = inputs.tempfile.TemporaryFile
+    frames = os.path.abspath(cache.frames_dir_for(first))
+    def refuse(*args, dir=None, **kwargs):
+        if dir is not None and os.path.abspath(dir) == frames:
+            raise PermissionError(13, "Permission denied", dir)
+        return real(*args, dir=dir, **kwargs)
+    inputs.tempfile.TemporaryFile = refuse
+    obj.tearcloth.tear_stress = 2e6
+    r = bake.Reports()
+    try:
+        bake.bake_object(bpy.context, obj, reports=r)
+        state = "done"
+    except bake.BakeError as exc:
+        state = "error: " + str(exc)
+    inputs.tempfile.TemporaryFile = real
+    result(dict(state=state, messages=r.items, plays=modifier.attached_path(obj), first=first,
+                kept=[cache.read_frame(first, f)[0].tolist() for f in range(1, 5)] == before))
+'''
+
+
+def test_a_rebake_into_a_frames_folder_that_refuses_files_is_refused_first(tmp_path):
+    """Only the cache's folder was tested for writing: a re-bake whose frames folder refused new
+    files ran the whole simulation, then deleted the old root and failed moving the frames in ('no
+    frame written'), and the object played nothing. Now the frames folder is tried first: the
+    re-bake is refused in one line and the old bake stays, playing."""
+    got = run_blender(tmp_path, FRAMES_READ_ONLY, tmp_path)
+    assert got["state"].startswith("error"), got
+    assert any(level == "ERROR" and "frames folder" in m and "not writable" in m for level, m in got["messages"]), \
+        got["messages"]
+    assert got["plays"] == got["first"] and got["kept"]
+
+
+DAMAGED_MIDDLE = '''
+    from tearcloth import cache
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=6)
+    cut = bake.bake_object(bpy.context, obj, progress=lambda p: p.frame < 4)
+    path = modifier.cache_path(obj)
+    third = os.path.join(cache.frames_dir_for(path), "frame_000003.usdc")
+    with open(third, "rb") as f:
+        data = f.read()
+    with open(third, "wb") as f:
+        f.write(data[:len(data) // 3])  # cut short (a full disk, a copy stopped half way)
+    r = bake.Reports()
+    try:
+        bake.bake_object(bpy.context, obj, resume=True, reports=r)
+        state = "done"
+    except bake.BakeError as exc:
+        state = "error: " + str(exc)
+    info = cache.cache_info(path)
+    result(dict(cut=cut.frames, state=state, frames=info["frames"], complete=info["complete"]))
+'''
+
+
+def test_a_damaged_frame_before_the_resume_state_refuses_the_resume(tmp_path):
+    """A bake stopped after frame 4 whose frame 3 was then cut short: Resume kept frames 1-2,
+    deleted 3, continued from the state at frame 4 and called the bake of frames 1-6 complete,
+    frame 3 missing (stock playback interpolated over it). The state cannot go back to frame 3:
+    the resume is refused, saying which frame, and the cache is not marked complete."""
+    got = run_blender(tmp_path, DAMAGED_MIDDLE, tmp_path)
+    assert got["cut"] == [1, 2, 3, 4]
+    assert got["state"].startswith("error") and "frame 3 is damaged or missing" in got["state"], got["state"]
+    assert "bake again from the start" in got["state"]
+    assert not got["complete"] and 3 not in got["frames"]
+
+
+SHARED_FOLDER = '''
+    from tearcloth import cache
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    shared = os.path.join(folder, "shared_cache")
+    out = {}
+    for name in ("A", "B"):
+        os.makedirs(os.path.join(folder, name))
+        # two separate files of the same name, one absolute cache folder, one object name, one mesh
+        obj = build_scene(os.path.join(folder, name), frame_end=4, tear_stress=5e6 if name == "A" else 2e6)
+        obj.tearcloth.cache_folder = shared
+        assert op("bake", obj) == {"FINISHED"}
+        bpy.ops.wm.save_mainfile()
+        path = modifier.cache_path(obj)
+        out[name] = dict(path=path, plays=modifier.attached_path(obj),
+                         frames=[cache.read_frame(path, f)[0].tolist() for f in range(1, 5)])
+    a = out["A"]["path"]
+    out["A_after"] = [cache.read_frame(a, f)[0].tolist() for f in range(1, 5)]
+    result(out)
+'''
+
+
+def test_two_files_of_one_name_never_share_a_cache_in_one_absolute_folder(tmp_path):
+    """A/scene.blend and B/scene.blend (separate files, an object 'Sheet' with the same mesh in
+    each) with the same absolute cache folder: B's object adopted the id A's cache recorded, baked
+    into A's file and replaced A's frames (A then played B's bake). The id a cache records is now
+    adopted only by its own file; B bakes a file of its own, A's frames stay."""
+    got = run_blender(tmp_path, SHARED_FOLDER, tmp_path)
+    assert got["A"]["path"] != got["B"]["path"]
+    assert got["B"]["plays"] == got["B"]["path"]
+    assert got["A_after"] == got["A"]["frames"]

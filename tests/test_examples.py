@@ -346,6 +346,7 @@ def bad_input_cases(tmp: Path, plain: Path):
         "frames reversed": ([square, "--frames", "30-10"], "must come before"),
         "frames not numbers": ([square, "--frames", "one-ten"], "--frames wants A-B"),
         "frames without a range": ([square, "--frames", "12"], "--frames wants A-B"),
+        "frames beyond Blender's": ([square, "--frames", "1-99999999999999999999"], "beyond Blender's frames"),
         "output is a file": ([square, "--out", a_file], "is a file, not a folder"),
         "output under a file": ([square, "--out", a_file / "sub"], "cannot create the output folder"),
         "output is the input": ([square, "--out", EXAMPLES], "is the input file"),

@@ -477,7 +477,15 @@ def free_bake(obj, reports: Reports) -> bool:
             return False
     attached = modifier.attached_path(obj)
     if attached is not None and os.path.normcase(attached) != os.path.normcase(path):
-        # The object was renamed (or its folder changed) since the bake: free what it plays.
+        # The object was renamed (or its folder changed) since the bake: free what it plays. Unless
+        # that bake is another file's: this file is a copy (Save As) or the object was appended
+        # from it, and the bake still plays there; this object only lets go of it.
+        blend = (cache.owner_of(attached) or {}).get("blend") or ""
+        if blend and os.path.isfile(blend) and not modifier._same_file(blend, bpy.data.filepath or ""):
+            modifier.detach_cache(obj)
+            reports.info(f"{obj.name}: no longer shows the bake at {attached}; it was baked by {blend} and stays "
+                         "on disk (Free Bake in that file deletes it)")
+            return True
         path = attached
     elif os.path.lexists(path):
         try:
@@ -501,12 +509,29 @@ def free_bake(obj, reports: Reports) -> bool:
         delete_state(path)  # a state left alone by a killed bake is no bake
         reports.info(f"{obj.name}: no bake to free (none at {path})")
         return True
-    modifier.detach_cache(obj)
     damaged = cache.damaged_root(path)
+    # Every folder the files leave must take the deletion, tried before anything goes: a read-only
+    # frames folder once let the root go and then stopped with a raw PermissionError, the bake
+    # neither kept nor freed.
+    for folder in (os.path.dirname(path), cache.frames_dir_for(path)):
+        if os.path.isdir(folder) and not os.access(folder, os.W_OK | os.X_OK):
+            reports.error(f"{obj.name}: cannot free the bake at {path}: the folder {folder} is not writable; "
+                          "left untouched")
+            return False
+    prim = modifier.find_modifier(obj).object_path.lstrip("/") if modifier.find_modifier(obj) else ""
+    modifier.detach_cache(obj)  # before the files go: Blender closes them (Windows cannot delete open files)
     try:
         cache.delete_cache(path)
-    except cache.CacheError as exc:
-        reports.error(f"{obj.name}: {exc}; left untouched")
+    except (cache.CacheError, OSError) as exc:
+        # nothing of it deleted (a foreign file) or what the system refused: the object shows
+        # what is left, as before the attempt
+        if os.path.lexists(path) and prim:
+            try:
+                modifier.attach_cache(obj, path, prim)
+            except BakeError:
+                pass
+        reports.error(f"{obj.name}: {exc}; left untouched" if isinstance(exc, cache.CacheError) else
+                      f"{obj.name}: could not free the bake at {path} ({exc.strerror or exc})")
         return False
     delete_state(path)
     reports.info(f"{obj.name}: freed the bake at {path}"

@@ -458,6 +458,19 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
         reports.error(f"{obj.name}: the cache folder {folder} {what} ({exc.strerror or exc}); "
                       "choose another folder")
         return
+    # The frames folder of the bake already there takes the new frames as well (a re-bake moves
+    # them in once complete, after the old root is gone; a resume writes into it): one it refuses
+    # failed only at that last move, after the whole simulation, with the old root deleted.
+    frames = cache.frames_dir_for(path)
+    if os.path.isdir(frames):
+        try:
+            with tempfile.TemporaryFile(dir=frames):
+                pass
+        except OSError as exc:
+            reports.error(f"{obj.name}: the frames folder {frames} of the bake there is not writable "
+                          f"({exc.strerror or exc}); the bake was left as it is: make that folder writable or "
+                          "choose another cache folder")
+            return
     if cache.damaged_root(path):
         # a root cut short (a crash or a full disk while it was rewritten): its frame files are
         # intact, so it is rebuilt from them for this object (whose path it is)

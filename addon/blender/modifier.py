@@ -130,7 +130,17 @@ def claim_id(obj, fingerprint: str | None = None) -> str:
     recorded = _recorded(_plain_path(obj))
     same_mesh = recorded is not None and (not fingerprint or not recorded.get("fingerprint")
                                           or recorded["fingerprint"] == fingerprint)
-    if recorded is not None and recorded["object"] == obj.name and same_mesh:
+    # ... and by this file: another .blend of the same name whose cache folder is the same absolute
+    # one (or any unsaved session: all are "untitled") bakes the same plain path, and adopting its id
+    # made this object bake over that file's frames. A folder beside the .blend ("//...") is this
+    # file's alone, even where it was copied with the file from another that still exists; a bake
+    # recorded for a file that is no longer there is this one's, moved.
+    blend = (recorded or {}).get("blend") or ""
+    typed = cache_folder(obj.tearcloth)
+    beside = typed.startswith("//") or not os.path.isabs(os.path.expanduser(typed))  # "//x", "x", "./x" (_folder)
+    this_file = bool(bpy.data.filepath) and (beside or not blend or _same_file(blend, bpy.data.filepath)
+                                             or not os.path.isfile(blend))
+    if recorded is not None and recorded["object"] == obj.name and same_mesh and this_file:
         theirs = recorded.get("object_id", "")
         shown = current in taken and any(object_id(o) == current for o in players(_plain_path(obj), obj))
         if theirs and ((theirs == current and not shown) or (not current and theirs not in taken)):
