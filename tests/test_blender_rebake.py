@@ -961,3 +961,86 @@ def test_two_files_of_one_name_never_share_a_cache_in_one_absolute_folder(tmp_pa
     assert got["A"]["path"] != got["B"]["path"]
     assert got["B"]["plays"] == got["B"]["path"]
     assert got["A_after"] == got["A"]["frames"]
+
+
+LINKED = '''
+    from tearcloth import cache
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    a_dir, c_dir = os.path.join(folder, "A"), os.path.join(folder, "C")
+    os.makedirs(a_dir); os.makedirs(c_dir)
+    obj = build_scene(a_dir, frame_end=3)
+    assert op("bake", obj) == {"FINISHED"}
+    bpy.ops.wm.save_mainfile()
+    local = build_scene(c_dir, n=12, frame_end=3)  # C's own 'Sheet', baked
+    assert op("bake", local) == {"FINISHED"}
+    bpy.ops.wm.save_mainfile()
+    own = modifier.cache_path(local)
+    before = [cache.read_frame(own, f)[0].tolist() for f in range(1, 4)]
+    local.tearcloth.tear_stress = 1e6  # an edit not baked yet
+    with bpy.data.libraries.load(os.path.join(a_dir, "scene.blend"), link=True) as (src, dst):
+        dst.objects = ["Sheet"]
+    linked = dst.objects[0]
+    bpy.context.scene.collection.objects.link(linked)
+    bpy.context.view_layer.objects.active = linked
+    out = dict(bake=attempt("bake", linked), free=attempt("free_bake", linked))
+    out["own_kept"] = [cache.read_frame(own, f)[0].tolist() for f in range(1, 4)] == before
+    out["own_plays"] = modifier.attached_path(local) == own
+    result(out)
+'''
+
+
+def test_a_linked_object_with_a_local_ones_name_is_refused_not_mistaken(tmp_path):
+    """Bake on an object linked from another file, while this file has a local object of the same
+    name: the add-on finds objects by name, so the local one was re-baked (its bake replaced by one
+    with an edit the user had not baked) and Free Bake talked of the local one. A linked object's
+    bake belongs to its library: Bake and Free Bake refuse it, naming the library, and the local
+    object's bake is untouched."""
+    got = run_blender(tmp_path, LINKED, tmp_path)
+    for key in ("bake", "free"):
+        states, message = got[key]
+        assert states == ["ERROR"] and "is linked from" in message and "scene.blend" in message, got[key]
+    assert got["own_kept"] and got["own_plays"]
+
+
+DAMAGED_OTHERS = '''
+    import mathutils
+    from tearcloth import cache
+    from tearcloth.blender import bake, modifier
+    folder = sys.argv[1]
+    a = build_scene(folder, frame_end=3)
+    assert op("bake", a) == {"FINISHED"}
+    path = modifier.attached_path(a)
+    frames = cache.frames_dir_for(path)
+    before = {name: open(os.path.join(frames, name), "rb").read() for name in sorted(os.listdir(frames))}
+    with open(path, "rb") as f:
+        text = f.read()
+    with open(path, "wb") as f:
+        f.write(text[:len(text) // 2])  # the root cut short
+    a.name = "OldSheet"
+    b = bpy.data.objects.new("Sheet", a.data.copy())  # a newcomer takes the old name
+    bpy.context.scene.collection.objects.link(b)
+    b.data.transform(mathutils.Matrix.Scale(0.5, 4))
+    op("enable", b); b.tearcloth.pin_group = "pins"; b.tearcloth.frame_end = 3
+    out = dict(bake=attempt("bake", b), path=path, a_plays=modifier.attached_path(a))
+    out["frames_kept"] = {name: open(os.path.join(frames, name), "rb").read() for name in sorted(os.listdir(frames))} == before
+    # its owner re-bakes (into its new name's file); then the newcomer may have the old path
+    out["owner"] = attempt("bake", a)
+    out["owner_frames"] = cache.cache_info(modifier.attached_path(a))["frames"]
+    out["newcomer"] = attempt("bake", b)
+    result(out)
+'''
+
+
+def test_a_damaged_root_another_object_plays_is_not_taken_over(tmp_path):
+    """A cache root cut short cannot say whose bake it is (the id that keeps a renamed object's
+    bake from a newcomer of its old name is in it): a new object named as the old one was 'rebuilt'
+    it for itself and baked over the frames the renamed object still played. The one that plays it
+    owns it: the newcomer's bake is refused, naming it, and the frames stay; the owner's bake
+    goes on."""
+    got = run_blender(tmp_path, DAMAGED_OTHERS, tmp_path)
+    states, message = got["bake"]
+    assert states == ["ERROR"] and "is damaged" in message and "'OldSheet'" in message, got["bake"]
+    assert got["frames_kept"] and got["a_plays"] == got["path"]
+    assert got["owner"][0] == ["FINISHED"] and got["owner_frames"] == [1, 2, 3]
+    assert got["newcomer"][0] == ["FINISHED"], got["newcomer"]

@@ -28,7 +28,7 @@ from ..bake import BakeJob, Progress, delete_state, frame_span, start_worker
 from ..cloth import ClothError
 from . import jobs, modifier
 from .inputs import build_plan, gather_inputs
-from .report import BakeError, Reports, log, user_culprits, user_geometry_message
+from .report import BakeError, Reports, linked_from, log, user_culprits, user_geometry_message
 
 # Frames gathered ahead of the worker: enough to keep it busy between two ticks, few enough that
 # collider meshes in the queue stay small.
@@ -69,6 +69,9 @@ class BakeRun:
         self._last_preview = 0.0
         self._previewed = None
         self.abandoned = False  # stopped by a file load: the data it knew is gone
+        if obj is not None and linked_from(obj):
+            self.reports.error(linked_from(obj))
+            self.reports.raise_if_errors()
         if obj is not None and obj.name in jobs.bakes:
             self.reports.error(f"{obj.name}: a bake of this object is already running")
             self.reports.raise_if_errors()
@@ -462,6 +465,9 @@ def free_bake(obj, reports: Reports) -> bool:
     """Delete the object's cache (root, frames, resume state) and let the modifier show the rest
     mesh again; while other objects still show the same bake (a duplicate and its original),
     only this one lets go of it. False (with an error report) if it cannot."""
+    if linked_from(obj):
+        reports.error(linked_from(obj))
+        return False
     if obj.name in jobs.bakes:
         reports.error(f"{obj.name}: cannot free while its bake is running; cancel it first (Esc)")
         return False

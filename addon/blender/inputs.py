@@ -473,7 +473,16 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
             return
     if cache.damaged_root(path):
         # a root cut short (a crash or a full disk while it was rewritten): its frame files are
-        # intact, so it is rebuilt from them for this object (whose path it is)
+        # intact, so it is rebuilt from them for this object (whose path it is) - unless another
+        # object plays it: the damaged root cannot say whose bake it was (the id that keeps a
+        # renamed object's bake from a newcomer of its name is in it), and the one that plays it
+        # is its owner
+        others = modifier.players(path, obj)
+        if others:
+            names = ", ".join(repr(o.name) for o in others)
+            reports.error(f"{obj.name}: the cache root {path} is damaged (cut short) and belongs to {names}, which "
+                          f"plays it: bake {names} again (or Free Bake it) first; nothing was changed")
+            return
         try:
             frames = cache.repair_root(path, obj.name, owner={"object_id": modifier.object_id(obj),
                                                               "blend": bpy.data.filepath})

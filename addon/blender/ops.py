@@ -22,7 +22,7 @@ from .. import settings as table
 from .. import spaces
 from ..materials import MATERIALS
 from . import bake, convert, fray, haptic_session, jobs, modifier
-from .report import BakeError, Reports, not_a_mesh
+from .report import BakeError, Reports, linked_from, not_a_mesh
 
 CLUSTER_ATTRIBUTE = "tearcloth_clusters"
 
@@ -230,9 +230,10 @@ class TEARCLOTH_OT_bake(_BakeModal, Operator):
 
     def object_names(self, context):
         obj = context.object
-        if obj is None or obj.type != "MESH":
+        why = "select the mesh to tear" if obj is None else not_a_mesh(obj) if obj.type != "MESH" else linked_from(obj)
+        if why:
             reports = Reports()
-            reports.error("select the mesh to tear" if obj is None else not_a_mesh(obj))
+            reports.error(why)
             reports.to_operator(self)
             return []
         return [obj.name]
@@ -245,11 +246,15 @@ class TEARCLOTH_OT_bake_all(_BakeModal, Operator):
     bl_label = "Bake All"
 
     def object_names(self, context):
-        names = [o.name for o in context.scene.objects if o.type == "MESH" and modifier.is_enabled(o)]
-        if not names:
-            reports = Reports()
+        objects = [o for o in context.scene.objects if o.type == "MESH" and modifier.is_enabled(o)]
+        reports = Reports()
+        for o in objects:
+            if linked_from(o):
+                reports.warning(f"skipped: {linked_from(o)}")
+        names = [o.name for o in objects if not linked_from(o)]
+        if not objects:
             reports.warning("no object in the scene has Tear Cloth enabled")
-            reports.to_operator(self)
+        reports.to_operator(self)
         return names
 
 

@@ -76,6 +76,17 @@ def not_a_mesh(obj) -> str:
     return f"{obj.name!r} is {object_kind(obj.type)}, not a mesh: Tear Cloth works on mesh objects"
 
 
+def linked_from(obj) -> str | None:
+    """Why Tear Cloth cannot bake or free a linked object (None for a local one): its data is the
+    library's, read-only here, and a local object may have the same name (the add-on finds objects
+    by name: the bake went to the local one, replacing its bake)."""
+    lib = getattr(obj, "library", None)
+    if lib is None:
+        return None
+    return (f"{obj.name!r} is linked from {lib.filepath}: its bake is made and freed in that file "
+            "(or make it local here: Object > Relations > Make Local)")
+
+
 # ---------------------------------------------------------------------------------------------
 # The solver's element indices in the user's terms
 
