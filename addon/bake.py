@@ -90,6 +90,7 @@ class BakePlan:
     uv_name: str = "st"             # the cache's UV primvar: the user's UV map name (a USD identifier)
     object_id: str = ""             # the object's persistent id (cache identity; see cache.OWNER_KEYS)
     blend: str = ""                 # the .blend the bake is made in
+    source: str = ""                # the input `tearcloth bake --out` copied into the .blend ('' for others)
     # The user's polygon of each triangle and vertex of each vertex (messages name those)
     triangle_polygons: np.ndarray | None = None         # (m,)
     vertex_ids: np.ndarray | None = None                # (n,)
@@ -125,7 +126,8 @@ class BakePlan:
     @property
     def owner(self) -> dict:
         """The owner fields the cache records (``cache.OWNER_KEYS``)."""
-        return {"object_id": self.object_id, "blend": self.blend, "settings": self.settings_fingerprint}
+        return {"object_id": self.object_id, "blend": self.blend, "settings": self.settings_fingerprint,
+                "source": self.source}
 
     @property
     def state_path(self) -> str:

@@ -130,7 +130,7 @@ _VARYING = {
 # object_id: a persistent id of the Blender object (a custom property; survives renames, differs
 # between an object and a new one given its old name); blend: the .blend the bake was made in;
 # settings: a fingerprint of the simulation settings (a partial bake resumes only with the same).
-OWNER_KEYS = ("object_id", "blend", "settings")
+OWNER_KEYS = ("object_id", "blend", "settings", "source")
 
 
 class CacheError(Exception):
@@ -1149,6 +1149,12 @@ class CacheWriter:
         if theirs_set and ours_set and theirs_set != ours_set:
             raise CacheOwnerError(f"{self.path}: cannot resume, the simulation settings changed since the "
                                   "interrupted bake")
+        theirs_src, ours_src = info["owner"].get("source"), self.owner.get("source")
+        if theirs_src and ours_src and os.path.normcase(theirs_src) != os.path.normcase(ours_src):
+            # two files baked into one output (tearcloth bake --out): the settings and the mesh may
+            # agree while the animation does not
+            raise CacheOwnerError(f"{self.path}: cannot resume, the interrupted bake was made from {theirs_src}, "
+                                  f"not {ours_src}")
         if self.fingerprint is not None and info["fingerprint"] and info["fingerprint"] != self.fingerprint:
             raise CacheOwnerError(f"{self.path}: cannot resume, the cache was baked for a different mesh")
         self.fingerprint = self.fingerprint or info["fingerprint"] or None

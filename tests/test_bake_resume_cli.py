@@ -203,3 +203,31 @@ def test_a_signal_while_the_blend_is_saved_lets_the_save_finish(tmp_path):
     assert (out / "square_cloth.blend").exists()
     info = cache.cache_info(root(out))
     assert info["complete"] and info["frames"] == [1, 2, 3]
+
+
+def test_another_input_baked_into_the_same_output_never_resumes_the_first_ones_bake(tmp_path, uninterrupted):
+    """Two shot files of one name (A/square_cloth.blend, B/square_cloth.blend) baked with the
+    same --out: A stopped by SIGTERM, then B. B's copy replaced A's in --out, and B resumed A's
+    partial bake (the mesh and settings agree; the animation need not: 37 of 40 frames mixed in a
+    probe). The cache now records the input it was made from: B's run says it cannot resume A's
+    bake, bakes from the start, and ends as a bake of B alone."""
+    out = tmp_path / "out"
+    inputs = {}
+    for name in ("A", "B"):
+        (tmp_path / name).mkdir()
+        inputs[name] = tmp_path / name / SQUARE.name
+        shutil.copy(SQUARE, inputs[name])
+    cmd = lambda src: [sys.executable, "-m", "tearcloth.cli", "bake", str(src), "--out", str(out), "--frames", FRAMES]
+    stopped = signal_at(cmd(inputs["A"]), out, "square_cloth/SquareCloth_frames/frame_000005.usdc", signal.SIGTERM)
+    assert stopped.returncode == 143, stopped.stderr[-3000:]
+    again = subprocess.run(cmd(inputs["B"]), capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "cannot be resumed" in again.stderr and f"made from {inputs['A'].resolve()}" in again.stderr, \
+        again.stderr[-3000:]
+    assert "resuming" not in again.stderr
+    info = cache.cache_info(root(out))
+    assert info["complete"] and info["frames"] == list(range(1, 15))
+    assert info["owner"]["source"] == str(inputs["B"].resolve())
+    baked = frames_of(root(out))
+    for f, (positions, triangles, uv) in uninterrupted.items():  # B is a copy of the square: its own bake
+        assert np.array_equal(baked[f][1], triangles) and np.array_equal(baked[f][0], positions), f"frame {f}"

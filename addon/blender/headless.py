@@ -33,6 +33,7 @@ from .. import cache
 from ..bake import ProgressLine, frame_span
 from . import modifier, register
 from .bake import BakeRun
+from .inputs import SOURCE_PROPERTY
 from .report import BakeError, Reports
 
 PROG = "tearcloth bake"
@@ -135,6 +136,13 @@ def bake_file(plan, progress: ProgressLine | None = None, on_event=None) -> dict
             names = _pick_objects(plan)
             if plan.render is not None and scene.camera is None:
                 raise InputError(f"scene {scene.name!r} of {plan.source.name} has no camera to --render from")
+            for each in bpy.data.scenes:
+                # the copy's bakes record which input they were made from (inputs.SOURCE_PROPERTY):
+                # two inputs baked into one --out never resume each other's partial bake
+                if plan.output != plan.source:
+                    each[SOURCE_PROPERTY] = str(Path(plan.source).resolve())
+                elif SOURCE_PROPERTY in each:
+                    del each[SOURCE_PROPERTY]
             if plan.output != plan.source:
                 # a fresh copy needs no backup (.blend1) of the copy saved a minute earlier; with
                 # --overwrite Blender's own setting stays, so the input keeps its usual backup

@@ -29,6 +29,11 @@ from .report import BakeError, Reports, not_a_mesh, object_kind
 
 log = logging.getLogger("tearcloth")
 
+# The scene's custom property in which `tearcloth bake --out` notes the file it copied (headless.py):
+# the bakes of the copy record it as their source, so another input copied to the same output
+# never resumes this one's partial bake
+SOURCE_PROPERTY = "tearcloth_source"
+
 
 @dataclass
 class Sources:
@@ -367,6 +372,9 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         uv_name=uv_name,
         object_id=modifier.object_id(obj),
         blend=bpy.data.filepath,
+        # a copy that `tearcloth bake --out` made names the file it was copied from (headless.py);
+        # only such copies record one: a .blend moved with its cache resumes its bakes
+        source=str(context.scene.get(SOURCE_PROPERTY, "")),
         triangle_polygons=mesh.polygons,
         vertex_ids=mesh.kept,
         renumbered_by=tuple(mesh.renumbered_by),
