@@ -395,7 +395,7 @@ def test_bad_inputs_are_reported_and_the_scene_is_intact(tmp_path):
     _one(out["lone"], "WARNING", "handle 1 ('hand') follows no object", "holds its vertices where they are")
     _one(out["lone"], "WARNING", "1 loose vertex", "left out of the simulation and of the baked mesh")
 
-    _one(out["renamed_resume"], "ERROR", "renamed since its bake")
+    _one(out["renamed_resume"], "ERROR", "was baked under the name")
     assert out["renamed_free"]["state"] == ["FINISHED"] and out["renamed_freed"]
 
     d = out["deleted"]

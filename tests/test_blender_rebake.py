@@ -811,9 +811,11 @@ COPY_FREE = '''
     bpy.ops.wm.save_as_mainfile(filepath=os.path.join(b_dir, "copy.blend"))
     obj = bpy.data.objects["Sheet"]
     plays_in_copy = modifier.attached_path(obj)
+    resume_in_copy = attempt("bake", obj, resume=True)  # (said: this file is a copy, not "renamed")
     r = bake.Reports()
     freed = bake.free_bake(obj, r)
-    out = dict(first=first, plays_in_copy=plays_in_copy, freed=freed, plays_after=modifier.attached_path(obj),
+    out = dict(first=first, plays_in_copy=plays_in_copy, resume_in_copy=resume_in_copy, freed=freed,
+               plays_after=modifier.attached_path(obj),
                kept=os.path.isfile(first) and cache.cache_info(first)["frames"], messages=r.items)
     # back in the first file: a Free Bake the system refuses (a file that cannot be deleted) leaves
     # the object showing its bake and says why, no traceback
@@ -844,6 +846,8 @@ def test_free_bake_in_a_copy_of_the_file_keeps_the_originals_bake(tmp_path):
     nothing is deleted that cannot be, the object shows its bake as before, and one line says why."""
     got = run_blender(tmp_path, COPY_FREE, tmp_path)
     assert got["plays_in_copy"] == got["first"]
+    states, message = got["resume_in_copy"]
+    assert states == ["ERROR"] and "was baked by" in message and "this file is a copy of it" in message, message
     assert got["freed"] and got["plays_after"] is None
     assert got["kept"] == [1, 2, 3, 4]
     assert any("stays on disk" in m and "scene.blend" in m for _, m in got["messages"]), got["messages"]

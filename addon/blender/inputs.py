@@ -513,8 +513,18 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
         if not os.path.exists(path):
             attached = modifier.attached_path(obj)
             if attached is not None and os.path.exists(attached):
-                reports.error(f"{obj.name}: the object was renamed since its bake (its modifier plays {attached}); "
-                              "a bake cannot be resumed under another name: bake again, or free the old bake")
+                # its bake is at another path: made under another name, or by another file (this one
+                # saved as a copy, or the object appended from it), or into another cache folder
+                recorded = cache.owner_of(attached) or {}
+                blend = recorded.get("blend") or ""
+                if blend and not modifier._same_file(blend, bpy.data.filepath or ""):
+                    why = f"it was baked by {blend} (this file is a copy of it, or the object came from it)"
+                elif recorded.get("object") and recorded["object"] != obj.name:
+                    why = f"it was baked under the name {recorded['object']!r}"
+                else:
+                    why = "it was baked into another cache folder"
+                reports.error(f"{obj.name}: the bake its modifier plays is at {attached}, not at {path}: {why}; "
+                              "a bake is resumed only where it was made: bake again, or free the old bake")
             else:
                 reports.error(f"{obj.name}: there is no bake to resume at {path}")
             return
