@@ -434,6 +434,8 @@ class Cloth:
         contact_directions_merged (directions of a vertex's contact normals left free because two
         of its contacts were nearly parallel or opposite, a squeeze: they share the others),
         contact_speed_clamps (vertex contact solves bounded to the speed their contacts ask),
+        contact_pushes_capped (contacts deeper than one sub-step recovers: their push out held to
+        contact_max_push, the rest recovered over the next sub-steps),
         friction_slips (held vertices whose static friction would have exceeded mu times the
         normal reaction: they slid), friction_sticks (sliding vertices whose slip stopped or turned
         past a right angle: held from the next sub-step), friction_cone_exceeded (held vertices still outside the Coulomb cone when the

@@ -555,6 +555,11 @@ void tc_constraints_begin(tc_cloth *c, double dt, double alpha)
     memset(tc_vec_ptr(&c->cactive), 1, c->cvert.len);
     carry_in(c);
     tc_contact_basis(c, dt);
+    {
+        const double *cd = tc_vec_ptr(&c->cdepth);
+        for (size_t k = 0; k < c->cvert.len; k++)
+            c->stats.contact_pushes_capped += c->solver.contact_correction * cd[k] / dt > c->solver.contact_max_push;
+    }
     const double *g = c->vgoal.len ? tc_vec_ptr(&c->vgoal) : NULL, *g0 = tc_vec_ptr(&c->vgoal0);
     for (int32_t i = 0; i < n; i++)
         if (pin[i]) {

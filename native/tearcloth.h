@@ -244,6 +244,9 @@ typedef struct tc_stats {
                                  block Jacobi) any sub-step of the last step had */
     int64_t stiff_group_failures; /* so far: stiff groups whose factor failed (round-off): their
                                  vertices kept their own 3x3 blocks */
+    int64_t contact_pushes_capped; /* so far: contacts (per sub-step) deeper than one sub-step recovers:
+                                      contact_correction x depth / dt passed contact_max_push and the push
+                                      out was held to it (the rest is recovered over the next sub-steps) */
 } tc_stats;
 /* the smallest tc_stats a snapshot may carry: the layout before contact_directions_merged (older
  * states read with the counters after it at 0; snapshot.c) */

@@ -389,3 +389,19 @@ def test_stretched_cloth_moving_out_of_plane_stays_calm():
         c.step(1e-3)
         worst = max(worst, np.linalg.norm(c.velocities, axis=1).max())
     assert worst < 1.0, f"fastest vertex {worst:.2f} m/s while the hands move at {speed} m/s"
+
+
+def test_a_contact_deeper_than_one_step_recovers_is_counted():
+    """A contact's push out is contact_correction x depth / dt, held to contact_max_push: a contact
+    deeper than that (a body that starts inside the cloth) is recovered over several sub-steps.
+    The hold was silent; contact_pushes_capped counts it, once per contact and sub-step."""
+    V, T = sheet(0.1, 0.1, 6, 6)
+    c = make(V, T)
+    c.set_solver(gravity=(0, 0, 0), contact_correction=0.2, contact_max_push=0.1)
+    c.set_contacts([0, 1], [[0, 0, 1], [0, 0, 1]], [1e-5, 0.01])  # 0.002 m/s and 2 m/s asked
+    c.step(1e-3)
+    assert c.stats()["contact_pushes_capped"] == 1
+    c.set_contacts([0, 1], [[0, 0, 1], [0, 0, 1]], [1e-5, 0.01])
+    c.step(1e-3, substeps=2)
+    assert c.stats()["contact_pushes_capped"] == 3
+    assert c.positions[1, 2] - V[1, 2] <= 0.1 * 2e-3 * (1 + 1e-9) + 1e-12  # at most the capped speed over 2 ms
