@@ -207,6 +207,8 @@ class Progress:
         self.fragments_removed = 0
         self.fragment_triangles_removed = 0
         self.start_triangles = 0
+        self.start_area = 0.0             # m^2, the rest area of the mesh the bake began with
+        self.fragment_area_removed = 0.0  # m^2, the rest area the removed pieces took away
         self.min_fragment_area = 0.0
         self._clock = clock
         self.started = clock()
@@ -317,11 +319,13 @@ class Progress:
             return None
         text = (f"{n} small piece{'s' if n != 1 else ''} set free by tears ({m} triangle{'s' if m != 1 else ''}) "
                 f"removed, each below Min Fragment ({self.min_fragment_area * 1e4:.3g} cm^2)")
-        heavy = self.start_triangles > 0 and m >= 0.25 * self.start_triangles
+        # decided on the area, not the triangle count: a fan of slivers (an n-gon's triangulation)
+        # can shed hundreds of triangles and a fraction of a percent of the cloth
+        share = self.fragment_area_removed / self.start_area if self.start_area > 0 else 0.0
+        heavy = share >= 0.25
+        text += f", {100 * share:.2g} % of the cloth's area" if self.start_area > 0 else ""
         if heavy:
-            # a count, not a percentage: tears add triangles, so the removed ones can outnumber the start
-            text += (f", against {self.start_triangles} triangles the cloth started with: the cloth is small "
-                     "against Min Fragment; lower it (0 keeps every piece)")
+            text += ": the cloth is small against Min Fragment; lower it (0 keeps every piece)"
         return text, heavy
 
     def convergence_text(self) -> str | None:
@@ -334,6 +338,16 @@ class Progress:
         return (f"{n} sub-step{'s' if n != 1 else ''} in {self.unconverged_steps} step"
                 f"{'s' if self.unconverged_steps != 1 else ''} stopped at the CG iteration cap{cap} even after "
                 "splitting: the motion there is less accurate; raise CG Iterations")
+
+
+def _rest_area(vertices, triangles) -> float:
+    """Total area (m^2) of triangles (m, 3) over vertices (n, 3) m."""
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.asarray(triangles)
+    if not len(t):
+        return 0.0
+    e1, e2 = v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]
+    return float(0.5 * np.linalg.norm(np.cross(e1, e2), axis=1).sum())
 
 
 def frame_span(first: int, last: int) -> str:
@@ -483,6 +497,7 @@ class BakeJob:
         self._tracker = self._attribute_tracker()
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
         self.progress.start_triangles = len(plan.triangles)
+        self.progress.start_area = _rest_area(plan.vertices, plan.triangles)
         self.progress.min_fragment_area = float(plan.tearing.get("min_fragment_area", 0.0))
         if self.on_event is not None:
             session.add_step_listener(self._stepped)
@@ -602,6 +617,10 @@ class BakeJob:
         self.progress.frame_done(inputs.frame)
         self.progress.tears = tears
         self.progress.vertices = cloth.num_vertices
+        if int(st["fragments_removed"]) != self.progress.fragments_removed:
+            # tears keep the rest area (splits only divide it): what is gone from it went with the pieces
+            self.progress.fragment_area_removed = max(
+                0.0, self.progress.start_area - _rest_area(cloth.rest_positions, cloth.triangles))
         self.progress.fragments_removed = int(st["fragments_removed"])
         self.progress.fragment_triangles_removed = int(st["fragment_triangles_removed"])
         if self.on_event is not None:

@@ -143,15 +143,20 @@ def test_progress_line_prints_every_tenth_to_a_pipe():
     assert both.startswith("2 solves fell back") and both.endswith("1 collision step ran the self-collision sweep on "
                                                                     "the baking thread because the system would not "
                                                                     "start another (its thread limit): same result, slower")
-    # removed small pieces: said at the end; a warning once they took a quarter of the cloth
+    # removed small pieces: said at the end; a warning once they took a quarter of the cloth's area
     assert p.fragment_text() is None
     p.fragments_removed, p.fragment_triangles_removed, p.start_triangles, p.min_fragment_area = 2, 3, 100, 1e-4
+    p.start_area, p.fragment_area_removed = 0.25, 0.0005
     assert p.fragment_text() == ("2 small pieces set free by tears (3 triangles) removed, each below Min Fragment "
-                                 "(1 cm^2)", False)
-    p.fragment_triangles_removed = 25
+                                 "(1 cm^2), 0.2 % of the cloth's area", False)
+    # many triangles, little area (an n-gon's fan of slivers shed 222 of 510 triangles, 0.18 % of the
+    # disc, and was told the cloth was small against Min Fragment): no warning
+    p.fragment_triangles_removed = 60
+    assert not p.fragment_text()[1]
+    p.fragment_area_removed = 0.0625
     text, warn = p.fragment_text()
-    assert warn and text.endswith("(25 triangles) removed, each below Min Fragment (1 cm^2), against 100 triangles the "
-                                  "cloth started with: the cloth is small against Min Fragment; lower it (0 keeps every piece)")
+    assert warn and text.endswith("(60 triangles) removed, each below Min Fragment (1 cm^2), 25 % of the cloth's area: "
+                                  "the cloth is small against Min Fragment; lower it (0 keeps every piece)")
     assert [duration(s) for s in (None, float("inf"), 42.4, 187, 3900)] == ["?", "?", "42 s", "3 min 07 s",
                                                                            "1 h 05 min"]
 

@@ -4,6 +4,7 @@ twice, keeping every piece and removing those under 50 cm^2, the USD frames read
 speck in the first bake and never in the second, whose mesh is the first one's less the speck."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -81,6 +82,9 @@ def test_a_bake_drops_a_freed_speck_from_the_cache(tmp_path):
     assert logs["keep"] == []
     assert len(logs["drop"]) == 1 and logs["drop"][0].startswith("Sheet: ")
     assert "removed, each below Min Fragment (50 cm^2)" in logs["drop"][0], logs["drop"]
+    # and how much of the cloth that was, by area (the rest area the removed pieces took away)
+    share = re.search(r"Min Fragment \(50 cm\^2\), ([0-9.e+-]+) % of the cloth's area", logs["drop"][0])
+    assert share and 0 < float(share.group(1)) < 25, logs["drop"]
 
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "example_blends" / "banknote.blend"

@@ -1048,3 +1048,86 @@ def test_a_damaged_root_another_object_plays_is_not_taken_over(tmp_path):
     assert got["frames_kept"] and got["a_plays"] == got["path"]
     assert got["owner"][0] == ["FINISHED"] and got["owner_frames"] == [1, 2, 3]
     assert got["newcomer"][0] == ["FINISHED"], got["newcomer"]
+
+
+NAN_AND_LOOSE_HANDLE = '''
+    from tearcloth.blender import bake
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=3)
+    out = {}
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.vertices.foreach_get("co", co)
+    stray = co.copy()
+    stray[3 * 25 + 2] = np.inf  # a script's stray value (RNA's co setter would clamp it to 3.4e38)
+    obj.data.vertices.foreach_set("co", stray)
+    obj.data.update()
+    out["inf"] = attempt("bake", obj)
+    obj.data.vertices.foreach_set("co", co)
+    obj.data.update()
+    # the handle's group holds two loose vertices only (a hand added beside the sheet)
+    import bmesh
+    bm = bmesh.new(); bm.from_mesh(obj.data)
+    extra = [bm.verts.new((0.9, 0.0, 0.5)), bm.verts.new((0.95, 0.0, 0.5))]
+    bm.to_mesh(obj.data); bm.free()
+    group = obj.vertex_groups.new(name="loose_hand")
+    group.add([len(obj.data.vertices) - 2, len(obj.data.vertices) - 1], 1.0, "REPLACE")
+    obj.tearcloth.handles[0].vertex_group = "loose_hand"
+    out["loose_hand"] = attempt("bake", obj)
+    # the handle grasps the pinned corners: it moves them (said), the pins do not hold them
+    obj.tearcloth.handles[0].vertex_group = "pins"
+    r = bake.Reports()
+    bake.bake_object(bpy.context, obj, reports=r)
+    out["pinned_handle"] = r.items
+    result(out)
+'''
+
+
+def test_a_non_finite_position_and_a_handle_of_loose_vertices_are_said_plainly(tmp_path):
+    """A NaN or infinite vertex position was said as 'vertex group '.tearcloth:rest:x': vertex 25
+    has a non-finite weight' (an internal group, a coordinate called a weight, the wrong axis), with
+    numpy's matmul warning beside it; a handle group holding only loose vertices was said to have
+    'no vertex with weight 0.5 or more' though both had weight 1; a handle that grasps pinned
+    vertices moved them with nothing said."""
+    got = run_blender(tmp_path, NAN_AND_LOOSE_HANDLE, tmp_path)
+    states, message = got["inf"]
+    assert states == ["ERROR"] and "vertex 25 has a non-finite position" in message and "inf" in message, message
+    assert ".tearcloth" not in message and "weight" not in message and "matmul" not in message
+    states, message = got["loose_hand"]
+    assert states == ["ERROR"] and "'loose_hand' holds only loose vertices" in message, message
+    assert any(level == "WARNING" and "pinned vertices are also in handle 1's group 'pins'" in m
+               and "the pin does not hold" in m for level, m in got["pinned_handle"]), got["pinned_handle"]
+
+
+SEAM = '''
+    from tearcloth.blender import bake
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=2)
+    out = {}
+    r = bake.Reports()
+    bake.bake_object(bpy.context, obj, reports=r)
+    out["welded"] = r.items
+    # the sheet cut down its middle column into two islands whose rims coincide (a seam not merged)
+    import bmesh
+    bm = bmesh.new(); bm.from_mesh(obj.data)
+    bm.verts.ensure_lookup_table()
+    xs = sorted({round(v.co.x, 6) for v in bm.verts})
+    mid = xs[len(xs) // 2]
+    middle = [e for e in bm.edges if all(abs(v.co.x - mid) < 1e-6 for v in e.verts)]
+    bmesh.ops.split_edges(bm, edges=middle)
+    bm.to_mesh(obj.data); bm.free()
+    r = bake.Reports()
+    bake.bake_object(bpy.context, obj, reports=r)
+    out["split"] = r.items
+    result(out)
+'''
+
+
+def test_a_seam_left_unmerged_is_said(tmp_path):
+    """Two islands whose open edges coincide (a garment's seam, or a Mirror's middle, not merged)
+    are separate pieces to the solver: the seam opened by half a metre with '0 tears' and nothing
+    said. The bake now warns, with the count, and says how to sew it; a welded sheet says nothing."""
+    got = run_blender(tmp_path, SEAM, tmp_path)
+    assert not any("open edges" in m for _, m in got["welded"]), got["welded"]
+    said = [m for level, m in got["split"] if level == "WARNING" and "open edges sit exactly where" in m]
+    assert len(said) == 1 and "Merge by Distance" in said[0], got["split"]
+    assert int(said[0].split(": ")[1].split()[0]) > 0

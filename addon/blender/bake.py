@@ -487,7 +487,7 @@ def free_bake(obj, reports: Reports) -> bool:
         # that bake is another file's: this file is a copy (Save As) or the object was appended
         # from it, and the bake still plays there; this object only lets go of it.
         blend = (cache.owner_of(attached) or {}).get("blend") or ""
-        if blend and os.path.isfile(blend) and not modifier._same_file(blend, bpy.data.filepath or ""):
+        if blend and os.path.isfile(blend) and not modifier.same_file(blend, bpy.data.filepath or ""):
             modifier.detach_cache(obj)
             reports.info(f"{obj.name}: no longer shows the bake at {attached}; it was baked by {blend} and stays "
                          "on disk (Free Bake in that file deletes it)")
@@ -524,7 +524,8 @@ def free_bake(obj, reports: Reports) -> bool:
             reports.error(f"{obj.name}: cannot free the bake at {path}: the folder {folder} is not writable; "
                           "left untouched")
             return False
-    prim = modifier.find_modifier(obj).object_path.lstrip("/") if modifier.find_modifier(obj) else ""
+    md = modifier.find_modifier(obj)
+    prim = md.object_path.lstrip("/") if md is not None else ""
     modifier.detach_cache(obj)  # before the files go: Blender closes them (Windows cannot delete open files)
     try:
         cache.delete_cache(path)

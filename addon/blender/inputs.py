@@ -283,6 +283,22 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     if len(mesh.triangles) == 0:
         reports.error(f"{obj.name}: the mesh has no faces to simulate")
         reports.raise_if_errors()
+    bad = np.flatnonzero(~np.isfinite(mesh.vertices).all(axis=1))
+    if bad.size:
+        # (a script's NaN or inf): said here, before it reached the rest shape as a "weight" of an
+        # internal group, with numpy's matmul warning beside it
+        first = int(mesh.kept[bad[0]])
+        whose = f" (as numbered by {', '.join(mesh.renumbered_by)} above Tear Cloth)" if mesh.renumbered_by else ""
+        reports.error(f"{obj.name}: vertex {first}{whose} has a non-finite position "
+                      f"({', '.join(f'{v:g}' for v in mesh.vertices[bad[0]])})"
+                      + (f", and {bad.size - 1} more" if bad.size > 1 else ""))
+        reports.raise_if_errors()
+    seam = _unsewn_seam_vertices(mesh.vertices, mesh.triangles)
+    if seam:
+        reports.warning(f"{obj.name}: {seam} vertices on open edges sit exactly where other open-edge vertices are "
+                        "(a seam or a mirror half not merged): the cloth is separate pieces there and comes apart "
+                        "without tearing; if it is a seam, Mesh > Clean Up > Merge by Distance (or the modifier's "
+                        "Merge) sews it")
     fingerprint = cache.mesh_fingerprint(mesh.vertices * scale, mesh.triangles)
 
     # The cache location once the mesh is known (its fingerprint guards the object's identity).
@@ -320,14 +336,27 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
         if soft and not float(settings.pin_stiffness) > 0:
             reports.warning(f"{obj.name}: Pin Stiffness is 0, so the {soft} vertices of pin group "
                             f"{settings.pin_group!r} with a weight below 1 are not pinned at all; only weight 1 holds")
+    def grasps_nothing(group) -> str:
+        # the group as read holds only the vertices in faces: one whose members are all loose was
+        # said to have no weight 0.5 or more
+        if mesh.loose and any(g.name == group for g in obj.vertex_groups):
+            index = obj.vertex_groups[group].index
+            if any(g.group == index and g.weight >= 0.5 for v in obj.data.vertices for g in v.groups):
+                return f"vertex group {group!r} holds only loose vertices (in no face), so it grasps nothing"
+        return f"vertex group {group!r} has no vertex with weight 0.5 or more, so it grasps nothing"
+
     for i, h in handles:
         if not np.any(mesh.groups[h.vertex_group] >= 0.5):
-            reports.error(f"{obj.name}: handle {i + 1}: vertex group {h.vertex_group!r} has no vertex with "
-                          "weight 0.5 or more, so it grasps nothing")
+            reports.error(f"{obj.name}: handle {i + 1}: {grasps_nothing(h.vertex_group)}")
+        elif settings.pin_group:
+            both = int(np.count_nonzero((mesh.groups[h.vertex_group] >= 0.5) & (mesh.groups[settings.pin_group] > 0)))
+            if both:  # the handle's grasp wins in the solver: said, as it moves what the user pinned
+                reports.warning(f"{obj.name}: {both} pinned {'vertices are' if both != 1 else 'vertex is'} also in "
+                                f"handle {i + 1}'s group {h.vertex_group!r}: the handle moves "
+                                f"{'them' if both != 1 else 'it'}, the pin does not hold")
     for hand, group in hand_groups.items():
         if not np.any(mesh.groups[group] >= 0.5):
-            reports.error(f"{obj.name}: the {hand} hand's vertex group {group!r} has no vertex with weight 0.5 or "
-                          "more, so it grasps nothing")
+            reports.error(f"{obj.name}: the {hand} hand's {grasps_nothing(group)}")
     depsgraph = context.evaluated_depsgraph_get()
     body_triangles = {}
     for other in colliders:
@@ -444,6 +473,25 @@ def _carried_attributes(obj, mesh, uv_name: str, reports: Reports) -> list:
     return carried
 
 
+def _unsewn_seam_vertices(vertices, triangles) -> int:
+    """How many vertices on open edges (edges of one triangle) coincide with another such vertex:
+    a garment's seam or a Mirror's middle left unmerged, which the solver takes as separate pieces.
+    Coincident to 1e-6 of the mesh's size (split seams are exact copies)."""
+    t = np.asarray(triangles, dtype=np.int64)
+    v = np.asarray(vertices, dtype=np.float64)
+    if not len(t):
+        return 0
+    e = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    edges, count = np.unique(e, axis=0, return_counts=True)
+    rim = np.unique(edges[count == 1])
+    if len(rim) < 2:
+        return 0
+    size = float(np.ptp(v, axis=0).max()) or 1.0
+    cells = np.round(v[rim] / (1e-6 * size)).astype(np.int64)
+    _, inverse, counts = np.unique(cells, axis=0, return_inverse=True, return_counts=True)
+    return int(np.count_nonzero(counts[inverse.reshape(-1)] > 1))
+
+
 def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> None:
     folder = os.path.dirname(path)
     if os.path.exists(folder) and not os.path.isdir(folder):
@@ -517,7 +565,7 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
                 # saved as a copy, or the object appended from it), or into another cache folder
                 recorded = cache.owner_of(attached) or {}
                 blend = recorded.get("blend") or ""
-                if blend and not modifier._same_file(blend, bpy.data.filepath or ""):
+                if blend and not modifier.same_file(blend, bpy.data.filepath or ""):
                     why = f"it was baked by {blend} (this file is a copy of it, or the object came from it)"
                 elif recorded.get("object") and recorded["object"] != obj.name:
                     why = f"it was baked under the name {recorded['object']!r}"

@@ -138,7 +138,7 @@ def claim_id(obj, fingerprint: str | None = None) -> str:
     blend = (recorded or {}).get("blend") or ""
     typed = cache_folder(obj.tearcloth)
     beside = typed.startswith("//") or not os.path.isabs(os.path.expanduser(typed))  # "//x", "x", "./x" (_folder)
-    this_file = bool(bpy.data.filepath) and (beside or not blend or _same_file(blend, bpy.data.filepath)
+    this_file = bool(bpy.data.filepath) and (beside or not blend or same_file(blend, bpy.data.filepath)
                                              or not os.path.isfile(blend))
     if recorded is not None and recorded["object"] == obj.name and same_mesh and this_file:
         theirs = recorded.get("object_id", "")
@@ -200,7 +200,8 @@ def stored_path(path: str) -> str:
     return path
 
 
-def _same_file(a: str, b: str) -> bool:
+def same_file(a: str, b: str) -> bool:
+    """Whether two paths (a may be Blender-relative, '//...') name one file."""
     return os.path.normcase(os.path.abspath(bpy.path.abspath(a))) == os.path.normcase(os.path.abspath(b))
 
 
@@ -231,8 +232,8 @@ def attach_cache(obj, path: str, prim_name: str) -> None:
     if md is None:
         raise BakeError(f"{obj.name!r} has no {MODIFIER_NAME!r} modifier; enable Tear Cloth again")
     cache_file = md.cache_file
-    if cache_file is None or not _same_file(cache_file.filepath, path):
-        cache_file = next((cf for cf in bpy.data.cache_files if _same_file(cf.filepath, path)), None)
+    if cache_file is None or not same_file(cache_file.filepath, path):
+        cache_file = next((cf for cf in bpy.data.cache_files if same_file(cf.filepath, path)), None)
     if cache_file is None:
         # There is no bpy.data.cache_files.new(); the operator is how a cache file is added.
         before = set(bpy.data.cache_files)
