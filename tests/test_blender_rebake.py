@@ -230,9 +230,20 @@ MESSAGES = '''
     obj.tearcloth.cache_folder = os.path.join(folder, "cache")
     obj.tearcloth.frame_end = 2
     mesh.vertices[v(2, 2)].co = mesh.vertices[v(2, 1)].co  # the edge between 10 and 11 collapses
+    # everything selected, as a new primitive is
+    import bmesh
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode="EDIT"); bpy.ops.mesh.select_all(action="SELECT"); bpy.ops.object.mode_set(mode="OBJECT")
     state, message = attempt("bake", obj)
-    result(dict(state=state, message=message, polygons=[p.index for p in mesh.polygons if p.select],
-                vertices=[x.index for x in mesh.vertices if x.select], corners=list(mesh.polygons[4].vertices)))
+    out = dict(state=state, message=message, polygons=[p.index for p in mesh.polygons if p.select],
+               vertices=[x.index for x in mesh.vertices if x.select], corners=list(mesh.polygons[4].vertices))
+    # what the user sees on Tab: the culprit alone, its edges included (all stayed selected before)
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(mesh)
+    out["edit"] = [sum(x.select for x in seq) for seq in (bm.verts, bm.edges, bm.faces)]
+    out["edit_edges"] = sorted(sorted(x.index for x in e.verts) for e in bm.edges if e.select)
+    bpy.ops.object.mode_set(mode="OBJECT")
+    result(out)
 '''
 
 
@@ -245,6 +256,9 @@ def test_geometry_messages_name_the_users_polygons_and_vertices(tmp_path):
     assert "10" in message and "11" in message and "triangle" not in message, message
     # the core hands the elements over as data (.triangles, .vertices), mapped and selected
     assert got["polygons"] == [4] and got["vertices"] == sorted(got["corners"]), got
+    corners = got["corners"]
+    quad_edges = sorted(sorted((corners[k], corners[(k + 1) % 4])) for k in range(4))
+    assert got["edit"][0] == 4 and got["edit"][2] == 1 and got["edit_edges"] == quad_edges, got
 
 
 def test_a_message_worded_otherwise_still_names_the_users_elements():

@@ -222,6 +222,14 @@ class BakeRun:
             if 0 <= p < len(me.polygons):
                 for v in me.polygons[p].vertices:
                     me.vertices[v].select = True
+        # the edges' selection as a whole: without it Edit Mode makes it again from the vertices (the
+        # culprits' edges); kept, it showed every edge of a mesh selected before as still selected
+        edges = me.attributes.get(".select_edge")
+        if edges is not None:
+            try:
+                me.attributes.remove(edges)
+            except RuntimeError:  # a Blender that will not: the vertices and polygons are still right
+                pass
         me.update()
         self.reports.info(f"{self.object_name}: selected " + ", ".join(
             ([f"polygon{'s' if len(polys) > 1 else ''} {', '.join(map(str, polys))}"] if polys else [])
