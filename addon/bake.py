@@ -561,8 +561,11 @@ class BakeJob:
             except SimulationError as exc:
                 # a re-bake's frames are dropped with it (its caller says the previous bake stays)
                 kept = "" if self.replacing else "frames before are kept. "
+                # the core's advice is in its own terms (time step, sub-steps); the artist's are
+                # steps per frame, said once below
+                detail = str(exc).replace(" Reduce the time step or raise sub-steps.", "").rstrip(".")
                 raise SimulationError(
-                    f"the simulation blew up between frames {inputs.frame - 1} and {inputs.frame} ({exc}); "
+                    f"the simulation blew up between frames {inputs.frame - 1} and {inputs.frame} ({detail}); "
                     f"{kept}Try more steps per frame or a gentler pull"
                 ) from None
             self.progress.step_seconds += time.perf_counter() - start

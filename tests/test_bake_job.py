@@ -11,7 +11,7 @@ import pytest
 from meshes import sheet
 from tearcloth import cli
 from tearcloth.bake import BakeJob, BakePlan, FrameInputs, Progress, ProgressLine, duration, make_session
-from tearcloth.cloth import Cloth
+from tearcloth.cloth import Cloth, SimulationError
 from tearcloth.materials import material
 from tearcloth.session import Session
 
@@ -452,3 +452,26 @@ def test_unmerged_vertices_at_one_place_follow_their_own_motion():
     source.add(moved, 1.0)
     pinned = np.array([4, 9])
     np.testing.assert_array_equal(source.goals(pinned, v[pinned], 1.0), moved[pinned])
+
+
+def test_a_blown_up_bake_gives_one_piece_of_advice_in_the_artists_terms(tmp_path):
+    """The core's rollback message advises 'Reduce the time step or raise sub-steps.'; the bake
+    added 'Try more steps per frame or a gentler pull' after it: two wordings of one advice. The
+    bake keeps the core's diagnosis and gives the advice once, in the panel's terms."""
+    plan = plan_for(tmp_path)
+    plan.solver["max_stretch"] = 1.5
+
+    def far(frame: int, plan: BakePlan) -> FrameInputs:  # the handle jumps 1 m a frame
+        follow = np.eye(4)
+        follow[0, 3] = 1.0 * (frame - plan.frame_start)
+        return FrameInputs(frame, np.eye(4), [follow], {})
+
+    job = BakeJob(plan)
+    job.begin(far(plan.frame_start, plan))
+    with pytest.raises(SimulationError) as info:
+        while not job.done:
+            job.advance(far(job.next_frame, plan))
+    message = str(info.value)
+    assert "blew up between frames" in message and "exploding strain" in message, message
+    assert "Reduce the time step" not in message and message.count("Try more steps per frame") == 1, message
+    assert ".)" not in message, message

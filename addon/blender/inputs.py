@@ -517,13 +517,13 @@ def _check_cache_location(obj, path: str, resume: bool, reports: Reports) -> Non
     # The frames folder of the bake already there takes the new frames as well (a re-bake moves
     # them in once complete, after the old root is gone; a resume writes into it): one it refuses
     # failed only at that last move, after the whole simulation, with the old root deleted.
-    frames = cache.frames_dir_for(path)
-    if os.path.isdir(frames):
+    frames_dir = cache.frames_dir_for(path)
+    if os.path.isdir(frames_dir):
         try:
-            with tempfile.TemporaryFile(dir=frames):
+            with tempfile.TemporaryFile(dir=frames_dir):
                 pass
         except OSError as exc:
-            reports.error(f"{obj.name}: the frames folder {frames} of the bake there is not writable "
+            reports.error(f"{obj.name}: the frames folder {frames_dir} of the bake there is not writable "
                           f"({exc.strerror or exc}); the bake was left as it is: make that folder writable or "
                           "choose another cache folder")
             return
