@@ -1040,7 +1040,8 @@ DAMAGED_OTHERS = '''
     bpy.context.scene.collection.objects.link(b)
     b.data.transform(mathutils.Matrix.Scale(0.5, 4))
     op("enable", b); b.tearcloth.pin_group = "pins"; b.tearcloth.frame_end = 3
-    out = dict(bake=attempt("bake", b), path=path, a_plays=modifier.attached_path(a))
+    out = dict(bake=attempt("bake", b), path=path, a_plays=modifier.attached_path(a),
+               b_id=modifier.object_id(b))  # a refused first bake gives the object no id
     out["frames_kept"] = {name: open(os.path.join(frames, name), "rb").read() for name in sorted(os.listdir(frames))} == before
     # its owner re-bakes (into its new name's file); then the newcomer may have the old path
     out["owner"] = attempt("bake", a)
@@ -1060,6 +1061,7 @@ def test_a_damaged_root_another_object_plays_is_not_taken_over(tmp_path):
     states, message = got["bake"]
     assert states == ["ERROR"] and "is damaged" in message and "'OldSheet'" in message, got["bake"]
     assert got["frames_kept"] and got["a_plays"] == got["path"]
+    assert got["b_id"] == ""  # the refused attempt left the newcomer as it was
     assert got["owner"][0] == ["FINISHED"] and got["owner_frames"] == [1, 2, 3]
     assert got["newcomer"][0] == ["FINISHED"], got["newcomer"]
 

@@ -79,6 +79,9 @@ class BakeRun:
             self.reports.error(f"{obj.name}: a live haptic session is running on this object; stop it first (Esc)")
             self.reports.raise_if_errors()
         self.created_folders: list = []  # cache folders this attempt made (removed again if it fails)
+        # the persistent id the plan may give the object (its first bake): a refused attempt takes
+        # it back, so a failure leaves the object as it was
+        id_before = modifier.object_id(obj) if obj is not None and obj.type == "MESH" else None
         try:
             # The rest state is the scene at the first frame (object matrix, modifiers above).
             if obj is not None and obj.type == "MESH":
@@ -115,6 +118,11 @@ class BakeRun:
         except BaseException:
             if scene.frame_current != self.original_frame:
                 scene.frame_set(self.original_frame)
+            if id_before is not None and modifier.object_id(obj) != id_before:
+                if id_before:
+                    obj[modifier.ID_PROPERTY] = id_before
+                elif modifier.ID_PROPERTY in obj:
+                    del obj[modifier.ID_PROPERTY]
             raise
 
     def _report_warnings(self, caught) -> None:
