@@ -657,6 +657,7 @@ class BakeJob:
             os.replace(staged_state, self.plan.state_path)
         else:
             _remove_quietly(self.plan.state_path)
+        _remove_state_temps(staged_state)
         self.writer.promote()
 
     def close(self, complete: bool | None = None) -> None:
@@ -762,9 +763,22 @@ def save_state_file(path: str, frame: int, plan: BakePlan, session: Session, tea
         data["grain_angles"] = np.array(cloth.grain_angles)  # per triangle, carried through tears by the core
     folder, name = os.path.split(path)
     tmp = os.path.join(folder, f".tmp-{os.getpid()}-{name}")
+    _remove_state_temps(path)  # a killed run's half-written one (SIGKILL while it was written)
     with open(tmp, "wb") as f:
         np.savez(f, **data)
     os.replace(tmp, path)  # atomic: a crash leaves the old state or the new one, never half
+
+
+def _remove_state_temps(path: str) -> None:
+    """Delete the temporaries of the state file ``path`` that runs killed while writing it left."""
+    folder, name = os.path.split(path)
+    try:
+        names = os.listdir(folder)
+    except OSError:
+        return
+    for other in names:
+        if other.startswith(".tmp-") and other.endswith("-" + name):
+            _remove_quietly(os.path.join(folder, other))
 
 
 def load_state(path: str) -> dict | None:
@@ -788,6 +802,7 @@ def load_state(path: str) -> dict | None:
 
 def delete_state(cache_path: str) -> None:
     _remove_quietly(state_path_for(cache_path))
+    _remove_state_temps(state_path_for(cache_path))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -105,6 +105,10 @@ def test_resume_continues_where_the_first_run_stopped(tmp_path):
     (tmp_path / "parts").mkdir()
     first = plan_for(tmp_path / "parts", (1, 2))
     bake(first)
+    # a run killed while it wrote its state (SIGKILL between the temporary's write and its rename)
+    # leaves the temporary: the resumed bake clears it (a fresh-clone CI run found one left)
+    killed_temp = tmp_path / "parts" / ".tmp-99999-Sheet.state.npz"
+    killed_temp.write_bytes(b"half a state")
     rest = plan_for(tmp_path / "parts", (1, 4))
     rest.resume = True
     resumed = BakeJob(rest)
@@ -114,6 +118,7 @@ def test_resume_continues_where_the_first_run_stopped(tmp_path):
         resumed.advance(inputs(resumed.next_frame, rest))
     resumed.close()
     assert resumed.writer.frames == [1, 2, 3, 4]
+    assert not killed_temp.exists()
     for name in ("positions", "velocities", "triangles", "rest_positions"):
         assert np.array_equal(getattr(straight.session.cloth, name), getattr(resumed.session.cloth, name)), name
     assert straight.session.time == resumed.session.time
