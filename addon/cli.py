@@ -66,8 +66,6 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 EXIT_TERMINATED = 143  # 128 + SIGTERM, the shells' convention
 CACHE_SUBFOLDER = "tearcloth_cache"
 # a re-bake replaces the previous bake only once complete (tearcloth.bake.BakeJob)
-# the largest frame number a Blender scene takes (MAXFRAME in DNA_scene_types.h)
-BLENDER_MAX_FRAME = 1048574
 PREVIOUS_KEPT = "its new frames dropped, the previous bake kept as it was"
 
 # First bytes of a .blend: plain, zstd-compressed (Blender 3.0+) or gzip-compressed (older).
@@ -200,10 +198,10 @@ def parse_frames(text: str | None) -> tuple[int, int] | None:
     a, b = int(m.group(1)), int(m.group(2))
     if a >= b:
         raise UsageError(f"--frames {text}: the first frame ({a}) must come before the last ({b})")
-    for f in (a, b):  # Blender's own bound (MAXFRAME): beyond it the scene cannot be set to the frame
-        if abs(f) > BLENDER_MAX_FRAME:
-            raise UsageError(f"--frames {text}: frame {f} is beyond Blender's frames (-{BLENDER_MAX_FRAME} to "
-                             f"{BLENDER_MAX_FRAME})")
+    frames = settings.setting("cache", "frame_start").hard  # Blender's frame range (settings.py)
+    for f in (a, b):  # beyond it the scene cannot be set to the frame
+        if not frames.contains(f):
+            raise UsageError(f"--frames {text}: frame {f} is beyond Blender's frames ({frames.lo:.0f} to {frames.hi:.0f})")
     return a, b
 
 

@@ -69,8 +69,9 @@ class BakeRun:
         self._last_preview = 0.0
         self._previewed = None
         self.abandoned = False  # stopped by a file load: the data it knew is gone
-        if obj is not None and linked_from(obj):
-            self.reports.error(linked_from(obj))
+        linked = linked_from(obj) if obj is not None else None
+        if linked:
+            self.reports.error(linked)
             self.reports.raise_if_errors()
         if obj is not None and obj.name in jobs.bakes:
             self.reports.error(f"{obj.name}: a bake of this object is already running")
@@ -481,8 +482,9 @@ def free_bake(obj, reports: Reports) -> bool:
     """Delete the object's cache (root, frames, resume state) and let the modifier show the rest
     mesh again; while other objects still show the same bake (a duplicate and its original),
     only this one lets go of it. False (with an error report) if it cannot."""
-    if linked_from(obj):
-        reports.error(linked_from(obj))
+    linked = linked_from(obj)
+    if linked:
+        reports.error(linked)
         return False
     if obj.name in jobs.bakes:
         reports.error(f"{obj.name}: cannot free while its bake is running; cancel it first (Esc)")
@@ -502,8 +504,8 @@ def free_bake(obj, reports: Reports) -> bool:
         # The object was renamed (or its folder changed) since the bake: free what it plays. Unless
         # that bake is another file's: this file is a copy (Save As) or the object was appended
         # from it, and the bake still plays there; this object only lets go of it.
-        blend = (cache.owner_of(attached) or {}).get("blend") or ""
-        if blend and os.path.isfile(blend) and not modifier.same_file(blend, bpy.data.filepath or ""):
+        blend = modifier.baked_by_another_file(cache.owner_of(attached))
+        if blend:
             modifier.detach_cache(obj)
             reports.info(f"{obj.name}: no longer shows the bake at {attached}; it was baked by {blend} and stays "
                          "on disk (Free Bake in that file deletes it)")

@@ -136,11 +136,12 @@ def bake_file(plan, progress: ProgressLine | None = None, on_event=None) -> dict
             names = _pick_objects(plan)
             if plan.render is not None and scene.camera is None:
                 raise InputError(f"scene {scene.name!r} of {plan.source.name} has no camera to --render from")
+            # the copy's bakes record which input they were made from (inputs.SOURCE_PROPERTY): two
+            # inputs baked into one --out never resume each other's partial bake
+            source = str(Path(plan.source).resolve()) if plan.output != plan.source else None
             for each in bpy.data.scenes:
-                # the copy's bakes record which input they were made from (inputs.SOURCE_PROPERTY):
-                # two inputs baked into one --out never resume each other's partial bake
-                if plan.output != plan.source:
-                    each[SOURCE_PROPERTY] = str(Path(plan.source).resolve())
+                if source is not None:
+                    each[SOURCE_PROPERTY] = source
                 elif SOURCE_PROPERTY in each:
                     del each[SOURCE_PROPERTY]
             if plan.output != plan.source:

@@ -339,8 +339,9 @@ def build_plan(context, obj, frame_start=None, frame_end=None, resume=False,
     def grasps_nothing(group) -> str:
         # the group as read holds only the vertices in faces: one whose members are all loose was
         # said to have no weight 0.5 or more
-        if mesh.loose and any(g.name == group for g in obj.vertex_groups):
-            index = obj.vertex_groups[group].index
+        found = obj.vertex_groups.get(group) if mesh.loose else None
+        if found is not None:
+            index = found.index
             if any(g.group == index and g.weight >= 0.5 for v in obj.data.vertices for g in v.groups):
                 return f"vertex group {group!r} holds only loose vertices (in no face), so it grasps nothing"
         return f"vertex group {group!r} has no vertex with weight 0.5 or more, so it grasps nothing"

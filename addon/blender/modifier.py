@@ -135,11 +135,9 @@ def claim_id(obj, fingerprint: str | None = None) -> str:
     # made this object bake over that file's frames. A folder beside the .blend ("//...") is this
     # file's alone, even where it was copied with the file from another that still exists; a bake
     # recorded for a file that is no longer there is this one's, moved.
-    blend = (recorded or {}).get("blend") or ""
     typed = cache_folder(obj.tearcloth)
     beside = typed.startswith("//") or not os.path.isabs(os.path.expanduser(typed))  # "//x", "x", "./x" (_folder)
-    this_file = bool(bpy.data.filepath) and (beside or not blend or same_file(blend, bpy.data.filepath)
-                                             or not os.path.isfile(blend))
+    this_file = bool(bpy.data.filepath) and (beside or not baked_by_another_file(recorded))
     if recorded is not None and recorded["object"] == obj.name and same_mesh and this_file:
         theirs = recorded.get("object_id", "")
         shown = current in taken and any(object_id(o) == current for o in players(_plain_path(obj), obj))
@@ -198,6 +196,13 @@ def stored_path(path: str) -> str:
         except ValueError:  # another drive on Windows
             return path
     return path
+
+
+def baked_by_another_file(recorded: dict | None) -> str:
+    """The .blend a cache's owner record names when it is another file that still exists (this
+    file a copy of it, or the object appended from it), else ''."""
+    blend = (recorded or {}).get("blend") or ""
+    return blend if blend and os.path.isfile(blend) and not same_file(blend, bpy.data.filepath or "") else ""
 
 
 def same_file(a: str, b: str) -> bool:

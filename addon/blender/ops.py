@@ -248,10 +248,13 @@ class TEARCLOTH_OT_bake_all(_BakeModal, Operator):
     def object_names(self, context):
         objects = [o for o in context.scene.objects if o.type == "MESH" and modifier.is_enabled(o)]
         reports = Reports()
+        names = []
         for o in objects:
-            if linked_from(o):
-                reports.warning(f"skipped: {linked_from(o)}")
-        names = [o.name for o in objects if not linked_from(o)]
+            linked = linked_from(o)
+            if linked:
+                reports.warning(f"skipped: {linked}")
+            else:
+                names.append(o.name)
         if not objects:
             reports.warning("no object in the scene has Tear Cloth enabled")
         reports.to_operator(self)
