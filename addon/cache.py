@@ -219,6 +219,17 @@ def _fsync_path(path: str) -> None:
         os.close(fd)
 
 
+def _temp_of(name: str, base: str) -> bool:
+    """Whether ``name`` is a temporary a killed run left while writing the root ``base``: ours
+    (``.tmp-<pid>-<base>``), or the one USD's own export writes it through (the extension
+    replaced by a random suffix: ``.tmp-<pid>-<stem>.XXXXXX``; a fresh-clone CI run's SIGKILL
+    re-bake left one)."""
+    if not name.startswith(_TMP_PREFIX):
+        return False
+    rest = name[len(_TMP_PREFIX):].partition("-")[2]
+    return rest == base or rest.startswith(os.path.splitext(base)[0] + ".")
+
+
 def _export_atomic(layer, final_path: str, durable: bool) -> int:
     """Write ``layer`` to ``final_path`` via a temporary name + ``os.replace``; returns its size.
 
@@ -636,7 +647,7 @@ def _remove_cache_files(path: str) -> None:
     _remove_quietly(path)
     folder, base = os.path.split(path)
     for name in os.listdir(folder) if os.path.isdir(folder) else ():
-        if name.startswith(_TMP_PREFIX) and name.endswith("-" + base):
+        if _temp_of(name, base):
             _remove_quietly(os.path.join(folder, name))
     frames_dir = frames_dir_for(path)
     if os.path.isdir(frames_dir):
@@ -1194,7 +1205,7 @@ class CacheWriter:
                 _remove_quietly(os.path.join(self.frames_dir, name))
         folder, base = os.path.split(self.path)
         for name in os.listdir(folder):
-            if name.startswith(_TMP_PREFIX) and name.endswith("-" + base):
+            if _temp_of(name, base):
                 _remove_quietly(os.path.join(folder, name))
 
         self._frames = kept

@@ -494,8 +494,16 @@ def test_delete_cache_removes_root_and_frames_only(tmp_path):
     frames_dir = cache.frames_dir_for(path)
     keep = tmp_path / "notes.txt"
     keep.write_text("mine")
+    # what a run killed while it rewrote the root leaves: our temporary, and the one USD's own
+    # export writes it through (the extension replaced by a random suffix)
+    temps = [tmp_path / ".tmp-7990-c.usda", tmp_path / ".tmp-7990-c.1W06ry"]
+    for t in temps:
+        t.write_text("half a root")
+    other = tmp_path / ".tmp-7990-d.1W06ry"  # another cache's
+    other.write_text("not ours")
     cache.delete_cache(path)
     assert not os.path.exists(path) and not os.path.exists(frames_dir) and keep.read_text() == "mine"
+    assert not any(t.exists() for t in temps) and other.exists()
     cache.delete_cache(path)  # nothing left: no error
 
     # a frames folder with the user's own files in it is emptied of ours but kept
