@@ -187,6 +187,9 @@ class Progress:
         # solves so far whose multigrid or Gauss-Seidel preconditioner could not be had (out of
         # memory, a broken-down cycle) and block Jacobi took over: same answer, slower, said at the end
         self.preconditioner_fallbacks = 0
+        # sub-steps whose triangles still turned past the core's bar after one re-solve about
+        # their turned frames (stats' rotations_capped, so far): said at the end (rotation_text)
+        self.rotations_capped = 0
         # collision steps whose swept stage ran on the baking thread because the system would not
         # start its own (the detector's count): same contacts, slower, said at the end
         self.swept_thread_fallbacks = 0
@@ -327,6 +330,17 @@ class Progress:
         if heavy:
             text += ": the cloth is small against Min Fragment; lower it (0 keeps every piece)"
         return text, heavy
+
+    def rotation_text(self) -> str | None:
+        """The sentence for the end of a bake when some sub-steps turned too fast for one re-solve
+        about their turned frames (None when none did): there the stresses read high."""
+        n = self.rotations_capped
+        if not n:
+            return None
+        of = f" of {self.steps} steps" if self.steps else ""
+        return (f"{n} sub-step{'s' if n != 1 else ''}{of} turned faster than one re-solve follows (the cloth "
+                "swung, fell or spun through a large angle in one sub-step): stresses there read high and may "
+                "start tears early; raise Steps per Frame")
 
     def convergence_text(self) -> str | None:
         """The sentence for the end of a bake when some solves stopped at the iteration cap even
@@ -575,6 +589,7 @@ class BakeJob:
                 self.progress.unconverged_steps += 1
         st = session.cloth.stats()
         self.progress.preconditioner_fallbacks = int(st["amg_fallbacks"]) + int(st["sgs_fallbacks"])
+        self.progress.rotations_capped = int(st["rotations_capped"])
         if session.detector is not None:
             self.progress.swept_thread_fallbacks = int(session.detector.stats.get("swept_thread_fallbacks", 0))
         self.progress.stiff_groups = max(self.progress.stiff_groups, int(st["stiff_groups"]))

@@ -120,6 +120,7 @@ void tc_pin_springs_add(tc_cloth *c, double dt, double alpha, double *b)
         double *d = D + 12 * (size_t)i;
         const double a = dt * dt * ks[i];
         d[0] += a; d[5] += a; d[10] += a;
+        if (!b) continue;  /* the matrix's part alone (a matrix assembled again: step.c) */
         for (int q = 0; q < 3; q++) {
             const size_t o = 3 * (size_t)i + (size_t)q;
             b[o] += dt * ks[i] * (g0[o] + alpha * (g[o] - g0[o]) - x[o]);

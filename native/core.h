@@ -359,6 +359,12 @@ void tc_bending_force(const tc_cloth *c, const double *x, double *f);
 /* force := the element pass's elastic part (in force) + gravity + bending at x */
 void tc_total_force(tc_cloth *c, const double *x);
 int tc_assemble(tc_cloth *c, double dt);  /* TC_ERR_NOMEM if the rows could not grow */
+/* Newton on the rotations (step.c): each triangle's frame turned to its polar rotation at x + dt v,
+ * into rot, and the change of the linearized elastic force at x that this makes, into dg (3 nv);
+ * returns the triangles left in their frame (collapsed at either end) */
+int32_t tc_turn_pass(tc_cloth *c, const double *x, const double *v, double dt, double *dg);
+/* an estimate of |dg|^2 that tc_turn_pass would give, from v alone (no frame is turned) */
+double tc_turn_estimate(const tc_cloth *c, const double *v, double dt);
 /* tc_element_pass at x and tc_assemble for a sub-step of dt in one pass over the triangles; the
  * largest stretch in *worst */
 int tc_element_assemble(tc_cloth *c, const double *x, double dt, double *worst);

@@ -172,6 +172,156 @@ TC_INLINE double element_pass_reference(tc_cloth *c, const double *x, const bool
     return isfinite(worst2) ? sqrt(worst2) : NAN;
 }
 
+/* The elastic force of one triangle linearized about its state at x0 turned into the frame R (the
+ * rest of the step's linearization: the stress stays sigma0, the stiffness R K0 R^T plus the
+ * geometric part of sigma0's tensile part sp), evaluated at x0:
+ *   g(R) = -w R sigma(sym(R^T F0) - I) g_a + w (R S0 - F0) sp g_a
+ * (the first term is the frozen-rotation force about R at x0, exact for the material part, which
+ * is linear in x once R is fixed; the second, the geometric stiffness times x_e - x0, where x_e is
+ * x0 turned into R: its deformation gradient R S0). g(R0) is the element pass's force at x0. The
+ * two columns of the 3x2 matrix M with f_a = -w M g_a (a = 1, 2; f_0 = -f_1 - f_2) into m. */
+TC_INLINE void turned_force(const double R[6], const double F0[3], const double F1[3], const double S0[3],
+                            const double sp[3], const double Q[4], double lambda, double mu, bool general,
+                            double cs, double sn, const double *pl, double m[6])
+{
+    const double m00 = dot3(R, F0), m01 = dot3(R, F1), m10 = dot3(R + 3, F0), m11 = dot3(R + 3, F1);
+    const double eps[3] = {m00 - 1.0, m11 - 1.0, 0.5 * (m01 + m10)};
+    double sxx, syy, sxy;
+    if (!general) {
+        const double tr = eps[0] + eps[1];
+        sxx = lambda * tr + 2.0 * mu * eps[0]; syy = lambda * tr + 2.0 * mu * eps[1]; sxy = 2.0 * mu * eps[2];
+    } else {
+        ortho_stress(Q, cs, sn, pl, eps, &sxx, &syy, &sxy);
+    }
+    for (int k = 0; k < 3; k++) {
+        /* (R S0 - F0) sp, by columns */
+        const double e0 = R[k] * S0[0] + R[3 + k] * S0[1] - F0[k], e1 = R[k] * S0[1] + R[3 + k] * S0[2] - F1[k];
+        m[k] = R[k] * sxx + R[3 + k] * sxy - (e0 * sp[0] + e1 * sp[1]);
+        m[3 + k] = R[k] * sxy + R[3 + k] * syy - (e0 * sp[1] + e1 * sp[2]);
+    }
+}
+
+/* The tensile part of the stress s (xx, yy, xy) into sp (xx, xy, yy): what the geometric
+ * stiffness takes (assemble_reference says why; the batches compute the same in lanes) */
+static void tensile_part(const double *s, double sp[3])
+{
+    const double a = s[0], d = s[1], b = s[2];
+    const double m = 0.5 * (a + d), q = sqrt(0.25 * (a - d) * (a - d) + b * b);
+    const double l1 = m + q, l2 = m - q;
+    sp[0] = sp[1] = sp[2] = 0.0;
+    if (l2 >= 0.0) { sp[0] = a; sp[1] = b; sp[2] = d; }
+    else if (l1 > 0.0) {
+        /* eigenvector of l1 */
+        double ex = l1 - d, ey = b, fx = b, fy = l1 - a;
+        if (ex * ex + ey * ey < fx * fx + fy * fy) { ex = fx; ey = fy; }
+        const double el = sqrt(ex * ex + ey * ey);
+        if (el > 0) { ex /= el; ey /= el; sp[0] = l1 * ex * ex; sp[1] = l1 * ex * ey; sp[2] = l1 * ey * ey; }
+    }
+}
+
+/* What tc_turn_pass would find, estimated from the velocity gradients alone (step.c skips the
+ * pass, ~140 ns a triangle, where this says it could not pass the bar): a triangle whose vertices'
+ * motion over the sub-step has gradient L = dt grad v reads a strain of at most about |L|^2 / 2
+ * through its frozen frame (a turn by theta: 1 - cos theta ~ theta^2 / 2 of the plane's stretch),
+ * a stress of E_eff times that, and its compression turns by about |L| with it (the tensile part
+ * is in the tangent, the compressed not). Each triangle's force change bounded by w |g| times
+ * those; squared and summed, times TC_TURN_VALENCE for the triangles that share a vertex. */
+double tc_turn_estimate(const tc_cloth *c, const double *v, double dt)
+{
+    double lambda, mu, Q[4];
+    lame(&c->mat, &lambda, &mu);
+    tc_ortho_moduli(&c->mat, Q);
+    const double stiff = tc_material_general(&c->mat) ? fmax(Q[0], Q[1]) + fabs(Q[2]) : lambda + 2.0 * mu;
+    const double h = c->mat.thickness;
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area), *sig = tc_vec_ptr(&c->sig);
+    double sum = 0.0;
+    for (int32_t t = 0; t < c->nt; t++) {
+        const int32_t i0 = T[3 * t], i1 = T[3 * t + 1], i2 = T[3 * t + 2];
+        const double *g = G + 4 * t, *sg = sig + 3 * t;
+        double l2 = 0.0;
+        for (int k = 0; k < 3; k++) {
+            const double d1 = v[3 * i1 + k] - v[3 * i0 + k], d2 = v[3 * i2 + k] - v[3 * i0 + k];
+            const double a = d1 * g[0] + d2 * g[2], b = d1 * g[1] + d2 * g[3];
+            l2 += a * a + b * b;
+        }
+        l2 *= dt * dt;
+        const double m = 0.5 * (sg[0] + sg[1]), q = sqrt(0.25 * (sg[0] - sg[1]) * (sg[0] - sg[1]) + sg[2] * sg[2]);
+        const double compressed = fmax(0.0, q - m);  /* minus the smaller principal stress, when negative */
+        const double g2 = g[0] * g[0] + g[1] * g[1] + g[2] * g[2] + g[3] * g[3] +
+                          (g[0] + g[2]) * (g[0] + g[2]) + (g[1] + g[3]) * (g[1] + g[3]);
+        const double e = A[t] * h * (0.5 * stiff * l2 + compressed * sqrt(l2));
+        sum += e * e * g2;
+    }
+    return TC_TURN_VALENCE * sum;
+}
+
+/* Newton on the rotations (step.c): each triangle's frame turned from the one the system was
+ * linearized about (rot) to the polar rotation of its deformation gradient at x + dt v, and the
+ * change g(R_new) - g(R_old) of its linearized force at x (turned_force) summed into dg. The
+ * stress (sig) stays x's: only the frame turns. Triangles left in their frame: collapsed at either
+ * end (no rotation to follow), or turning by more than 60 degrees in one sub-step (TC_TURN_MAX_COS) (a frame
+ * that far off is no better a point to linearize about than the one it had); returns their count. */
+int32_t tc_turn_pass(tc_cloth *c, const double *x, const double *v, double dt, double *dg)
+{
+    double lambda, mu, Q[4];
+    lame(&c->mat, &lambda, &mu);
+    tc_ortho_moduli(&c->mat, Q);
+    const bool general = tc_material_general(&c->mat), plastic = c->mat.plastic;
+    const double *AX = tc_vec_ptr(&c->taxis), *PL = tc_vec_ptr(&c->tplast);
+    const double h = c->mat.thickness;
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    const double *G = tc_vec_ptr(&c->grad), *A = tc_vec_ptr(&c->area), *sig = tc_vec_ptr(&c->sig);
+    double *Rall = tc_vec_ptr(&c->rot);
+    int32_t kept = 0;
+    memset(dg, 0, 3 * (size_t)c->nv * sizeof *dg);
+    for (int32_t t = 0; t < c->nt; t++) {
+        const int32_t i0 = T[3 * t], i1 = T[3 * t + 1], i2 = T[3 * t + 2];
+        const double *g = G + 4 * t;
+        double F0[3], F1[3], P0[3], P1[3];
+        for (int k = 0; k < 3; k++) {
+            const double e1 = x[3 * i1 + k] - x[3 * i0 + k], e2 = x[3 * i2 + k] - x[3 * i0 + k];
+            const double d1 = dt * (v[3 * i1 + k] - v[3 * i0 + k]), d2 = dt * (v[3 * i2 + k] - v[3 * i0 + k]);
+            F0[k] = e1 * g[0] + e2 * g[2];
+            F1[k] = e1 * g[1] + e2 * g[3];
+            P0[k] = F0[k] + d1 * g[0] + d2 * g[2];
+            P1[k] = F1[k] + d1 * g[1] + d2 * g[3];
+        }
+        /* S0 = (F0^T F0)^(1/2), as corotate's */
+        const double a = dot3(F0, F0), b = dot3(F0, F1), d = dot3(F1, F1), det = a * d - b * b;
+        const double a1 = dot3(P0, P0), b1 = dot3(P0, P1), d1 = dot3(P1, P1);
+        if (!(det > TC_COLLAPSE_DET * (a + d) * (a + d)) || !(a1 * d1 - b1 * b1 > TC_COLLAPSE_DET * (a1 + d1) * (a1 + d1))) {
+            kept++;  /* collapsed at either end: its frame is not a rotation to follow */
+            continue;
+        }
+        const double sd = sqrt(det), st = sqrt(a + d + 2.0 * sd);
+        const double S0[3] = {(a + sd) / st, b / st, (d + sd) / st};
+        double *R = Rall + 6 * t, Rn[6], en[3], sp[3], m0[6], m1[6];
+        corotate(P0, P1, Rn, en);
+        {
+            /* cos of the turn: the trace of R_new R^T on the plane, plus the normals' dot */
+            double n0[3], n1[3];
+            cross3(R, R + 3, n0);
+            cross3(Rn, Rn + 3, n1);
+            const double cos_turn = 0.5 * (dot3(Rn, R) + dot3(Rn + 3, R + 3) + dot3(n0, n1) - 1.0);
+            if (!(cos_turn >= TC_TURN_MAX_COS)) { kept++; continue; }
+        }
+        tensile_part(sig + 3 * t, sp);
+        const double cs = general ? AX[2 * t] : 1.0, sn = general ? AX[2 * t + 1] : 0.0;
+        const double *pl = plastic ? PL + 4 * (size_t)t : NULL;
+        turned_force(R, F0, F1, S0, sp, Q, lambda, mu, general, cs, sn, pl, m0);
+        turned_force(Rn, F0, F1, S0, sp, Q, lambda, mu, general, cs, sn, pl, m1);
+        const double w = A[t] * h;
+        for (int k = 0; k < 3; k++) {
+            const double q0 = m1[k] - m0[k], q1 = m1[3 + k] - m0[3 + k];
+            const double fa = -w * (q0 * g[0] + q1 * g[1]), fb = -w * (q0 * g[2] + q1 * g[3]);
+            dg[3 * i1 + k] += fa; dg[3 * i2 + k] += fb; dg[3 * i0 + k] -= fa + fb;
+        }
+        memcpy(R, Rn, sizeof Rn);
+    }
+    return kept;
+}
+
 TC_HOT __attribute__((noinline)) void tc_tri_world_stress(const tc_cloth *c, size_t t, double S[9])
 {
     tc_world_stress((const double *)tc_vec_ptr(&c->rot) + 6 * t, (const double *)tc_vec_ptr(&c->sig) + 3 * t, S);
@@ -311,21 +461,9 @@ TC_INLINE void assemble_reference(tc_cloth *c, double dt, const bool general)
            resists out-of-plane motion, so a stretched cloth moving sideways was integrated
            explicitly against its tension and blew up; keeping only sigma's positive part keeps
            the system positive definite (compression adds no stiffness: cloth buckles). */
-        double sp00 = 0.0, sp01 = 0.0, sp11 = 0.0;
-        {
-            const double *sg = S2 + 3 * t;
-            const double a = sg[0], d = sg[1], b = sg[2];
-            const double m = 0.5 * (a + d), q = sqrt(0.25 * (a - d) * (a - d) + b * b);
-            const double l1 = m + q, l2 = m - q;
-            if (l2 >= 0.0) { sp00 = a; sp01 = b; sp11 = d; }
-            else if (l1 > 0.0) {
-                /* eigenvector of l1 */
-                double ex = l1 - d, ey = b, fx = b, fy = l1 - a;
-                if (ex * ex + ey * ey < fx * fx + fy * fy) { ex = fx; ey = fy; }
-                const double el = sqrt(ex * ex + ey * ey);
-                if (el > 0) { ex /= el; ey /= el; sp00 = l1 * ex * ex; sp01 = l1 * ex * ey; sp11 = l1 * ey * ey; }
-            }
-        }
+        double sp[3];
+        tensile_part(S2 + 3 * t, sp);
+        const double sp00 = sp[0], sp01 = sp[1], sp11 = sp[2];
         const double wg = ks * A[t] * h;
         for (int i = 0; i < 3; i++)
             for (int l = 0; l < 3; l++) P[3 * i + l] = R[i] * R[l] + R[3 + i] * R[3 + l];

@@ -544,7 +544,7 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
     ClothObject *self = (ClothObject *)o;
     if (!ready(self)) return NULL;
     tc_stats s = tc_cloth_stats(self->c);
-    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:L,s:i,s:i,s:i,s:i,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:i,s:i,s:i,s:L,s:L}", "cg_iterations",
+    return Py_BuildValue("{s:i,s:d,s:d,s:d,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:d,s:i,s:i,s:L,s:L,s:i,s:i,s:i,s:i,s:i,s:d,s:L,s:L,s:i,s:i,s:i,s:i,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:L,s:i,s:i,s:i,s:L,s:L,s:L,s:L}", "cg_iterations",
                          s.cg_iterations, "cg_residual", s.cg_residual, "fem_seconds", s.fem_seconds, "tear_seconds",
                          s.tear_seconds, "steps", (long long)s.steps, "tears_started", (int)s.tears_started, "cuts",
                          (int)s.cuts, "contacts", (int)s.contacts, "vertices", (int)tc_cloth_num_vertices(self->c),
@@ -567,7 +567,8 @@ static PyObject *Cloth_stats(PyObject *o, PyObject *unused)
                          "lifts_carried", (long long)s.lifts_carried, "contact_rounds_capped", (long long)s.contact_rounds_capped,
                          "solves", (int)s.solves, "sgs_solves", (int)s.sgs_solves, "stiff_groups", (int)s.stiff_groups,
                          "stiff_group_failures", (long long)s.stiff_group_failures,
-                         "contact_pushes_capped", (long long)s.contact_pushes_capped);
+                         "contact_pushes_capped", (long long)s.contact_pushes_capped, "rotation_solves", (long long)s.rotation_solves,
+                         "rotations_capped", (long long)s.rotations_capped);
 }
 
 /* _product(p) -> bytes of A p (float64, N x 3) with the last sub-step's matrix: private, for the

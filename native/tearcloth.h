@@ -247,6 +247,10 @@ typedef struct tc_stats {
     int64_t contact_pushes_capped; /* so far: contacts (per sub-step) deeper than one sub-step recovers:
                                       contact_correction x depth / dt passed contact_max_push and the push
                                       out was held to it (the rest is recovered over the next sub-steps) */
+    int64_t rotation_solves;     /* so far: sub-steps solved again about the rotations their first
+                                    solve reached (step.c's Newton on the rotations) */
+    int64_t rotations_capped;    /* so far: sub-steps whose rotations still moved the linearized force
+                                    by more than TC_ROTATION_BAR after TC_ROTATION_SOLVES re-solves: kept */
 } tc_stats;
 /* the smallest tc_stats a snapshot may carry: the layout before contact_directions_merged (older
  * states read with the counters after it at 0; snapshot.c) */

@@ -57,7 +57,9 @@ def test_auto_takes_the_groups_over_the_multigrid_cycle_on_a_fine_slivered_sheet
         st = c.stats()
         assert st["amg_levels"] == 0 and st["stiff_groups"] > 1000 and st["sgs_solves"] == 0
         assert st["substep_splits"] == 0 and st["unconverged_substeps"] == 0
-        assert st["cg_iterations"] < 1000  # ~340
+        # ~340 for a solve; the flap swinging down from flat turns fast enough at 10 ms that its
+        # second step is solved again about the turned frames (step.c), ~800 more
+        assert st["cg_iterations"] < 1000 * st["solves"], (st["cg_iterations"], st["solves"])
 
 
 def test_without_the_groups_the_same_sheet_halves_and_stops_at_the_cap():

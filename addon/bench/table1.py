@@ -108,6 +108,10 @@ def measure_scenario(name: str, steps: int = 200) -> dict:
     out["tearing_before_ms"] = _median_ms(tear)
     out["cg_iterations_median"] = statistics.median(iters)
     out["unconverged_steps"] = int(c.stats()["unconverged_steps"])
+    # sub-steps solved again about their turned frames (step.c's Newton on the rotations), and
+    # those still past its bar after it: so far, the warm-up's included
+    out["rotation_solves"] = int(c.stats()["rotation_solves"])
+    out["rotations_capped"] = int(c.stats()["rotations_capped"])
     out.update(_product_figures(c))
     total_before = [f + t for f, t in zip(fem, tear)]
     # A running tear, the "after" column: the cost of a step while a tip runs (its disc stress, its
