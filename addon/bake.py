@@ -201,6 +201,15 @@ class Progress:
         # their vertices where they were in the world (a resumed state from before pins followed
         # the object): said at the end (pins_text)
         self.pins_left_at: int | None = None
+        # a material with a grain (Material.grained) on triangles whose UVs give no warp direction
+        # (Cloth.warp_fallbacks: their warp runs along world X): the material's name, whether the
+        # mesh has a UV map at all, how many triangles and their polygons (the user's numbering,
+        # ascending); said at the end (warp_text). A fresh bake finds them; a resumed one says
+        # nothing new (its triangles are the torn ones, numbered past the user's polygons).
+        self.warp_material: str | None = None
+        self.warp_has_uv = True
+        self.warp_fallback_triangles = 0
+        self.warp_fallback_polygons: list = []
         self.thinnest_angle_deg: float | None = None
         self.thinnest_polygon: int | None = None
         self.polygons_renumbered_by: tuple = ()  # modifiers above whose numbering thinnest_polygon is in
@@ -312,6 +321,29 @@ class Progress:
         return (f"the mesh has sliver triangles{where}: the solver took {groups} of their "
                 "corners together and converged, more slowly than on a well-shaped mesh; remeshing the slivers "
                 "(e.g. Remesh, or Triangulate with Beauty) makes the bake faster")
+
+    def warp_text(self) -> str | None:
+        """The sentence for the end of a bake whose material has a grain and whose mesh gives no
+        warp direction on some triangles (None otherwise): there the threads run along world X."""
+        n = self.warp_fallback_triangles
+        if not n or self.warp_material is None:
+            return None
+        fix = "unwrap the mesh (UV > Unwrap) so its threads follow the pattern pieces"
+        # a preset's name reads as the material; a user's own values go by "custom" (convert.py)
+        whose = "the material's" if self.warp_material in ("", "custom") else f"{self.warp_material}'s"
+        if not self.warp_has_uv:
+            return (f"the mesh has no UV map, so {whose} warp runs along the world X axis (its weft along Y) on "
+                    f"every triangle, whatever the cloth's shape: {fix}")
+        polygons = self.warp_fallback_polygons
+        where = ""
+        if polygons:
+            shown = ", ".join(map(str, polygons[:10])) + (f" and {len(polygons) - 10} more" if len(polygons) > 10 else "")
+            where = f" (polygon{'s' if len(polygons) != 1 else ''} {shown}"
+            where += f", of the mesh the modifiers above Tear Cloth make: {', '.join(self.polygons_renumbered_by)})" \
+                if self.polygons_renumbered_by else ")"
+        return (f"{n} triangle{'s' if n != 1 else ''}{where} {'are' if n != 1 else 'is'} collapsed in the UV map, so "
+                f"{whose} warp runs along the world X axis there instead of the UV map's u: {fix}, "
+                "or give those faces room in the UV map")
 
     def fragment_text(self) -> tuple[str, bool] | None:
         """(sentence, is_warning) for the end of a bake that removed small pieces (None when none
@@ -509,6 +541,8 @@ class BakeJob:
         elif state is not None and session.pins_follow:
             self._pin_matrix = np.array(state["pin_matrix"])
         self._tracker = self._attribute_tracker()
+        if state is None and plan.material.grained:
+            self._find_warp_fallbacks(session.cloth)
         self.progress.cg_max_iterations = int(session.cloth.solver["cg_max_iterations"])
         self.progress.start_triangles = len(plan.triangles)
         self.progress.start_area = _rest_area(plan.vertices, plan.triangles)
@@ -519,6 +553,19 @@ class BakeJob:
         if self.writer.last_frame is None or self.writer.last_frame < self.start_frame:
             self._write(inputs, save_state=state is None)
         self.progress.vertices = session.cloth.num_vertices
+
+    def _find_warp_fallbacks(self, cloth) -> None:
+        """The fresh cloth's triangles whose UVs give its grained material no warp (progress)."""
+        plan, p = self.plan, self.progress
+        fallbacks = cloth.warp_fallbacks()
+        p.warp_material = plan.material.name
+        p.warp_has_uv = plan.corner_uv is not None
+        p.warp_fallback_triangles = int(fallbacks.size)
+        polygons = plan.triangle_polygons
+        if (fallbacks.size and polygons is not None
+                and len(polygons) == len(plan.triangles) == cloth.num_triangles):  # the plan's own numbering
+            p.warp_fallback_polygons = sorted({int(polygons[k]) for k in fallbacks})
+            p.polygons_renumbered_by = tuple(plan.renumbered_by)
 
     def _attribute_tracker(self) -> "attrs.AttributeTracker | None":
         """The per-frame attributes (``attributes.py``), or None when this cloth cannot have them:

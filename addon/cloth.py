@@ -279,6 +279,15 @@ class Cloth:
         (the Blender side reads them from the face attribute ``tearcloth_grain_angle``)."""
         self._c.set_grain_angles(np.ascontiguousarray(angles_rad, dtype=np.float64).reshape(-1))
 
+    def warp_fallbacks(self) -> np.ndarray:
+        """Indices of the triangles whose UVs give no warp direction: no UV map (all zero), the
+        triangle collapsed in UV space, or UVs so large their gradients overflow. A material whose
+        response has a grain (``Material.grained``: orthotropic, or plastic with different warp and
+        weft yield stresses) runs its warp there along the rest X axis (Y where the triangle is
+        perpendicular to X), turned by the grain angle; for any other material it does not matter.
+        The Blender bake names such triangles' polygons (bake.Progress.warp_text)."""
+        return np.flatnonzero(np.frombuffer(self._c.warp_fallbacks(), np.uint8)).astype(np.int32)
+
     # ---- constraints ----
     def _indices(self, sel, threshold: float = 0.5) -> np.ndarray:
         if isinstance(sel, str):

@@ -116,6 +116,13 @@ class Material:
         return replace(self, **changes).validate()
 
     @property
+    def grained(self) -> bool:
+        """Whether the material's response turns with its warp (the UV map's u direction, turned by
+        the grain angle): orthotropic, or plastic with different warp and weft yield stresses. Hill's
+        criterion with equal yields is von Mises, the same in every direction."""
+        return bool(self.orthotropic or (self.plastic and self.yield_stress != self.yield_stress_weft))
+
+    @property
     def areal_mass(self) -> float:
         """kg/m^2"""
         return self.density * self.thickness

@@ -79,8 +79,11 @@ static void rest_frame(const tc_cloth *c, int32_t t, double *t1, double *t2, dou
     cross3(n, t1, t2);
 }
 
-/* The warp of triangle t from its UVs and grain angle, into w (see the head). */
-static void warp_from_uv(const tc_cloth *c, int32_t t, const double *t1, const double *t2, const double *n, double *w)
+/* The warp's direction (a, b) in triangle t's 2-D rest frame from its UVs, the direction of
+ * increasing u with v constant (not normalised); false when the UVs carry no direction: no UV map
+ * (all zero), the triangle collapsed in UV space, or values so large that their gradients overflow.
+ * Such a triangle's warp is the rest X axis (warp_from_uv), which tc_cloth_warp_fallbacks names. */
+static bool uv_warp(const tc_cloth *c, int32_t t, double *a, double *b)
 {
     const double *uv = (const double *)tc_vec_ptr(&c->uv) + 6 * (size_t)t, *g = (const double *)tc_vec_ptr(&c->grad) + 4 * (size_t)t;
     /* gradients of u and v in the rest frame; the thread v = const runs along perp(grad v) */
@@ -88,11 +91,18 @@ static void warp_from_uv(const tc_cloth *c, int32_t t, const double *t1, const d
     const double gu[2] = {du1 * g[0] + du2 * g[2], du1 * g[1] + du2 * g[3]};
     const double gv[2] = {dv1 * g[0] + dv2 * g[2], dv1 * g[1] + dv2 * g[3]};
     const double det = gu[0] * gv[1] - gu[1] * gv[0];
+    if (!(fabs(det) > TC_UV_DEGENERATE * (gu[0] * gu[0] + gu[1] * gu[1] + gv[0] * gv[0] + gv[1] * gv[1])) || !isfinite(det))
+        return false;
+    *a = gv[1]; *b = -gv[0];  /* perp(grad v), oriented so that u increases along it */
+    if (*a * gu[0] + *b * gu[1] < 0) { *a = -*a; *b = -*b; }
+    return true;
+}
+
+/* The warp of triangle t from its UVs and grain angle, into w (see the head). */
+static void warp_from_uv(const tc_cloth *c, int32_t t, const double *t1, const double *t2, const double *n, double *w)
+{
     double a, b;
-    if (fabs(det) > TC_UV_DEGENERATE * (gu[0] * gu[0] + gu[1] * gu[1] + gv[0] * gv[0] + gv[1] * gv[1]) && isfinite(det)) {
-        a = gv[1]; b = -gv[0];  /* perp(grad v), oriented so that u increases along it */
-        if (a * gu[0] + b * gu[1] < 0) { a = -a; b = -b; }
-    } else {
+    if (!uv_warp(c, t, &a, &b)) {
         /* no usable UVs: the rest X axis in the triangle's plane (Y if the plane is normal to X) */
         double ax[3] = {1.0, 0.0, 0.0};
         if (fabs(n[0]) > TC_AXIS_FALLBACK_NX) { ax[0] = 0.0; ax[1] = 1.0; }
@@ -104,6 +114,17 @@ static void warp_from_uv(const tc_cloth *c, int32_t t, const double *t1, const d
     const double phi = isfinite(own) ? own : c->mat.grain_angle, cp = cos(phi), sp = sin(phi);
     const double ra = a * cp - b * sp, rb = a * sp + b * cp;
     for (int k = 0; k < 3; k++) w[k] = ra * t1[k] + rb * t2[k];
+}
+
+int32_t tc_cloth_warp_fallbacks(const tc_cloth *c, uint8_t *out)
+{
+    int32_t count = 0;
+    for (int32_t t = 0; t < c->nt; t++) {
+        double a, b;
+        out[t] = !uv_warp(c, t, &a, &b);
+        count += out[t];
+    }
+    return count;
 }
 
 void tc_axes_set(tc_cloth *c, int32_t t, bool from_uv)

@@ -414,6 +414,17 @@ static PyObject *Cloth_pin_flags(PyObject *o, PyObject *unused)
     return PyBytes_FromStringAndSize((const char *)tc_cloth_pin_flags(self->c), (Py_ssize_t)tc_cloth_num_vertices(self->c));
 }
 
+static PyObject *Cloth_warp_fallbacks(PyObject *o, PyObject *unused)
+{
+    ClothObject *self = (ClothObject *)o;
+    if (!ready(self)) return NULL;
+    PyObject *out = PyBytes_FromStringAndSize(NULL, (Py_ssize_t)tc_cloth_num_triangles(self->c));
+    char *at = out ? PyBytes_AsString(out) : NULL;  /* (the limited API has no PyBytes_AS_STRING) */
+    if (!at) { Py_XDECREF(out); return NULL; }
+    tc_cloth_warp_fallbacks(self->c, (uint8_t *)at);
+    return out;
+}
+
 static PyObject *Cloth_add_handle(PyObject *o, PyObject *idx)
 {
     ClothObject *self = (ClothObject *)o;
@@ -732,6 +743,8 @@ static PyMethodDef Cloth_methods[] = {
     {"set_pin_goals", Cloth_set_pin_goals, METH_VARARGS,
      "Where pinned vertices (int32 indices) are to be at the end of the next step ((k, 3) float64 m)."},
     {"pin_flags", Cloth_pin_flags, METH_NOARGS, "One byte per vertex, 1 where pinned."},
+    {"warp_fallbacks", Cloth_warp_fallbacks, METH_NOARGS,
+     "One byte per triangle, 1 where its UVs carry no warp direction (the rest X axis is taken)."},
     {"set_pin_springs", Cloth_set_pin_springs, METH_VARARGS,
      "set_pin_springs(vertices, stiffness): soft pins, a spring (N/m, 0 removes it) towards each vertex's goal."},
     {"pin_springs", Cloth_pin_springs, METH_NOARGS, "float64 bytes, one per vertex (N/m), or empty while none is set."},

@@ -314,6 +314,11 @@ int tc_cloth_set_tear_strength(tc_cloth *c, const double *factor, int32_t n);
 /* Per-triangle grain angle (rad) from the UV map's u direction, overriding the material's
  * grain_angle; NaN: the material's. m must be the current triangle count. */
 int tc_cloth_set_grain_angles(tc_cloth *c, const double *angles, int32_t m);
+/* out[t] = 1 (num_triangles bytes) where triangle t's UVs carry no warp direction (no UV map, the
+ * triangle collapsed in UV space, or UVs so large their gradients overflow): there the warp of an
+ * orthotropic or plastic material is the rest X axis (Y where the triangle is normal to X), turned
+ * by the grain angle. Returns how many. */
+int32_t tc_cloth_warp_fallbacks(const tc_cloth *c, uint8_t *out);
 /* Tears from vertex `start` along `direction` (projected on the surface) for `length` metres,
  * whatever the stress. Returns the number of cut segments in *cuts. */
 int tc_cloth_scripted_tear(tc_cloth *c, int32_t start, const double direction[3], double length,

@@ -277,6 +277,36 @@ def test_a_bake_of_a_mesh_with_slivers_says_so_naming_the_thinnest_polygon(tmp_p
     assert "the mesh you made has none" in text and "polygon" not in text and "remesh" not in text.lower(), text
 
 
+def test_a_grained_material_on_faces_without_a_warp_is_said_naming_their_polygons(tmp_path):
+    """Denim's warp follows the UV map's u: faces collapsed in the UV map, or a mesh with no UV map,
+    give it none, and the warp runs along world X there. The end of the bake says so, naming the
+    user's polygons (or the missing map); cotton (no grain) and a whole UV map say nothing."""
+    def begun(name, mat, corner_uv):
+        plan = plan_for(tmp_path / name, frames=(1, 2))
+        plan.material, plan.corner_uv = mat, corner_uv
+        plan.triangle_polygons = np.arange(len(plan.triangles), dtype=np.int32) // 2 + 100  # quads from 100
+        job = BakeJob(plan)
+        job.begin(inputs(1, plan))
+        assert job.advance(inputs(2, plan))
+        job.close()
+        return job.progress
+
+    v, t = sheet(0.1, 0.1, 11, 11)
+    uv = v[t][:, :, :2] * 10.0
+    assert begun("whole", material("denim"), uv).warp_text() is None
+    assert begun("cotton", material("cotton"), None).warp_text() is None
+    holes = uv.copy()
+    holes[[6, 7, 30]] = 0.25  # the two triangles of polygon 103 and one of 115 collapsed to a point
+    p = begun("holes", material("denim"), holes)
+    assert p.warp_fallback_triangles == 3 and p.warp_fallback_polygons == [103, 115]
+    assert p.warp_text() == (
+        "3 triangles (polygons 103, 115) are collapsed in the UV map, so denim's warp runs along the world X axis "
+        "there instead of the UV map's u: unwrap the mesh (UV > Unwrap) so its threads follow the pattern pieces, "
+        "or give those faces room in the UV map")
+    text = begun("none", material("denim"), None).warp_text()
+    assert text.startswith("the mesh has no UV map, so denim's warp runs along the world X axis"), text
+
+
 def test_a_swept_stage_without_its_thread_is_said_at_the_end_of_the_bake(tmp_path, monkeypatch):
     """A bake with self-collision whose detector could not start the swept stage's thread (the
     system's thread limit; forced here by reporting every step as run without it): the bake counts

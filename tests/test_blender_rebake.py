@@ -1138,6 +1138,44 @@ SEAM = '''
 '''
 
 
+WARPLESS = '''
+    from tearcloth.blender import bake, convert
+    from tearcloth.materials import MATERIALS
+    folder = sys.argv[1]
+    obj = build_scene(folder, frame_end=2)
+    convert.material_to_settings(MATERIALS["denim"], obj.tearcloth, bpy.context.scene)
+    out = {}
+    r = bake.Reports()
+    bake.bake_object(bpy.context, obj, reports=r)
+    out["whole"] = r.items
+    # polygons 5 and 40 collapsed to a point in the UV map (a careless unwrap, a merged island)
+    uv = obj.data.uv_layers["UVMap"]
+    for k in (5, 40):
+        for loop in obj.data.polygons[k].loop_indices:
+            uv.data[loop].uv = (0.5, 0.5)
+    r = bake.Reports()
+    bake.bake_object(bpy.context, obj, reports=r)
+    out["collapsed"] = r.items
+    obj.data.uv_layers.remove(uv)
+    r = bake.Reports()
+    bake.bake_object(bpy.context, obj, reports=r)
+    out["none"] = r.items
+    result(out)
+'''
+
+
+def test_a_woven_material_without_a_warp_is_said_naming_the_polygons(tmp_path):
+    """Denim's threads follow the UV map's u. Faces collapsed in the UV map, or a mesh with no UV
+    map, give it no direction there: the warp ran along world X and nothing said so. The bake now
+    warns, naming the user's polygons (or the missing map); a whole UV map says nothing."""
+    got = run_blender(tmp_path, WARPLESS, tmp_path)
+    assert not any("UV map" in m for _, m in got["whole"]), got["whole"]
+    said = [m for level, m in got["collapsed"] if level == "WARNING" and "collapsed in the UV map" in m]
+    assert len(said) == 1 and "4 triangles (polygons 5, 40)" in said[0] and "denim's warp" in said[0], got["collapsed"]
+    said = [m for level, m in got["none"] if level == "WARNING" and "has no UV map" in m]
+    assert len(said) == 1 and said[0].startswith("Sheet: the mesh has no UV map, so denim's warp"), got["none"]
+
+
 def test_a_seam_left_unmerged_is_said(tmp_path):
     """Two islands whose open edges coincide (a garment's seam, or a Mirror's middle, not merged)
     are separate pieces to the solver: the seam opened by half a metre with '0 tears' and nothing

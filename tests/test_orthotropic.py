@@ -204,6 +204,30 @@ def test_warp_follows_the_uv_map_and_the_grain_angle():
         Cloth(V, T, material("cotton", orthotropic=True, young=1e6, young_weft=1e8, poisson=0.3))
 
 
+def test_triangles_whose_uvs_give_no_warp_are_named_and_take_the_x_axis():
+    """warp_fallbacks names exactly the triangles whose UVs carry no direction - collapsed to a
+    point or a line in UV space, or so large their gradients overflow - and those take the rest X
+    axis while the others follow the UV map; no UV map at all names every triangle. Which
+    materials care: Material.grained."""
+    V, T = sheet(0.1, 0.1, 6, 6, jitter=0.2, seed=1)
+    a = np.radians(30)
+    uv = V[:, :2] @ np.array([[np.cos(a), np.sin(a)], [-np.sin(a), np.cos(a)]]).T * 3.0  # u along 30 degrees
+    corner = uv[T].copy()  # (m, 3, 2) per corner, as Blender gives them
+    corner[4] = corner[4, 0]                                  # collapsed to a point
+    corner[9, 2] = corner[9, 0] + 0.5 * (corner[9, 1] - corner[9, 0])  # collapsed to a line
+    corner[13] *= 1e300                                       # finite, but its gradients overflow
+    c = Cloth(V, T, material("denim"), gravity=(0, 0, 0), uv=corner)
+    assert c.warp_fallbacks().tolist() == [4, 9, 13]
+    w = c.warp
+    keep = np.setdiff1d(np.arange(len(T)), [4, 9, 13])
+    assert np.allclose(w[keep], [np.cos(a), np.sin(a), 0], atol=1e-9)
+    assert np.allclose(w[[4, 9, 13]], [1, 0, 0], atol=1e-9)
+    assert np.array_equal(Cloth(V, T, material("denim"), gravity=(0, 0, 0)).warp_fallbacks(), np.arange(len(T)))
+    assert material("denim").grained and material("paper").grained and not material("cotton").grained
+    assert not material("cotton", plastic=True, yield_stress=5e6, yield_stress_weft=5e6).grained
+    assert material("cotton", plastic=True, yield_stress=5e6, yield_stress_weft=4e6).grained
+
+
 # ---------------- tears along the threads ----------------
 # The scenario is the bench's (addon/bench/materials.py: materials.denim_bias), so the figure the
 # bench reports is the one tested here.

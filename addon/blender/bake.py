@@ -288,6 +288,8 @@ class BakeRun:
                 self.reports.warning(f"{self.object_name}: {p.fallback_text()}")
             if p.rotation_text():
                 self.reports.warning(f"{self.object_name}: {p.rotation_text()}")
+            if p.warp_text():
+                self.reports.warning(f"{self.object_name}: {p.warp_text()}")
             if p.sliver_text():
                 self.reports.info(f"{self.object_name}: {p.sliver_text()}")
             if p.pins_text():

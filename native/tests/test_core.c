@@ -1688,6 +1688,26 @@ static void test_axes_stored_when_read(void)
         CHECK(tc_cloth_set_material(d, &wov) == TC_OK && !memcmp(tc_vec_ptr(&d->taxis), tc_vec_ptr(&b->taxis), 16 * (size_t)m),
               "stored axes ignore own grain angles");
     }
+    /* triangles whose UVs give no warp direction are named: none here; then one collapsed to a
+       point, one to a line, one so large its gradients overflow, and a sheet with no UV map */
+    uint8_t *fb = malloc((size_t)m);
+    CHECK(tc_cloth_warp_fallbacks(b, fb) == 0, "a whole UV map has warp fallbacks");
+    for (int q = 0; q < 6; q++) { uv[6 * 1 + q] = 0.25; uv[6 * 5 + q] *= 1e300; }
+    for (int q = 0; q < 2; q++) uv[6 * 3 + 4 + q] = 0.5 * (uv[6 * 3 + q] + uv[6 * 3 + 2 + q]);
+    tc_cloth *e = tc_cloth_create(V, n, T, m, NULL, 0, uv, NULL, 0, &wov, msg, sizeof msg);
+    tc_cloth *f = tc_cloth_create(V, n, T, m, NULL, 0, NULL, NULL, 0, &wov, msg, sizeof msg);
+    CHECK(e && f, "warp fallback cloths: %s", msg);
+    if (e && f) {
+        int32_t got = tc_cloth_warp_fallbacks(e, fb);
+        CHECK(got == 3 && fb[1] && fb[3] && fb[5] && !fb[0] && !fb[2] && !fb[4], "collapsed UVs: %d fallbacks", (int)got);
+        const double *w = tc_vec_ptr(&e->twarp);
+        /* X turned by the grain angle about the normal */
+        CHECK(fabs(w[3] - cos(wov.grain_angle)) < 1e-12 && fabs(w[15] - cos(wov.grain_angle)) < 1e-12 && fabs(w[5]) < 1e-12,
+              "a fallback warp is not X turned by the grain (%g %g %g)", w[3], w[4], w[5]);
+        CHECK(tc_cloth_warp_fallbacks(f, fb) == m, "no UV map: every triangle a fallback");
+    }
+    free(fb);
+    tc_cloth_destroy(e); tc_cloth_destroy(f);
     free(own); free(V); free(T); free(uv);
     tc_cloth_destroy(a); tc_cloth_destroy(b); tc_cloth_destroy(d);
 }
