@@ -16,7 +16,9 @@
  *
  * Which: the strength of an edge's block is |A_ij|_F / sqrt(|A_ii|_F |A_jj|_F): near 1 when its
  * vertices' own stiffness and mass are mostly this one coupling. A mesh has slivers when some
- * block reaches TC_STIFF_SLIVER (0.94); then every pair from TC_STIFF_STRENGTH (0.3) is joined,
+ * block reaches TC_STIFF_SLIVER (0.94) at a thin triangle (a corner under TC_STIFF_SLIVER_DEG, 2
+ * degrees, at one of its vertices: a lone obtuse speck a tear set free reaches 0.95 too, and the
+ * sweeps need no groups for it); then every pair from TC_STIFF_STRENGTH (0.3) is joined,
  * strongest first, into groups of at most TC_STIFF_GROUP_MAX vertices (a chain of slivers is cut
  * there: a weaker preconditioner, never a wrong one). The bar, measured (the strongest block, the
  * same at dt 1, 2 and 10 ms: a sliver's stiffness dwarfs its corners' masses): the sliver sheet
@@ -67,6 +69,11 @@ struct tc_stiff {
     double scan_dt;
     int scan_age;
     bool scanned, scan_sliver;
+    /* the smallest rest angle (rad) of the triangles at each vertex (nv), made when a scan first
+       meets a strong block, for the pattern and vertex count it was made for (the sliver test) */
+    float *vangle;
+    uint64_t angle_version;
+    int32_t angle_nv;
     size_t npairs, pair_cap;
     size_t gvert_cap, fac_cap, group_cap;
 };
@@ -75,7 +82,7 @@ void tc_stiff_free(tc_stiff *g)
 {
     if (!g) return;
     free(g->parent); free(g->size); free(g->dnorm); free(g->gptr); free(g->gvert); free(g->fac); free(g->foff);
-    free(g->ok); free(g->pairs);
+    free(g->ok); free(g->pairs); free(g->vangle);
     free(g);
 }
 
@@ -200,6 +207,36 @@ static bool factor_group(const tc_cloth *c, const int32_t *vert, int k, double *
     return true;
 }
 
+/* Each vertex's smallest rest angle over its triangles (g->vangle), made again only when the
+ * pattern or the vertex count changed; -1 when out of memory */
+static int vertex_angles(const tc_cloth *c, tc_stiff *g)
+{
+    const int32_t nv = c->nv;
+    if (g->vangle && g->angle_version == c->rows_version && g->angle_nv == nv) return 0;
+    float *a = realloc(g->vangle, sizeof(float) * (size_t)(nv > 0 ? nv : 1));
+    if (!a) return -1;
+    g->vangle = a;
+    for (int32_t i = 0; i < nv; i++) a[i] = (float)TC_PI;
+    const double *X = tc_vec_ptr(&c->rest);
+    const int32_t *T = tc_vec_ptr(&c->tri);
+    for (int32_t t = 0; t < c->nt; t++) {
+        const int32_t *v = T + 3 * (size_t)t;
+        double smallest = TC_PI;
+        for (int k = 0; k < 3; k++) {  /* the corner at v[k]: atan2(|e1 x e2|, e1 . e2) */
+            const double *o = X + 3 * (size_t)v[k], *p = X + 3 * (size_t)v[(k + 1) % 3], *q = X + 3 * (size_t)v[(k + 2) % 3];
+            const double e1[3] = {p[0] - o[0], p[1] - o[1], p[2] - o[2]}, e2[3] = {q[0] - o[0], q[1] - o[1], q[2] - o[2]};
+            const double x[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+            const double angle = atan2(sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]), e1[0] * e2[0] + e1[1] * e2[1] + e1[2] * e2[2]);
+            if (angle < smallest) smallest = angle;
+        }
+        for (int k = 0; k < 3; k++)
+            if (smallest < a[v[k]]) a[v[k]] = (float)smallest;
+    }
+    g->angle_version = c->rows_version;
+    g->angle_nv = nv;
+    return 0;
+}
+
 /* The groups of this sub-step's matrix and their factors; 0, or -1 when out of memory (then no
  * group: block Jacobi as it was) */
 int tc_stiff_build(tc_cloth *c, double dt)
@@ -239,7 +276,11 @@ int tc_stiff_build(tc_cloth *c, double dt)
         g->dnorm[i] = sqrt(s);
     }
     /* a sliver first (one pass, nothing kept: on a well-shaped mesh that is all this costs), then
-       the strong pairs, each edge once (from its lower-numbered row) */
+       the strong pairs, each edge once (from its lower-numbered row). A sliver is a strong block
+       at a thin triangle (a corner under TC_STIFF_SLIVER_DEG at one of its vertices): a strong
+       block at a well-shaped triangle - a lone obtuse speck a tear set free, stretched - is one the
+       sweeps take out themselves (constants.h: the race's torn shirt, where the groups made its
+       sub-steps 3x slower) */
     const char *env = getenv("TEARCLOTH_STIFF_STRENGTH");
     const double strength = env && atof(env) > 0 ? atof(env) : TC_STIFF_STRENGTH;
     const double t2 = strength * strength, sl2 = TC_STIFF_SLIVER * TC_STIFF_SLIVER;
@@ -249,7 +290,9 @@ int tc_stiff_build(tc_cloth *c, double dt)
             const int32_t j = rc[s];
             if (j <= i) continue;
             const double dd = g->dnorm[i] * g->dnorm[j];
-            if (dd > 0 && norm2_block9(RB + 9 * (size_t)s) >= sl2 * dd) { sliver = true; break; }
+            if (!(dd > 0) || !(norm2_block9(RB + 9 * (size_t)s) >= sl2 * dd)) continue;
+            if (vertex_angles(c, g)) return -1;
+            if (fminf(g->vangle[i], g->vangle[j]) < (float)(TC_STIFF_SLIVER_DEG * TC_PI / 180.0)) { sliver = true; break; }
         }
     g->scanned = true;
     g->scan_sliver = sliver;
