@@ -156,7 +156,8 @@ class FrameInputs:
 
 
 # A starting triangle is called a sliver in the bake's closing text below this smallest corner
-# (degrees): the core groups a sliver's corners from about 1.5 degrees (TC_STIFF_SLIVER, 0.94)
+# (degrees): the core groups a sliver's corners where a block reaches TC_STIFF_SLIVER (0.94, about
+# 1.5 degrees) at a triangle with a corner under TC_STIFF_SLIVER_DEG (2)
 SLIVER_DEG = 5.0
 
 
