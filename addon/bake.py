@@ -387,6 +387,21 @@ class Progress:
                 "splitting: the motion there is less accurate; raise CG Iterations")
 
 
+def find_warp_fallbacks(plan: BakePlan, cloth, progress: Progress) -> None:
+    """Into ``progress`` (its warp_text): the triangles of a cloth just built from ``plan`` whose UVs
+    give the plan's material no warp direction (Cloth.warp_fallbacks), as the user's polygons. For
+    a bake's first frame and a live session's start; the caller checks ``plan.material.grained``."""
+    fallbacks = cloth.warp_fallbacks()
+    progress.warp_material = plan.material.name
+    progress.warp_has_uv = plan.corner_uv is not None
+    progress.warp_fallback_triangles = int(fallbacks.size)
+    polygons = plan.triangle_polygons
+    if (fallbacks.size and polygons is not None
+            and len(polygons) == len(plan.triangles) == cloth.num_triangles):  # the plan's own numbering
+        progress.warp_fallback_polygons = sorted({int(polygons[k]) for k in fallbacks})
+        progress.polygons_renumbered_by = tuple(plan.renumbered_by)
+
+
 def _rest_area(vertices, triangles) -> float:
     """Total area (m^2) of triangles (m, 3) over vertices (n, 3) m."""
     v = np.asarray(vertices, dtype=np.float64)
@@ -557,16 +572,7 @@ class BakeJob:
 
     def _find_warp_fallbacks(self, cloth) -> None:
         """The fresh cloth's triangles whose UVs give its grained material no warp (progress)."""
-        plan, p = self.plan, self.progress
-        fallbacks = cloth.warp_fallbacks()
-        p.warp_material = plan.material.name
-        p.warp_has_uv = plan.corner_uv is not None
-        p.warp_fallback_triangles = int(fallbacks.size)
-        polygons = plan.triangle_polygons
-        if (fallbacks.size and polygons is not None
-                and len(polygons) == len(plan.triangles) == cloth.num_triangles):  # the plan's own numbering
-            p.warp_fallback_polygons = sorted({int(polygons[k]) for k in fallbacks})
-            p.polygons_renumbered_by = tuple(plan.renumbered_by)
+        find_warp_fallbacks(self.plan, cloth, self.progress)
 
     def _attribute_tracker(self) -> "attrs.AttributeTracker | None":
         """The per-frame attributes (``attributes.py``), or None when this cloth cannot have them:

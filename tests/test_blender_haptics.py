@@ -512,8 +512,24 @@ def test_unplug_stop_button_firmware_homing_errors_keyboard_and_modal_events(tmp
                       state=run.state, shown=shown, mesh_back=obj.data.as_pointer() == original,
                       threads=live_threads())
         out["modal"] = routed
+
+        # a woven material on a mesh without a UV map: its warp runs along world X, said at the start
+        from tearcloth.blender import convert
+        from tearcloth.materials import MATERIALS
+        convert.material_to_settings(MATERIALS["denim"], obj.tearcloth, bpy.context.scene)
+        obj.data.uv_layers.remove(obj.data.uv_layers["UVMap"])
+        run = hs.HapticRun(ctx, obj)
+        run.start(ctx)
+        hs.run_for(ctx, run, 0.1)
+        assert op("haptic_stop", obj) == {"FINISHED"}
+        run.tick(ctx)
+        out["warpless"] = dict(state=run.finish(ctx), reports=run.reports.items)
         result(out)
     '''), tmp_path)
+    w = got["warpless"]
+    assert w["state"] == "done" and any(
+        level == "WARNING" and "Sheet: the mesh has no UV map, so denim's warp runs along the world X axis" in m
+        for level, m in w["reports"]), w["reports"]
     u = got["unplug"]
     assert u["ended_by_itself"] and u["seconds"] < 5.0 and u["state"] == "lost"
     assert any(level == "ERROR" and "device lost on the right hand" in m and "connection lost" in m

@@ -75,7 +75,7 @@ import bpy
 import numpy as np
 
 from .. import spaces
-from ..bake import delete_state, frame_span, make_session
+from ..bake import Progress, delete_state, find_warp_fallbacks, frame_span, make_session
 from ..cache import CacheError, CacheWriter
 from ..haptics import discovery as devices
 from ..haptics.device import DeviceState, HapticError, Workspace
@@ -329,6 +329,11 @@ class HapticRun:
             self.plan = plan
             self.matrix = inputs.object_matrix
             session, _held = make_session(plan, inputs.bodies, 0.0)
+            if plan.material.grained:  # said at the start, as a bake says it at its end
+                said = Progress(obj.name, plan.frame_start, plan.frame_end)
+                find_warp_fallbacks(plan, session.cloth, said)
+                if said.warp_text():
+                    r.warning(f"{obj.name}: {said.warp_text()}")
             self.servo_fallback = None  # why the servo runs in threads although the process was asked for
             use_process = settings.servo == "PROCESS"
             if use_process:
