@@ -401,12 +401,19 @@ class Cloth:
         k = len(vertex)
         if friction is not None and np.ndim(friction) == 0:
             friction = np.full(k, float(friction))
+        def rows(a, name, cols):
+            """a as (k, cols) (or (k,) when cols is 0), or a message naming the argument: numpy's
+            reshape said only 'cannot reshape array of size 3 into shape (2,3)'"""
+            arr = _f64(a, name)
+            want = (k, cols) if cols else (k,)
+            if arr.size != k * max(cols, 1):
+                raise InvalidInputError(f"{name} must have shape {want} for {k} contact vertices, got {arr.shape}")
+            return arr.reshape(want)
+
         self._c.set_contacts(
-            vertex,
-            _f64(normal, "normal").reshape(k, 3) if k else np.zeros((0, 3)),
-            _f64(depth, "depth").reshape(-1),
-            None if velocity is None else (_f64(velocity, "velocity").reshape(k, 3) if k else np.zeros((0, 3))),
-            None if friction is None else _f64(friction, "friction").reshape(-1),
+            vertex, rows(normal, "normal", 3), rows(depth, "depth", 0),
+            None if velocity is None else rows(velocity, "velocity", 3),
+            None if friction is None else rows(friction, "friction", 0),
         )
 
     def clear_contacts(self) -> None:

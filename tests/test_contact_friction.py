@@ -218,3 +218,28 @@ def test_a_vertex_squeezed_between_near_opposite_contacts_is_not_flung():
     assert np.linalg.norm(tight.velocities[i]) == pytest.approx(np.sqrt(2) * z, rel=1e-9), tight.velocities[i]
     assert v2 @ n1 == pytest.approx(v2 @ n3, abs=1e-9)  # shared equally, below what each asks
     assert cloth2.stats()["contact_speed_clamps"] == 1
+
+
+@pytest.mark.parametrize("args, said", [
+    (([0, 1], [[0, 0, 1], [0, 0, np.nan]], [0, 0]), "contact 1: normal is not a unit vector"),
+    (([0, 1], [[0, 0, 0], [0, 0, 1]], [0, 0]), "contact 0: normal is not a unit vector (length 0)"),
+    (([1], [[0, 0, 1]], [-0.5]), "contact 0: depth must be >= 0 and finite"),
+    (([1], [[0, 0, 1]], [0.0], [[np.inf, 0, 0]]), "contact 0: surface velocity is not finite"),
+    (([1], [[0, 0, 1]], [0.0], None, -1.0), "contact 0: friction must lie in [0, 100)"),
+    (([500], [[0, 0, 1]], [0.0]), "vertex index 500 (item 0) is outside [0, 121)"),
+    (([1, 2], [[0, 0, 1]], [0.0, 0.0]), "normal must have shape (2, 3) for 2 contact vertices, got (1, 3)"),
+    (([1, 2], [[0, 0, 1], [0, 0, 1]], [0.0]), "depth must have shape (2,) for 2 contact vertices, got (1,)"),
+])
+def test_bad_contacts_are_refused_by_name(args, said):
+    """A script's contacts are checked at the boundary and refused with what is wrong, the cloth
+    left as it was (a mismatched length used to surface as numpy's 'cannot reshape array of size 3
+    into shape (2,3)')."""
+    from tearcloth.cloth import InvalidInputError
+
+    V, T = sheet(0.1, 0.1, 11, 11)
+    cloth = Cloth(V, T, material("cotton"))
+    with pytest.raises(InvalidInputError) as err:
+        cloth.set_contacts(*args)
+    assert said in str(err.value), str(err.value)
+    cloth.step(DT)
+    assert np.isfinite(cloth.positions).all() and cloth.stats()["contacts"] == 0
