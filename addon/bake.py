@@ -44,6 +44,7 @@ import queue
 import sys
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -782,7 +783,9 @@ def make_session(plan: BakePlan, bodies: dict, start_time: float, state: dict | 
     if plan.pin_group:
         cloth.pin_weights(plan.pin_group, plan.pin_stiffness)
     session = Session(cloth, plan.collision, start_time=start_time)
-    handles = [cloth.add_handle(group) for group in plan.handle_groups]
+    with warnings.catch_warnings():  # a handle over pins: said in the user's terms by the plan's reports
+        warnings.simplefilter("ignore", UserWarning)
+        handles = [cloth.add_handle(group) for group in plan.handle_groups]
     for h in handles:
         session.set_handle_keyframe(h, np.eye(4), session.time)
     for name, tris in plan.body_triangles.items():

@@ -14,6 +14,7 @@ it was made from alive; after a step that tore, take a new one to see the added 
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Iterable, Mapping, Sequence
 
@@ -360,10 +361,18 @@ class Cloth:
         return int(hard.sum()), int(soft.sum())
 
     def add_handle(self, vertices) -> int:
-        """Grasp vertices (indices, mask or group name) as one handle; returns the handle id."""
+        """Grasp vertices (indices, mask or group name) as one handle; returns the handle id. A
+        pinned vertex it grasps follows the handle (the pin no longer holds it): said with a
+        UserWarning naming them, as the Blender bake says it (blender/inputs.py)."""
         idx = self._indices(vertices)
         h = self._c.add_handle(idx)
         self._handles[h] = idx
+        pinned = np.unique(idx[self.pinned[idx]]) if idx.size else idx
+        if pinned.size:
+            shown = ", ".join(map(str, pinned[:10])) + (", ..." if pinned.size > 10 else "")
+            warnings.warn(f"handle {h} grasps {pinned.size} pinned {'vertices' if pinned.size != 1 else 'vertex'} "
+                          f"({shown}): the handle moves {'them' if pinned.size != 1 else 'it'}, the pin does "
+                          "not hold", UserWarning, stacklevel=2)
         return h
 
     def set_handle_target(self, handle: int, matrix) -> None:

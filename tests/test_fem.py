@@ -405,3 +405,24 @@ def test_a_contact_deeper_than_one_step_recovers_is_counted():
     c.step(1e-3, substeps=2)
     assert c.stats()["contact_pushes_capped"] == 3
     assert c.positions[1, 2] - V[1, 2] <= 0.1 * 2e-3 * (1 + 1e-9) + 1e-12  # at most the capped speed over 2 ms
+
+
+def test_a_handle_over_pinned_vertices_is_said_and_moves_them():
+    """The handle's grasp wins over a pin in the solver; the scripting API said nothing (Blender's
+    bake warns): now a UserWarning names the pinned vertices the handle moves. A handle clear of
+    the pins says nothing."""
+    import warnings
+
+    from meshes import sheet
+
+    V, T = sheet(0.1, 0.1, 11, 11)
+    c = Cloth(V, T, material("cotton"), gravity=(0, 0, 0))
+    c.pin(np.arange(11))  # the bottom row
+    with pytest.warns(UserWarning, match=r"handle 0 grasps 3 pinned vertices \(0, 1, 2\): the handle moves them"):
+        h = c.add_handle(np.arange(3))
+    c.move_handle(h, (0.0, -0.01, 0.0))
+    c.step(1e-3)
+    assert np.allclose(c.positions[:3, 1], V[:3, 1] - 0.01)  # moved: the pin did not hold them
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        c.add_handle(np.arange(110, 121))  # the top row: nothing pinned
